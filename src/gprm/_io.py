@@ -1,0 +1,78 @@
+"""Small file helpers shared by all stages: atomic writes and NetCDF reading with clear errors.
+
+Outputs are written to a temporary file in the destination folder and moved into place, so an
+interrupted or failed run never leaves a half-written file behind and never touches inputs.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import os
+import tempfile
+from pathlib import Path
+from typing import Any, Iterator
+
+from gprm.errors import GprmInputError
+
+
+@contextlib.contextmanager
+def atomic_path(path: str | os.PathLike) -> Iterator[Path]:
+    """Yield a temporary path beside ``path``; on success move it onto ``path``.
+
+    On an exception the temporary file is removed and ``path`` is left as it was.
+    """
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".part", dir=path.parent)
+    os.close(fd)
+    tmp_path = Path(tmp)
+    try:
+        yield tmp_path
+        os.replace(tmp_path, path)
+    except BaseException:
+        with contextlib.suppress(FileNotFoundError):
+            tmp_path.unlink()
+        raise
+
+
+def write_text_atomic(path: str | os.PathLike, text: str) -> None:
+    with atomic_path(path) as tmp:
+        tmp.write_text(text, encoding="utf-8")
+
+
+def write_json_atomic(path: str | os.PathLike, obj: Any) -> None:
+    write_text_atomic(path, json.dumps(obj, indent=2, allow_nan=False) + "\n")
+
+
+def write_netcdf_atomic(ds, path: str | os.PathLike) -> None:
+    """Write an xarray Dataset to NetCDF4 atomically."""
+    with atomic_path(path) as tmp:
+        ds.to_netcdf(tmp, engine="netcdf4")
+
+
+def open_netcdf(path: str | os.PathLike, *, what: str = "NetCDF file"):
+    """Load a NetCDF file fully into memory (the file is closed afterwards, never modified)."""
+    import xarray as xr
+
+    path = Path(path)
+    if not path.exists():
+        raise GprmInputError(f"{what} does not exist", source=str(path))
+    try:
+        with xr.open_dataset(path, engine="netcdf4") as ds:
+            return ds.load()
+    except GprmInputError:
+        raise
+    except Exception as exc:  # corrupted or not NetCDF at all
+        raise GprmInputError(f"cannot be read as {what} ({type(exc).__name__}: {exc})",
+                             source=str(path)) from None
+
+
+def read_json(path: str | os.PathLike, *, what: str = "JSON file") -> Any:
+    path = Path(path)
+    if not path.exists():
+        raise GprmInputError(f"{what} does not exist", source=str(path))
+    try:
+        return json.loads(path.read_text(encoding="utf-8"))
+    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+        raise GprmInputError(f"is not valid JSON ({exc})", source=str(path)) from None

@@ -1,0 +1,23 @@
+"""The one error type for bad input.
+
+Every check of user input raises :class:`GprmInputError` with the file (or source), the field
+and the problem, so that the CLI can print it on one line and exit non-zero.
+"""
+
+from __future__ import annotations
+
+
+class GprmInputError(ValueError):
+    """Bad input: names the source (file), the field and what is wrong with it."""
+
+    def __init__(self, problem: str, *, source: str | None = None, field: str | None = None):
+        self.problem = problem
+        self.source = None if source is None else str(source)
+        self.field = field
+        parts = []
+        if self.source:
+            parts.append(self.source)
+        if field:
+            parts.append(f"field '{field}'")
+        prefix = ": ".join(parts)
+        super().__init__(f"{prefix}: {problem}" if prefix else problem)

@@ -1,0 +1,144 @@
+"""Parameter files (TOML, see ``shared/spec/INTERFACES.md``) and unit handling with pint.
+
+A value is a string with a unit (``"2.7 mm"``), a bare number in SI, or an inline table
+``{ value = "12.4 g", fit = true, lower = "5 g", upper = "20 g" }``.
+"""
+
+from __future__ import annotations
+
+import functools
+import math
+import os
+import tomllib
+from pathlib import Path
+from typing import Any
+
+import pint
+
+from gprm._io import write_text_atomic
+from gprm.errors import GprmInputError
+from gprm.params.core import ParameterSet, paper, validate_values
+from gprm.params.registry import REGISTRY
+
+
+@functools.lru_cache(maxsize=1)
+def ureg() -> pint.UnitRegistry:
+    return pint.UnitRegistry()
+
+
+def to_si(text_or_number: Any, name: str, *, source: str = "parameters") -> float:
+    """Convert a quantity for parameter ``name`` to SI, checking its dimension."""
+    spec = REGISTRY[name]
+    u = ureg()
+    target = u.Quantity(1.0, spec.unit)
+    if isinstance(text_or_number, bool):
+        raise GprmInputError("expected a number or a quantity string, got a boolean",
+                             source=source, field=name)
+    if isinstance(text_or_number, (int, float)):
+        return float(text_or_number)
+    if not isinstance(text_or_number, str):
+        raise GprmInputError(f"expected a number or a quantity string, got {text_or_number!r}",
+                             source=source, field=name)
+    try:
+        q = u.Quantity(text_or_number)
+    except Exception as exc:
+        raise GprmInputError(f"cannot parse quantity {text_or_number!r} ({exc})",
+                             source=source, field=name) from None
+    if not isinstance(q, pint.Quantity):  # a bare number in a string
+        return float(q)
+    if q.dimensionality != target.dimensionality:
+        raise GprmInputError(
+            f"unit of {text_or_number!r} has dimension {q.dimensionality}, expected "
+            f"{target.dimensionality} (e.g. {spec.unit})", source=source, field=name)
+    return float(q.to_base_units().magnitude)
+
+
+def from_si(value: float, name: str) -> float:
+    """Express an SI value in the parameter's display unit."""
+    u = ureg()
+    spec = REGISTRY[name]
+    base = u.Quantity(1.0, spec.unit).to_base_units().magnitude
+    return value / base
+
+
+def load_params(path: str | os.PathLike | None = None, *, base: ParameterSet | None = None) -> ParameterSet:
+    """Resolve a parameter file on top of ``base`` (default: the ``paper`` set)."""
+    base = paper() if base is None else base
+    if path is None:
+        return base
+    path = Path(path)
+    src = str(path)
+    if not path.exists():
+        raise GprmInputError("parameter file does not exist", source=src)
+    try:
+        doc = tomllib.loads(path.read_text(encoding="utf-8"))
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
+        raise GprmInputError(f"invalid TOML ({exc})", source=src) from None
+    table = doc.get("parameters")
+    if not isinstance(table, dict):
+        raise GprmInputError("missing [parameters] table", source=src)
+    values = dict(base.values)
+    fitted = list(base.fitted)
+    bounds = dict(base.bounds)
+    for name, entry in table.items():
+        if name not in REGISTRY:
+            raise GprmInputError("unknown parameter name", source=src, field=name)
+        if isinstance(entry, dict):
+            extra = set(entry) - {"value", "fit", "lower", "upper"}
+            if extra:
+                raise GprmInputError(f"unknown key(s) {sorted(extra)}", source=src, field=name)
+            if "value" not in entry:
+                raise GprmInputError("missing 'value'", source=src, field=name)
+            values[name] = to_si(entry["value"], name, source=src)
+            if "fit" in entry:
+                if not isinstance(entry["fit"], bool):
+                    raise GprmInputError("'fit' must be true or false", source=src, field=name)
+                if entry["fit"] and name not in fitted:
+                    fitted.append(name)
+                if not entry["fit"] and name in fitted:
+                    fitted.remove(name)
+            lo, hi = bounds.get(name, (REGISTRY[name].lower, REGISTRY[name].upper))
+            if "lower" in entry:
+                lo = to_si(entry["lower"], name, source=src)
+            if "upper" in entry:
+                hi = to_si(entry["upper"], name, source=src)
+            if lo >= hi:
+                raise GprmInputError(f"lower bound {lo:g} is not below upper bound {hi:g}",
+                                     source=src, field=name)
+            bounds[name] = (lo, hi)
+        else:
+            values[name] = to_si(entry, name, source=src)
+    validate_values(values, source=src)
+    order = [n for n in REGISTRY if n in fitted]
+    return ParameterSet(values, fitted=tuple(order),
+                        bounds={k: v for k, v in bounds.items() if k in order}, source=src)
+
+
+def _fmt(x: float) -> str:
+    return f"{x:.10g}"
+
+
+def params_to_toml(ps: ParameterSet) -> str:
+    """Serialise a resolved set; loading the text back gives the same set."""
+    lines = ["# gprm parameter file (values in the units shown; bare numbers would be SI)",
+             "[parameters]"]
+    for name, spec in REGISTRY.items():
+        v = f'"{_fmt(from_si(ps.values[name], name))} {spec.unit}"'
+        fit = name in ps.fitted
+        entry_fit = fit != spec.fitted_by_default
+        lo, hi = ps.bounds.get(name, (spec.lower, spec.upper))
+        has_bounds = fit and (lo != spec.lower or hi != spec.upper)
+        if entry_fit or has_bounds:
+            parts = [f"value = {v}", f"fit = {'true' if fit else 'false'}"]
+            if has_bounds and math.isfinite(lo):
+                parts.append(f'lower = "{_fmt(from_si(lo, name))} {spec.unit}"')
+            if has_bounds and math.isfinite(hi):
+                parts.append(f'upper = "{_fmt(from_si(hi, name))} {spec.unit}"')
+            lines.append(f"{name} = {{ {', '.join(parts)} }}")
+        else:
+            lines.append(f"{name} = {v}")
+    return "\n".join(lines) + "\n"
+
+
+def save_params(ps: ParameterSet, path: str | os.PathLike) -> None:
+    write_text_atomic(path, params_to_toml(ps))

@@ -40,6 +40,9 @@ class ParameterSet:
         b.update(self.bounds)
         object.__setattr__(self, "bounds", MappingProxyType(b))
 
+    def __reduce__(self):  # MappingProxyType does not pickle; needed to ship sets to workers
+        return (ParameterSet, (dict(self.values), self.fitted, dict(self.bounds), self.source))
+
     def __getitem__(self, name: str) -> float:
         return self.values[name]
 

@@ -231,7 +231,21 @@ def solve(pb: dict, times: np.ndarray, H: np.ndarray, lagged: np.ndarray, *, pie
         for key in ("A", "b", "E"):
             getattr(ss, key)[bad] = getattr(ss, key)[good]
     beta = np.einsum("bij,bj->bi", W, ss.b)
+    # Conjugate symmetry: A is real, so modes come in conjugate pairs whose contributions are
+    # conjugate. Order modes [Im > 0, real, Im < 0] and keep the first S of them with weights
+    # 2 (pair), 1 (real), 0 (padding where a set has fewer pairs than the batch maximum).
+    key = np.where(lam.imag > 0, 0, np.where(lam.imag == 0, 1, 2))
+    perm = np.argsort(key, axis=1, kind="stable")
+    lam = np.take_along_axis(lam, perm, 1)
+    V = np.take_along_axis(V, perm[:, None, :], 2)
+    W = np.take_along_axis(W, perm[:, :, None], 1)
+    beta = np.take_along_axis(beta, perm, 1)
+    key = np.take_along_axis(key, perm, 1)
+    S = int(np.max(np.sum(key < 2, axis=1)))
+    wS = np.choose(key[:, :S], [2.0, 1.0, 0.0])                   # (B, S)
+    lamS, betaS = lam[:, :S], beta[:, :S]
     HV = H @ V                                                     # (B, n_obs, 17)
+    HVS = HV[:, :, :S] * wS[:, None, :]
 
     t0 = pb["t0"]
     if trace is None:
@@ -245,15 +259,15 @@ def solve(pb: dict, times: np.ndarray, H: np.ndarray, lagged: np.ndarray, *, pie
 
     def conv(tv):
         if trace is None:
-            return conv_default(lam, tv, pb["V0"], pb["tau_v"])
+            return conv_default(lamS, tv, pb["V0"], pb["tau_v"])
         kt, ku = trace.knots(0.0)
-        return conv_trace(lam, tv, kt, ku)
+        return conv_trace(lamS, tv, kt, ku)
 
     conv_res = {k: conv(tv) for k, tv in taus.items()}
     y = np.zeros((Bn, H.shape[1], times.size))
     for lag, (I, J, u) in conv_res.items():
         rows = lagged == lag
-        y[:, rows] = np.real(HV[:, rows] @ (beta[:, :, None] * I))
+        y[:, rows] = np.real(HVS[:, rows] @ (betaS[:, :, None] * I))
 
     dy = None
     if sens:
@@ -271,18 +285,21 @@ def solve(pb: dict, times: np.ndarray, H: np.ndarray, lagged: np.ndarray, *, pie
                 Dm = 1.0 / (lam[:, :, None] - lam[:, None, :])
             Dm[:, np.arange(n), np.arange(n)] = 0.0
             Pm = G * Dm[:, None]
-            c = np.einsum("bpij,bj->bpi", Pm, beta) + gb               # (B, P, 17)
-            dg = np.diagonal(G, axis1=-2, axis2=-1) * beta[:, None]    # (B, P, 17)
+            # only the kept modes i < S are needed as output modes (conjugates follow)
+            c = np.einsum("bpij,bj->bpi", Pm[:, :, :S], beta) + gb[:, :, :S]   # (B, P, S)
+            dg = np.diagonal(G, axis1=-2, axis2=-1)[:, :, :S] * betaS[:, None]
             nobs = HV.shape[1]
-            HVP = (HV @ Pm.transpose(0, 2, 1, 3).reshape(Bn, n, P * n)).reshape(Bn, nobs, P, n)
-            Lm = HV[:, :, None, :] * c[:, None] - HVP * beta[:, None, None, :]  # (B,o,P,17)
-            Nm = HV[:, :, None, :] * dg[:, None]
-            LN = np.concatenate([Lm, Nm], axis=-1)                      # (B, o, P, 34)
+            PmS = Pm[..., :S].transpose(0, 2, 1, 3).reshape(Bn, n, P * S)
+            HVP = (HV @ PmS).reshape(Bn, nobs, P, S)
+            wS4 = wS[:, None, None, :]
+            Lm = (HV[:, :, None, :S] * c[:, None] - HVP * betaS[:, None, None, :]) * wS4
+            Nm = HV[:, :, None, :S] * dg[:, None] * wS4
+            LN = np.concatenate([Lm, Nm], axis=-1)                      # (B, o, P, 2S)
             for lag, (I, J, u) in conv_res.items():
                 rows = lagged == lag
-                IJ = np.concatenate([I, J], axis=1)                     # (B, 34, T)
+                IJ = np.concatenate([I, J], axis=1)                     # (B, 2S, T)
                 sub = LN[:, rows]
-                val = (sub.reshape(Bn, -1, 2 * n) @ IJ).reshape(sub.shape[:3] + (times.size,))
+                val = (sub.reshape(Bn, -1, 2 * S) @ IJ).reshape(sub.shape[:3] + (times.size,))
                 idx = [names.index(e) for e in eom]
                 vr = np.real(val).transpose(0, 2, 1, 3)                 # (B, P, o_rows, T)
                 for k, j in enumerate(idx):
@@ -294,8 +311,8 @@ def solve(pb: dict, times: np.ndarray, H: np.ndarray, lagged: np.ndarray, *, pie
                     if name == "t1" and not lag:
                         continue
                     rows = lagged == lag
-                    rate = lam[:, :, None] * I + u[:, None, :]
-                    zdot = np.real(HV[:, rows] @ (beta[:, :, None] * rate))
+                    rate = lamS[:, :, None] * I + u[:, None, :]
+                    zdot = np.real(HVS[:, rows] @ (betaS[:, :, None] * rate))
                     if name == "t_c" and trace is not None:
                         continue  # t_c does not act on a measured trace
                     dy[:, k, rows] = -zdot
@@ -306,7 +323,7 @@ def solve(pb: dict, times: np.ndarray, H: np.ndarray, lagged: np.ndarray, *, pie
             elif name in dH:
                 for lag, (I, J, u) in conv_res.items():
                     rows = lagged == lag
-                    z = np.real(V @ (beta[:, :, None] * I))
+                    z = np.real((V[:, :, :S] * wS[:, None, :]) @ (betaS[:, :, None] * I))
                     dy[:, k, rows] = dH[name][:, rows] @ z
     if not ok.all():
         y[~ok] = np.nan

@@ -1,0 +1,71 @@
+"""The facts of a run directory in one dict: best chi-square, truth recovery, what-if ratios,
+Tukey verdict. Used for the demo's closing table, ``run.json`` and the report's summary cards.
+Every entry is present only when the file it comes from is.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+from gprm._io import open_netcdf, read_json
+
+
+def truth_from_means(run: Path) -> dict | None:
+    """The synthetic truth (SI, name -> value) recorded in ``means.nc``, if any."""
+    p = Path(run) / "means.nc"
+    if not p.exists():
+        return None
+    attrs = open_netcdf(p, what="mean-signals file").attrs
+    raw = attrs.get("truth_json")
+    if raw is None:
+        return None
+    try:
+        truth = json.loads(raw)
+    except (TypeError, json.JSONDecodeError):
+        return None
+    return {k: float(v) for k, v in truth.items() if isinstance(v, (int, float))}
+
+
+def truth_recovery(fit: dict, truth: dict) -> dict:
+    """Per fitted parameter z = (fit - truth) / stderr, and how many lie within 1, 2, 3 sigma."""
+    z = {}
+    for name, p in fit["parameters"].items():
+        if p.get("fitted") and name in truth and p.get("stderr"):
+            z[name] = (p["value"] - truth[name]) / p["stderr"]
+    n = len(z)
+    out = {"n": n, "z": z}
+    for k in (1, 2, 3):
+        out[f"within_{k}sigma"] = sum(abs(v) <= k for v in z.values())
+    out["max_abs_z"] = max((abs(v) for v in z.values()), default=math.nan)
+    return out
+
+
+def summarise(run: str | Path) -> dict:
+    run = Path(run)
+    s: dict = {}
+    if (run / "fit.json").exists():
+        fit = read_json(run / "fit.json", what="fit result")
+        st = fit.get("starts", {})
+        s["fit"] = {"chi2": fit.get("chi2"), "dof": fit.get("dof"),
+                    "reduced_chi2": fit.get("reduced_chi2"),
+                    "starts": st.get("requested"), "converged": st.get("converged"),
+                    "n_at_best": st.get("n_at_best"), "sigma": fit.get("sigma")}
+        truth = truth_from_means(run)
+        if truth:
+            s["truth_recovery"] = truth_recovery(fit, truth)
+    if (run / "whatif.json").exists():
+        s["whatif"] = read_json(run / "whatif.json", what="what-if table").get("ratios", {})
+    if (run / "impact.json").exists():
+        imp = read_json(run / "impact.json", what="impact result")
+        tk = imp.get("tukey", {})
+        pairs = tk.get("pairs", [])
+        rejected = [f"{p['a']}–{p['b']}" for p in pairs if p.get("reject")]
+        s["tukey"] = {"alpha": tk.get("alpha"), "pairs": len(pairs),
+                      "rejected": rejected,
+                      "verdict": ("all impact-time means compatible (H0 not rejected)"
+                                  if pairs and not rejected else
+                                  f"{len(rejected)} pair(s) differ" if pairs else "no test")}
+        s["releases"] = len(imp.get("releases", []))
+    return s

@@ -1,0 +1,398 @@
+"""Build the report from a run directory (the files ``gprm demo`` writes, or any run laid out
+the same way). Each section appears with its figures when its input files are present, and
+says "not run" otherwise.
+
+Run directory layout::
+
+    campaign.nc       synthetic or imported campaign             (gprm synth campaign)
+    means.nc          mean signals with sigma                    (gprm preprocess)
+    fit.json, fit.nc  identification and its sidecar             (gprm fit)
+    predict.nc        trajectories and energy, Piezo 2           (gprm predict)
+    predict_piezo1.nc what-if: Piezo 1                           (gprm predict --piezo 1)
+    predict_ecc10.nc  what-if: Piezo 1, eccentricities / 10      (gprm predict ...)
+    whatif.json       what-if overshoot ratios                   (gprm demo)
+    telemetry.nc      in-flight releases                         (gprm synth telemetry)
+    impact.json       release velocities, impact times, Tukey    (gprm impact)
+    run.json          command, seed, versions, per-stage timings (gprm demo)
+
+Figures carry stable HTML ids (:data:`FIGURE_IDS`) so that tests and links can find them.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+
+from gprm._io import open_netcdf, read_json, write_text_atomic
+from gprm.errors import GprmInputError
+from gprm.report import figures as F
+from gprm.report.html import Card, Section, fig_to_img, not_run, paragraph, pm, render, table
+
+# Figure id -> the paper's figure it mirrors.
+FIGURE_IDS = {
+    "fig-campaign": "Fig. 3", "fig-fit": "Fig. 6", "fig-waterfall": "waterfall of starts",
+    "fig-masses": "Fig. 7", "fig-energy": "Fig. 8", "fig-trajectories": "Fig. 10",
+    "fig-velocity-impact": "Fig. 11", "fig-impact-times": "Fig. 12",
+    "fig-whatif-piezo1": "Fig. 13", "fig-whatif-eccentricity": "Fig. 14",
+}
+TABLE_IDS = ("table-1", "table-3", "table-whatif", "table-tukey", "table-provenance",
+             "table-timings")
+
+_PAPER_T1 = {"x_head/x_lr": 3, "x_head/x_fl": 17, "y_head/y_lr": 3, "y_head/y_fl": 21,
+             "z_bk/z_fl": 26}
+
+
+def _load_nc(run: Path, name: str, what: str):
+    p = run / name
+    return open_netcdf(p, what=what) if p.exists() else None
+
+
+def _load_json(run: Path, name: str, what: str):
+    p = run / name
+    return read_json(p, what=what) if p.exists() else None
+
+
+# ----------------------------------------------------------------------------- campaign
+
+def _table1(means) -> list:
+    stored = {}
+    if "table1_json" in means.attrs:
+        try:
+            stored = json.loads(means.attrs["table1_json"])
+        except (TypeError, json.JSONDecodeError):
+            stored = {}
+    sig = [str(s) for s in means["signal"].values]
+    rows = []
+    for key, paper_v in _PAPER_T1.items():
+        a, b = key.split("/")
+        v = stored.get(key, stored.get(f"{a}/{b}"))
+        if isinstance(v, dict):
+            v = v.get("value")
+        if v is None and a in sig and b in sig:
+            v = float(np.abs(means["mean"].sel(signal=a)).max()
+                      / np.abs(means["mean"].sel(signal=b)).max())
+        if v is None:
+            continue
+        rows.append((f"max({a}) / max({b})", f"{float(v):.3g}", paper_v))
+    return rows
+
+
+def campaign_section(run: Path) -> Section:
+    s = Section("Ground-test campaign", "campaign")
+    means = _load_nc(run, "means.nc", "mean-signals file")
+    if means is None:
+        s.ran = False
+        s.blocks.append(not_run("Campaign and preprocessing",
+                                "means.nc is missing (gprm synth campaign + gprm preprocess)."))
+        return s
+    camp = _load_nc(run, "campaign.nc", "campaign file")
+    n_runs = means["n_runs"].values if "n_runs" in means else None
+    txt = ("Mean signals of the ten laser positions after synchronisation, averaging and "
+           "alignment (the retraction command at 1 ms, Section 2), with the across-run "
+           "standard deviation σ(t).")
+    if n_runs is not None:
+        txt += f" Runs averaged per position: {int(np.min(n_runs))}–{int(np.max(n_runs))}."
+    if camp is not None and "seed" in camp.attrs:
+        txt += f" Synthetic campaign, seed {camp.attrs['seed']}."
+    s.blocks.append(paragraph(txt))
+    s.blocks.append(fig_to_img(F.fig_mean_signals(means),
+                               "Campaign mean signals: x_base with ±σ(t) (a) and the "
+                               "synchronised mean signals of the x (b), y (c) and z (d) "
+                               "positions (cf. Fig. 3)", "fig-campaign"))
+    rows = _table1(means)
+    if rows:
+        s.blocks.append(table(["ratio", "this campaign", "paper"], rows,
+                              "Table 1: ratios of the maxima of the mean signals", "table-1",
+                              note="Dimensionless. The fit uses x_base, x_head, y_base, "
+                                   "y_head and z_bk; the others serve the hypotheses of Sec. 2."))
+    if "dropped_json" in means.attrs:
+        try:
+            dropped = json.loads(means.attrs["dropped_json"])
+        except (TypeError, json.JSONDecodeError):
+            dropped = None
+        if dropped:
+            items = dropped.items() if isinstance(dropped, dict) else \
+                [(d.get("position", "?"), d.get("reason", "")) for d in dropped]
+            s.blocks.append(table(["position", "why it is not fitted"], list(items),
+                                  "Positions dropped by the hypotheses of Sec. 2",
+                                  "table-dropped"))
+    return s
+
+
+# ----------------------------------------------------------------------------- fit
+
+def truth_of(run: Path) -> dict | None:
+    from gprm.demo.summary import truth_from_means
+
+    return truth_from_means(run)
+
+
+def table3_rows(fit: dict, truth: dict | None) -> list:
+    """Table 3: fitted value ± stderr, the synthetic truth, the paper's value ± its error,
+    all in the paper's display units."""
+    from gprm.params import REGISTRY, from_si
+
+    rows = []
+    for name, p in fit["parameters"].items():
+        if not p.get("fitted") or name not in REGISTRY:
+            continue
+        spec = REGISTRY[name]
+        unit_scale = from_si(1.0, name)
+        err = p.get("stderr")
+        row = [name, spec.unit, pm(p["value"], err, unit_scale)]
+        if truth is not None:
+            t = truth.get(name)
+            row.append("—" if t is None else f"{t * unit_scale:.4g}")
+            row.append("—" if (t is None or not err) else f"{(p['value'] - t) / err:+.2f}")
+        row.append(pm(spec.default, spec.paper_stderr, unit_scale))
+        row.append("—" if spec.initial is None else f"{spec.initial * unit_scale:.4g}")
+        row.append("—" if spec.nominal is None else f"{spec.nominal * unit_scale:.4g}")
+        rows.append(row)
+    return rows
+
+
+def fit_section(run: Path) -> tuple[Section, dict | None]:
+    s = Section("Identification", "fit")
+    fit = _load_json(run, "fit.json", "fit result")
+    if fit is None:
+        s.ran = False
+        s.blocks.append(not_run("Fit", "fit.json is missing (gprm fit)."))
+        return s, None
+    side = _load_nc(run, "fit.nc", "fit sidecar")
+    st = fit.get("starts", {})
+    s.blocks.append(paragraph(
+        f"Weighted multi-signal Levenberg–Marquardt (Algorithm 1) from {st.get('requested')} "
+        f"random starts within ±{100 * st.get('spread', 0.2):.0f} % of the paper's initial "
+        f"values; {st.get('converged')} converged, {st.get('n_at_best', '?')} reached the best "
+        f"χ² within Δχ² ≤ 1. χ² = {fit['chi2']:.5g} for {fit['dof']} degrees of freedom "
+        f"(reduced χ² = {fit['reduced_chi2']:.4g}; weights: {fit.get('sigma', 'sem')}). "
+        f"Covariance (Eq. 7): {fit.get('covariance_message', 'ok')}."))
+    if side is not None:
+        s.blocks.append(fig_to_img(F.fig_fit(side), "Best fit over the mean signals with "
+                                   "±σ and the 95 % model band from the parameter covariance "
+                                   "(cf. Fig. 6)", "fig-fit"))
+        s.blocks.append(fig_to_img(F.fig_waterfall(side), "Waterfall of the starts: final χ² "
+                                   "of every start, sorted; starts within Δχ² ≤ 1 of the best "
+                                   "found the same minimum", "fig-waterfall"))
+    else:
+        s.blocks.append(not_run("Fit figures", "fit.nc (the sidecar) is missing."))
+    truth = truth_of(run)
+    head = ["parameter", "unit", "fit ± 1σ"]
+    if truth is not None:
+        head += ["synthetic truth", "(fit − truth)/σ"]
+    head += ["paper ± 1σ", "initial", "nominal (CAD)"]
+    s.blocks.append(table(head, table3_rows(fit, truth), "Table 3: best-fit parameters",
+                          "table-3", note="Errors are 1σ from Eq. 7. The paper column is the "
+                          "published Table 3; the initial values are the centre of the "
+                          "random starts."))
+    s.blocks.append(fig_to_img(F.fig_masses(fit, truth), "Masses: fitted value ± 1σ against "
+                               "the CAD nominal, the initial value and the paper's 3D fit "
+                               "(cf. Fig. 7)", "fig-masses"))
+    return s, fit
+
+
+# ----------------------------------------------------------------------------- predict
+
+def predict_section(run: Path) -> Section:
+    s = Section("Prediction", "predict")
+    pred = _load_nc(run, "predict.nc", "prediction file")
+    if pred is None:
+        s.ran = False
+        s.blocks.append(not_run("Prediction", "predict.nc is missing (gprm predict)."))
+        return s
+    s.blocks.append(paragraph(
+        "Trajectories of the contact middle points M_xz and M_yz and of the tip edge from the "
+        "best fit (Eq. 8), with the spread from the parameter covariance, and the kinetic "
+        "energy of the moving parts at the tip retraction, Piezo 2."))
+    fig = F.fig_energy(pred, run)
+    if fig is not None:
+        s.blocks.append(fig_to_img(fig, "Kinetic energy: predicted by the 3D model (orange) "
+                                   "and from the measured signals (blue) (cf. Fig. 8)",
+                                   "fig-energy"))
+    else:
+        s.blocks.append(not_run("Energy histogram", "predict.nc holds no kinetic energy."))
+    fig = F.fig_trajectories(pred, "Trajectories, Piezo 2 (cf. Fig. 10)")
+    s.blocks.append(fig_to_img(fig, "Trajectory of M_xz in the x–z plane, of M_yz in the y–z "
+                               "plane and of the tip edge in the x–y plane, Piezo 2; "
+                               "axes centred on the initial position (cf. Fig. 10)",
+                               "fig-trajectories"))
+    return s
+
+
+def whatif_section(run: Path) -> Section:
+    s = Section("What-ifs: risk reduction", "whatif")
+    wi = _load_json(run, "whatif.json", "what-if table")
+    p1 = _load_nc(run, "predict_piezo1.nc", "what-if prediction")
+    e10 = _load_nc(run, "predict_ecc10.nc", "what-if prediction")
+    base = _load_nc(run, "predict.nc", "prediction file")
+    if wi is None and p1 is None and e10 is None:
+        s.ran = False
+        s.blocks.append(not_run("What-ifs", "whatif.json and the what-if predictions are "
+                                "missing (gprm predict --piezo 1, --scale-eccentricity 0.1)."))
+        return s
+    s.blocks.append(paragraph(
+        "Two strategies of Sec. 4.2: driving Piezo 1 instead of Piezo 2, and Piezo 1 with the "
+        "eccentricities v2, g2, ρ and γ divided by ten. The ratios are the overshoot with "
+        "Piezo 2 (as built) over the overshoot of the strategy, per axis (paper: 4.0, 6.4, "
+        "3.8 for Piezo 1; 40.0, 64.6 lateral for the eccentricities)."))
+    if wi is not None:
+        rows = F.whatif_rows(wi)
+        if rows:
+            s.blocks.append(table(["strategy", "x", "y", "z", "paper (x, y, z)"], rows,
+                                  "Overshoot ratios Piezo 2 / strategy", "table-whatif",
+                                  note="Dimensionless ratios of the maximum excursions of the "
+                                       "contact middle points."))
+    if p1 is not None:
+        s.blocks.append(fig_to_img(F.fig_trajectories(p1, "Piezo 1 (cf. Fig. 13)", ref=base),
+                                   "Trajectories with Piezo 1 (grey: Piezo 2 as built) "
+                                   "(cf. Fig. 13)", "fig-whatif-piezo1"))
+    if e10 is not None:
+        s.blocks.append(fig_to_img(F.fig_trajectories(e10, "Piezo 1, eccentricities ÷ 10 "
+                                                           "(cf. Fig. 14)", ref=base),
+                                   "Trajectories with Piezo 1 and the eccentricities divided "
+                                   "by ten (grey: Piezo 2 as built) (cf. Fig. 14)",
+                                   "fig-whatif-eccentricity"))
+    return s
+
+
+# ----------------------------------------------------------------------------- flight
+
+def flight_section(run: Path) -> Section:
+    s = Section("Flight: impact analysis", "flight")
+    imp = _load_json(run, "impact.json", "impact result")
+    if imp is None:
+        s.ran = False
+        s.blocks.append(not_run("Flight analysis", "impact.json is missing (gprm synth "
+                                "telemetry + gprm impact)."))
+        return s
+    tele = _load_nc(run, "telemetry.nc", "telemetry file")
+    n = len(imp.get("releases", []))
+    s.blocks.append(paragraph(
+        f"{n} releases: the release velocity per axis from the telemetry, and the impact time "
+        "at which the impact model (Appendix B) applied to the predicted plunger state gives "
+        "that velocity (first crossing). Tukey's range test asks whether the six axes' impact "
+        "times share one mean (Eq. 9)."))
+    fig = F.fig_velocity_impact(imp, tele)
+    if fig is not None:
+        s.blocks.append(fig_to_img(fig, "Release velocity against the impact time for one "
+                                   "release: predicted velocity as a function of the impact "
+                                   "time with its band, the measured velocity and the estimated "
+                                   "impact time (cf. Fig. 11)", "fig-velocity-impact"))
+    s.blocks.append(fig_to_img(F.fig_impact_times(imp, tele), "All estimated impact times "
+                               "per release and axis with 1σ errors (cf. Fig. 12)",
+                               "fig-impact-times"))
+    tk = imp.get("tukey")
+    if tk:
+        rows = [(f"{p['a']} – {p['b']}", f"{p['q']:.3f}", f"{p['p']:.3g}",
+                 "rejected" if p.get("reject") else "not rejected") for p in tk.get("pairs", [])]
+        s.blocks.append(table(["pair of axes", "q", "p", "H0 (equal means)"], rows,
+                              f"Tukey's range test: k = {tk.get('k')}, df = {tk.get('df')}, "
+                              f"α = {tk.get('alpha')}, q_crit = {tk.get('q_critical', 0):.3f}",
+                              "table-tukey", note="q and p are dimensionless (impact times "
+                                                  "in s enter through Eq. 9)."))
+    return s
+
+
+# ----------------------------------------------------------------------------- provenance
+
+def provenance_section(run: Path) -> Section:
+    s = Section("Provenance", "provenance")
+    prov = _load_json(run, "run.json", "run record") or {}
+    rows = []
+    for key in ("command", "seed", "started", "finished"):
+        if key in prov:
+            rows.append((key, prov[key]))
+    for k, v in (prov.get("options") or {}).items():
+        rows.append((f"option {k}", v))
+    for k, v in (prov.get("versions") or {}).items():
+        rows.append((f"version {k}", v))
+    files = sorted(f.name for f in run.iterdir() if f.is_file() and not f.name.startswith("."))
+    rows.append(("files", ", ".join(files)))
+    for name, rec in (prov.get("stages") or {}).items():
+        for fname, sha in (rec.get("inputs") or {}).items():
+            rows.append((f"{name} input {fname}", f"sha256 {sha[:16]}…"))
+    s.blocks.append(table(["item", "value"], rows, "Inputs, seed, versions",
+                          "table-provenance"))
+    tim = prov.get("stages") or {}
+    if tim:
+        trows = [(k, v.get("status", ""), "—" if v.get("seconds") is None else
+                  f"{v['seconds']:.1f}") for k, v in tim.items()]
+        s.blocks.append(table(["stage", "status", "time [s]"], trows, "Timings",
+                              "table-timings", note="Skipped stages were up to date: their "
+                              "time is the one recorded when they ran."))
+    return s
+
+
+# ----------------------------------------------------------------------------- assembly
+
+def summary_cards(run: Path, fit: dict | None) -> list[Card]:
+    from gprm.demo.summary import summarise
+
+    s = summarise(run)
+    cards = []
+    if "fit" in s:
+        f = s["fit"]
+        cards.append(Card("reduced χ²", f"{f['reduced_chi2']:.3g}",
+                          f"χ² {f['chi2']:.4g} / {f['dof']} dof",
+                          "ok" if f["reduced_chi2"] < 2 else "warn"))
+        cards.append(Card("starts at the best", f"{f.get('n_at_best')} / {f.get('starts')}",
+                          "within Δχ² ≤ 1"))
+    if fit is not None and "m2" in fit["parameters"]:
+        m2 = fit["parameters"]["m2"]
+        cards.append(Card("plunger mass m₂", pm(m2["value"], m2.get("stderr"), 1e3) + " g",
+                          "nominal 12.3 g, paper 12.4 ± 0.9 g"))
+    if "truth_recovery" in s:
+        tr = s["truth_recovery"]
+        tone = "ok" if tr["within_3sigma"] == tr["n"] else "warn"
+        cards.append(Card("truth recovered", f"{tr['within_2sigma']} / {tr['n']} within 2σ",
+                          f"{tr['within_3sigma']} / {tr['n']} within 3σ", tone))
+    wi = s.get("whatif") or {}
+    p1 = wi.get("piezo1") if isinstance(wi, dict) else None
+    if isinstance(p1, dict) and p1:
+        cards.append(Card("Piezo 1 overshoot ÷", " / ".join(f"{v:.2g}" for v in p1.values()),
+                          " / ".join(p1.keys()) + " (paper 4.0 / 6.4 / 3.8)"))
+    if "tukey" in s:
+        tk = s["tukey"]
+        ok = not tk["rejected"]
+        cards.append(Card("Tukey test", "compatible" if ok else f"{len(tk['rejected'])} "
+                          "pairs differ", f"{s.get('releases')} releases, α = {tk['alpha']}",
+                          "ok" if ok else "bad"))
+    prov = _load_json(run, "run.json", "run record") or {}
+    total = sum(v.get("seconds", 0.0) or 0.0 for v in (prov.get("stages") or {}).values())
+    if total:
+        cards.append(Card("run time", f"{total:.0f} s", "all stages (report excluded)"))
+    return cards
+
+
+def build_report(run_dir: str | Path) -> str:
+    run = Path(run_dir)
+    if not run.is_dir():
+        raise GprmInputError("run directory does not exist", source=str(run))
+    known = ("means.nc", "fit.json", "predict.nc", "impact.json", "whatif.json", "run.json")
+    if not any((run / k).exists() for k in known):
+        raise GprmInputError("holds none of the stage outputs (" + ", ".join(known) + ")",
+                             source=str(run))
+    fit_s, fit = fit_section(run)
+    sections = [campaign_section(run), fit_s, predict_section(run), whatif_section(run),
+                flight_section(run), provenance_section(run)]
+    from gprm import __version__
+
+    prov = _load_json(run, "run.json", "run record") or {}
+    sub = f"gprm {__version__} · run directory {run.resolve().name}"
+    if "seed" in prov:
+        sub += f" · seed {prov['seed']}"
+    if prov.get("finished"):
+        sub += f" · {prov['finished']}"
+    return render("GPRM tip retraction: identification, prediction and flight analysis", sub,
+                  summary_cards(run, fit), sections,
+                  footer="Self-contained report: figures are embedded PNG images; nothing is "
+                         "fetched over the network.")
+
+
+def write_report(run_dir: str | Path, out: str | Path) -> Path:
+    text = build_report(run_dir)
+    write_text_atomic(out, text)
+    return Path(out)
+

@@ -1,0 +1,23 @@
+"""CLI: ``gprm report``."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import typer
+
+
+def register(app: typer.Typer, synth_app: typer.Typer) -> None:
+    from gprm.cli import one_line_errors
+
+    @app.command("report")
+    @one_line_errors
+    def report_cmd(
+        run_dir: Path = typer.Argument(..., help="run directory (as written by gprm demo)"),
+        out: Path = typer.Option(..., "--out", help="the self-contained HTML report"),
+    ):
+        """One self-contained HTML report (figures inline, no network) of a run directory."""
+        from gprm.report.build import write_report
+
+        path = write_report(run_dir, out)
+        typer.echo(f"wrote {path} ({path.stat().st_size / 1e6:.2f} MB)")

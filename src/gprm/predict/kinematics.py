@@ -113,11 +113,12 @@ def linear_statics(pb: Mapping[str, np.ndarray], piezo: int) -> dict[str, np.nda
     M, C, K = g.linear_matrices({k: np.asarray(v) for k, v in pb.items()})
     K = np.asarray(K, float)
     Q = np.asarray(g.INPUT, float)
-    V0 = np.asarray(pb["V0"], float)
+    V0 = np.atleast_1d(np.asarray(pb["V0"], float))
     if K.ndim == 2:
         K = K[None]
-    B = V0.shape[0]
+    B = max(V0.shape[0], K.shape[0])
     K = np.broadcast_to(K, (B,) + K.shape[-2:])
+    V0 = np.broadcast_to(V0, (B,))
     x = np.linalg.solve(K, (Q[None, :] * V0[:, None])[..., None])[..., 0]
     idx = {c: i for i, c in enumerate(g.COORDINATES)}
     return {"mu3": x[:, idx["mu3"]], "mu4": x[:, idx["mu4"]]}

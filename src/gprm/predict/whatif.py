@@ -1,0 +1,191 @@
+"""What-if studies (paper Sec. 4.2, Fig. 13-14): overshoot of the contact points and the tip per
+axis under scenarios (piezo, eccentricity scale, overrides), ratios between scenarios, and
+sweeps of one parameter.
+
+Overshoot (docs/prediction.md): for a point P and axis a, over the window [t_start, t_end],
+    OS_a(P) = max_t |p_a(t) - p_a(t_start)|,
+the largest excursion from the position at the window start; the window starts with the
+mechanism at rest in its initial equilibrium (before t_c + t0), so p_a(t_start) is the initial
+position. Ratio between scenarios S and T: OS_a(P; S) / OS_a(P; T).
+The paper's three ratios per comparison are x: M_xz, y: M_yz, z: M_xz (``HEADLINE``).
+"""
+
+from __future__ import annotations
+
+from dataclasses import replace
+from typing import Sequence
+
+import numpy as np
+
+from gprm.errors import GprmInputError
+from gprm.fit.files import FittedModel
+from gprm.params import REGISTRY
+from gprm.params.files import from_si
+from gprm.predict.scenarios import Scenario, apply_scenario, standard_scenarios
+from gprm.predict.trajectories import AXES, sampled_points
+
+WHATIF_POINTS: tuple[str, ...] = ("M_xz", "M_yz", "tip_edge")
+HEADLINE: dict[str, str] = {"x": "M_xz", "y": "M_yz", "z": "M_xz"}
+"""Which point's overshoot gives the paper's ratio on each axis."""
+
+PAPER_RATIOS: dict[str, dict[str, float]] = {
+    "piezo1": {"x": 4.0, "y": 6.4, "z": 3.8},
+    "piezo1_ecc_div10": {"x": 40.0, "y": 64.6},
+}
+"""Sec. 4.2: overshoot with Piezo 2 divided by that of the scenario (z of the eccentricity
+case: 'basically unaffected' with respect to Piezo 1, no number given)."""
+
+DEFAULT_WINDOW: tuple[float, float] = (0.95e-3, 1.2e-3)
+DEFINITION = ("overshoot = max over the window of |p_a(t) - p_a(t_start)| (m), the largest "
+              "excursion of point p along axis a from its position at the window start (rest, "
+              "initial equilibrium); ratio = overshoot(baseline) / overshoot(scenario)")
+
+
+def window_times(window: tuple[float, float] = DEFAULT_WINDOW, rate: float = 1e6) -> np.ndarray:
+    from gprm.predict.trajectories import default_times
+
+    return default_times(window[0], window[1], rate)
+
+
+def overshoot(disp: np.ndarray) -> np.ndarray:
+    """Overshoot (..., 3) of displacements (..., 3, T): max_t |d(t) - d(t_0)|."""
+    d = np.asarray(disp)
+    return np.max(np.abs(d - d[..., :1]), axis=-1)
+
+
+def scenario_overshoots(fm: FittedModel, sc: Scenario, times, *, points=WHATIF_POINTS,
+                        samples: int = 0, seed: int = 0, voltage=None):
+    """Best-fit overshoot (point, 3) and sampled overshoots (n_ok, point, 3) of a scenario.
+
+    Samples are drawn from the baseline model and then transformed by the scenario (same
+    seed across scenarios: common random numbers, so ratios are per parameter draw)."""
+    from gprm.params import batch
+
+    fs = apply_scenario(fm, sc)
+    best, _, ok = sampled_points(batch([fs.params]), times, points, piezo=sc.piezo,
+                                 voltage=voltage)
+    if not ok[0]:
+        raise GprmInputError(f"scenario {sc.name!r} cannot be simulated", field="scenario")
+    os_best = overshoot(best[0])
+    os_s = np.zeros((0,) + os_best.shape)
+    okm = np.zeros(0, bool)
+    if samples > 0:
+        sp, _, okm = sampled_points(transform_batch(fm.sample(samples, seed), sc), times,
+                                    points, piezo=sc.piezo, voltage=voltage)
+        os_s = overshoot(sp)
+    return os_best, os_s, okm
+
+
+def transform_batch(pb: dict, sc: Scenario) -> dict:
+    """Apply a scenario (eccentricity scale, overrides) to a parameter batch."""
+    from gprm.predict.scenarios import ECCENTRICITIES, check_scenario
+
+    check_scenario(sc)
+    out = {k: np.array(v, float) for k, v in pb.items()}
+    for n in ECCENTRICITIES:
+        out[n] = out[n] * sc.scale_eccentricity
+    for k, v in sc.overrides.items():
+        out[k] = np.full_like(out[k], float(v))
+    return out
+
+
+def _table(os: np.ndarray, points) -> dict:
+    return {p: {a: float(os[i, j]) for j, a in enumerate(AXES)} for i, p in enumerate(points)}
+
+
+def whatif(fm: FittedModel, scenarios: Sequence[Scenario] | None = None, *,
+           window: tuple[float, float] = DEFAULT_WINDOW, rate: float = 1e6,
+           points: Sequence[str] = WHATIF_POINTS, samples: int = 100, seed: int = 0,
+           voltage=None) -> dict:
+    """Overshoot table of ``scenarios`` (default: the paper's three) and their ratios to the
+    first one (the baseline), with 2.5/97.5 % sampled ranges; JSON-able."""
+    scenarios = tuple(standard_scenarios() if scenarios is None else scenarios)
+    if not scenarios:
+        raise GprmInputError("no scenario given", field="scenarios")
+    points = tuple(points)
+    t = window_times(window, rate)
+    res = []
+    for sc in scenarios:
+        res.append(scenario_overshoots(fm, sc, t, points=points, samples=samples, seed=seed,
+                                       voltage=voltage))
+    base_best, base_s, base_ok = res[0]
+    out_sc, out_ratio = [], []
+    for sc, (ob, os_s, ok) in zip(scenarios, res):
+        entry = sc.to_json()
+        entry["overshoot"] = _table(ob, points)
+        if samples > 0 and ok.any():
+            entry["overshoot_p2_5"] = _table(np.quantile(os_s[ok], 0.025, axis=0), points)
+            entry["overshoot_p97_5"] = _table(np.quantile(os_s[ok], 0.975, axis=0), points)
+        out_sc.append(entry)
+        ratio = base_best / ob
+        r = {"name": sc.name, "baseline": scenarios[0].name, "ratio": _table(ratio, points),
+             "headline": {a: float(ratio[points.index(HEADLINE[a]), AXES.index(a)])
+                          for a in AXES if HEADLINE[a] in points}}
+        if samples > 0:
+            both = ok & base_ok
+            if both.any():
+                rs = base_s[both] / os_s[both]
+                r["ratio_p2_5"] = _table(np.quantile(rs, 0.025, axis=0), points)
+                r["ratio_p97_5"] = _table(np.quantile(rs, 0.975, axis=0), points)
+        if sc.name in PAPER_RATIOS:
+            r["paper"] = PAPER_RATIOS[sc.name]
+        out_ratio.append(r)
+    return {"definition": DEFINITION, "window_s": [float(window[0]), float(window[1])],
+            "rate_hz": float(rate), "points": list(points), "axes": list(AXES), "unit": "m",
+            "source": fm.source, "samples": int(samples), "seed": int(seed),
+            "scenarios": out_sc, "ratios": out_ratio}
+
+
+def sweep(fm: FittedModel, name: str, values: Sequence[float], *,
+          base: Scenario | None = None, window: tuple[float, float] = DEFAULT_WINDOW,
+          rate: float = 1e6, points: Sequence[str] = WHATIF_POINTS, voltage=None) -> dict:
+    """Best-fit overshoot of ``points`` as parameter ``name`` takes ``values`` (SI), on top
+    of scenario ``base`` (default Piezo 2). JSON-able table; plot with
+    :func:`gprm.predict.plots.plot_sweep`."""
+    from gprm.params import batch
+
+    if name not in REGISTRY:
+        raise GprmInputError("unknown parameter", field=name)
+    vals = np.asarray(values, float)
+    if vals.ndim != 1 or vals.size == 0 or not np.all(np.isfinite(vals)):
+        raise GprmInputError("values must be a non-empty list of finite numbers", field=name)
+    base = base or Scenario("piezo2", 2)
+    points = tuple(points)
+    t = window_times(window, rate)
+    fs = apply_scenario(fm, base)
+    sets = []
+    for v in vals:
+        sets.append(fs.params.with_values(**{name: float(v)}))  # validates the value
+    pb = batch(sets)
+    disp, _, ok = sampled_points(pb, t, points, piezo=base.piezo, voltage=voltage)
+    os = overshoot(disp)
+    os[~ok] = np.nan
+    spec = REGISTRY[name]
+    return {"parameter": name, "unit": "SI", "display_unit": spec.unit,
+            "values": [float(v) for v in vals],
+            "display_values": [float(from_si(v, name)) for v in vals],
+            "scenario": base.to_json(), "window_s": [float(window[0]), float(window[1])],
+            "definition": DEFINITION, "points": list(points), "axes": list(AXES),
+            "ok": [bool(x) for x in ok],
+            "overshoot": {p: {a: [float(x) for x in os[:, i, j]] for j, a in enumerate(AXES)}
+                          for i, p in enumerate(points)}}
+
+
+def ratio_sensitivity(fm: FittedModel, names: Sequence[str] = ("h2", "dist_x", "dist_y",
+                                                               "dist_z"), *,
+                      rel: float = 0.25, window: tuple[float, float] = DEFAULT_WINDOW,
+                      rate: float = 1e6) -> dict:
+    """Headline ratios (Piezo 2 / Piezo 1 and Piezo 2 / Piezo 1 + eccentricities / 10) with
+    each of ``names`` scaled by 1 - rel and 1 + rel: which assumed geometry values matter."""
+    out = {"rel_change": rel, "nominal": _headlines(fm, window, rate)}
+    for n in names:
+        out[n] = {}
+        for f in (1 - rel, 1 + rel):
+            f_fm = replace(fm, params=fm.params.with_values(**{n: fm.params[n] * f}))
+            out[n][f"x{f:g}"] = _headlines(f_fm, window, rate)
+    return out
+
+
+def _headlines(fm: FittedModel, window, rate) -> dict:
+    r = whatif(fm, window=window, rate=rate, samples=0)
+    return {x["name"]: x["headline"] for x in r["ratios"][1:]}

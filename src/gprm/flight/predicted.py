@@ -1,0 +1,273 @@
+"""Test-mass velocity as a function of the impact time (Section 4, Fig. 11b).
+
+For every time t of a window, the plunger assembly's state at t (from the model's trajectory,
+``gprm.predict.kinematics``) strikes the test mass (TM), initially at rest, at the middle point
+of the contact line (M_xz or M_yz) on an indent face; the planar impact of Appendix B
+(:func:`gprm.flight.impact.planar_impact`) gives the TM velocity after the impact. The x–z plane
+gives v_x, v_z, ω_y, the y–z plane v_y, v_z, ω_x: the six axes ``vx, vz_xz, wy, vy, vz_yz, wx``.
+
+Bodies (MODEL.md):
+
+* plunger side (A): the assembly plunger + spacer + tip, mass M = m2 + m3 + m4, CoM the
+  assembly CoM (``named_points(...)["assembly_com"]``) with its velocity, angular velocity
+  the plunger's ω, inertia J2 about the CoM (default; ``plunger_inertia="assembly"`` adds the
+  spacer and tip point masses' parallel-axis terms about the assembly CoM);
+* TM side (B): cube of mass ``m_tm`` and side ``s_tm``, inertia m s²/6, at rest, CoM at the
+  plunger CoM's lateral position at rest and ``tm_com_height`` above the contact points
+  (an assumption: the indent's depth is not given by the paper);
+* contact point: M_xz (M_yz) plus a settable offset, at its position at t; contact normal (the
+  impulse direction on the TM) fixed with the TM: n = (sgn(dist_x) sin α, 0, cos α) in the
+  x–z plane and (0, sgn(dist_y) sin α, cos α) in the y–z plane, α = ``indent_angle``.
+
+An impact can happen at t only if the contact point approaches the face (relative normal
+velocity < 0); elsewhere the curves are NaN (``approaching`` False).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+
+from gprm.errors import GprmInputError
+from gprm.flight.impact import planar_impact
+from gprm.flight.telemetry import AXES
+
+PLANES = ("xz", "yz")
+PLANE_AXES = {"xz": ("vx", "vz_xz", "wy"), "yz": ("vy", "vz_yz", "wx")}
+
+
+@dataclass(frozen=True)
+class ImpactGeometry:
+    """Impact geometry and model options (SI). ``None`` values come from the parameters
+    (``indent_angle`` registry value, ``tm_com_height`` = s_tm/2 − ``indent_depth``)."""
+
+    indent_angle: float | None = None
+    indent_depth: float = 3.0e-3
+    tm_com_height: float | None = None
+    contact_offset_xz: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    contact_offset_yz: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    restitution: float = 1.0
+    plunger_inertia: str = "J2"
+
+    def resolved(self, pb) -> "ImpactGeometry":
+        ang = float(np.asarray(pb["indent_angle"]).ravel()[0]) if self.indent_angle is None \
+            else self.indent_angle
+        h = (float(np.asarray(pb["s_tm"]).ravel()[0]) / 2 - self.indent_depth
+             if self.tm_com_height is None else self.tm_com_height)
+        return replace(self, indent_angle=ang, tm_com_height=h)
+
+
+@dataclass(frozen=True)
+class GeometryUncertainty:
+    """Standard deviations of the impact geometry (defaults: our assumptions, docs/flight.md):
+    indent angle 2°, each contact-point offset component 0.5 mm, TM CoM height 0.5 mm,
+    restitution 0 (fixed at its value)."""
+
+    indent_angle: float = np.deg2rad(2.0)
+    contact_offset: float = 0.5e-3
+    tm_com_height: float = 0.5e-3
+    restitution: float = 0.0
+
+
+def _vec(x, B):
+    return np.broadcast_to(np.asarray(x, float), (B, 3))
+
+
+def tm_velocity_vs_time(motion, geometry: ImpactGeometry | list | None = None) -> dict:
+    """Post-impact TM velocities if the impact happened at each time of ``motion``.
+
+    ``motion`` is a :class:`gprm.predict.kinematics.PlungerMotion` (B parameter sets, T times).
+    ``geometry`` is one :class:`ImpactGeometry` or a list of B of them (one per set). Returns
+    ``{axis: (B, T)}`` for the six axes (NaN where no impact is possible), plus
+    ``approaching_xz``, ``approaching_yz`` (B, T) booleans and ``impulse_xz``, ``impulse_yz``
+    (B, T) normal impulses, N·s.
+    """
+    from gprm.predict.kinematics import named_points, point_motion
+
+    pb = motion.params
+    B, T = motion.size, motion.time.size
+    geoms = geometry if isinstance(geometry, (list, tuple)) else [geometry or ImpactGeometry()] * B
+    if len(geoms) != B:
+        raise GprmInputError(f"{len(geoms)} geometries for {B} parameter sets", field="geometry")
+    geoms = [g.resolved({k: v[i:i + 1] for k, v in pb.items()}) for i, g in enumerate(geoms)]
+    alpha = np.array([g.indent_angle for g in geoms])
+    H = np.array([g.tm_com_height for g in geoms])
+    e = np.array([g.restitution for g in geoms])
+    off = {"xz": np.array([g.contact_offset_xz for g in geoms]),
+           "yz": np.array([g.contact_offset_yz for g in geoms])}
+    pts = named_points(pb)
+    asm = pts["assembly_com"]
+    G, vG = point_motion(motion, asm)                       # (B, 3, T)
+    w = motion.omega                                         # (B, 3, T)
+    m2, m3, m4 = pb["m2"], pb["m3"], pb["m4"]
+    Mp = m2 + m3 + m4
+    J = np.broadcast_to(pb["J2"], (B,)).astype(float).copy()
+    if any(g.plunger_inertia not in ("J2", "assembly") for g in geoms):
+        raise GprmInputError("must be 'J2' or 'assembly'", field="plunger_inertia")
+    m_tm, s_tm = pb["m_tm"], pb["s_tm"]
+    I_tm = m_tm * s_tm ** 2 / 6.0
+    # TM CoM at rest: plunger CoM lateral position, tm_com_height above the contact points
+    com0 = pts["com"].r                                      # (B, 3) body frame = ground at rest
+    out = {}
+    for plane in PLANES:
+        key = "M_xz" if plane == "xz" else "M_yz"
+        bp = pts[key]
+        r_c = bp.r + off[plane]                              # body coordinates of contact
+        P, _ = point_motion(motion, r_c)                     # (B, 3, T)
+        C_tm = np.stack([com0[:, 0], com0[:, 1], bp.r[:, 2] + H], -1)   # (B, 3)
+        # assembly inertia option: parallel-axis terms of spacer and tip (point masses)
+        Jp = J.copy()
+        if any(g.plunger_inertia == "assembly" for g in geoms):
+            from gprm.predict.kinematics import static_position
+            gA = static_position(motion, asm)
+            sp = static_position(motion, pts["spacer"])
+            tp = static_position(motion, pts["tip_edge"])
+            comp = static_position(motion, pts["com"])
+            ax = 0 if plane == "xz" else 1                  # lateral axis of the plane
+            par = sum(m * ((p - gA)[:, ax] ** 2 + (p - gA)[:, 2] ** 2)
+                      for m, p in ((m2, comp), (m3, sp), (m4, tp)))
+            use = np.array([g.plunger_inertia == "assembly" for g in geoms])
+            Jp = np.where(use, J + par, J)
+        if plane == "xz":
+            idx, wk, sgn = (2, 0), 1, np.sign(np.broadcast_to(pb["dist_x"], (B,)))
+        else:
+            idx, wk, sgn = (1, 2), 0, np.sign(np.broadcast_to(pb["dist_y"], (B,)))
+        sgn = np.where(sgn == 0, 1.0, sgn)
+        if plane == "xz":   # (a, b) = (z, x)
+            n2 = np.stack([np.cos(alpha), sgn * np.sin(alpha)], -1)
+        else:               # (a, b) = (y, z)
+            n2 = np.stack([sgn * np.sin(alpha), np.cos(alpha)], -1)
+        sel = list(idx)
+        rhoA = np.moveaxis((P - G)[:, sel, :], 1, -1)        # (B, T, 2)
+        vA = np.moveaxis(vG[:, sel, :], 1, -1)
+        wA = w[:, wk, :]
+        rhoB = np.moveaxis(P[:, sel, :] - C_tm[:, sel, None], 1, -1)
+        zero2 = np.zeros((B, T, 2))
+        res = planar_impact(Mp[:, None], Jp[:, None], rhoA, vA, wA,
+                            m_tm[:, None], I_tm[:, None], rhoB, zero2, np.zeros((B, T)),
+                            n2[:, None, :], e[:, None])
+        ok = (res.vn_before < 0) & motion.ok[:, None]
+        vB = np.where(ok[..., None], res.vB, np.nan)
+        wB = np.where(ok, res.wB, np.nan)
+        comp = dict(zip(("a", "b"), (vB[..., 0], vB[..., 1])))
+        if plane == "xz":
+            out["vx"], out["vz_xz"], out["wy"] = comp["b"], comp["a"], wB
+        else:
+            out["vy"], out["vz_yz"], out["wx"] = comp["a"], comp["b"], wB
+        out[f"approaching_{plane}"] = ok
+        out[f"impulse_{plane}"] = np.where(ok, res.P, np.nan)
+    return out
+
+
+def sample_geometries(geometry: ImpactGeometry, unc: GeometryUncertainty, n: int, seed: int,
+                      pb) -> list[ImpactGeometry]:
+    """``n`` geometries drawn from independent normals about ``geometry`` (resolved with ``pb``).
+    The indent angle is kept in (0, 90°) and the restitution in [0, 1] by clipping."""
+    g0 = geometry.resolved(pb)
+    rng = np.random.default_rng(seed)
+    out = []
+    for _ in range(n):
+        a = float(np.clip(g0.indent_angle + unc.indent_angle * rng.standard_normal(),
+                          1e-3, np.pi / 2 - 1e-3))
+        oxz = tuple(np.asarray(g0.contact_offset_xz) + unc.contact_offset * rng.standard_normal(3))
+        oyz = tuple(np.asarray(g0.contact_offset_yz) + unc.contact_offset * rng.standard_normal(3))
+        h = g0.tm_com_height + unc.tm_com_height * rng.standard_normal()
+        e = float(np.clip(g0.restitution + unc.restitution * rng.standard_normal(), 0.0, 1.0))
+        out.append(replace(g0, indent_angle=a, contact_offset_xz=oxz, contact_offset_yz=oyz,
+                           tm_com_height=h, restitution=e))
+    return out
+
+
+@dataclass(frozen=True)
+class VelocityCurves:
+    """Predicted TM velocity vs impact time with its bands (Fig. 11b).
+
+    ``time`` (T,) s from the start of the retraction record; ``nominal[axis]`` (T,) from the
+    best-fit parameters and nominal geometry; ``sigma_fit``, ``sigma_geometry`` (T,) standard
+    deviations over the parameter samples (fit covariance) and the geometry samples;
+    ``sigma`` their quadrature sum; ``lo``, ``hi`` the 2.5 and 97.5 % points of the joint
+    samples (both sources drawn together). NaN where no impact is possible.
+    """
+
+    time: np.ndarray
+    nominal: dict
+    sigma_fit: dict
+    sigma_geometry: dict
+    sigma: dict
+    lo: dict
+    hi: dict
+    approaching: dict            # plane -> (T,) nominal
+    plausible: np.ndarray        # (T,) fraction of joint samples approaching in both planes
+    n_samples: int
+    seed: int
+    meta: dict = field(default_factory=dict)
+
+
+def _nanstd(a):
+    with np.errstate(invalid="ignore"), _quiet():
+        return np.nanstd(a, axis=0, ddof=1)
+
+
+class _quiet:
+    def __enter__(self):
+        import warnings
+        self._w = warnings.catch_warnings()
+        self._w.__enter__()
+        warnings.simplefilter("ignore", RuntimeWarning)
+
+    def __exit__(self, *a):
+        return self._w.__exit__(*a)
+
+
+def default_window(pb) -> tuple[float, float]:
+    """[t_c, t_c + 0.2 ms]: from the retraction command to the end of the paper's record."""
+    tc = float(np.asarray(pb["t_c"]).ravel()[0])
+    return (tc, tc + 0.2e-3)
+
+
+def velocity_curves(model, *, window=None, n_times: int = 401, n_samples: int = 200,
+                    seed: int = 0, geometry: ImpactGeometry | None = None,
+                    uncertainty: GeometryUncertainty | None = None, voltage=None
+                    ) -> VelocityCurves:
+    """Nominal curves and uncertainty bands for a :class:`~gprm.fit.files.FittedModel`.
+
+    Three batches are simulated: the best fit (nominal), ``n_samples`` draws from the fit
+    covariance (``FittedModel.sample``) with nominal geometry, ``n_samples`` nominal-parameter
+    runs with geometry draws (:class:`GeometryUncertainty`), and ``n_samples`` joint draws
+    (for the percentile band and the plausibility fraction).
+    """
+    from gprm.params import batch
+    from gprm.predict.kinematics import body_motion
+
+    geometry = geometry or ImpactGeometry()
+    uncertainty = uncertainty or GeometryUncertainty()
+    pb0 = batch([model.params])
+    if window is None:
+        window = default_window(pb0)
+    t = np.linspace(float(window[0]), float(window[1]), int(n_times))
+    nom_m = body_motion(pb0, t, piezo=model.piezo, voltage=voltage)
+    nom = tm_velocity_vs_time(nom_m, geometry)
+    pf = model.sample(n_samples, seed=seed)
+    fit_c = tm_velocity_vs_time(body_motion(pf, t, piezo=model.piezo, voltage=voltage),
+                                geometry)
+    geos = sample_geometries(geometry, uncertainty, n_samples, seed + 1, pb0)
+    rep = {k: np.repeat(v, n_samples) for k, v in pb0.items()}
+    m_rep = body_motion(rep, t, piezo=model.piezo, voltage=voltage)
+    geo_c = tm_velocity_vs_time(m_rep, geos)
+    pj = model.sample(n_samples, seed=seed + 2)
+    geos_j = sample_geometries(geometry, uncertainty, n_samples, seed + 3, pb0)
+    joint = tm_velocity_vs_time(body_motion(pj, t, piezo=model.piezo, voltage=voltage), geos_j)
+    sf = {a: _nanstd(fit_c[a]) for a in AXES}
+    sg = {a: _nanstd(geo_c[a]) for a in AXES}
+    with _quiet():
+        lo = {a: np.nanpercentile(joint[a], 2.5, axis=0) for a in AXES}
+        hi = {a: np.nanpercentile(joint[a], 97.5, axis=0) for a in AXES}
+    plaus = np.mean(joint["approaching_xz"] & joint["approaching_yz"], axis=0)
+    return VelocityCurves(
+        time=t, nominal={a: nom[a][0] for a in AXES}, sigma_fit=sf, sigma_geometry=sg,
+        sigma={a: np.sqrt(sf[a] ** 2 + sg[a] ** 2) for a in AXES}, lo=lo, hi=hi,
+        approaching={p: nom[f"approaching_{p}"][0] for p in PLANES}, plausible=plaus,
+        n_samples=int(n_samples), seed=int(seed),
+        meta={"geometry": geometry.resolved(pb0), "uncertainty": uncertainty,
+              "piezo": model.piezo, "source": model.source})

@@ -1,0 +1,83 @@
+"""CLI: ``gprm fit``."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Optional
+
+import typer
+
+
+def register(app: typer.Typer, synth_app: typer.Typer) -> None:
+    from gprm.cli import one_line_errors
+
+    @app.command("fit")
+    @one_line_errors
+    def fit_cmd(
+        means: Path = typer.Argument(..., help="mean-signals NetCDF (gprm preprocess)"),
+        out: Path = typer.Option(..., "--out", help="fit result JSON (sidecar: same name .nc)"),
+        starts: int = typer.Option(1000, "--starts", help="number of random starts"),
+        seed: int = typer.Option(0, "--seed", help="random seed of the starts"),
+        spread: float = typer.Option(0.2, "--spread", help="starts within ±spread of the "
+                                     "paper's initial values"),
+        sampling: str = typer.Option("uniform", "--sampling", help="uniform or lhs"),
+        params: Optional[Path] = typer.Option(None, "--params", help="TOML parameter file "
+                                              "(constants, fitted set, bounds)"),
+        piezo: int = typer.Option(2, "--piezo", help="driven piezo in the campaign"),
+        window: tuple[float, float] = typer.Option((0.97e-3, 1.2e-3), "--window",
+                                                   help="fit window start end, s"),
+        sigma: str = typer.Option("sem", "--sigma", help="weights: sem (standard error of "
+                                  "the mean) or std (the paper's across-run std)"),
+        workers: int = typer.Option(0, "--workers", help="local Dask worker processes "
+                                    "(0: run in this process)"),
+        scheduler: Optional[str] = typer.Option(None, "--scheduler",
+                                                help="address of an existing Dask scheduler"),
+        chunk: int = typer.Option(100, "--chunk", help="starts per lock-step chunk (part of "
+                                  "the result's definition, like the seed)"),
+        max_iter: int = typer.Option(100, "--max-iter", help="LM iteration limit per start"),
+        profile: bool = typer.Option(False, "--profile", help="also compute profile "
+                                     "likelihoods of every fitted parameter"),
+        checkpoint: Optional[Path] = typer.Option(None, "--checkpoint", help="checkpoint "
+                                                  "folder (default: OUT.ckpt); rerun resumes"),
+        z_bk_absolute: bool = typer.Option(False, "--z-bk-absolute",
+                                           help="fit z_bk as z_lr + z_A"),
+    ):
+        """Multi-start Levenberg-Marquardt identification (Sec. 3.1)."""
+        import shutil
+
+        from rich.console import Console
+        from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
+
+        from gprm._io import open_netcdf
+        from gprm.errors import GprmInputError
+        from gprm.fit.multistart import LMOptions, MultiStartOptions
+        from gprm.fit.objective import fit_data_from_means
+        from gprm.fit.result import identify
+        from gprm.params import load_params
+
+        if sigma not in ("sem", "std"):
+            raise GprmInputError(f"must be sem or std, got {sigma!r}", field="--sigma")
+        if starts < 1:
+            raise GprmInputError(f"must be at least 1, got {starts}", field="--starts")
+        ds = open_netcdf(means, what="mean-signals file")
+        data = fit_data_from_means(ds, window=window, sigma=sigma, source=str(means))
+        base = load_params(params)
+        opts = MultiStartOptions(n_starts=starts, seed=seed, spread=spread, sampling=sampling,
+                                 chunk_size=chunk, lm=LMOptions(max_iter=max_iter))
+        ckpt = checkpoint if checkpoint is not None else Path(str(out) + ".ckpt")
+        console = Console(stderr=True)
+        with Progress(TextColumn("fit"), BarColumn(), TextColumn("{task.completed}/"
+                      "{task.total} chunks"), TimeElapsedColumn(), console=console,
+                      transient=True) as bar:
+            task = bar.add_task("fit", total=None)
+
+            def progress(done, total):
+                bar.update(task, completed=done, total=total)
+
+            res = identify(data, base, opts, piezo=piezo, workers=workers,
+                           scheduler=scheduler, checkpoint_dir=ckpt, progress=progress,
+                           profile=profile, z_bk_absolute=z_bk_absolute)
+        side = res.write(out)
+        shutil.rmtree(ckpt, ignore_errors=True)
+        typer.echo(res.summary())
+        typer.echo(f"wrote {out} and {side} ({res.timings['total']:.1f} s)")

@@ -1,0 +1,66 @@
+"""Parameter covariance of a least-squares fit (Eq. 7) and checks that make it meaningless.
+
+Eq. 7: ``C = (e_x^T e_x / (m - p)) (J_x^T J_x)^{-1}`` with ``e_x = D e`` the weighted residuals
+at the best fit and ``J_x`` their Jacobian; ``m - p`` the degrees of freedom. The factor in
+front is the reduced chi-square, so C does not depend on an overall scale error of sigma
+(``--sigma sem`` and ``--sigma std`` give the same C).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+
+class CovarianceError(ValueError):
+    """The covariance cannot be estimated; the message says why."""
+
+
+def covariance(J: np.ndarray, r: np.ndarray, dof: int, *, rcond: float = 1e-12,
+               names=None) -> np.ndarray:
+    """Eq. 7 covariance (P, P) from the weighted residuals r (N,) and Jacobian J (N, P).
+
+    The inverse of J^T J is computed from the SVD of J with the columns scaled to unit norm
+    (so that parameters of very different magnitude do not make a well-posed problem look
+    singular). Raises :class:`CovarianceError` when dof <= 0, when J or r is not finite,
+    when a parameter has no effect on the residuals (zero column), or when J^T J is singular
+    (scaled condition number of J above 1/rcond, i.e. of J^T J above 1/rcond^2), naming the
+    parameter combination responsible.
+    """
+    J = np.asarray(J, float)
+    r = np.asarray(r, float)
+    N, P = J.shape
+    label = (lambda k: str(names[k])) if names is not None else (lambda k: f"#{k}")
+    if dof <= 0:
+        raise CovarianceError(f"no degrees of freedom left ({N} observations, {P} parameters)")
+    if not (np.all(np.isfinite(J)) and np.all(np.isfinite(r))):
+        raise CovarianceError("Jacobian or residuals not finite at the best fit")
+    norms = np.linalg.norm(J, axis=0)
+    zero = np.nonzero(norms == 0)[0]
+    if zero.size:
+        raise CovarianceError("singular J^T J: parameter(s) with no effect on the fitted "
+                              "signals: " + ", ".join(label(k) for k in zero))
+    Js = J / norms
+    U, s, Vt = np.linalg.svd(Js, full_matrices=False)
+    if s[-1] <= rcond * s[0]:
+        v = Vt[-1]
+        top = np.argsort(-np.abs(v))[:3]
+        combo = " + ".join(f"{v[k]:+.2f} {label(k)}" for k in top)
+        raise CovarianceError(f"singular J^T J (condition number of the scaled Jacobian "
+                              f"{s[0] / max(s[-1], 1e-300):.2e} > {1 / rcond:.0e}); the "
+                              f"direction not determined by the data is about {combo}")
+    inv_scaled = (Vt.T / s ** 2) @ Vt
+    s2 = float(r @ r) / dof
+    return s2 * inv_scaled / np.outer(norms, norms)
+
+
+def parameters_at_bounds(x: np.ndarray, lo: np.ndarray, hi: np.ndarray, *,
+                         rtol: float = 1e-6) -> np.ndarray:
+    """Boolean mask of parameters within ``rtol`` (relative to the bound width, or to the
+    value where the box is unbounded) of a bound. Their standard errors are not reliable
+    (the minimum is constrained, not stationary)."""
+    x = np.asarray(x, float)
+    lo = np.asarray(lo, float)
+    hi = np.asarray(hi, float)
+    width = np.where(np.isfinite(hi - lo), hi - lo, np.maximum(np.abs(x), 1e-300))
+    tol = rtol * width
+    return (np.isfinite(lo) & (x - lo <= tol)) | (np.isfinite(hi) & (hi - x <= tol))

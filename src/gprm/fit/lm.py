@@ -1,0 +1,352 @@
+"""Levenberg-Marquardt as in the paper's Algorithm 1 (Sec. 3.1), for a batch of problems run
+in lock-step.
+
+One function, :func:`levenberg_marquardt_batch`, is the optimizer. It advances B independent
+starting points of the same residual function together, so that one (batched) model
+evaluation serves all of them; :func:`levenberg_marquardt` is the single-problem API, a batch
+of one with an optional finite-difference Jacobian.
+
+Algorithm 1 as implemented (for every row of the batch independently):
+
+1. residuals ``r`` (their sum of squares is chi-square, Eq. 6 when they are the weighted
+   residuals ``D e``) and Jacobian ``J = dr/dx`` at the current point;
+2. the damped step solves ``[J^T J + lambda diag(J^T J)] dx = -J^T r``. It is computed from
+   the equivalent least-squares problem ``[J; sqrt(lambda diag(J^T J))] dx ~ [-r; 0]`` by a
+   QR factorisation (the same step, without squaring the condition number of ``J``);
+3. the trial point is evaluated (residuals only when a residual-only function is given: the
+   Jacobian is then computed for accepted points only);
+4. a trial with a smaller chi-square is **accepted** and lambda is divided by 10; a trial with
+   the same or larger chi-square (or non-finite residuals, or outside the bounds) is
+   **rejected** -- the parameters stay where they were -- and lambda is multiplied by 10.
+   (Algorithm 1 as printed moves to the trial point in both cases; keeping the old point on a
+   worse step is what its text and its reference, Gavin 2019, intend, and is what makes
+   chi-square non-increasing.)
+5. stop when an accepted step changes chi-square by at most ``ftol * chi2 + ftol_abs``
+   (epsilon_1 of Algorithm 1, relative and absolute), when chi-square falls to ``chi2_tol``
+   or below (epsilon_2), when the iteration limit is reached, or when lambda exceeds
+   ``lambda_max`` (no smaller chi-square can be found along the ever shorter steepest-descent
+   steps: the point is a minimum to machine precision, or sits against a bound).
+
+Bounds: a trial point outside the open box ``lower < x < upper`` is treated as a worse step
+(rejected, lambda x 10), so the damped step shrinks and turns towards the gradient until it
+stays inside. No transform is used, so the Jacobian, the covariance (Eq. 7) and the
+iteration path are those of the untransformed problem; a minimum on a bound ends with status
+``lambda_max`` and is reported as such by the caller.
+
+An iteration is one trial step (accepted or rejected), as ``i`` in Algorithm 1.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Callable
+
+import numpy as np
+
+LAMBDA_MIN = 1e-15
+
+#: statuses that count as converged
+CONVERGED = ("ftol", "chi2_tol", "lambda_max")
+
+MESSAGES = {
+    "ftol": "chi-square changed by less than the tolerance on an accepted step",
+    "chi2_tol": "chi-square fell below the threshold",
+    "lambda_max": "no smaller chi-square found with the damping at its limit (a minimum to "
+                  "machine precision, or against a bound)",
+    "max_iter": "iteration limit reached",
+    "failed": "residuals or Jacobian not finite at the starting point",
+}
+
+
+@dataclass(frozen=True)
+class LMBatchResult:
+    """Outcome for each row of the batch (arrays indexed by row)."""
+
+    x: np.ndarray            # (B, P) final points
+    chi2: np.ndarray         # (B,) sum of squared residuals at x
+    chi2_0: np.ndarray       # (B,) at the start
+    iterations: np.ndarray   # (B,) trial steps taken
+    converged: np.ndarray    # (B,) bool
+    status: np.ndarray       # (B,) str, a key of MESSAGES
+    lam: np.ndarray          # (B,) final damping
+    nfev: np.ndarray         # (B,) residual evaluations
+    njev: np.ndarray         # (B,) Jacobian evaluations
+    fun: np.ndarray          # (B, N) residuals at x
+    jac: np.ndarray | None   # (B, N, P) Jacobian at x (None unless asked for)
+
+
+@dataclass(frozen=True)
+class LMResult:
+    """Outcome of :func:`levenberg_marquardt` (one problem)."""
+
+    x: np.ndarray
+    chi2: float
+    chi2_0: float
+    iterations: int
+    converged: bool
+    status: str
+    message: str
+    lam: float
+    nfev: int
+    njev: int
+    fun: np.ndarray
+    jac: np.ndarray | None
+
+    @property
+    def success(self) -> bool:
+        return self.converged
+
+
+def damped_steps(J: np.ndarray, r: np.ndarray, lam: np.ndarray,
+                 dfloor: np.ndarray | None = None) -> np.ndarray:
+    """Steps of Algorithm 1 for a batch: ``[J^T J + lam diag(J^T J)] dx = -J^T r``.
+
+    J (B, N, P), r (B, N), lam (B,). Solved as the stacked least-squares problem
+    ``[J; sqrt(lam) diag(|J_k|)] dx ~ [-r; 0]`` by QR. A column of zeros in J (a parameter
+    with no effect, or held fixed by zeroing its column) gets a tiny diagonal so the system
+    stays solvable, and its step is set to exactly 0.
+    """
+    B, N, P = J.shape
+    d = np.einsum("bnp,bnp->bp", J, J)                       # diag(J^T J)
+    zero = d == 0
+    if dfloor is not None:
+        d = np.maximum(d, dfloor)
+    dmax = np.max(d, axis=1, keepdims=True)
+    d = np.maximum(d, np.where(dmax > 0, dmax, 1.0) * 1e-30)
+    A = np.concatenate([J, np.sqrt(lam[:, None, None] * d[:, None, :])
+                        * np.eye(P)[None]], axis=1)           # (B, N+P, P)
+    Q, R = np.linalg.qr(A)
+    rhs = -np.einsum("bnp,bn->bp", Q[:, :N, :], r)
+    try:
+        out = np.linalg.solve(R, rhs[..., None])[..., 0]
+    except np.linalg.LinAlgError:
+        out = np.full((B, P), np.nan)
+        for b in range(B):
+            try:
+                out[b] = np.linalg.solve(R[b], rhs[b])
+            except np.linalg.LinAlgError:
+                pass
+    out[zero] = 0.0
+    return out
+
+
+def _chi2(r: np.ndarray) -> np.ndarray:
+    with np.errstate(over="ignore", invalid="ignore"):
+        c = np.sum(r * r, axis=1)
+    return np.where(np.isfinite(c), c, np.inf)
+
+
+def levenberg_marquardt_batch(fun: Callable, X0: np.ndarray, *, residuals: Callable | None = None,
+                              max_iter: int = 100, lambda0: float = 1e-2, ftol: float = 1e-8,
+                              ftol_abs: float = 0.0, chi2_tol: float = 0.0,
+                              lambda_max: float = 1e12, lower=None, upper=None,
+                              keep_jacobian: bool = False, damping: str = "current",
+                              prune: Callable | None = None) -> LMBatchResult:
+    """Algorithm 1 for B starting points in lock-step (see the module docstring).
+
+    fun: ``fun(X (b, P)) -> (r (b, N), J (b, N, P))`` for any number b of rows.
+    residuals: optional ``residuals(X (b, P)) -> r (b, N)``; when given, trial points are
+        evaluated with it and ``fun`` is called only at accepted points (worth it when the
+        Jacobian costs much more than the residuals).
+    lower, upper: bounds (P,) or scalars; trial points must lie strictly inside.
+    damping: ``current`` -- Algorithm 1: lambda diag(J^T J) at the current point; ``max`` --
+        lambda times the largest diag(J^T J) seen so far along the row's path (MINPACK's
+        scaling). ``max`` keeps a parameter whose Jacobian column fades (an exponential
+        rate running to infinity, as from MGH17's first start) damped.
+    keep_jacobian: return the Jacobian at the final points (computed if not at hand).
+    prune: optional ``prune(chi2 (B,), active (B,)) -> (B,) bool`` called each iteration;
+        rows it marks stop with status ``pruned`` (used by the multi-start driver, which
+        documents its rule).
+    """
+    X = np.array(X0, dtype=float, copy=True)
+    if X.ndim != 2:
+        raise ValueError("X0 must be 2-D (B, P)")
+    B, P = X.shape
+    lo = np.broadcast_to(np.asarray(-np.inf if lower is None else lower, float), (P,))
+    hi = np.broadcast_to(np.asarray(np.inf if upper is None else upper, float), (P,))
+    r, J = fun(X)
+    r = np.asarray(r, float)
+    J = np.array(J, dtype=float)
+    if r.ndim != 2 or r.shape[0] != B or J.shape != (B, r.shape[1], P):
+        raise ValueError(f"fun must return r (B, N) and J (B, N, P); got {r.shape}, {J.shape}")
+    chi2 = _chi2(r)
+    chi2_0 = chi2.copy()
+    finite_J = np.all(np.isfinite(J), axis=(1, 2))
+    status = np.full(B, "", dtype=object)
+    active = np.isfinite(chi2) & finite_J
+    status[~active] = "failed"
+    lam = np.full(B, float(lambda0))
+    iters = np.zeros(B, int)
+    nfev = np.ones(B, int)
+    njev = np.ones(B, int)
+    stale = np.zeros(B, bool)            # J not yet evaluated at the (accepted) point
+    if damping not in ("current", "max"):
+        raise ValueError(f"damping must be 'current' or 'max', got {damping!r}")
+    dmax = np.einsum("bnp,bnp->bp", J, J) if damping == "max" else None
+
+    for _ in range(int(max_iter)):
+        idx = np.nonzero(active)[0]
+        if idx.size == 0:
+            break
+        if prune is not None:
+            cut = np.asarray(prune(chi2, active), bool) & active
+            if cut.any():
+                status[cut] = "pruned"
+                active &= ~cut
+                idx = np.nonzero(active)[0]
+                if idx.size == 0:
+                    break
+        st = idx[stale[idx]]
+        if st.size:
+            rr, JJ = fun(X[st])
+            J[st] = JJ
+            njev[st] += 1
+            stale[st] = False
+            if dmax is not None:
+                dmax[st] = np.maximum(dmax[st], np.einsum("bnp,bnp->bp", JJ, JJ))
+        dx = damped_steps(J[idx], r[idx], lam[idx], None if dmax is None else dmax[idx])
+        Xt = X[idx] + dx
+        inside = np.all(np.isfinite(Xt) & (Xt > lo) & (Xt < hi), axis=1)
+        chi_t = np.full(idx.size, np.inf)
+        ev = np.nonzero(inside)[0]
+        rt = Jt = None
+        if ev.size:
+            if residuals is not None:
+                rt = np.asarray(residuals(Xt[ev]), float)
+            else:
+                rt, Jt = fun(Xt[ev])
+                rt = np.asarray(rt, float)
+            chi_t[ev] = _chi2(rt)
+            nfev[idx[ev]] += 1
+        iters[idx] += 1
+        better = chi_t < chi2[idx]
+        if Jt is not None:
+            better[ev] &= np.all(np.isfinite(Jt), axis=(1, 2))
+        acc_local = np.nonzero(better)[0]
+        acc = idx[acc_local]
+        rej = idx[~better]
+        old = chi2[acc].copy()
+        if acc.size:
+            pos = np.searchsorted(ev, acc_local)            # rows of rt for accepted rows
+            X[acc] = Xt[acc_local]
+            r[acc] = rt[pos]
+            chi2[acc] = chi_t[acc_local]
+            if Jt is not None:
+                J[acc] = Jt[pos]
+                njev[acc] += 1
+                if dmax is not None:
+                    dmax[acc] = np.maximum(dmax[acc], np.einsum("bnp,bnp->bp", J[acc], J[acc]))
+            else:
+                stale[acc] = True
+            lam[acc] = np.maximum(lam[acc] / 10.0, LAMBDA_MIN)
+        lam[rej] *= 10.0
+        # stopping rules
+        small = (old - chi2[acc]) <= ftol * chi2[acc] + ftol_abs
+        low = chi2[acc] <= chi2_tol
+        status[acc[low]] = "chi2_tol"
+        status[acc[small & ~low]] = "ftol"
+        active[acc[small | low]] = False
+        stuck = rej[lam[rej] > lambda_max]
+        status[stuck] = "lambda_max"
+        active[stuck] = False
+    status[active] = "max_iter"
+    jac = None
+    if keep_jacobian:
+        st = np.nonzero(stale)[0]
+        if st.size:
+            _, JJ = fun(X[st])
+            J[st] = JJ
+            njev[st] += 1
+        jac = J
+    converged = np.isin(status.astype(str), CONVERGED)
+    return LMBatchResult(X, chi2, chi2_0, iters, converged, status.astype(str), lam, nfev,
+                         njev, r, jac)
+
+
+def finite_difference_jacobian(residuals: Callable, x: np.ndarray, r0: np.ndarray | None = None,
+                               *, method: str = "central", rel_step: float | None = None,
+                               lower=None, upper=None) -> np.ndarray:
+    """Jacobian of ``residuals(x) -> (N,)`` at ``x`` by finite differences.
+
+    central: (r(x+h) - r(x-h)) / 2h with h = eps^(1/3) max(|x|, 1e-8) (error O(h^2));
+    forward: (r(x+h) - r(x)) / h with h = sqrt(eps) max(|x|, 1e-8). Near a bound the
+    difference is taken one-sided, inwards.
+    """
+    x = np.asarray(x, float)
+    eps = np.finfo(float).eps
+    if rel_step is None:
+        rel_step = eps ** (1 / 3) if method == "central" else np.sqrt(eps)
+    lo = np.broadcast_to(np.asarray(-np.inf if lower is None else lower, float), x.shape)
+    hi = np.broadcast_to(np.asarray(np.inf if upper is None else upper, float), x.shape)
+    if r0 is None and method != "central":
+        r0 = np.asarray(residuals(x), float)
+    cols = []
+    for k in range(x.size):
+        h = rel_step * max(abs(x[k]), 1e-8)
+        e = np.zeros_like(x)
+        if method == "central" and x[k] - h > lo[k] and x[k] + h < hi[k]:
+            e[k] = h
+            xp, xm = x + e, x - e
+            h2 = xp[k] - xm[k]
+            cols.append((np.asarray(residuals(xp), float) - np.asarray(residuals(xm), float))
+                        / h2)
+            continue
+        if r0 is None:
+            r0 = np.asarray(residuals(x), float)
+        step = h if x[k] + h < hi[k] else -h
+        e[k] = step
+        xp = x + e
+        cols.append((np.asarray(residuals(xp), float) - r0) / (xp[k] - x[k]))
+    return np.stack(cols, axis=-1)
+
+
+def levenberg_marquardt(residuals: Callable, x0, jacobian: Callable | None = None, *,
+                        args: tuple = (), max_iter: int = 1000, lambda0: float = 1e-2,
+                        ftol: float = 1e-12, ftol_abs: float = 0.0, chi2_tol: float = 0.0,
+                        lambda_max: float = 1e16, lower=None, upper=None,
+                        fd_method: str = "central", damping: str = "current") -> LMResult:
+    """Minimise ``sum(residuals(x)**2)`` by Algorithm 1 (Levenberg-Marquardt).
+
+    residuals: ``residuals(x, *args) -> (N,)``.
+    jacobian: ``jacobian(x, *args) -> (N, P)`` (d residuals / d x); None: finite differences
+        (``fd_method`` central or forward).
+    max_iter, lambda0, ftol, ftol_abs, chi2_tol, lambda_max, lower, upper, damping: see
+        :func:`levenberg_marquardt_batch` (this is the batch of one).
+
+    Returns an :class:`LMResult` with ``x``, ``chi2`` (sum of squared residuals),
+    ``converged``, ``iterations``, ``status``, ``message``, ``nfev``, ``njev``.
+    """
+    x0 = np.atleast_1d(np.asarray(x0, float))
+    counter = {"nfev": 0}
+
+    def res1(x):
+        counter["nfev"] += 1
+        return np.atleast_1d(np.asarray(residuals(x, *args), float))
+
+    def jac1(x, r0):
+        if jacobian is not None:
+            return np.atleast_2d(np.asarray(jacobian(x, *args), float)).reshape(r0.size, x.size)
+        return finite_difference_jacobian(res1, x, r0, method=fd_method, lower=lower,
+                                          upper=upper)
+
+    def fun(X):
+        rs, Js = [], []
+        for x in X:
+            r = res1(x)
+            rs.append(r)
+            Js.append(jac1(x, r) if np.all(np.isfinite(r)) else np.full((r.size, x.size),
+                                                                         np.nan))
+        return np.stack(rs), np.stack(Js)
+
+    def resb(X):
+        return np.stack([res1(x) for x in X])
+
+    b = levenberg_marquardt_batch(fun, x0[None], residuals=resb, max_iter=max_iter,
+                                  lambda0=lambda0, ftol=ftol, ftol_abs=ftol_abs,
+                                  chi2_tol=chi2_tol, lambda_max=lambda_max, lower=lower,
+                                  upper=upper, keep_jacobian=True, damping=damping)
+    st = str(b.status[0])
+    return LMResult(b.x[0], float(b.chi2[0]), float(b.chi2_0[0]), int(b.iterations[0]),
+                    bool(b.converged[0]), st, MESSAGES.get(st, st), float(b.lam[0]),
+                    counter["nfev"], int(b.njev[0]),
+                    b.fun[0], None if b.jac is None else b.jac[0])

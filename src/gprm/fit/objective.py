@@ -1,0 +1,169 @@
+"""The identification objective: chi-square of Eq. 6 over the five measured signals in a time
+window, weighted by sigma(t), all signals fitted at once with shared parameters.
+
+The fitter works on *normalised* parameters x_k / s_k, with s_k the magnitude of the paper's
+initial value (so every unknown is O(1) although the physical values span 1e-6 .. 1e8). The
+residual vector of one parameter set is ``(data - model) / sigma`` over signals x times, in
+the order ``SIGNALS`` (the paper's q* of Eq. 5, appended signal after signal).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+import xarray as xr
+
+from gprm.errors import GprmInputError
+from gprm.params import ParameterSet, batch_from_vectors
+from gprm.simulate import OUTPUTS, observe
+
+SIGNALS: tuple[str, ...] = OUTPUTS
+DEFAULT_WINDOW = (0.97e-3, 1.2e-3)
+
+
+@dataclass(frozen=True)
+class FitData:
+    """The data a fit sees: times (T,), values and sigma (n_signals, T), per signal."""
+
+    time: np.ndarray
+    values: np.ndarray
+    sigma: np.ndarray
+    signals: tuple[str, ...] = SIGNALS
+    window: tuple[float, float] = DEFAULT_WINDOW
+    sigma_kind: str = "sem"
+    source: str = ""
+    attrs: dict = field(default_factory=dict)
+
+    @property
+    def n_obs(self) -> int:
+        return int(self.values.size)
+
+
+def fit_data_from_means(ds: xr.Dataset, *, window=DEFAULT_WINDOW, sigma: str = "sem",
+                        source: str = "mean signals") -> FitData:
+    """Select the five fitted signals in ``window`` from a mean-signals dataset (the output
+    of ``gprm preprocess``: dims ``signal``, ``time``; vars ``mean`` and ``std``/``sem``).
+
+    sigma: ``sem`` (standard error of the mean signal; chi-square then follows its
+    distribution, reduced chi-square ~ 1 for a correct model) or ``std`` (the paper's weighting
+    by the standard deviation across runs). Eq. 7's covariance is the same for both, since it
+    rescales by the residual variance.
+    """
+    for var in ("mean", sigma):
+        if var not in ds.variables:
+            raise GprmInputError(f"mean-signals file has no variable '{var}' (sigma '{sigma}' "
+                                 "needs it)", source=source, field=var)
+    if "signal" not in ds.dims or "time" not in ds.dims:
+        raise GprmInputError("expected dimensions (signal, time)", source=source, field="mean")
+    names = [str(s) for s in ds["signal"].values]
+    missing = [s for s in SIGNALS if s not in names]
+    if missing:
+        raise GprmInputError(f"missing signal(s) {missing}", source=source, field="signal")
+    lo, hi = float(window[0]), float(window[1])
+    if not (lo < hi):
+        raise GprmInputError(f"window start {lo} is not before its end {hi}", field="window")
+    t = np.asarray(ds["time"].values, float)
+    if lo < t.min() - 1e-12 or hi > t.max() + 1e-12:
+        raise GprmInputError(f"window [{lo:g}, {hi:g}] s is outside the data "
+                             f"[{t.min():g}, {t.max():g}] s", source=source, field="window")
+    sel = (t >= lo - 1e-12) & (t <= hi + 1e-12)
+    vals = np.stack([np.asarray(ds["mean"].sel(signal=s).values, float)[sel] for s in SIGNALS])
+    sig = np.stack([np.asarray(ds[sigma].sel(signal=s).values, float)[sel] for s in SIGNALS])
+    if not np.all(np.isfinite(vals)):
+        raise GprmInputError("mean signal holds NaN or Inf in the window", source=source,
+                             field="mean")
+    if not np.all(np.isfinite(sig)) or np.any(sig <= 0):
+        bad = SIGNALS[int(np.argmax(np.any(~(sig > 0), axis=1)))]
+        raise GprmInputError(f"sigma must be finite and > 0 (signal {bad})", source=source,
+                             field=sigma)
+    return FitData(t[sel], vals, sig, SIGNALS, (lo, hi), sigma, source, dict(ds.attrs))
+
+
+@dataclass(frozen=True)
+class Objective:
+    """Weighted residuals and their exact Jacobian for batches of normalised parameters."""
+
+    data: FitData
+    base: ParameterSet
+    names: tuple[str, ...]
+    scale: np.ndarray
+    piezo: int = 2
+    z_bk_absolute: bool = False
+
+    @classmethod
+    def create(cls, data: FitData, base: ParameterSet, names=None, *, piezo: int = 2,
+               z_bk_absolute: bool = False) -> "Objective":
+        names = tuple(base.fitted if names is None else names)
+        if not names:
+            raise GprmInputError("no parameters to fit", field="fit")
+        p = len(names)
+        if data.n_obs <= p:
+            raise GprmInputError(f"too few observations ({data.n_obs}) for {p} parameters",
+                                 source=data.source, field="window")
+        init = base.initial_vector(names)
+        cur = base.vector(names)
+        scale = np.where(np.abs(init) > 0, np.abs(init), np.abs(cur))
+        scale = np.where(scale > 0, scale, 1.0)
+        return cls(data, base, names, scale, piezo, z_bk_absolute)
+
+    @property
+    def n_params(self) -> int:
+        return len(self.names)
+
+    @property
+    def dof(self) -> int:
+        return self.data.n_obs - self.n_params
+
+    def bounds(self) -> tuple[np.ndarray, np.ndarray]:
+        """Physical bounds (P,) of the fitted parameters (the set's, else the registry's)."""
+        from gprm.params import REGISTRY
+
+        b = [self.base.bounds.get(n, (REGISTRY[n].lower, REGISTRY[n].upper))
+             for n in self.names]
+        return np.array([v[0] for v in b], float), np.array([v[1] for v in b], float)
+
+    def bounds_normalised(self) -> tuple[np.ndarray, np.ndarray]:
+        """Bounds in the normalised coordinates the optimiser sees (scale > 0)."""
+        lo, hi = self.bounds()
+        return lo / self.scale, hi / self.scale
+
+    def to_physical(self, Xn: np.ndarray) -> np.ndarray:
+        return np.asarray(Xn) * self.scale
+
+    def to_normalised(self, X: np.ndarray) -> np.ndarray:
+        return np.asarray(X) / self.scale
+
+    def model(self, X: np.ndarray, *, jacobian: bool = False, times=None):
+        """Model signals for physical parameter rows X (B, P): y (B, S, T) [, dy (B,S,T,P)]."""
+        X = np.atleast_2d(X)
+        pb = batch_from_vectors(self.base, self.names, X)
+        t = self.data.time if times is None else np.asarray(times, float)
+        obs = observe(pb, t, self.data.signals, piezo=self.piezo,
+                      sensitivities=self.names if jacobian else (),
+                      z_bk_absolute=self.z_bk_absolute)
+        return obs
+
+    def __call__(self, Xn: np.ndarray):
+        """Residuals r (B, N) and Jacobian dr/dXn (B, N, P) for normalised rows Xn (B, P).
+
+        Sets that cannot be simulated give NaN residuals (the optimiser treats them as a
+        worse step, or as a failed start).
+        """
+        Xn = np.atleast_2d(np.asarray(Xn, float))
+        obs = self.model(self.to_physical(Xn), jacobian=True)
+        w = 1.0 / self.data.sigma                                      # (S, T)
+        r = ((self.data.values[None] - obs.y) * w[None]).reshape(Xn.shape[0], -1)
+        J = (-obs.dy * w[None, :, :, None] * self.scale).reshape(Xn.shape[0], -1, Xn.shape[1])
+        return r, J
+
+    def residuals(self, Xn: np.ndarray) -> np.ndarray:
+        """Residuals only (no sensitivities), for any batch of normalised rows."""
+        Xn = np.atleast_2d(np.asarray(Xn, float))
+        obs = self.model(self.to_physical(Xn))
+        w = 1.0 / self.data.sigma
+        return ((self.data.values[None] - obs.y) * w[None]).reshape(Xn.shape[0], -1)
+
+    def chi2(self, Xn: np.ndarray) -> np.ndarray:
+        r = self.residuals(Xn)
+        return np.sum(r * r, axis=1)

@@ -1,0 +1,109 @@
+"""CLI: ``gprm predict`` (a thin layer over :mod:`gprm.predict.core`)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import List, Optional
+
+import typer
+
+
+def parse_overrides(items) -> dict:
+    """``NAME=VALUE_WITH_UNIT`` strings -> {name: SI value} (bare numbers are SI)."""
+    from gprm.errors import GprmInputError
+    from gprm.params import REGISTRY
+    from gprm.params.files import to_si
+
+    out = {}
+    for item in items or ():
+        if "=" not in item:
+            raise GprmInputError(f"expected NAME=VALUE, got {item!r}", field="--set")
+        name, value = (s.strip() for s in item.split("=", 1))
+        if name not in REGISTRY:
+            raise GprmInputError(f"unknown parameter {name!r}", field="--set")
+        out[name] = to_si(value, name, source="--set")
+    return out
+
+
+def parse_length(text: str, field: str) -> float:
+    """A length such as ``2um`` or ``2e-6`` (bare numbers are metres) -> m."""
+    from gprm.errors import GprmInputError
+    from gprm.params.files import ureg
+
+    try:
+        q = ureg().Quantity(text)
+    except Exception as exc:
+        raise GprmInputError(f"cannot parse length {text!r} ({exc})", field=field) from None
+    if not hasattr(q, "dimensionality"):
+        return float(q)
+    if q.dimensionless:
+        return float(q.magnitude)
+    if q.dimensionality != ureg().Quantity(1, "m").dimensionality:
+        raise GprmInputError(f"{text!r} is not a length", field=field)
+    return float(q.to("m").magnitude)
+
+
+def register(app: typer.Typer, synth_app: typer.Typer) -> None:
+    from gprm.cli import one_line_errors
+
+    @app.command("predict")
+    @one_line_errors
+    def predict_cmd(
+        fit: str = typer.Argument(..., help="fit result JSON, or 'paper' for Table 3"),
+        out: Path = typer.Option(..., "--out", help="output NetCDF file"),
+        piezo: int = typer.Option(2, "--piezo", help="driven piezo: 1 (nominal) or 2"),
+        scale_eccentricity: float = typer.Option(1.0, "--scale-eccentricity",
+                                                 help="factor on v2, g2, gamma, rho (> 0)"),
+        set_: Optional[List[str]] = typer.Option(None, "--set",
+                                                 help="override NAME=VALUE_WITH_UNIT"),
+        t_start: float = typer.Option(0.95e-3, "--t-start", help="span start, s"),
+        t_end: float = typer.Option(1.2e-3, "--t-end", help="span end, s"),
+        rate: float = typer.Option(1e6, "--rate", help="prediction sample rate, Hz"),
+        samples: int = typer.Option(200, "--samples", help="parameter sets drawn"),
+        seed: int = typer.Option(0, "--seed", help="random seed"),
+        means: Optional[Path] = typer.Option(None, "--means", help="mean-signals NetCDF "
+                                             "(measured kinetic energy, Fig. 8)"),
+        bins: int = typer.Option(20, "--bins", help="kinetic-energy bins"),
+        gap: Optional[str] = typer.Option(None, "--gap", help="available plunger-TM gap "
+                                          "along the indent normal, e.g. 2um"),
+        gap_std: str = typer.Option("0", "--gap-std", help="its standard deviation"),
+        whatif_out: Optional[Path] = typer.Option(None, "--whatif",
+                                                  help="also write the standard what-if "
+                                                       "table (JSON)"),
+    ):
+        """Predict trajectories, kinetic energy, masses, overshoot and impact risk."""
+        from gprm._io import write_json_atomic, write_netcdf_atomic
+        from gprm.errors import GprmInputError
+        from gprm.predict.core import load_model, predict, prediction_times
+        from gprm.predict.files import prediction_dataset
+        from gprm.predict.scenarios import Scenario
+        from gprm.predict.whatif import whatif
+
+        if piezo not in (1, 2):
+            raise GprmInputError(f"must be 1 or 2, got {piezo}", field="--piezo")
+        if not (scale_eccentricity > 0):
+            raise GprmInputError(f"must be > 0, got {scale_eccentricity:g}",
+                                 field="--scale-eccentricity")
+        if samples < 0:
+            raise GprmInputError(f"must be >= 0, got {samples}", field="--samples")
+        fm = load_model(fit)
+        sc = Scenario("cli", piezo, scale_eccentricity, parse_overrides(set_))
+        g = parse_length(gap, "--gap") if gap is not None else None
+        gs = parse_length(gap_std, "--gap-std")
+        t = prediction_times(t_start, t_end, rate)
+        pred = predict(fm, scenario=sc, times=t, samples=samples, seed=seed, means=means,
+                       n_bins=bins, gap=g, gap_std=gs)
+        write_netcdf_atomic(prediction_dataset(pred), out)
+        os_ = pred.overshoot
+        pts = list(pred.trajectories.points)
+        msg = (f"wrote {out}: {t.size} times, {pred.trajectories.n_ok}/{samples} samples, "
+               f"piezo {piezo}; overshoot M_xz x {os_[pts.index('M_xz'), 0] * 1e6:.3f} um, "
+               f"M_yz y {os_[pts.index('M_yz'), 1] * 1e6:.3f} um, "
+               f"M_xz z {os_[pts.index('M_xz'), 2] * 1e6:.3f} um")
+        if pred.risk is not None:
+            msg += "; P(cross) " + ", ".join(f"{p} {v:.3f}" for p, v in
+                                             zip(pred.risk.planes, pred.risk.p_cross))
+        typer.echo(msg)
+        if whatif_out is not None:
+            write_json_atomic(whatif_out, whatif(fm, samples=min(samples, 100), seed=seed))
+            typer.echo(f"wrote {whatif_out}")

@@ -1,0 +1,82 @@
+"""The prediction stage in one call: trajectories with bands, kinetic-energy check, mass table,
+overshoots and (optionally) impact risk, for one scenario of a fitted model.
+
+``predict(fm, ...) -> Prediction``; :func:`gprm.predict.files.prediction_dataset` turns it into
+the NetCDF of docs/prediction.md. The CLI ``gprm predict`` is a thin layer over these.
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass
+
+import numpy as np
+
+from gprm.errors import GprmInputError
+from gprm.fit.files import FittedModel, load_fit, paper_model
+from gprm.predict.energy import DEFAULT_WINDOW as ENERGY_WINDOW
+from gprm.predict.energy import EnergyCheck, energy_check, read_means
+from gprm.predict.masses import mass_table
+from gprm.predict.risk import ImpactRisk, impact_risk
+from gprm.predict.scenarios import Scenario, apply_scenario
+from gprm.predict.trajectories import Trajectories, default_times, predict_trajectories
+from gprm.predict.whatif import overshoot
+
+MAX_TIMES = 200_000
+
+
+@dataclass(frozen=True)
+class Prediction:
+    fm: FittedModel               # the scenario's model (values and covariance)
+    scenario: Scenario
+    trajectories: Trajectories
+    overshoot: np.ndarray         # (point, 3) best fit, over the trajectory span
+    energy: EnergyCheck
+    masses: list
+    risk: ImpactRisk | None
+    seed: int
+    means_source: str | None
+
+
+def load_model(fit: str | os.PathLike) -> FittedModel:
+    """A FittedModel from a fit JSON, or the paper's Table 3 for the word ``paper``."""
+    if str(fit) == "paper":
+        return paper_model()
+    return load_fit(fit)
+
+
+def prediction_times(t_start: float, t_end: float, rate: float) -> np.ndarray:
+    if np.isfinite(t_end) and np.isfinite(t_start) and np.isfinite(rate) and rate > 0 \
+            and (t_end - t_start) * rate > MAX_TIMES:
+        raise GprmInputError(f"span {t_start:g}..{t_end:g} s at {rate:g} Hz gives more than "
+                             f"{MAX_TIMES} samples", field="t_end")
+    return default_times(t_start, t_end, rate)
+
+
+def predict(fm: FittedModel, *, scenario: Scenario | None = None, times=None,
+            samples: int = 200, seed: int = 0, means: str | os.PathLike | None = None,
+            energy_window: tuple[float, float] = ENERGY_WINDOW, n_bins: int = 20,
+            gap: float | None = None, gap_std: float = 0.0, voltage=None) -> Prediction:
+    """Run the whole prediction for ``scenario`` (default: Piezo 2, as fitted)."""
+    if samples < 0:
+        raise GprmInputError(f"must be >= 0, got {samples}", field="samples")
+    sc = scenario or Scenario("piezo2", 2)
+    fs = apply_scenario(fm, sc)
+    t = default_times() if times is None else np.asarray(times, float)
+    traj = predict_trajectories(fs, t, piezo=sc.piezo, samples=samples, seed=seed,
+                                voltage=voltage)
+    m = read_means(means) if means is not None else None
+    try:
+        en = energy_check(fs, piezo=sc.piezo, means=m, window=energy_window, n_bins=n_bins,
+                          samples=samples, seed=seed, voltage=voltage)
+    except GprmInputError as exc:
+        if means is not None and exc.source is None:
+            raise GprmInputError(exc.problem, source=str(means), field=exc.field) from None
+        raise
+    risk = None
+    if gap is not None:
+        risk = impact_risk(fs, gap, gap_std, times=t, piezo=sc.piezo, samples=samples,
+                           seed=seed, voltage=voltage)
+    return Prediction(fm=fs, scenario=sc, trajectories=traj, overshoot=overshoot(traj.pos),
+                      energy=en, masses=mass_table(fs), risk=risk, seed=int(seed),
+                      means_source=None if means is None else str(means))

@@ -49,6 +49,7 @@ class ImpactGeometry:
     contact_offset_yz: tuple[float, float, float] = (0.0, 0.0, 0.0)
     restitution: float = 1.0
     plunger_inertia: str = "J2"
+    plunger_velocity: str = "plunger"
 
     def resolved(self, pb) -> "ImpactGeometry":
         ang = float(np.asarray(pb["indent_angle"]).ravel()[0]) if self.indent_angle is None \
@@ -68,6 +69,10 @@ class GeometryUncertainty:
     contact_offset: float = 0.5e-3
     tm_com_height: float = 0.5e-3
     restitution: float = 0.0
+
+
+def _perp2(w, r):
+    return np.stack([-w * r[..., 1], w * r[..., 0]], axis=-1)
 
 
 def _vec(x, B):
@@ -100,6 +105,11 @@ def tm_velocity_vs_time(motion, geometry: ImpactGeometry | list | None = None) -
     asm = pts["assembly_com"]
     G, vG = point_motion(motion, asm)                       # (B, 3, T)
     w = motion.omega                                         # (B, 3, T)
+    modes = {g.plunger_velocity for g in geoms}
+    if len(modes) != 1 or not modes <= {"plunger", "assembly"}:
+        raise GprmInputError("must be one of 'plunger', 'assembly' for all sets",
+                             field="plunger_velocity")
+    vel_mode = modes.pop()
     m2, m3, m4 = pb["m2"], pb["m3"], pb["m4"]
     Mp = m2 + m3 + m4
     J = np.broadcast_to(pb["J2"], (B,)).astype(float).copy()
@@ -114,7 +124,7 @@ def tm_velocity_vs_time(motion, geometry: ImpactGeometry | list | None = None) -
         key = "M_xz" if plane == "xz" else "M_yz"
         bp = pts[key]
         r_c = bp.r + off[plane]                              # body coordinates of contact
-        P, _ = point_motion(motion, r_c)                     # (B, 3, T)
+        P, vP = point_motion(motion, r_c)                    # (B, 3, T)
         C_tm = np.stack([com0[:, 0], com0[:, 1], bp.r[:, 2] + H], -1)   # (B, 3)
         # assembly inertia option: parallel-axis terms of spacer and tip (point masses)
         Jp = J.copy()
@@ -140,8 +150,12 @@ def tm_velocity_vs_time(motion, geometry: ImpactGeometry | list | None = None) -
             n2 = np.stack([sgn * np.sin(alpha), np.cos(alpha)], -1)
         sel = list(idx)
         rhoA = np.moveaxis((P - G)[:, sel, :], 1, -1)        # (B, T, 2)
-        vA = np.moveaxis(vG[:, sel, :], 1, -1)
         wA = w[:, wk, :]
+        if vel_mode == "plunger":
+            # rigid field of the plunger body: the contact point keeps its exact velocity
+            vA = np.moveaxis(vP[:, sel, :], 1, -1) - _perp2(wA, rhoA)
+        else:
+            vA = np.moveaxis(vG[:, sel, :], 1, -1)
         rhoB = np.moveaxis(P[:, sel, :] - C_tm[:, sel, None], 1, -1)
         zero2 = np.zeros((B, T, 2))
         res = planar_impact(Mp[:, None], Jp[:, None], rhoA, vA, wA,

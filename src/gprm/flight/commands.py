@@ -1,0 +1,126 @@
+"""CLI: ``gprm synth telemetry`` and ``gprm impact``."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Optional
+
+import typer
+
+
+def _model(src: str, piezo: Optional[int]):
+    from gprm.errors import GprmInputError
+    from gprm.fit.files import load_fit, paper_model
+
+    if src == "paper":
+        return paper_model(piezo or 2)
+    m = load_fit(src)
+    if piezo is not None and piezo != m.piezo:
+        from dataclasses import replace
+        if piezo not in (1, 2):
+            raise GprmInputError(f"must be 1 or 2, got {piezo}", field="--piezo")
+        m = replace(m, piezo=piezo)
+    return m
+
+
+def _window(window: Optional[str]):
+    from gprm.errors import GprmInputError
+
+    if window is None:
+        return None
+    try:
+        a, b = (float(x) for x in window.split(","))
+    except ValueError:
+        raise GprmInputError("expected 'START,END' in seconds", field="--window") from None
+    if not (0 <= a < b):
+        raise GprmInputError("expected 0 <= START < END", field="--window")
+    return (a, b)
+
+
+def register(app: typer.Typer, synth_app: typer.Typer) -> None:
+    from gprm.cli import one_line_errors
+
+    @synth_app.command("telemetry")
+    @one_line_errors
+    def synth_telemetry_cmd(
+        fit: str = typer.Argument(..., help="fit result JSON, or 'paper' (Table 3)"),
+        out: Path = typer.Option(..., "--out", help="output telemetry NetCDF"),
+        releases: int = typer.Option(11, "--releases", help="number of releases"),
+        seed: int = typer.Option(0, "--seed", help="random seed"),
+        piezo: Optional[int] = typer.Option(None, "--piezo", help="driven piezo (default: fit's)"),
+        rate: float = typer.Option(10.0, "--rate", help="GRS sample rate, Hz"),
+        post: float = typer.Option(5.0, "--post", help="record after the release, s"),
+        pos_noise: float = typer.Option(2e-9, "--pos-noise", help="position noise std, m"),
+        att_noise: float = typer.Option(1e-6, "--att-noise", help="attitude noise std, rad"),
+        no_spread: bool = typer.Option(False, "--no-spread",
+                                       help="truth from the best fit and nominal geometry"),
+        z_from: str = typer.Option("sum", "--z-from", help="TM v_z: sum, xz or yz"),
+    ):
+        """Synthetic in-flight releases with known impact times (telemetry NetCDF)."""
+        from gprm._io import write_netcdf_atomic
+        from gprm.errors import GprmInputError
+        from gprm.flight.synth import SynthOptions, synth_telemetry
+
+        if releases < 1:
+            raise GprmInputError("must be >= 1", field="--releases")
+        if rate <= 0 or post <= 0 or pos_noise <= 0 or att_noise <= 0:
+            raise GprmInputError("rate, post and noise levels must be > 0", field="--rate")
+        m = _model(fit, piezo)
+        ds = synth_telemetry(m, SynthOptions(n_releases=releases, seed=seed, rate=rate,
+                                             post=post, pos_noise=pos_noise,
+                                             att_noise=att_noise, truth_spread=not no_spread,
+                                             z_from=z_from))
+        write_netcdf_atomic(ds, out)
+        tt = ds["truth_impact_time"].values * 1e3
+        typer.echo(f"wrote {out}: {releases} releases, impact times {tt.min():.4f}-"
+                   f"{tt.max():.4f} ms")
+
+    @app.command("impact")
+    @one_line_errors
+    def impact_cmd(
+        fit: str = typer.Argument(..., help="fit result JSON, or 'paper' (Table 3)"),
+        telemetry: Path = typer.Argument(..., help="telemetry NetCDF"),
+        out: Path = typer.Option(..., "--out", help="output JSON (sidecar <name>.nc: curves)"),
+        alpha: float = typer.Option(0.01, "--alpha", help="Tukey test level"),
+        samples: int = typer.Option(200, "--samples", help="draws per uncertainty band"),
+        seed: int = typer.Option(0, "--seed", help="seed of the band draws"),
+        window: Optional[str] = typer.Option(None, "--window",
+                                             help="impact-time window 'START,END' s "
+                                                  "(default t_c .. t_c + 0.2 ms)"),
+        fit_window: Optional[float] = typer.Option(None, "--fit-window",
+                                                   help="line fit over this many s after "
+                                                        "the release (default: all)"),
+        piezo: Optional[int] = typer.Option(None, "--piezo", help="driven piezo (default: fit's)"),
+        multi: bool = typer.Option(False, "--multi",
+                                   help="also integrate plunger and TM with contact detection "
+                                        "at each estimated impact (second impacts)"),
+    ):
+        """Release velocities, impact times and Tukey's test from telemetry (JSON)."""
+        from gprm._io import write_json_atomic, write_netcdf_atomic
+        from gprm.errors import GprmInputError
+        from gprm.flight.analysis import AnalysisOptions, analyze, curves_dataset
+        from gprm.flight.telemetry import load_telemetry
+
+        if samples < 2:
+            raise GprmInputError("must be >= 2", field="--samples")
+        m = _model(fit, piezo)
+        tel = load_telemetry(telemetry)
+        opts = AnalysisOptions(alpha=alpha, n_samples=samples, seed=seed,
+                               window=_window(window), fit_window=fit_window)
+        doc, curves = analyze(m, tel, opts)
+        if multi:
+            from gprm.flight.multi import multi_impact_report
+            doc["multiple_impacts"] = multi_impact_report(m, doc)
+        side = out.with_suffix(".nc")
+        doc["curves"]["sidecar"] = side.name
+        write_netcdf_atomic(curves_dataset(curves, doc), side)
+        write_json_atomic(out, doc)
+        n_ok = sum(1 for r in doc["releases"] for a in r["impact_time"].values()
+                   if a["value"] is not None)
+        tk = doc["tukey"]
+        verdict = ("no Tukey test" if tk.get("q_critical") is None else
+                   "all pairs compatible" if tk.get("all_compatible")
+                   else f"{sum(p['reject'] for p in tk['pairs'])} pair(s) rejected")
+        typer.echo(f"wrote {out} (+ {side.name}): {len(doc['releases'])} releases, "
+                   f"{n_ok} impact times, {len(doc['missing'])} missing; {verdict} at "
+                   f"alpha={alpha}")

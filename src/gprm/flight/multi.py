@@ -37,6 +37,8 @@ class ContactEvent:
     planes: tuple[str, ...]
     impulses: tuple[float, ...]
     tm_velocity: tuple[float, ...]      # vx, vy, vz, wx, wy, wz after the event
+    dE_plunger: float = 0.0             # kinetic-energy change of the mechanism (½ ξ'ᵀ M ξ')
+    dE_tm: float = 0.0                  # kinetic-energy change of the TM
 
 
 def _setup(model, geometry):
@@ -166,14 +168,17 @@ def simulate_contacts(model, t1: float, *, t_end: float | None = None,
         if not act:
             return None
         dq = np.zeros(8)
+        qd = np.array([mo.rates[f"{n}_dot"][0, 0] for n in MECH])
+        E_tm0 = 0.5 * m_tm * tm_v @ tm_v + 0.5 * I_tm * tm_w @ tm_w
         for p, x in zip(act, Pn):
             Jvec = x * normals[p]
             tm_v_new = Jvec / m_tm
             tm_v[:] = tm_v + tm_v_new
             tm_w[:] = tm_w + np.cross(rho[p], Jvec) / I_tm
             dq += Minv @ (Jp[p].T @ (-Jvec))
-        # keep the TM position continuous: rebase its reference at t
-        return act, Pn, dq, C
+        dEp = 0.5 * (qd + dq) @ Mmat @ (qd + dq) - 0.5 * qd @ Mmat @ qd
+        dEt = 0.5 * m_tm * tm_v @ tm_v + 0.5 * I_tm * tm_w @ tm_w - E_tm0
+        return act, Pn, dq, (float(dEp), float(dEt))
 
     # first impact at t1: both faces through the contact points
     mo1 = state_at(t1)
@@ -183,10 +188,10 @@ def simulate_contacts(model, t1: float, *, t_end: float | None = None,
     C_ref = C0.copy()
     res = resolve(t1, ("xz", "yz"))
     if res is not None:
-        act, Pn, dq, _ = res
+        act, Pn, dq, dE = res
         dz_list.append((t1, np.concatenate([np.zeros(8), dq, [0.0]])))
         events.append(ContactEvent(t1, tuple(act), tuple(map(float, Pn)),
-                                   tuple(np.concatenate([tm_v, tm_w]).tolist())))
+                                   tuple(np.concatenate([tm_v, tm_w]).tolist()), *dE))
     # TM pose: C(t) = C_ref + integral of v; piecewise constant velocities
     tm_hist = [(t1, C_ref.copy(), tm_v.copy(), tm_w.copy(), np.zeros(3))]
 
@@ -242,12 +247,12 @@ def simulate_contacts(model, t1: float, *, t_end: float | None = None,
         t_last = tc
         if res is None:
             continue
-        act, Pn, dq, Cc = res
+        act, Pn, dq, dE = res
         dz_list.append((tc, np.concatenate([np.zeros(8), dq, [0.0]])))
         C_now, th_now = tm_pose(np.array([tc]))
         tm_hist.append((tc, C_now[:, 0], tm_v.copy(), tm_w.copy(), th_now[:, 0]))
         events.append(ContactEvent(float(tc), tuple(act), tuple(map(float, Pn)),
-                                   tuple(np.concatenate([tm_v, tm_w]).tolist())))
+                                   tuple(np.concatenate([tm_v, tm_w]).tolist()), *dE))
     final = np.concatenate([tm_v, tm_w])
     return {"t1": float(t1), "t_end": float(t_end), "n_impacts": len(events),
             "events": [e.__dict__ for e in events],

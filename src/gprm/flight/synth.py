@@ -43,25 +43,40 @@ class SynthOptions:
     truth_spread: bool = True
     z_from: str = "sum"
     grid_step: float = 1e-7
+    window_mode: str = "identifiable"
 
 
-def plausible_window(model, *, window=None, step: float = 1e-7, geometry=None):
-    """Grid times (s) of ``window`` where the best-fit contact points approach in both planes,
-    and the [first, last] of them."""
+def plausible_window(model, *, window=None, step: float = 1e-7, geometry=None,
+                     mode: str = "identifiable"):
+    """Grid times (s) where the impact is drawn, and their [first, last].
+
+    ``mode="approach"``: the first contiguous interval of ``window`` in which the best-fit
+    contact points approach the indent faces in both planes (the first approach: an impact, if
+    any, happens there). ``mode="identifiable"`` (default): that interval cut at the earliest
+    peak of the six |velocity| curves, where every curve is monotone, so a first crossing is
+    the true one (beyond the peak the first-crossing rule of Sec. 4.1 picks the rising branch).
+    """
+    from gprm.errors import GprmInputError
     from gprm.params import batch
     from gprm.predict.kinematics import body_motion
 
+    if mode not in ("identifiable", "approach"):
+        raise GprmInputError("must be identifiable or approach", field="window_mode")
     pb0 = batch([model.params])
     w = default_window(pb0) if window is None else window
     t = np.arange(w[0], w[1] + 0.5 * step, step)
     out = tm_velocity_vs_time(body_motion(pb0, t, piezo=model.piezo), geometry)
     both = out["approaching_xz"][0] & out["approaching_yz"][0]
     if not both.any():
-        from gprm.errors import GprmInputError
         raise GprmInputError("the model's contact points never approach the indent faces in "
                              "both planes: no plausible impact time", source=str(model.source))
-    tt = t[both]
-    return t[(t >= tt[0]) & (t <= tt[-1])], (float(tt[0]), float(tt[-1]))
+    i0 = int(np.argmax(both))
+    i1 = i0 + (int(np.argmin(both[i0:])) if not both[i0:].all() else both.size - i0)
+    if mode == "identifiable":
+        peaks = [i0 + int(np.argmax(np.abs(out[a][0, i0:i1]))) for a in AXES]
+        i1 = max(min(peaks), i0 + 1)
+    sel = t[i0:i1]
+    return sel, (float(sel[0]), float(sel[-1]))
 
 
 def synth_telemetry(model, opts: SynthOptions = SynthOptions(), *, geometry=None,
@@ -77,7 +92,8 @@ def synth_telemetry(model, opts: SynthOptions = SynthOptions(), *, geometry=None
         raise GprmInputError("must be sum, xz or yz", field="z_from")
     rng = np.random.default_rng(opts.seed)
     R = int(opts.n_releases)
-    grid, win = plausible_window(model, step=opts.grid_step, geometry=geometry)
+    grid, win = plausible_window(model, step=opts.grid_step, geometry=geometry,
+                                 mode=opts.window_mode)
     pb0 = batch([model.params])
     chosen_t, chosen_v = [], []
     chosen_idx = []

@@ -37,17 +37,18 @@ def differentiate(x: np.ndarray, times: np.ndarray) -> np.ndarray:
 
 
 def derivative_std(sigma: np.ndarray, times: np.ndarray) -> np.ndarray:
-    """Std of :func:`differentiate` for independent errors of std ``sigma`` at each sample
-    (interior: sqrt(s_{k-1}^2 + s_{k+1}^2) / (t_{k+1} - t_{k-1}))."""
+    """Std of :func:`differentiate` for independent errors of std ``sigma`` at each sample.
+
+    The derivative is linear with a three-point stencil, whose three points have distinct
+    indices mod 3; differentiating ``sigma`` restricted to each residue class gives each
+    stencil term D_kj sigma_j separately, so var_k = sum_r (D (sigma * [j = r mod 3]))_k^2
+    exactly, on any (also non-uniform) grid."""
     s = np.asarray(sigma, float)
-    out = np.empty_like(s)
-    dt = np.diff(times)
-    out[..., 1:-1] = np.sqrt(s[..., :-2] ** 2 + s[..., 2:] ** 2) / (dt[:-1] + dt[1:])
-    # one-sided ends: (-3 x0 + 4 x1 - x2) / (2 dt)
-    out[..., 0] = np.sqrt(9 * s[..., 0] ** 2 + 16 * s[..., 1] ** 2 + s[..., 2] ** 2) / (2 * dt[0])
-    out[..., -1] = np.sqrt(9 * s[..., -1] ** 2 + 16 * s[..., -2] ** 2
-                           + s[..., -3] ** 2) / (2 * dt[-1])
-    return out
+    idx = np.arange(s.shape[-1])
+    var = np.zeros_like(s)
+    for r in range(3):
+        var += differentiate(np.where(idx % 3 == r, s, 0.0), times) ** 2
+    return np.sqrt(var)
 
 
 def point_energy(rates: Mapping[str, np.ndarray], pb: Mapping[str, np.ndarray]) -> np.ndarray:

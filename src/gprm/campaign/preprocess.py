@@ -1,0 +1,339 @@
+"""Preprocessing a campaign into mean signals (Sec. 2, three steps; ``gprm preprocess``).
+
+Per position:
+
+0. *Baseline.* The interferometer's zero is arbitrary and drifts slowly: from each run a
+   straight line fitted to its pre-motion part (the samples before the coarse motion onset,
+   less a margin) is subtracted. The noise standard deviation ``noise_std`` is pooled over the
+   noise runs, each about its own fitted straight line (ddof 2 per run).
+1. *Synchronisation.* The reference run is the run closest (RMS over the motion window) to the
+   pointwise median of all runs. Every other run r gets the sub-sample shift s_r minimising
+   RMS[y_r(t + s_r) - y_ref(t)] over the motion window: an integer search over +-``max_lag``
+   samples, then a bounded Brent search within +-1 sample of the best integer lag, with
+   y_r(t + s) evaluated by a not-a-knot cubic spline through the samples of run r.
+2. *Mean, std, sem* across the synchronised runs as functions of time (std with ddof 1,
+   sem = std / sqrt(n_runs)).
+3. *Alignment.* The mean signal is shifted so that its magnitude reaches
+   ``threshold_factor`` x noise_std at ``align_time`` (1 ms). The crossing t_x: i1 is the first
+   sample where |mean| >= min(5 x threshold, half the peak of |mean|); i0 is the last sample
+   before i1 with |mean| < threshold (|mean| stays at or above threshold from i0 + 1 to i1);
+   t_x is the root of |spline(t)| = threshold in [t_i0, t_i0+1], spline the cubic spline of the
+   mean. shift = align_time - t_x; new time = old time + shift.
+
+The synchronised runs are evaluated once more at (t' - shift + s_r) on the output grid (the
+record grid restricted to where every position and run has data), so each run is interpolated
+once. For synthetic campaigns, the same alignment rule (same threshold) is applied to the
+noise-free truth response (``truth_shift``, ``truth_mean``): the aligned means are compared
+with it, and the fit's lags can be compared with the truth (docs/data-formats.md).
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass, field
+
+import numpy as np
+import xarray as xr
+from scipy.interpolate import CubicSpline
+from scipy.optimize import brentq, minimize_scalar
+
+import gprm
+from gprm.campaign.data import MODEL_POSITIONS, POSITIONS
+from gprm.errors import GprmInputError
+
+TABLE1 = (("x_head", "x_lr", 3.0), ("x_head", "x_fl", 17.0), ("y_head", "y_lr", 3.0),
+          ("y_head", "y_fl", 21.0), ("z_bk", "z_fl", 26.0))
+"""Table 1: (numerator, denominator, paper value) of the ratios of mean-signal maxima."""
+
+HYPOTHESES = (
+    ("flange fixed (Sec. 2, hypothesis 1)", ("x_fl", "y_fl", "z_fl"), 10.0),
+    ("linear runner does not oscillate along x and y (Sec. 2, hypothesis 2)",
+     ("x_lr", "y_lr"), 2.0),
+)
+"""Sec. 2 hypotheses: positions dropped, and the Table-1 ratio above which the data support it."""
+
+
+@dataclass(frozen=True)
+class PreprocessConfig:
+    """Settings of the preprocessing (SI; lags in samples)."""
+
+    align_time: float = 1.0e-3
+    threshold_factor: float = 2.0
+    max_lag: int = 12                 # samples searched either side in the synchronisation
+    sync_window: float = 0.3e-3       # s of motion after the coarse onset used for the RMS
+    onset_factor: float = 10.0        # coarse onset: median run exceeds this x noise std
+    baseline_margin: int = 4          # samples kept clear before (onset - max_lag)
+
+
+@dataclass(frozen=True)
+class MeanSignals:
+    """The preprocessing result; arrays over (signal, time) in the order ``signals``."""
+
+    signals: tuple[str, ...]
+    time: np.ndarray
+    mean: np.ndarray
+    std: np.ndarray
+    sem: np.ndarray
+    noise_std: np.ndarray
+    shift: np.ndarray
+    n_runs: np.ndarray
+    sync_shift: np.ndarray            # (signal, run) s, run r's synchronisation shift
+    reference_run: np.ndarray
+    table1: dict
+    dropped: dict
+    snr: dict
+    attrs: dict = field(default_factory=dict)
+    truth_shift: np.ndarray | None = None
+    truth_mean: np.ndarray | None = None
+
+    def to_dataset(self) -> xr.Dataset:
+        """The mean-signals NetCDF layout of contracts.md."""
+        sig = np.array(self.signals, dtype=object)
+        ds = xr.Dataset(
+            {
+                "mean": (("signal", "time"), self.mean, {
+                    "units": "m", "long_name": "mean over the synchronised actuated runs"}),
+                "std": (("signal", "time"), self.std, {
+                    "units": "m", "long_name": "standard deviation across runs (ddof 1), "
+                    "sigma(t)"}),
+                "sem": (("signal", "time"), self.sem, {
+                    "units": "m", "long_name": "standard error of the mean, std/sqrt(n_runs)"}),
+                "noise_std": (("signal",), self.noise_std, {
+                    "units": "m", "long_name": "noise standard deviation from the noise runs"}),
+                "shift": (("signal",), self.shift, {
+                    "units": "s", "long_name": "alignment shift (new time = old time + "
+                    "shift; old time is the reference run's record time)"}),
+                "n_runs": (("signal",), self.n_runs.astype(np.int32), {
+                    "units": "1", "long_name": "runs averaged"}),
+                "sync_shift": (("signal", "run"), self.sync_shift, {
+                    "units": "s", "long_name": "synchronisation shift of each run relative "
+                    "to the reference run (run r at t + sync_shift matches the reference "
+                    "at t)"}),
+                "reference_run": (("signal",), self.reference_run.astype(np.int32), {
+                    "units": "1", "long_name": "index of the reference run"}),
+            },
+            coords={"signal": ("signal", sig),
+                    "time": ("time", self.time, {
+                        "units": "s", "long_name": "aligned time: each signal crosses "
+                        "threshold_factor x noise_std at align_time"}),
+                    "run": ("run", np.arange(self.sync_shift.shape[1]))})
+        if self.truth_shift is not None:
+            ds["truth_shift"] = (("signal",), self.truth_shift, {
+                "units": "s", "long_name": "shift the same alignment rule gives the noise-free "
+                "truth response (synthetic campaigns)"})
+            ds["truth_mean"] = (("signal", "time"), self.truth_mean, {
+                "units": "m", "long_name": "noise-free truth response aligned by the same "
+                "rule (synthetic campaigns)"})
+        ds.attrs = dict(self.attrs)
+        ds.attrs["table1_json"] = json.dumps(self.table1)
+        ds.attrs["dropped_json"] = json.dumps(self.dropped)
+        ds.attrs["snr_json"] = json.dumps(self.snr)
+        return ds
+
+
+def noise_std(noise: np.ndarray, time: np.ndarray) -> float:
+    """Pooled std of noise runs (N, T) about a straight line fitted to each run (ddof 2)."""
+    X = np.stack([np.ones_like(time), (time - time.mean()) / np.ptp(time)], axis=1)
+    coef, *_ = np.linalg.lstsq(X, noise.T, rcond=None)
+    res = noise.T - X @ coef
+    return float(np.sqrt(np.sum(res ** 2) / (noise.shape[0] * (time.size - 2))))
+
+
+def _detrend(Y: np.ndarray, time: np.ndarray, n_base: int) -> np.ndarray:
+    """Subtract from each run the straight line fitted to its first ``n_base`` samples."""
+    tb = time[:n_base]
+    tm, ts = tb.mean(), max(np.ptp(tb), 1e-30)
+    X = np.stack([np.ones(n_base), (tb - tm) / ts], axis=1)
+    coef, *_ = np.linalg.lstsq(X, Y[:, :n_base].T, rcond=None)
+    Xf = np.stack([np.ones_like(time), (time - tm) / ts], axis=1)
+    return Y - (Xf @ coef).T
+
+
+def crossing_time(t: np.ndarray, y: np.ndarray, threshold: float, hold: int = 1
+                  ) -> float | None:
+    """Time at which |y| first reaches ``threshold`` (rule in the module docstring): the first
+    sample i with |y[i-1]| < threshold and |y[i..i+hold-1]| >= threshold; the crossing is the
+    root of sign(y[i]) * spline(t) = threshold in [t[i-1], t[i]], spline the cubic spline of y.
+    None if there is no such sample."""
+    a = np.abs(y) >= threshold
+    ok = a.copy()
+    for k in range(1, hold):
+        ok[:-k] &= a[k:]
+        ok[-k:] = False
+    start = ok & np.concatenate([[False], ~a[:-1]])
+    if not start.any():
+        return None
+    i = int(np.argmax(start))
+    sgn = np.sign(y[i])
+    j = slice(max(i - 8, 0), min(i + 8, y.size))
+    cs = CubicSpline(t[j], y[j])
+    return float(brentq(lambda tt: sgn * cs(tt) - threshold, t[i - 1], t[i], xtol=1e-15,
+                        rtol=1e-14))
+
+
+def synchronise(Y: np.ndarray, ref: int, win: np.ndarray, max_lag: int):
+    """Sub-sample shifts (samples) s_r minimising RMS[y_r(i + s_r) - y_ref(i)] over indices
+    ``win``; and the per-run splines (over the sample index)."""
+    R, T = Y.shape
+    idx = np.arange(T, dtype=float)
+    splines = [CubicSpline(idx, Y[r]) for r in range(R)]
+    target = Y[ref, win]
+    shifts = np.zeros(R)
+    lags = np.arange(-max_lag, max_lag + 1)
+    for r in range(R):
+        if r == ref:
+            continue
+        cost = [np.mean((Y[r, win + k] - target) ** 2) for k in lags]
+        k = int(lags[int(np.argmin(cost))])
+        sp = splines[r]
+        res = minimize_scalar(lambda s: np.mean((sp(win + s) - target) ** 2),
+                              bounds=(k - 1.0, k + 1.0), method="bounded",
+                              options={"xatol": 1e-5})
+        shifts[r] = float(res.x)
+    return shifts, splines
+
+
+def _position(Y, N, time, cfg: PreprocessConfig, name: str, src: str):
+    """Steps 0-2 for one position: returns dict with noise std, baseline-corrected runs,
+    reference, shifts (samples), splines, coarse onset index."""
+    T = time.size
+    sn = noise_std(N, time)
+    first = Y[:, : max(T // 5, 4)]
+    y0 = Y - np.median(first, axis=1, keepdims=True)
+    med0 = np.median(y0, axis=0)
+    above = np.abs(med0) > cfg.onset_factor * sn
+    if not above.any():
+        raise GprmInputError(f"position {name}: no motion above {cfg.onset_factor:g} x the "
+                             f"noise std ({sn:.3g} m) in the actuated runs", source=src,
+                             field="displacement")
+    i_on = int(np.argmax(above))
+    n_base = i_on - cfg.max_lag - cfg.baseline_margin
+    if n_base < 10:
+        raise GprmInputError(f"position {name}: motion starts at sample {i_on}, too early "
+                             "for a pre-motion baseline (need >= 10 samples before it)",
+                             source=src, field="displacement")
+    Yb = _detrend(Y, time, n_base)
+    dt = time[1] - time[0]
+    w_end = min(i_on + int(round(cfg.sync_window / dt)), T - cfg.max_lag - 3)
+    win = np.arange(max(i_on - cfg.max_lag // 2, cfg.max_lag + 1), w_end)
+    med = np.median(Yb, axis=0)
+    ref = int(np.argmin(np.mean((Yb[:, win] - med[win]) ** 2, axis=1)))
+    shifts, splines = synchronise(Yb, ref, win, cfg.max_lag)
+    return dict(noise_std=sn, ref=ref, shifts=shifts, splines=splines, onset=i_on)
+
+
+def preprocess(campaign: xr.Dataset, config: PreprocessConfig | None = None) -> MeanSignals:
+    """Synchronise, average and align a validated campaign (see the module docstring)."""
+    cfg = PreprocessConfig() if config is None else config
+    src = str(campaign.attrs.get("source", "campaign"))
+    time = np.asarray(campaign["time"].values, float)
+    dt = float(time[1] - time[0])
+    T = time.size
+    idx = np.arange(T, dtype=float)
+    disp = np.asarray(campaign["displacement"].sel(position=list(POSITIONS)).values, float)
+    noise = np.asarray(campaign["noise"].sel(position=list(POSITIONS)).values, float)
+    R = disp.shape[1]
+    per = {}
+    shift = np.zeros(len(POSITIONS))
+    no_cross = []
+    for i, name in enumerate(POSITIONS):
+        d = _position(disp[i], noise[i], time, cfg, name, src)
+        # intermediate mean on the reference grid, where every run has data
+        lo = max(0.0, -d["shifts"].min())
+        hi = min(T - 1.0, T - 1.0 - d["shifts"].max())
+        k = idx[(idx >= lo) & (idx <= hi)]
+        m = np.mean([d["splines"][r](k + d["shifts"][r]) for r in range(R)], axis=0)
+        tx = crossing_time(time[0] + k * dt, m, cfg.threshold_factor * d["noise_std"])
+        if tx is None:
+            no_cross.append(name)
+            shift[i] = np.nan
+        else:
+            shift[i] = cfg.align_time - tx
+        per[name] = d
+    if no_cross:
+        if set(no_cross) & set(MODEL_POSITIONS):
+            bad = sorted(set(no_cross) & set(MODEL_POSITIONS))
+            raise GprmInputError(f"position(s) {bad}: mean signal never reaches "
+                                 f"{cfg.threshold_factor:g} x noise std; cannot align",
+                                 source=src, field="displacement")
+        shift[np.isnan(shift)] = np.nanmedian(shift)
+    sync = np.array([per[n]["shifts"] for n in POSITIONS]) * dt      # (P, R) s
+    # output grid: record samples where every position and run has data
+    src_lo = time[0] + shift[:, None] - sync                           # t' >= this
+    src_hi = time[-1] + shift[:, None] - sync
+    lo, hi = src_lo.max(), src_hi.min()
+    tgrid = time[(time >= lo - 1e-12 * dt) & (time <= hi + 1e-12 * dt)]
+    if not (tgrid.size >= 8 and tgrid[0] <= cfg.align_time <= tgrid[-1]):
+        raise GprmInputError("alignment shifts leave no common time range around "
+                             f"{cfg.align_time:g} s", source=src, field="time")
+    P = len(POSITIONS)
+    mean = np.empty((P, tgrid.size))
+    std = np.empty_like(mean)
+    for i, name in enumerate(POSITIONS):
+        d = per[name]
+        A = np.stack([d["splines"][r](np.clip((tgrid - shift[i] - time[0]) / dt
+                                              + d["shifts"][r], 0, T - 1)) for r in range(R)])
+        mean[i] = A.mean(axis=0)
+        std[i] = A.std(axis=0, ddof=1)
+    sem = std / np.sqrt(R)
+    nstd = np.array([per[n]["noise_std"] for n in POSITIONS])
+    ref = np.array([per[n]["ref"] for n in POSITIONS])
+
+    peaks = {n: float(np.max(np.abs(mean[i]))) for i, n in enumerate(POSITIONS)}
+    table1 = {f"max({a})/max({b})": {"value": peaks[a] / peaks[b], "paper": p,
+                                     "numerator_m": peaks[a], "denominator_m": peaks[b]}
+              for a, b, p in TABLE1}
+    dropped = {}
+    by_den = {b: (a, p) for a, b, p in TABLE1}
+    for text, names, need in HYPOTHESES:
+        for n in names:
+            num, p_ratio = by_den[n]
+            r = peaks[num] / peaks[n]
+            dropped[n] = {"hypothesis": text, "ratio": f"max({num})/max({n})", "value": r,
+                          "paper": p_ratio, "supported": bool(r >= need),
+                          "support_threshold": need}
+    snr = {}
+    for i, n in enumerate(POSITIONS):
+        j = int(np.argmax(np.abs(mean[i])))
+        snr[n] = {"peak_m": peaks[n], "std_at_peak_m": float(std[i, j]),
+                  "peak_over_std": float(peaks[n] / std[i, j]), "time_of_peak_s": float(tgrid[j])}
+
+    attrs = {
+        "title": "GPRM mean signals (gprm preprocess)",
+        "source": src, "sample_rate": float(campaign.attrs.get("sample_rate", 1.0 / dt)),
+        "campaign_sha256": str(campaign.attrs.get("campaign_sha256", "")),
+        "align_time": cfg.align_time, "threshold_factor": cfg.threshold_factor,
+        "gprm_version": gprm.__version__,
+        "preprocess_json": json.dumps(cfg.__dict__),
+        "no_crossing_json": json.dumps(no_cross),
+    }
+    truth_shift = truth_mean = None
+    if "truth_json" in campaign.attrs:
+        attrs["truth_json"] = campaign.attrs["truth_json"]
+        attrs["seed"] = int(campaign.attrs.get("seed", -1))
+    if "truth_displacement" in campaign.variables:
+        clean = np.asarray(campaign["truth_displacement"].sel(position=list(POSITIONS)).values,
+                           float)
+        truth_shift = np.empty(P)
+        truth_mean = np.empty_like(mean)
+        for i in range(P):
+            tx = crossing_time(time, clean[i], cfg.threshold_factor * nstd[i])
+            truth_shift[i] = np.nan if tx is None else cfg.align_time - tx
+            cs = CubicSpline(time, clean[i])
+            tt = tgrid - (0.0 if tx is None else truth_shift[i])
+            truth_mean[i] = np.where(tt < time[0], 0.0, cs(np.clip(tt, time[0], time[-1])))
+        if "truth_json" in campaign.attrs:
+            tr = json.loads(campaign.attrs["truth_json"])
+            ts = dict(zip(POSITIONS, truth_shift))
+            xy = [ts[n] for n in ("x_base", "x_head", "y_base", "y_head")]
+            attrs["truth_alignment_json"] = json.dumps({
+                "truth_shift_s": {n: float(v) for n, v in ts.items()},
+                "t0_equivalent_s": {n: tr["t0"] + float(ts[n])
+                                    for n in ("x_base", "x_head", "y_base", "y_head")},
+                "t0_expected_s": tr["t0"] + float(np.mean(xy)),
+                "t0_plus_t1_equivalent_z_bk_s": tr["t0"] + tr["t1"] + float(ts["z_bk"]),
+                "t1_expected_s": tr["t1"] + float(ts["z_bk"]) - float(np.mean(xy)),
+            })
+    return MeanSignals(POSITIONS, tgrid, mean, std, sem, nstd, shift,
+                       np.full(P, R), sync, ref, table1, dropped, snr, attrs,
+                       truth_shift, truth_mean)

@@ -9,7 +9,7 @@ from gprm.predict.energy import (FIVE, derivative_std, differentiate, energy_che
                                  histogram, point_energy, read_means, window_weights)
 from gprm.predict.kinematics import body_motion
 
-from means_synth import synthetic_means
+from predict_means_synth import synthetic_means
 
 
 @pytest.fixture(scope="module")

@@ -1,0 +1,95 @@
+"""``gprm predict``: the NetCDF it writes, and one-line errors for bad input."""
+
+import json
+
+import numpy as np
+import pytest
+import xarray as xr
+from typer.testing import CliRunner
+
+from gprm.cli import app
+from gprm.params import REGISTRY, paper
+
+from predict_means_synth import synthetic_means
+
+
+def fit_json(path, model="gprm-3d", version=1):
+    ps = paper()
+    names = list(ps.fitted)
+    doc = {"model": model, "format_version": version, "piezo": 2,
+           "parameters": {n: {"value": ps[n], "unit": "SI", "fitted": n in names,
+                              "stderr": REGISTRY[n].paper_stderr if n in names else None}
+                          for n in REGISTRY},
+           "correlation": {"names": names, "matrix": np.eye(len(names)).tolist()}}
+    path.write_text(json.dumps(doc))
+    return path
+
+
+def run(*args):
+    return CliRunner().invoke(app, ["predict", *map(str, args)])
+
+
+def test_predict_writes_documented_dataset(tmp_path):
+    means = tmp_path / "means.nc"
+    synthetic_means(paper(), seed=1).to_netcdf(means)
+    out = tmp_path / "p.nc"
+    wi = tmp_path / "whatif.json"
+    r = run(fit_json(tmp_path / "fit.json"), "--out", out, "--samples", 40, "--seed", 3,
+            "--means", means, "--gap", "2um", "--gap-std", "0.5 um", "--whatif", wi,
+            "--set", "h2=31 mm", "--t-end", 1.15e-3)
+    assert r.exit_code == 0, r.output
+    ds = xr.open_dataset(out)
+    assert list(ds["point"].values) == ["com", "M_xz", "M_yz", "tip_edge"]
+    assert ds["pos"].dims == ("point", "axis", "time")
+    assert np.isclose(float(ds["time"][-1]), 1.15e-3)
+    assert json.loads(ds.attrs["parameters_json"])["h2"] == pytest.approx(0.031)
+    for v in ("pos_p2_5", "pos_p97_5", "pos_std_linear", "vel", "overshoot", "hist_measured",
+              "hist_model_point", "mass_nominal", "clearance", "p_cross"):
+        assert v in ds and "units" in ds[v].attrs, v
+    span = np.diff(json.loads(ds.attrs["energy_window_s"]))[0]
+    for h in ("hist_model_point", "hist_measured", "hist_model_total"):
+        assert float(ds[h].sum()) == pytest.approx(span, rel=1e-12)
+    assert ds.attrs["samples_ok"] == 40 and ds.attrs["model"] == "gprm-3d"
+    w = json.loads(wi.read_text())
+    assert [s["name"] for s in w["scenarios"]] == ["piezo2", "piezo1", "piezo1_ecc_div10"]
+    # same seed -> same file content
+    out2 = tmp_path / "p2.nc"
+    run(fit_json(tmp_path / "fit.json"), "--out", out2, "--samples", 40, "--seed", 3,
+        "--means", means, "--gap", "2um", "--gap-std", "0.5 um", "--set", "h2=31 mm",
+        "--t-end", 1.15e-3)
+    xr.testing.assert_identical(ds.drop_attrs(), xr.open_dataset(out2).drop_attrs())
+
+
+@pytest.mark.parametrize("args,needle", [
+    (["--scale-eccentricity", "0"], "scale-eccentricity"),
+    (["--scale-eccentricity", "-2"], "scale-eccentricity"),
+    (["--t-start", "-1e-3"], "before the simulation start"),
+    (["--t-start", "1.2e-3", "--t-end", "1.0e-3"], "must be after"),
+    (["--t-end", "10", "--rate", "1e6"], "samples"),
+    (["--set", "nope=3"], "unknown parameter"),
+    (["--set", "h2=3 kg"], "dimension"),
+    (["--piezo", "3"], "--piezo"),
+    (["--gap", "-1um"], "gap"),
+])
+def test_bad_options(tmp_path, args, needle):
+    r = run("paper", "--out", tmp_path / "x.nc", "--samples", 0, *args)
+    assert r.exit_code == 2
+    lines = r.output.strip().splitlines()
+    assert len(lines) == 1 and needle in lines[0], r.output
+    assert not (tmp_path / "x.nc").exists()
+
+
+def test_bad_fit_files(tmp_path):
+    r = run(fit_json(tmp_path / "f.json", model="gprm-2d"), "--out", tmp_path / "x.nc")
+    assert r.exit_code == 2 and "gprm-2d" in r.output
+    r = run(fit_json(tmp_path / "g.json", version=7), "--out", tmp_path / "x.nc")
+    assert r.exit_code == 2 and "format version" in r.output
+    r = run(tmp_path / "missing.json", "--out", tmp_path / "x.nc")
+    assert r.exit_code == 2 and len(r.output.strip().splitlines()) == 1
+
+
+def test_means_too_short(tmp_path):
+    means = tmp_path / "short.nc"
+    synthetic_means(paper(), t_end=1.1e-3).to_netcdf(means)
+    r = run("paper", "--out", tmp_path / "x.nc", "--samples", 0, "--means", means)
+    assert r.exit_code == 2 and "short.nc" in r.output and "not inside" in r.output

@@ -48,17 +48,18 @@ class DemoOptions:
     quick: bool = False
     workers: int = 0
     band_samples: int = 200
+    predict_samples: int = 200
     releases: int = 11
-    eccentricity_scale: float = 0.1
 
     @classmethod
     def make(cls, *, quick: bool = False, seed: int = 0, starts: int | None = None,
              workers: int = 0) -> "DemoOptions":
-        """The defaults of ``gprm demo`` (``--quick``: 50 starts, 40 band samples)."""
+        """The defaults of ``gprm demo``; ``--quick``: 50 starts and 40 parameter samples for
+        the bands (fit, prediction, impact curves) instead of 1000 and 200."""
         if starts is None:
             starts = 50 if quick else 1000
         return cls(seed=seed, starts=starts, quick=quick, workers=workers,
-                   band_samples=40 if quick else 200)
+                   band_samples=40 if quick else 200, predict_samples=40 if quick else 200)
 
 
 @dataclass(frozen=True)

@@ -34,15 +34,17 @@ def _need(module: str, *attrs: str):
 
 def _campaign(run: Path, opts: DemoOptions, step) -> dict:
     synth_campaign = _need("gprm.campaign.synth", "synth_campaign")
+    write_campaign = _need("gprm.campaign.data", "write_campaign")
     ds = synth_campaign(seed=opts.seed)
-    write_netcdf_atomic(ds, run / "campaign.nc")
+    write_campaign(ds, run / "campaign.nc")
     return {"runs": int(ds.sizes.get("run", 0)), "positions": int(ds.sizes.get("position", 0))}
 
 
 def _preprocess(run: Path, opts: DemoOptions, step) -> dict:
     preprocess = _need("gprm.campaign.preprocess", "preprocess")
-    camp = open_netcdf(run / "campaign.nc", what="campaign file")
-    means = preprocess(camp, source=str(run / "campaign.nc"))
+    load_campaign = _need("gprm.campaign.data", "load_campaign")
+    camp = load_campaign(run / "campaign.nc")
+    means = preprocess(camp).to_dataset()
     write_netcdf_atomic(means, run / "means.nc")
     return {"signals": int(means.sizes.get("signal", 0)), "samples": int(means.sizes["time"])}
 
@@ -54,6 +56,8 @@ def _fit(run: Path, opts: DemoOptions, step) -> dict:
     LMOptions, MultiStartOptions = _need("gprm.fit.multistart", "LMOptions",
                                          "MultiStartOptions")
     identify = _need("gprm.fit.result", "identify")
+    import shutil
+
     from gprm.params import paper
 
     means = open_netcdf(run / "means.nc", what="mean-signals file")
@@ -63,8 +67,6 @@ def _fit(run: Path, opts: DemoOptions, step) -> dict:
     res = identify(data, paper(), ms, piezo=PIEZO_GROUND, workers=opts.workers,
                    checkpoint_dir=ckpt, progress=step, band_samples=opts.band_samples)
     res.write(run / "fit.json")
-    import shutil
-
     shutil.rmtree(ckpt, ignore_errors=True)
     return {"chi2": float(res.chi2), "reduced_chi2": float(res.reduced_chi2),
             "dof": int(res.dof), "n_at_best": int(res.starts.n_at_best())}
@@ -72,40 +74,60 @@ def _fit(run: Path, opts: DemoOptions, step) -> dict:
 
 # ----------------------------------------------------------------------------- predict
 
+#: what-if scenarios of Sec. 4.2 and the files their trajectories go to
+WHATIF_FILES = {"piezo1": "predict_piezo1.nc", "piezo1_ecc_div10": "predict_ecc10.nc"}
+
+
 def _predict(run: Path, opts: DemoOptions, step) -> dict:
-    predict, whatifs = _need("gprm.predict", "predict", "whatifs")
+    predict, prediction_times = _need("gprm.predict.core", "predict", "prediction_times")
+    prediction_dataset = _need("gprm.predict.files", "prediction_dataset")
+    Scenario, standard_scenarios = _need("gprm.predict.scenarios", "Scenario",
+                                         "standard_scenarios")
+    whatif = _need("gprm.predict.whatif", "whatif")
     from gprm.fit.files import load_fit
 
-    model = load_fit(run / "fit.json")
-    base = predict(model, piezo=PIEZO_GROUND)
-    write_netcdf_atomic(base, run / "predict.nc")
-    table, extra = whatifs(model, piezo_base=PIEZO_GROUND,
-                           eccentricity_scale=opts.eccentricity_scale)
-    for name, ds in extra.items():
-        write_netcdf_atomic(ds, run / f"predict_{name}.nc")
+    fm = load_fit(run / "fit.json")
+    t = prediction_times(0.95e-3, 1.2e-3, 1e6)
+    scen = {sc.name: sc for sc in standard_scenarios()}
+    todo = [(Scenario("piezo2", PIEZO_GROUND), "predict.nc")] + [
+        (scen[name], fname) for name, fname in WHATIF_FILES.items()]
+    step(0, len(todo) + 1)
+    for k, (sc, fname) in enumerate(todo):
+        pred = predict(fm, scenario=sc, times=t, samples=opts.predict_samples, seed=opts.seed,
+                       means=run / "means.nc")
+        write_netcdf_atomic(prediction_dataset(pred), run / fname)
+        step(k + 1, len(todo) + 1)
+    table = whatif(fm, samples=min(opts.predict_samples, 100), seed=opts.seed)
     write_json_atomic(run / "whatif.json", table)
-    return {"whatif": table.get("ratios", {})}
+    step(len(todo) + 1, len(todo) + 1)
+    return {"whatif": {r["name"]: r.get("headline", {}) for r in table.get("ratios", [])[1:]}}
 
 
 # ----------------------------------------------------------------------------- flight
 
 def _telemetry(run: Path, opts: DemoOptions, step) -> dict:
-    synth_telemetry = _need("gprm.flight.synth", "synth_telemetry")
+    SynthOptions, synth_telemetry = _need("gprm.flight.synth", "SynthOptions",
+                                          "synth_telemetry")
     from gprm.fit.files import load_fit
 
     model = load_fit(run / "fit.json")
-    ds = synth_telemetry(model, releases=opts.releases, seed=opts.seed)
+    ds = synth_telemetry(model, SynthOptions(n_releases=opts.releases, seed=opts.seed))
     write_netcdf_atomic(ds, run / "telemetry.nc")
     return {"releases": opts.releases}
 
 
 def _impact(run: Path, opts: DemoOptions, step) -> dict:
-    analyse = _need("gprm.flight.impact", "analyse_releases")
+    AnalysisOptions, analyze, curves_dataset = _need("gprm.flight.analysis", "AnalysisOptions",
+                                                     "analyze", "curves_dataset")
+    load_telemetry = _need("gprm.flight.telemetry", "load_telemetry")
     from gprm.fit.files import load_fit
 
     model = load_fit(run / "fit.json")
-    tele = open_netcdf(run / "telemetry.nc", what="telemetry file")
-    doc = analyse(model, tele, seed=opts.seed)
+    tel = load_telemetry(run / "telemetry.nc")
+    doc, curves = analyze(model, tel, AnalysisOptions(n_samples=opts.predict_samples,
+                                                      seed=opts.seed))
+    doc["curves"]["sidecar"] = "impact.nc"
+    write_netcdf_atomic(curves_dataset(curves, doc), run / "impact.nc")
     write_json_atomic(run / "impact.json", doc)
     rej = [p for p in doc.get("tukey", {}).get("pairs", []) if p.get("reject")]
     return {"tukey_rejected_pairs": len(rej)}
@@ -123,11 +145,12 @@ STAGES: tuple[Stage, ...] = (
           _fit),
     Stage("predict", "predict + what-ifs", ("fit.json",),
           ("predict.nc", "predict_piezo1.nc", "predict_ecc10.nc", "whatif.json"),
-          lambda o: {"eccentricity_scale": o.eccentricity_scale}, _predict),
+          lambda o: {"samples": o.predict_samples, "seed": o.seed}, _predict),
     Stage("telemetry", "synthetic telemetry", ("fit.json",), ("telemetry.nc",),
           lambda o: {"releases": o.releases, "seed": o.seed}, _telemetry),
-    Stage("impact", "impact analysis + Tukey", ("fit.json", "telemetry.nc"), ("impact.json",),
-          lambda o: {"seed": o.seed}, _impact),
+    Stage("impact", "impact analysis + Tukey", ("fit.json", "telemetry.nc"),
+          ("impact.json", "impact.nc"), lambda o: {"samples": o.predict_samples,
+                                                   "seed": o.seed}, _impact),
 )
 
 

@@ -56,7 +56,9 @@ def summarise(run: str | Path) -> dict:
         if truth:
             s["truth_recovery"] = truth_recovery(fit, truth)
     if (run / "whatif.json").exists():
-        s["whatif"] = read_json(run / "whatif.json", what="what-if table").get("ratios", {})
+        wi = read_json(run / "whatif.json", what="what-if table")
+        s["whatif"] = {r["name"]: r.get("headline", {}) for r in wi.get("ratios", [])
+                       if r.get("name") != r.get("baseline")}
     if (run / "impact.json").exists():
         imp = read_json(run / "impact.json", what="impact result")
         tk = imp.get("tukey", {})
@@ -66,6 +68,10 @@ def summarise(run: str | Path) -> dict:
                       "rejected": rejected,
                       "verdict": ("all impact-time means compatible (H0 not rejected)"
                                   if pairs and not rejected else
-                                  f"{len(rejected)} pair(s) differ" if pairs else "no test")}
+                                  f"{len(rejected)} pair(s) differ" if pairs else
+                                  "no test (" + str(tk.get("note", "no pairs")) + ")")}
         s["releases"] = len(imp.get("releases", []))
+        s["impact_times_found"] = sum(1 for r in imp.get("releases", [])
+                                      for a in (r.get("impact_time") or {}).values()
+                                      if a.get("value") is not None)
     return s

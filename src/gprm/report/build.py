@@ -28,7 +28,8 @@ import numpy as np
 from gprm._io import open_netcdf, read_json, write_text_atomic
 from gprm.errors import GprmInputError
 from gprm.report import figures as F
-from gprm.report.html import Card, Section, fig_to_img, not_run, paragraph, pm, render, table
+from gprm.report.html import (Card, Section, fig_to_img, not_run, num, paragraph, pm, render,
+                              table)
 
 # Figure id -> the paper's figure it mirrors.
 FIGURE_IDS = {
@@ -113,10 +114,21 @@ def campaign_section(run: Path) -> Section:
         except (TypeError, json.JSONDecodeError):
             dropped = None
         if dropped:
-            items = dropped.items() if isinstance(dropped, dict) else \
-                [(d.get("position", "?"), d.get("reason", "")) for d in dropped]
-            s.blocks.append(table(["position", "why it is not fitted"], list(items),
-                                  "Positions dropped by the hypotheses of Sec. 2",
+            rows = []
+            entries = dropped.items() if isinstance(dropped, dict) else \
+                [(d.get("position", "?"), d) for d in dropped]
+            for pos, d in entries:
+                if isinstance(d, dict):
+                    v, thr = d.get("value"), d.get("support_threshold")
+                    rows.append((pos, d.get("hypothesis", ""), d.get("ratio", ""),
+                                 "—" if v is None else f"{v:.3g}",
+                                 "—" if thr is None else f"> {thr:g}",
+                                 "yes" if d.get("supported") else "no"))
+                else:
+                    rows.append((pos, str(d), "", "", "", ""))
+            s.blocks.append(table(["position", "hypothesis (Sec. 2)", "ratio", "value",
+                                   "needed", "supported"], rows,
+                                  "Positions the hypotheses of Sec. 2 drop from the fit",
                                   "table-dropped"))
     return s
 
@@ -144,11 +156,11 @@ def table3_rows(fit: dict, truth: dict | None) -> list:
         row = [name, spec.unit, pm(p["value"], err, unit_scale)]
         if truth is not None:
             t = truth.get(name)
-            row.append("—" if t is None else f"{t * unit_scale:.4g}")
+            row.append("—" if t is None else num(t * unit_scale))
             row.append("—" if (t is None or not err) else f"{(p['value'] - t) / err:+.2f}")
         row.append(pm(spec.default, spec.paper_stderr, unit_scale))
-        row.append("—" if spec.initial is None else f"{spec.initial * unit_scale:.4g}")
-        row.append("—" if spec.nominal is None else f"{spec.nominal * unit_scale:.4g}")
+        row.append("—" if spec.initial is None else num(spec.initial * unit_scale))
+        row.append("—" if spec.nominal is None else num(spec.nominal * unit_scale))
         rows.append(row)
     return rows
 
@@ -204,20 +216,32 @@ def predict_section(run: Path) -> Section:
         return s
     s.blocks.append(paragraph(
         "Trajectories of the contact middle points M_xz and M_yz and of the tip edge from the "
-        "best fit (Eq. 8), with the spread from the parameter covariance, and the kinetic "
-        "energy of the moving parts at the tip retraction, Piezo 2."))
+        "best fit (Eq. 8), with trajectories of parameter sets drawn from the fit covariance, "
+        "and the kinetic energy at the tip retraction, Piezo 2 "
+        f"({int(pred.attrs.get('samples_ok', 0))} of {int(pred.attrs.get('samples', 0))} "
+        "samples valid)."))
     fig = F.fig_energy(pred, run)
     if fig is not None:
-        s.blocks.append(fig_to_img(fig, "Kinetic energy: predicted by the 3D model (orange) "
-                                   "and from the measured signals (blue) (cf. Fig. 8)",
-                                   "fig-energy"))
+        s.blocks.append(fig_to_img(fig, "Kinetic energy E₅ of the five measured points: time "
+                                   "spent in each energy bin within the fit window, 3D model "
+                                   "(orange) against the measured mean signals (blue), with "
+                                   "errors from the parameter samples and the signals' sem "
+                                   "(cf. Fig. 8)", "fig-energy"))
     else:
         s.blocks.append(not_run("Energy histogram", "predict.nc holds no kinetic energy."))
-    fig = F.fig_trajectories(pred, "Trajectories, Piezo 2 (cf. Fig. 10)")
-    s.blocks.append(fig_to_img(fig, "Trajectory of M_xz in the x–z plane, of M_yz in the y–z "
-                               "plane and of the tip edge in the x–y plane, Piezo 2; "
-                               "axes centred on the initial position (cf. Fig. 10)",
-                               "fig-trajectories"))
+    s.blocks.append(fig_to_img(F.fig_trajectories(pred, "Trajectories, Piezo 2 (cf. Fig. 10)"),
+                               "Trajectory of M_xz in the x–z plane, of M_yz in the y–z plane "
+                               "and of the tip edge in the x–y plane, Piezo 2, from the "
+                               "initial position (blue star) to 1.2 ms (red star) "
+                               "(cf. Fig. 10)", "fig-trajectories"))
+    if "overshoot" in pred:
+        rows = []
+        for pt in [str(p) for p in pred["point"].values]:
+            rows.append((pt, *(f"{float(pred['overshoot'].sel(point=pt, axis=a)) * 1e6:.3g}"
+                               for a in ("x", "y", "z"))))
+        s.blocks.append(table(["point", "x [µm]", "y [µm]", "z [µm]"], rows,
+                              "Overshoot (largest excursion from rest), Piezo 2",
+                              "table-overshoot"))
     return s
 
 
@@ -240,10 +264,13 @@ def whatif_section(run: Path) -> Section:
     if wi is not None:
         rows = F.whatif_rows(wi)
         if rows:
-            s.blocks.append(table(["strategy", "x", "y", "z", "paper (x, y, z)"], rows,
-                                  "Overshoot ratios Piezo 2 / strategy", "table-whatif",
-                                  note="Dimensionless ratios of the maximum excursions of the "
-                                       "contact middle points."))
+            s.blocks.append(table(["strategy", "x (M_xz)", "y (M_yz)", "z (M_xz)",
+                                   "paper (x, y, z)"], rows,
+                                  "Overshoot ratios: Piezo 2 (as built) / strategy",
+                                  "table-whatif",
+                                  note="Dimensionless. In brackets: 2.5–97.5 % range over "
+                                       "parameter sets drawn from the fit covariance. "
+                                       + str(wi.get("definition", ""))))
     if p1 is not None:
         s.blocks.append(fig_to_img(F.fig_trajectories(p1, "Piezo 1 (cf. Fig. 13)", ref=base),
                                    "Trajectories with Piezo 1 (grey: Piezo 2 as built) "
@@ -267,31 +294,49 @@ def flight_section(run: Path) -> Section:
         s.blocks.append(not_run("Flight analysis", "impact.json is missing (gprm synth "
                                 "telemetry + gprm impact)."))
         return s
-    tele = _load_nc(run, "telemetry.nc", "telemetry file")
+    curves = _load_nc(run, "impact.nc", "impact curves")
     n = len(imp.get("releases", []))
+    n_ok = sum(1 for r in imp.get("releases", []) for a in (r.get("impact_time") or {}).values()
+               if a.get("value") is not None)
     s.blocks.append(paragraph(
         f"{n} releases: the release velocity per axis from the telemetry, and the impact time "
         "at which the impact model (Appendix B) applied to the predicted plunger state gives "
-        "that velocity (first crossing). Tukey's range test asks whether the six axes' impact "
-        "times share one mean (Eq. 9)."))
-    fig = F.fig_velocity_impact(imp, tele)
+        f"that velocity (first crossing): {n_ok} of {6 * n} impact times found. Tukey's range "
+        "test asks whether the six axes' impact times share one mean (Eq. 9)."))
+    fig = F.fig_velocity_impact(imp, curves)
     if fig is not None:
-        s.blocks.append(fig_to_img(fig, "Release velocity against the impact time for one "
-                                   "release: predicted velocity as a function of the impact "
-                                   "time with its band, the measured velocity and the estimated "
-                                   "impact time (cf. Fig. 11)", "fig-velocity-impact"))
-    s.blocks.append(fig_to_img(F.fig_impact_times(imp, tele), "All estimated impact times "
-                               "per release and axis with 1σ errors (cf. Fig. 12)",
+        s.blocks.append(fig_to_img(fig, "Release velocity against the impact time, first "
+                                   "release: velocity the impact model gives as a function of "
+                                   "the impact time with its band, the measured velocity and "
+                                   "the estimated impact time (cf. Fig. 11)",
+                                   "fig-velocity-impact"))
+    else:
+        s.blocks.append(not_run("Velocity vs impact time", "impact.nc (the curves) is "
+                                "missing."))
+    s.blocks.append(fig_to_img(F.fig_impact_times(imp), "All estimated impact times per "
+                               "release and axis with 1σ errors; black bars: the true impact "
+                               "times of the synthetic releases (cf. Fig. 12)",
                                "fig-impact-times"))
     tk = imp.get("tukey")
-    if tk:
-        rows = [(f"{p['a']} – {p['b']}", f"{p['q']:.3f}", f"{p['p']:.3g}",
-                 "rejected" if p.get("reject") else "not rejected") for p in tk.get("pairs", [])]
-        s.blocks.append(table(["pair of axes", "q", "p", "H0 (equal means)"], rows,
-                              f"Tukey's range test: k = {tk.get('k')}, df = {tk.get('df')}, "
-                              f"α = {tk.get('alpha')}, q_crit = {tk.get('q_critical', 0):.3f}",
-                              "table-tukey", note="q and p are dimensionless (impact times "
-                                                  "in s enter through Eq. 9)."))
+    if tk and tk.get("pairs"):
+        rows = []
+        for p in tk["pairs"]:
+            ma, mb = p.get("mean_a"), p.get("mean_b")
+            rows.append((f"{p['a']} – {p['b']}",
+                         "—" if ma is None else f"{ma * 1e3:.4f}",
+                         "—" if mb is None else f"{mb * 1e3:.4f}",
+                         f"{p['q']:.3f}", f"{p['p']:.3g}",
+                         "rejected" if p.get("reject") else "not rejected"))
+        qc = tk.get("q_critical")
+        s.blocks.append(table(["pair of axes", "mean a [ms]", "mean b [ms]", "q", "p",
+                               "H0 (equal means)"], rows,
+                              f"Tukey's range test ({tk.get('method', 'tukey')}): k = "
+                              f"{tk.get('k')}, df = {tk.get('df')}, α = {tk.get('alpha')}, "
+                              f"q_crit = {'—' if qc is None else f'{qc:.3f}'}",
+                              "table-tukey", note="q and p are dimensionless; means are "
+                                                  "impact times from the record start."))
+    elif tk:
+        s.blocks.append(not_run("Tukey test", str(tk.get("note", "too few impact times"))))
     return s
 
 
@@ -348,11 +393,11 @@ def summary_cards(run: Path, fit: dict | None) -> list[Card]:
         tone = "ok" if tr["within_3sigma"] == tr["n"] else "warn"
         cards.append(Card("truth recovered", f"{tr['within_2sigma']} / {tr['n']} within 2σ",
                           f"{tr['within_3sigma']} / {tr['n']} within 3σ", tone))
-    wi = s.get("whatif") or {}
-    p1 = wi.get("piezo1") if isinstance(wi, dict) else None
+    p1 = (s.get("whatif") or {}).get("piezo1")
     if isinstance(p1, dict) and p1:
-        cards.append(Card("Piezo 1 overshoot ÷", " / ".join(f"{v:.2g}" for v in p1.values()),
-                          " / ".join(p1.keys()) + " (paper 4.0 / 6.4 / 3.8)"))
+        cards.append(Card("Piezo 2 / Piezo 1 overshoot", " / ".join(
+            f"{p1[a]:.2g}" for a in ("x", "y", "z") if a in p1), "x / y / z (paper 4.0 / 6.4 "
+            "/ 3.8)"))
     if "tukey" in s:
         tk = s["tukey"]
         ok = not tk["rejected"]

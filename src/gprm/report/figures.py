@@ -40,25 +40,32 @@ def _color(name: str, fallback: str = "#555555") -> str:
 
 def fig_fit(side, signals=("x_base", "x_head", "y_base", "y_head", "z_bk")):
     """Fig. 6: mean signals with sigma, best fit and uncertainty bands (fit sidecar)."""
-    fig, axes = plt.subplots(len(signals), 1, figsize=(7.5, 1.9 * len(signals)), sharex=True)
+    fig, axes = plt.subplots(3, 2, figsize=(10.0, 7.2), sharex=True)
+    flat = axes.ravel()
     t = side["time"].values * MS
-    for ax, s in zip(np.atleast_1d(axes), signals):
+    for ax, s in zip(flat, signals):
         d = side["data_mean"].sel(signal=s).values * UM
         e = side["data_sigma"].sel(signal=s).values * UM
-        ax.fill_between(t, d - e, d + e, color=COLORS["data"], alpha=0.18, lw=0,
-                        label="data ±σ")
-        ax.plot(t, d, ".", ms=2.5, color=COLORS["data"], label="mean signal")
+        ax.fill_between(t, d - e, d + e, color=_color(s), alpha=0.18, lw=0, label="data ±σ")
+        ax.plot(t, d, "o", ms=2.5, color=_color(s), label="mean signal")
         if "model_best" in side:
             m = side["model_best"].sel(signal=s).values * UM
-            lo = side["band_sample_lo"].sel(signal=s).values * UM
-            hi = side["band_sample_hi"].sel(signal=s).values * UM
-            if np.all(np.isfinite(lo)):
-                ax.fill_between(t, lo, hi, color=COLORS["band"], alpha=0.5, lw=0,
-                                label="model 95 % band")
-            ax.plot(t, m, "-", lw=1.2, color=COLORS["model"], label="best fit")
-        ax.set_ylabel(f"{s} [µm]")
-    np.atleast_1d(axes)[0].legend(ncol=4, loc="upper left")
-    np.atleast_1d(axes)[-1].set_xlabel("time [ms]")
+            if "band_sample_lo" in side:
+                lo = side["band_sample_lo"].sel(signal=s).values * UM
+                hi = side["band_sample_hi"].sel(signal=s).values * UM
+                if np.all(np.isfinite(lo)) and np.all(np.isfinite(hi)):
+                    ax.fill_between(t, lo, hi, color=COLORS["band"], alpha=0.55, lw=0,
+                                    label="model 95 % band")
+            ax.plot(t, m, "-", lw=1.3, color=COLORS["model"], label="best fit")
+        ax.set_title(s)
+        ax.set_ylabel("displacement [µm]")
+    handles, labels = flat[0].get_legend_handles_labels()
+    flat[-1].axis("off")
+    flat[-1].legend(handles, labels, loc="center", fontsize=10)
+    for ax in axes[-1]:
+        ax.set_xlabel("time [ms]")
+    axes[1, 1].xaxis.set_tick_params(labelbottom=True)
+    axes[1, 1].set_xlabel("time [ms]")
     fig.suptitle("Best fit of the five signals (cf. Fig. 6)")
     fig.tight_layout()
     return fig
@@ -88,7 +95,7 @@ def fig_masses(fit: dict, truth: dict | None = None):
     from gprm.params import REGISTRY
 
     names = [n for n in ("m1", "m2", "m3", "m4") if n in fit["parameters"]]
-    fig, axes = plt.subplots(1, len(names), figsize=(8.6, 2.9))
+    fig, axes = plt.subplots(1, len(names), figsize=(10.0, 3.0))
     for ax, n in zip(np.atleast_1d(axes), names):
         p = fit["parameters"][n]
         spec = REGISTRY[n]
@@ -101,7 +108,7 @@ def fig_masses(fit: dict, truth: dict | None = None):
         for i, (lab, v, e, mk, c) in enumerate(cols):
             ax.errorbar([i], [v * 1e3], yerr=None if e is None else [e * 1e3], fmt=mk,
                         color=c, ms=7 if mk == "*" else 5, capsize=4, label=lab)
-        ax.set_xticks(range(len(cols)), [c[0] for c in cols])
+        ax.set_xticks(range(len(cols)), [c[0] for c in cols], fontsize=8)
         ax.set_xlim(-0.6, len(cols) - 0.4)
         ax.set_title(f"{n} ({spec.description})")
         ax.set_ylabel("mass [g]")
@@ -141,109 +148,119 @@ def fig_mean_signals(means):
 
 
 # ----------------------------------------------------------------------------- prediction
+# Prediction NetCDF (docs/prediction.md): pos(point, axis, time) m, change from the initial
+# equilibrium; pos_p2_5/pos_p97_5 bands; pos_samples(sample, point, axis, time); energy
+# histograms over ke_edges (J) as time per bin (s).
 
-def _find(ds, *names):
-    """The first of ``names`` that ``ds`` holds (variables of the prediction files)."""
-    for n in names:
-        if n in ds.variables:
-            return ds[n]
-    return None
-
-
-def _trace(ds, point: str, comp: str):
-    """Displacement (m) of a body point along one axis, relative to its initial position:
-    the best-fit trace and, if present, the sample spread (lo, hi)."""
-    v = _find(ds, f"{point}_{comp}", f"{point}.{comp}", f"{comp}_{point}")
-    if v is None and "point" in ds.dims:
-        base = _find(ds, comp, f"r_{comp}", f"pos_{comp}")
-        if base is not None and point in [str(p) for p in ds["point"].values]:
-            v = base.sel(point=point)
-    if v is None:
-        return None
-    arr = np.asarray(v.values, float)
-    if arr.ndim == 2:        # (sample, time): the first sample is the best fit
-        best, samples = arr[0], arr
-    else:
-        best, samples = arr, None
-    best = best - best[0]
-    lo = hi = None
-    if samples is not None and samples.shape[0] > 2:
-        rel = samples - samples[:, :1]
-        lo, hi = np.percentile(rel, [2.5, 97.5], axis=0)
-    return best, lo, hi
+_PLANES = (("M_xz", "x", "z", "M_xz, x–z plane"), ("M_yz", "y", "z", "M_yz, y–z plane"),
+           ("tip_edge", "x", "y", "tip edge, x–y plane"))
 
 
-_PLANES = (("M_xz", "x", "z", "M_xz in the x–z plane"), ("M_yz", "y", "z", "M_yz in the y–z plane"),
-           ("tip", "x", "y", "tip edge in the x–y plane"))
+def _pt(ds, var, point, axis):
+    return np.asarray(ds[var].sel(point=point, axis=axis).values, float)
 
 
 def fig_trajectories(ds, title: str, ref=None):
-    """Figs. 10, 13, 14: the contact middle points and the tip edge, projected on the planes.
-    Start (blue star) and end (red star) as in the paper; ``ref`` (grey) for comparison."""
-    fig, axes = plt.subplots(1, 3, figsize=(9.6, 3.3))
+    """Figs. 10, 13, 14: the contact middle points and the tip edge projected on the planes,
+    axes centred on the initial position. Start (blue star) and end at 1.2 ms (red star) as in
+    the paper; thin lines: trajectories of parameter sets drawn from the covariance; grey:
+    ``ref`` (Piezo 2 as built) for comparison."""
+    fig, axes = plt.subplots(1, 3, figsize=(10.0, 3.5))
     for ax, (pt, a, b, lab) in zip(axes, _PLANES):
-        for src, colour, lw, name in ((ref, COLORS["piezo2"], 0.9, "Piezo 2 (as built)"),
-                                      (ds, COLORS[pt], 1.3, "prediction")):
-            if src is None:
-                continue
-            ta, tb = _trace(src, pt, a), _trace(src, pt, b)
-            if ta is None or tb is None:
-                continue
-            ax.plot(ta[0] * UM, tb[0] * UM, "-", color=colour, lw=lw, label=name)
-            if src is ds:
-                ax.plot(ta[0][0] * UM, tb[0][0] * UM, "*", color="#1f4eb4", ms=9,
-                        label="start")
-                ax.plot(ta[0][-1] * UM, tb[0][-1] * UM, "*", color="#c62828", ms=9,
-                        label="end (1.2 ms)")
+        c = COLORS.get(pt, COLORS["model"])
+        if ref is not None:
+            ax.plot(_pt(ref, "pos", pt, a) * UM, _pt(ref, "pos", pt, b) * UM, "-",
+                    color=COLORS["piezo2"], lw=1.0, label="Piezo 2 (as built)")
+        if "pos_samples" in ds:
+            S = ds["pos_samples"].sel(point=pt)
+            for k in range(min(S.sizes["sample"], 20)):
+                ax.plot(S.isel(sample=k).sel(axis=a).values * UM,
+                        S.isel(sample=k).sel(axis=b).values * UM, "-", color=c, lw=0.4,
+                        alpha=0.25, label="covariance samples" if k == 0 else None)
+        xa, xb = _pt(ds, "pos", pt, a) * UM, _pt(ds, "pos", pt, b) * UM
+        ax.plot(xa, xb, "-", color=c, lw=1.5, label="best fit")
+        ax.plot(xa[0], xb[0], "*", color="#1f4eb4", ms=10, label="start", zorder=5)
+        ax.plot(xa[-1], xb[-1], "*", color="#c62828", ms=10, label="end (1.2 ms)", zorder=5)
         ax.set_xlabel(f"{a} [µm]")
         ax.set_ylabel(f"{b} [µm]")
         ax.set_title(lab)
-    axes[0].legend(loc="best")
+    handles, labels = [], []
+    for ax in axes:
+        for h, l in zip(*ax.get_legend_handles_labels()):
+            if l not in labels:
+                handles.append(h)
+                labels.append(l)
+    fig.legend(handles, labels, loc="lower center", ncol=len(labels),
+               bbox_to_anchor=(0.5, -0.04))
     fig.suptitle(title)
-    fig.tight_layout()
+    fig.tight_layout(rect=(0, 0.06, 1, 1))
     return fig
 
 
 def fig_energy(pred, run=None):
-    """Fig. 8: kinetic energy, predicted (3D model) against measured."""
-    pe = _find(pred, "kinetic_energy_predicted", "energy_predicted", "kinetic_energy")
-    me = _find(pred, "kinetic_energy_measured", "energy_measured")
-    if pe is None:
+    """Fig. 8: histogram of the kinetic energy E_5 (time spent per energy bin in the fit
+    window), model (orange) against measured (blue), with their errors."""
+    need = ("ke_edges", "hist_model_point")
+    if any(n not in pred for n in need):
         return None
-    fig, ax = plt.subplots(figsize=(7.5, 3.0))
-    vals = np.atleast_1d(np.asarray(pe.values, float)).ravel()
-    if me is not None:
-        mv = np.atleast_1d(np.asarray(me.values, float)).ravel()
-        both = np.concatenate([vals, mv])
-        bins = np.linspace(both.min(), both.max(), 30) if both.ptp() > 0 else 10
-        ax.hist(mv * 1e9, bins=bins if np.isscalar(bins) else bins * 1e9,
-                color=COLORS["measured"], alpha=0.6, label="measured")
-    else:
-        bins = 30
-    ax.hist(vals * 1e9, bins=bins if np.isscalar(bins) else bins * 1e9,
-            color=COLORS["predicted"], alpha=0.6, label="3D model")
-    ax.set_xlabel("kinetic energy [nJ]")
-    ax.set_ylabel("count")
+    edges = np.asarray(pred["ke_edges"].values, float) * 1e6          # J -> µJ
+    centres, width = 0.5 * (edges[1:] + edges[:-1]), np.diff(edges)
+    fig, ax = plt.subplots(figsize=(8.0, 3.2))
+    series = [("hist_measured", "measured", COLORS["measured"], -0.2),
+              ("hist_model_point", "3D model", COLORS["predicted"], 0.2)]
+    for var, lab, col, off in series:
+        if var not in pred:
+            continue
+        h = np.asarray(pred[var].values, float) * 1e6                    # s -> µs
+        if not np.any(np.isfinite(h)):
+            continue
+        err = pred[var + "_err"].values * 1e6 if var + "_err" in pred else None
+        if err is not None:
+            err = np.where(h > 0, err, np.nan)
+        ax.bar(centres + off * width, h, width=0.4 * width, color=col, alpha=0.85, label=lab,
+               yerr=err, error_kw={"elinewidth": 0.8, "capsize": 1.5, "ecolor": "#333333"})
+    last = int(np.max(np.nonzero(np.nan_to_num(pred["hist_model_point"].values) > 0)[0],
+                      initial=0))
+    if "hist_measured" in pred:
+        hm = np.nan_to_num(pred["hist_measured"].values)
+        if np.any(hm > 0):
+            last = max(last, int(np.max(np.nonzero(hm > 0)[0])))
+    ax.set_xlim(edges[0], edges[min(last + 2, len(edges) - 1)])
+    ax.set_xlabel("kinetic energy E₅ [µJ]")
+    ax.set_ylabel("time in bin [µs]")
     ax.legend()
-    ax.set_title("Kinetic energy at the tip retraction (cf. Fig. 8)")
+    ax.set_title("Kinetic energy at the tip retraction, fit window (cf. Fig. 8)")
     fig.tight_layout()
     return fig
 
 
-_PAPER_WHATIF = {"piezo1": "4.0, 6.4, 3.8", "ecc10": "40.0, 64.6, —"}
-
-
 def whatif_rows(wi: dict) -> list:
+    """Rows of the what-if table: the headline ratio per axis with its 2.5-97.5 % range,
+    and the paper's values."""
+    head_pt = {"x": "M_xz", "y": "M_yz", "z": "M_xz"}
     rows = []
-    for name, r in (wi.get("ratios") or {}).items():
-        if not isinstance(r, dict):
+    for r in wi.get("ratios") or []:
+        if r.get("name") == r.get("baseline"):
             continue
-        rows.append((name, *(f"{r[k]:.3g}" if isinstance(r.get(k), (int, float)) else "—"
-                             for k in ("x", "y", "z")), _PAPER_WHATIF.get(name, "—")))
+        cells = []
+        for a in ("x", "y", "z"):
+            v = (r.get("headline") or {}).get(a)
+            lo = ((r.get("ratio_p2_5") or {}).get(head_pt[a]) or {}).get(a)
+            hi = ((r.get("ratio_p97_5") or {}).get(head_pt[a]) or {}).get(a)
+            txt = "—" if v is None else f"{v:.3g}"
+            if lo is not None and hi is not None:
+                txt += f" [{lo:.2g}, {hi:.2g}]"
+            cells.append(txt)
+        paper = r.get("paper") or {}
+        ptxt = ", ".join(f"{paper[a]:g}" if a in paper else "—" for a in ("x", "y", "z")) \
+            if paper else "—"
+        rows.append((r.get("name"), *cells, ptxt))
     return rows
 
 
 # ----------------------------------------------------------------------------- flight
+# impact.json (INTERFACES.md + docs/flight.md) and its sidecar impact.nc:
+# nominal/lo/hi(axis, time) = predicted TM velocity as a function of the impact time.
 
 def _vt(rel: dict, axis: str, what: str):
     d = (rel.get(what) or {}).get(axis) or {}
@@ -251,68 +268,68 @@ def _vt(rel: dict, axis: str, what: str):
     return (np.nan if v is None else float(v)), (np.nan if e is None else float(e))
 
 
-def _unit_scale(axis: str) -> float:
-    return 1e6
-
-
-def fig_velocity_impact(imp: dict, tele=None):
-    """Fig. 11: predicted release velocity as a function of the impact time (with its band),
-    the measured velocity and the estimated impact time, for the first release; without
-    stored curves, the measured velocity of every release against its impact time."""
+def fig_velocity_impact(imp: dict, curves=None, release: int = 0):
+    """Fig. 11: the TM velocity the impact model predicts as a function of the impact time
+    (line, band from the parameter and geometry uncertainties), the measured release velocity
+    (red line) and the estimated impact time (first crossing, black, with its error) of one
+    release, for each of the six axes."""
     releases = imp.get("releases") or []
-    if not releases:
+    if not releases or curves is None:
         return None
-    fig, axes = plt.subplots(2, 3, figsize=(9.6, 5.0), sharex=True)
-    curves = imp.get("curves") or {}
-    rel0 = releases[0]
+    rel = releases[release]
+    truth = (imp.get("truth") or {}).get("impact_time")
+    fig, axes = plt.subplots(2, 3, figsize=(10.0, 5.4), sharex=True)
+    t = curves["time"].values * MS
     for ax, axis in zip(axes.ravel(), AXES):
         c = COLORS[axis]
-        sc = _unit_scale(axis)
-        cv = curves.get(axis) if isinstance(curves, dict) else None
-        if cv and "time" in cv and "velocity" in cv:
-            t = np.asarray(cv["time"], float) * MS
-            ax.plot(t, np.asarray(cv["velocity"], float) * sc, color=c, lw=1.2,
-                    label="model v(t_impact)")
-            if "lo" in cv and "hi" in cv:
-                ax.fill_between(t, np.asarray(cv["lo"]) * sc, np.asarray(cv["hi"]) * sc,
-                                color=c, alpha=0.2, lw=0, label="band")
-            v, ev = _vt(rel0, axis, "velocity")
-            ax.axhline(v * sc, color="#c62828", lw=1, label="measured")
-            ti, ei = _vt(rel0, axis, "impact_time")
-            if np.isfinite(ti):
-                ax.errorbar([ti * MS], [v * sc], xerr=[ei * MS], fmt="o", color="k", ms=3,
-                            capsize=3, label="impact time")
-        else:
-            vs = np.array([_vt(r, axis, "velocity") for r in releases])
-            ts = np.array([_vt(r, axis, "impact_time") for r in releases])
-            ax.errorbar(ts[:, 0] * MS, vs[:, 0] * sc, xerr=ts[:, 1] * MS, yerr=vs[:, 1] * sc,
-                        fmt="o", color=c, ms=4, capsize=2, label="releases")
+        sc = 1e6
+        nom = curves["nominal"].sel(axis=axis).values * sc
+        ax.fill_between(t, curves["lo"].sel(axis=axis).values * sc,
+                        curves["hi"].sel(axis=axis).values * sc, color=c, alpha=0.2, lw=0,
+                        label="model band (95 %)")
+        ax.plot(t, nom, color=c, lw=1.3, label="model: velocity vs impact time")
+        v, ev = _vt(rel, axis, "velocity")
+        ax.axhline(v * sc, color="#c62828", lw=1.0, label="measured release velocity")
+        ti, ei = _vt(rel, axis, "impact_time")
+        if np.isfinite(ti):
+            ax.errorbar([ti * MS], [v * sc], xerr=[0 if not np.isfinite(ei) else ei * MS],
+                        fmt="o", color="k", ms=4, capsize=3, label="estimated impact time")
+        if truth is not None:
+            ax.axvline(truth[release] * MS, color="k", ls=":", lw=0.9,
+                       label="true impact time (synthetic)")
         ax.set_title(axis)
         ax.set_ylabel(AXIS_LABEL[axis])
     for ax in axes[-1]:
         ax.set_xlabel("impact time [ms]")
-    axes[0, 0].legend(loc="best")
-    fig.suptitle("Release velocity vs impact time (cf. Fig. 11)")
-    fig.tight_layout()
+    handles, labels = axes[0, 0].get_legend_handles_labels()
+    fig.legend(handles, labels, loc="lower center", ncol=3, bbox_to_anchor=(0.5, -0.06))
+    fig.suptitle(f"Release {rel.get('id', release + 1)}: velocity vs impact time (cf. Fig. 11)")
+    fig.tight_layout(rect=(0, 0.06, 1, 1))
     return fig
 
 
 def fig_impact_times(imp: dict, tele=None):
-    """Fig. 12: every estimated impact time (release x axis) with its 1-sigma error."""
+    """Fig. 12: every estimated impact time (release x axis) with its 1-sigma error, and the
+    true impact time of synthetic releases."""
     releases = imp.get("releases") or []
-    fig, ax = plt.subplots(figsize=(8.6, 3.4))
+    truth = (imp.get("truth") or {}).get("impact_time")
+    fig, ax = plt.subplots(figsize=(10.0, 3.6))
     n = len(releases)
     width = 0.7
+    count = 0
     for k, axis in enumerate(AXES):
         off = (k - (len(AXES) - 1) / 2) * width / len(AXES)
         ts = np.array([_vt(r, axis, "impact_time") for r in releases]).reshape(-1, 2)
+        count += int(np.sum(np.isfinite(ts[:, 0])))
         ax.errorbar(np.arange(n) + off, ts[:, 0] * MS, yerr=ts[:, 1] * MS, fmt="o", ms=3.5,
                     color=COLORS[axis], capsize=2, label=axis)
+    if truth is not None:
+        ax.plot(np.arange(n), np.asarray(truth, float) * MS, "_", color="k", ms=22, mew=1.5,
+                label="truth (synthetic)")
     ax.set_xticks(range(n), [str(r.get("id", i + 1)) for i, r in enumerate(releases)])
     ax.set_xlabel("release")
     ax.set_ylabel("impact time [ms]")
-    ax.legend(ncol=6, loc="upper center", bbox_to_anchor=(0.5, -0.22))
-    ax.set_title(f"All {sum(np.isfinite(_vt(r, a, 'impact_time')[0]) for r in releases for a in AXES)}"
-                 " estimated impact times (cf. Fig. 12)")
+    ax.legend(ncol=7, loc="upper center", bbox_to_anchor=(0.5, -0.2))
+    ax.set_title(f"All {count} estimated impact times of {n} releases × 6 axes (cf. Fig. 12)")
     fig.tight_layout()
     return fig

@@ -63,18 +63,41 @@ def paragraph(text: str) -> str:
     return f"<p>{esc(text)}</p>"
 
 
+_SUP = str.maketrans("-0123456789", "⁻⁰¹²³⁴⁵⁶⁷⁸⁹")
+
+
+def _exp10(e: int) -> str:
+    return f"× 10{str(e).translate(_SUP)}"
+
+
+def num(value, digits: int = 4) -> str:
+    """A number with ``digits`` significant digits; powers of ten as × 10ⁿ."""
+    if value is None or not math.isfinite(value):
+        return "—"
+    if value == 0:
+        return "0"
+    e = int(math.floor(math.log10(abs(value))))
+    if -3 <= e < 5:
+        return f"{value:.{digits}g}"
+    return f"{value / 10 ** e:.{digits - 1}f} {_exp10(e)}"
+
+
 def pm(value, err, scale: float = 1.0) -> str:
-    """``value ± err`` rounded to the error's two significant digits."""
+    """``value ± err`` rounded to the error's two significant digits (``(a ± b) × 10ⁿ`` for
+    very large or small values)."""
     if value is None or not math.isfinite(value):
         return "—"
     v = value * scale
     if err is None or not math.isfinite(err) or err <= 0:
-        return f"{v:.4g}"
+        return num(v)
     e = err * scale
+    big = max(abs(v), e)
+    p = int(math.floor(math.log10(big))) if big > 0 else 0
+    shift = p if (p >= 5 or p < -3) else 0
+    v, e = v / 10 ** shift, e / 10 ** shift
     digits = max(0, 1 - int(math.floor(math.log10(e))))
-    if digits > 8:
-        return f"{v:.3g} ± {e:.2g}"
-    return f"{v:.{digits}f} ± {e:.{digits}f}"
+    txt = f"{v:.{digits}f} ± {e:.{digits}f}" if digits <= 10 else f"{v:.3g} ± {e:.2g}"
+    return f"({txt}) {_exp10(shift)}" if shift else txt
 
 
 CSS = """
@@ -83,10 +106,10 @@ CSS = """
 body{font-family:system-ui,-apple-system,'Segoe UI',Roboto,'DejaVu Sans',sans-serif;margin:0;
 color:var(--ink);line-height:1.5;background:var(--bg)}
 header{background:#0f2a44;color:#fff;padding:1.4em 0 1.2em}
-header .in,main{max-width:1040px;margin:0 auto;padding:0 1.2em}
+header .in,main{max-width:1120px;margin:0 auto;padding:0 1.2em}
 header h1{margin:0;font-size:1.55em;font-weight:650}header p{margin:.2em 0 0;color:#c9d6e3}
 nav{position:sticky;top:0;background:#fff;border-bottom:1px solid var(--line);z-index:2}
-nav .in{max-width:1040px;margin:0 auto;padding:.45em 1.2em;font-size:.9em}
+nav .in{max-width:1120px;margin:0 auto;padding:.45em 1.2em;font-size:.9em}
 nav a{color:#0f4c81;text-decoration:none;margin-right:1.1em}nav a.off{color:#9aa3ad}
 .summary{display:grid;grid-template-columns:repeat(auto-fit,minmax(170px,1fr));gap:.8em;
 margin:1.2em 0}

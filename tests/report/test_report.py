@@ -1,0 +1,186 @@
+"""The report of a run directory: self-contained HTML, stable figure ids, Table 3 with units and
+uncertainties, "not run" for missing stages, and a real browser rendering it."""
+
+from __future__ import annotations
+
+import base64
+import io
+import json
+import re
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+from typer.testing import CliRunner
+
+sys.path.insert(0, str(Path(__file__).parent))
+import runfactory  # noqa: E402
+
+from gprm.cli import app  # noqa: E402
+from gprm.report.build import FIGURE_IDS, write_report  # noqa: E402
+from gprm.report.html import num, pm  # noqa: E402
+
+
+@pytest.fixture(scope="module")
+def partial_run(tmp_path_factory):
+    """means.nc + fit.json/fit.nc + impact.json; no prediction (the report must say so)."""
+    run = tmp_path_factory.mktemp("run")
+    truth = runfactory.make_means(run / "means.nc")
+    runfactory.make_fit(run)
+    runfactory.make_impact(run / "impact.json")
+    return run, truth
+
+
+@pytest.fixture(scope="module")
+def report_html(partial_run, tmp_path_factory):
+    run, _ = partial_run
+    out = tmp_path_factory.mktemp("out") / "report.html"
+    write_report(run, out)
+    return out
+
+
+def _figure_ids_with_images(text: str) -> set[str]:
+    return set(re.findall(r'<figure id="([^"]+)"><img alt="[^"]*" src="data:image/png;base64,',
+                          text))
+
+
+def test_sections_present_have_their_figures_missing_ones_say_not_run(report_html):
+    text = report_html.read_text()
+    ids = _figure_ids_with_images(text)
+    expected = {"fig-campaign", "fig-fit", "fig-waterfall", "fig-masses", "fig-velocity-impact",
+                "fig-impact-times"}
+    assert expected <= ids
+    # no prediction in this run: those figures are absent and their sections say "not run"
+    assert not ids & {"fig-energy", "fig-trajectories", "fig-whatif-piezo1",
+                      "fig-whatif-eccentricity"}
+    assert re.search(r'<section id="predict">.*?not run', text, re.S)
+    assert re.search(r'<section id="whatif">.*?not run', text, re.S)
+    assert set(ids) <= set(FIGURE_IDS)
+
+
+def test_every_embedded_image_is_a_valid_png(report_html):
+    from PIL import Image
+
+    text = report_html.read_text()
+    blobs = re.findall(r'src="data:image/png;base64,([^"]+)"', text)
+    assert len(blobs) >= 6
+    for b in blobs:
+        im = Image.open(io.BytesIO(base64.b64decode(b)))
+        assert im.format == "PNG" and im.size[0] > 300 and im.size[1] > 150
+
+
+def test_self_contained_no_network(report_html):
+    text = report_html.read_text()
+    assert "<script" not in text
+    assert "<link" not in text
+    # every src/href is inline data or an in-page anchor
+    for attr in re.findall(r'(?:src|href)="([^"]*)"', text):
+        assert attr.startswith("data:") or attr.startswith("#"), attr
+    assert "url(" not in text
+
+
+def test_table3_has_units_errors_truth_and_paper(partial_run, report_html):
+    from gprm.params import REGISTRY, paper
+
+    run, truth = partial_run
+    text = report_html.read_text()
+    m = re.search(r'<table id="table-3">(.*?)</table>', text, re.S)
+    assert m, "Table 3 missing"
+    rows = re.findall(r"<tr>(.*?)</tr>", m.group(1), re.S)
+    head = re.findall(r"<th>(.*?)</th>", rows[0])
+    assert head[:3] == ["parameter", "unit", "fit ± 1σ"]
+    assert "synthetic truth" in head and "paper ± 1σ" in head
+    body = {re.findall(r"<td>(.*?)</td>", r)[0]: re.findall(r"<td>(.*?)</td>", r)
+            for r in rows[1:]}
+    assert set(body) == set(paper().fitted)
+    fit = json.loads((run / "fit.json").read_text())
+    # m2 in grams, with its error, and the paper's 12.4 ± 0.9 g
+    m2 = body["m2"]
+    assert m2[1] == "g"
+    v, e = fit["parameters"]["m2"]["value"] * 1e3, fit["parameters"]["m2"]["stderr"] * 1e3
+    val, err = (float(x) for x in m2[2].split(" ± "))
+    assert abs(val - v) <= 0.01 * abs(v) and abs(err - e) <= 0.05 * e
+    assert m2[head.index("paper ± 1σ")] == "12.40 ± 0.90"
+    assert float(m2[head.index("synthetic truth")]) == pytest.approx(truth["m2"] * 1e3)
+    z = float(m2[head.index("(fit − truth)/σ")])
+    assert z == pytest.approx((fit["parameters"]["m2"]["value"] - truth["m2"])
+                              / fit["parameters"]["m2"]["stderr"], abs=0.01)
+    assert REGISTRY["k_Ax"].unit in body["k_Ax"][1]
+
+
+def test_summary_cards_and_tukey_table(report_html):
+    text = report_html.read_text()
+    cards = re.search(r'<div class="summary" id="summary">(.*?)</div></main>|'
+                      r'<div class="summary" id="summary">(.*?)<section', text, re.S)
+    assert cards
+    assert "reduced χ²" in text and "truth recovered" in text and "Tukey test" in text
+    tk = re.search(r'<table id="table-tukey">(.*?)</table>', text, re.S).group(1)
+    assert len(re.findall(r"<tr>", tk)) == 1 + 15      # header + C(6, 2) pairs
+
+
+def test_pm_and_num_formatting():
+    assert pm(2.704, 0.067) == "2.704 ± 0.067"
+    assert pm(12.4e-3, 0.9e-3, 1e3) == "12.40 ± 0.90"
+    assert pm(1104e5, 7e5) == "(1.1040 ± 0.0070) × 10⁸"
+    assert pm(4e-6, 3e-6) == "(4.0 ± 3.0) × 10⁻⁶"
+    assert pm(1.0, None) == "1"
+    assert num(1.64e6) == "1.640 × 10⁶"
+    assert num(float("nan")) == "—"
+
+
+def test_report_command_and_bad_input(partial_run, tmp_path):
+    run, _ = partial_run
+    before = {p.name: p.read_bytes() for p in run.iterdir()}
+    r = CliRunner().invoke(app, ["report", str(run), "--out", str(tmp_path / "r.html")])
+    assert r.exit_code == 0, r.output
+    assert {p.name: p.read_bytes() for p in run.iterdir()} == before   # inputs untouched
+    assert (tmp_path / "r.html").stat().st_size > 100_000
+    r = CliRunner().invoke(app, ["report", str(tmp_path / "nope"), "--out",
+                                 str(tmp_path / "x.html")])
+    assert r.exit_code == 2
+    empty = tmp_path / "empty"
+    empty.mkdir()
+    r = CliRunner().invoke(app, ["report", str(empty), "--out", str(tmp_path / "x.html")])
+    assert r.exit_code == 2 and "holds none of the stage outputs" in r.output
+    assert not (tmp_path / "x.html").exists()
+
+
+CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
+
+
+def screenshot(html: Path, png: Path, *, width: int = 1200, height: int = 2400) -> None:
+    """Render ``html`` in headless Chromium and save a screenshot."""
+    cmd = [CHROMIUM, "--headless", "--no-sandbox", "--disable-gpu", "--hide-scrollbars",
+           "--no-first-run", "--disable-extensions", f"--window-size={width},{height}",
+           f"--screenshot={png}", html.resolve().as_uri()]
+    subprocess.run(cmd, check=True, capture_output=True, timeout=120)
+
+
+def check_not_blank(png: Path) -> None:
+    from PIL import Image
+
+    im = np.asarray(Image.open(png).convert("RGB"), float)
+    assert im.shape[0] > 1000 and im.shape[1] >= 1000
+    grey = im.mean(axis=2)
+    # a blank page is one colour; the report has text, plots and a dark header
+    assert grey.std() > 20
+    dark = np.mean(grey < 100)
+    assert 0.02 < dark < 0.6, dark
+    # colour: the plot lines and bands are not grey
+    chroma = im.max(axis=2) - im.min(axis=2)
+    assert np.mean(chroma > 60) > 0.005
+
+
+@pytest.mark.skipif(CHROMIUM is None, reason="Chromium is not installed (apt-get install "
+                    "chromium; .ci/run installs it), so the report cannot be rendered")
+def test_report_renders_in_headless_chromium(report_html, tmp_path):
+    png = tmp_path / "shot.png"
+    screenshot(report_html, png)
+    check_not_blank(png)
+    dom = subprocess.run([CHROMIUM, "--headless", "--no-sandbox", "--disable-gpu",
+                          "--dump-dom", report_html.resolve().as_uri()],
+                         capture_output=True, text=True, timeout=120, check=True).stdout
+    assert 'id="fig-fit"' in dom and 'id="table-3"' in dom

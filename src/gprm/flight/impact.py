@@ -150,6 +150,7 @@ class Impact3D:
     u_before: np.ndarray
     u_after: np.ndarray
     dE: np.ndarray
+    mode: np.ndarray | None = None   # 0 frictionless, 1 stick, 2 slip, 3 jam (frictionless)
 
 
 def kinetic_energy(m, I, v, w):
@@ -191,7 +192,10 @@ def impact_3d(mA, IA, rhoA, vA, wA, mB, IB, rhoB, vB, wB, n, e=1.0, mu=0.0) -> I
       with the friction impulse opposing the initial tangential slip direction t̂ (constant
       direction over the impulse), J = P (n − mu t̂), P = −(1 + e) u_n / (n·K (n − mu t̂)).
       This is the algebraic Newton–Coulomb model; it does not track a slip reversal during
-      the impulse (a stick/slip decision is made once), see docs/flight.md.
+      the impulse (a stick/slip decision is made once), see docs/flight.md. A sticking
+      impulse must also push (J_n > 0). Where the sliding branch has no positive effective
+      normal mass (n·K(n − mu t̂) <= 0, a "jam" of rigid-body Coulomb friction) the
+      frictionless impulse is used and ``mode`` says so (3).
 
     Inertias ``IA, IB`` are (..., 3, 3) tensors about the CoM in the common frame. Returns an
     :class:`Impact3D`.
@@ -218,24 +222,29 @@ def impact_3d(mA, IA, rhoA, vA, wA, mB, IB, rhoB, vB, wB, n, e=1.0, mu=0.0) -> I
     # frictionless impulse
     J = (-(1.0 + e) * un / np.sum(n * Kn, axis=-1))[..., None] * n
     slip = np.zeros(shape, bool)
+    mode = np.zeros(shape, int)
     if np.any(mu > 0):
         target = (-e * un)[..., None] * n
         J_stick = np.linalg.solve(K, (target - u)[..., None])[..., 0]
         Jn_s = np.sum(J_stick * n, axis=-1)
         Jt_s = J_stick - Jn_s[..., None] * n
-        stick_ok = np.linalg.norm(Jt_s, axis=-1) <= mu * Jn_s * (1 + 1e-12) + 1e-300
+        stick_ok = ((Jn_s > 0)
+                    & (np.linalg.norm(Jt_s, axis=-1) <= mu * Jn_s * (1 + 1e-12)))
         ut = u - un[..., None] * n
         ut_norm = np.linalg.norm(ut, axis=-1)
-        that = np.where(ut_norm[..., None] > 0, ut / np.where(ut_norm > 0, ut_norm, 1.0)[..., None],
-                        0.0)
+        safe = np.where(ut_norm > 0, ut_norm, 1.0)
+        that = np.where(ut_norm[..., None] > 0, ut / safe[..., None], 0.0)
         d = n - mu[..., None] * that
         Kd = np.einsum("...ij,...j->...i", K, d)
-        P_slip = -(1.0 + e) * un / np.sum(n * Kd, axis=-1)
+        nKd = np.sum(n * Kd, axis=-1)
+        jam = nKd <= 0
+        P_slip = -(1.0 + e) * un / np.where(jam, 1.0, nKd)
         J_slip = P_slip[..., None] * d
         use_fric = mu > 0
-        slip = use_fric & ~stick_ok
+        slip = use_fric & ~stick_ok & ~jam
         J = np.where((use_fric & stick_ok)[..., None], J_stick, J)
         J = np.where(slip[..., None], J_slip, J)
+        mode = np.where(use_fric, np.where(stick_ok, 1, np.where(jam, 3, 2)), 0)
     vA2 = vA - J / mA[..., None]
     vB2 = vB + J / mB[..., None]
     wA2 = wA + np.einsum("...ij,...j->...i", IA_inv, np.cross(rhoA, -J))
@@ -243,4 +252,5 @@ def impact_3d(mA, IA, rhoA, vA, wA, mB, IB, rhoB, vB, wB, n, e=1.0, mu=0.0) -> I
     u2 = (vB2 + np.cross(wB2, rhoB)) - (vA2 + np.cross(wA2, rhoA))
     E0 = kinetic_energy(mA, IA, vA, wA) + kinetic_energy(mB, IB, vB, wB)
     E1 = kinetic_energy(mA, IA, vA2, wA2) + kinetic_energy(mB, IB, vB2, wB2)
-    return Impact3D(vA2, wA2, vB2, wB2, J, np.sum(J * n, axis=-1), slip, u, u2, E1 - E0)
+    return Impact3D(vA2, wA2, vB2, wB2, J, np.sum(J * n, axis=-1), slip, u, u2, E1 - E0,
+                    mode)

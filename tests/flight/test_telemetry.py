@@ -1,0 +1,118 @@
+"""Telemetry format, release-velocity line fit, bad input (library and CLI)."""
+
+import numpy as np
+import pytest
+
+from gprm.errors import GprmInputError
+from gprm.flight.telemetry import (AXES, fit_release_velocity, load_telemetry,
+                                   release_velocities, telemetry_dataset,
+                                   telemetry_from_dataset)
+
+
+def _tel(R=3, S=60, rate=10.0, seed=0, v=None):
+    rng = np.random.default_rng(seed)
+    t_rel = 100.0 * (1 + np.arange(R))
+    time = t_rel[:, None] - 1.0 + np.arange(S)[None] / rate
+    v = v if v is not None else {c: rng.normal(0, 1e-5, R)
+                                 for c in ("x", "y", "z", "theta", "eta", "phi")}
+    dt = np.clip(time - t_rel[:, None], 0, None)
+    data = {c: 1e-6 + v[c][:, None] * dt + rng.normal(0, 2e-9, (R, S)) for c in v}
+    ds = telemetry_dataset([f"R{i + 1:02d}" for i in range(R)], time, t_rel, data,
+                           noise_std={c: 2e-9 for c in v})
+    return ds, v
+
+
+def test_weighted_line_fit_against_statsmodels_wls():
+    import statsmodels.api as sm
+
+    rng = np.random.default_rng(1)
+    t = np.sort(rng.uniform(0.1, 5, 40))
+    sig = rng.uniform(1e-9, 5e-9, 40)
+    y = 3e-7 + 2.5e-5 * t + sig * rng.standard_normal(40)
+    f = fit_release_velocity(t, y, sig)
+    res = sm.WLS(y, sm.add_constant(t), weights=1 / sig ** 2).fit(cov_type="fixed scale")
+    assert f.value == pytest.approx(res.params[1], rel=1e-9)
+    assert f.stderr == pytest.approx(res.bse[1], rel=1e-9)
+    # without sigma: ordinary least squares, residual-scaled stderr
+    g = fit_release_velocity(t, y)
+    r2 = sm.OLS(y, sm.add_constant(t)).fit()
+    assert g.value == pytest.approx(r2.params[1], rel=1e-9)
+    assert g.stderr == pytest.approx(r2.bse[1], rel=1e-9)
+
+
+def test_release_velocity_recovers_slope_and_roundtrip(tmp_path):
+    from gprm._io import write_netcdf_atomic
+
+    ds, v = _tel(R=4, S=80)
+    p = tmp_path / "tel.nc"
+    write_netcdf_atomic(ds, p)
+    tel = load_telemetry(p)
+    assert [r.id for r in tel.releases] == ["R01", "R02", "R03", "R04"]
+    vel = release_velocities(tel)
+    ch = {"vx": "x", "vz_xz": "z", "wy": "eta", "vy": "y", "vz_yz": "z", "wx": "theta"}
+    for i, r in enumerate(tel.releases):
+        for a in AXES:
+            f = vel[r.id][a]
+            assert f.weighted and f.n == int(np.sum(r.time > r.release_time))
+            assert abs(f.value - v[ch[a]][i]) < 5 * f.stderr
+
+
+def _bad(ds, tmp_path, name="bad.nc"):
+    from gprm._io import write_netcdf_atomic
+    p = tmp_path / name
+    write_netcdf_atomic(ds, p)
+    return p
+
+
+def test_bad_inputs_library(tmp_path):
+    ds, _ = _tel(R=2, S=30)
+    # too few samples after the release
+    short = ds.copy(deep=True)
+    short["time"].values[:, :] = short["time"].values - 2.8  # only ~1 sample after release
+    with pytest.raises(GprmInputError, match="samples after the release"):
+        release_velocities(telemetry_from_dataset(short))
+    # missing axis channel
+    with pytest.raises(GprmInputError, match="eta"):
+        telemetry_from_dataset(ds.drop_vars("eta"))
+    # non-monotonic time
+    nm = ds.copy(deep=True)
+    nm["time"].values[1, 5] = nm["time"].values[1, 3]
+    with pytest.raises(GprmInputError, match="strictly increasing"):
+        telemetry_from_dataset(nm)
+    # NaN in a data channel
+    nn = ds.copy(deep=True)
+    nn["x"].values[0, 12] = np.nan
+    with pytest.raises(GprmInputError, match="non-finite"):
+        telemetry_from_dataset(nn)
+    # NaN padding at the end of a shorter release is allowed
+    pad = ds.copy(deep=True)
+    for v in ("time", "x", "y", "z", "theta", "eta", "phi"):
+        pad[v].values[1, -3:] = np.nan
+    tel = telemetry_from_dataset(pad)
+    assert tel.releases[1].time.size == 27 and tel.releases[0].time.size == 30
+
+
+@pytest.mark.parametrize("case,needle", [
+    ("few", "samples after the release"), ("missing", "eta"),
+    ("nonmono", "strictly increasing"), ("nan", "non-finite"), ("absent", "does not exist")])
+def test_bad_inputs_cli(tmp_path, case, needle):
+    from typer.testing import CliRunner
+    from gprm.cli import app
+
+    ds, _ = _tel(R=2, S=30)
+    if case == "few":
+        ds["time"].values[:, :] = ds["time"].values - 2.8
+    elif case == "missing":
+        ds = ds.drop_vars("eta")
+    elif case == "nonmono":
+        ds["time"].values[0, 7] = ds["time"].values[0, 2]
+    elif case == "nan":
+        ds["theta"].values[1, 20] = np.nan
+    p = _bad(ds, tmp_path) if case != "absent" else tmp_path / "none.nc"
+    res = CliRunner().invoke(app, ["impact", "paper", str(p), "--out",
+                                   str(tmp_path / "o.json"), "--samples", "4"])
+    assert res.exit_code == 2
+    err = res.stderr if hasattr(res, "stderr") else res.output
+    lines = [x for x in err.strip().splitlines() if x]
+    assert len(lines) == 1 and needle in lines[0] and lines[0].startswith("gprm: error:")
+    assert not (tmp_path / "o.json").exists()

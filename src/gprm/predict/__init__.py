@@ -1,1 +1,5 @@
-"""predict stage."""
+"""predict stage: trajectories with uncertainty bands (Eq. 8, Fig. 10), kinetic-energy check
+(Fig. 8), mass comparison (Fig. 7), what-ifs and overshoots (Sec. 4.2), impact risk against a
+gap. See docs/prediction.md. Modules: ``kinematics`` (stable body-kinematics API),
+``trajectories``, ``energy``, ``masses``, ``scenarios``, ``whatif``, ``risk``, ``core``
+(``predict``), ``files`` (NetCDF), ``plots``, ``commands`` (CLI)."""

@@ -25,8 +25,10 @@ def register(app: typer.Typer, synth_app: typer.Typer) -> None:
         workers: int = typer.Option(0, "--workers", help="local Dask worker processes for the "
                                     "fit (0: in this process)"),
     ):
-        """Run the whole chain on generated data: synth campaign -> preprocess -> fit ->
-        predict (+ what-ifs) -> synth telemetry -> impact -> report.html."""
+        """The whole chain on generated data, resumable, ending in report.html.
+
+        campaign -> preprocess -> fit -> predict, what-ifs -> telemetry -> impact -> report
+        """
         import sys
 
         from rich.console import Console

@@ -1,11 +1,10 @@
 """The whole chain in one call: synthetic campaign -> preprocess -> fit -> predict (+ what-ifs)
 -> synthetic telemetry -> impact -> report, into one run directory.
 
-The run directory is the contract between the stages and the report (see ``docs/demo.md`` and
-``/work/notes/contracts.md``)::
+The run directory is the contract between the stages and the report (see ``docs/README.md``)::
 
     campaign.nc  means.nc  fit.json fit.nc  predict.nc  predict_piezo1.nc  predict_ecc10.nc
-    whatif.json  telemetry.nc  impact.json  run.json  report.html
+    whatif.json  telemetry.nc  impact.json impact.nc  run.json  report.html
 
 Resuming: after each stage ``run.json`` records the SHA-256 of the stage's input files, its
 settings and the SHA-256 of the files it wrote. A rerun into the same directory skips a stage

@@ -17,7 +17,7 @@ import pytest
 from typer.testing import CliRunner
 
 sys.path.insert(0, str(Path(__file__).parent))
-import runfactory  # noqa: E402
+import report_runfactory as runfactory  # noqa: E402
 
 from gprm.cli import app  # noqa: E402
 from gprm.report.build import FIGURE_IDS, write_report  # noqa: E402

@@ -1,0 +1,91 @@
+"""Worked example: the whole gprm chain from Python, as a notebook user would run it.
+
+Run it as a script (``.venv/bin/python docs/worked_example.py [OUT_DIR]``) or paste the cells
+(``# %%``) into a notebook. It uses the library API only (no shell commands), small sizes so it
+takes well under a minute, and writes a run directory that ``gprm report`` can read. The tests
+execute it (tests/demo/test_worked_example.py).
+"""
+
+# %% Imports and where to write
+import sys
+import tempfile
+from pathlib import Path
+
+import numpy as np
+
+from gprm._io import write_json_atomic, write_netcdf_atomic
+
+OUT = Path(sys.argv[1]) if len(sys.argv) > 1 else Path(tempfile.mkdtemp(prefix="gprm-example-"))
+OUT.mkdir(parents=True, exist_ok=True)
+print(f"writing to {OUT}")
+
+# %% 1. Parameters: the paper's set (Table 2 constants, Table 3 best fit), SI inside
+from gprm.params import REGISTRY, from_si, paper
+
+ps = paper()
+print("m2 =", from_si(ps.values["m2"], "m2"), REGISTRY["m2"].unit, "| fitted:", len(ps.fitted))
+
+# %% 2. Simulate the tip retraction (Eq. 2 solved exactly; outputs of Eq. 3)
+from gprm.simulate import simulate
+
+sim = simulate(ps, piezo=2, t_end=1.2e-3, rate=200e3)
+print("peak x_head: %.3f um" % (1e6 * np.abs(sim.outputs["x_head"]).max()))
+
+# %% 3. A synthetic ground-test campaign with known truth, and its mean signals (Sec. 2)
+from gprm.campaign.data import write_campaign
+from gprm.campaign.preprocess import preprocess
+from gprm.campaign.synth import SynthConfig, synth_campaign
+
+campaign = synth_campaign(seed=1, config=SynthConfig(nonlinear=False))   # faster variant
+write_campaign(campaign, OUT / "campaign.nc")
+means = preprocess(campaign).to_dataset()
+write_netcdf_atomic(means, OUT / "means.nc")
+print("Table 1 (this campaign):", means.attrs["table1_json"][:120], "...")
+
+# %% 4. Identification: multi-start Levenberg-Marquardt (Algorithm 1), covariance (Eq. 7)
+from gprm.fit.multistart import MultiStartOptions
+from gprm.fit.objective import fit_data_from_means
+from gprm.fit.result import identify
+
+data = fit_data_from_means(means, source="worked example")
+fit = identify(data, paper(), MultiStartOptions(n_starts=12, seed=1, chunk_size=12),
+               band_samples=20)
+fit.write(OUT / "fit.json")                        # + fit.nc (every start, bands)
+print(fit.summary().splitlines()[2])
+
+# %% 5. Prediction: trajectories of the contact points, kinetic energy, what-ifs (Sec. 4.2)
+from gprm.fit.files import load_fit
+from gprm.predict.core import predict, prediction_times
+from gprm.predict.files import prediction_dataset
+from gprm.predict.scenarios import Scenario
+from gprm.predict.whatif import whatif
+
+fm = load_fit(OUT / "fit.json")                    # what later stages read: a FittedModel
+t = prediction_times(0.95e-3, 1.2e-3, 1e6)
+pred = predict(fm, scenario=Scenario("piezo2", 2), times=t, samples=20, seed=1,
+               means=OUT / "means.nc")
+write_netcdf_atomic(prediction_dataset(pred), OUT / "predict.nc")
+wi = whatif(fm, samples=20, seed=1)
+write_json_atomic(OUT / "whatif.json", wi)
+for r in wi["ratios"][1:]:
+    print(f"overshoot Piezo 2 / {r['name']}:",
+          ", ".join(f"{a} {v:.2f}" for a, v in r["headline"].items()))
+
+# %% 6. Flight: synthetic releases, release velocities, impact times, Tukey test (Sec. 4.1)
+from gprm.flight.analysis import AnalysisOptions, analyze, curves_dataset
+from gprm.flight.synth import SynthOptions, synth_telemetry
+from gprm.flight.telemetry import telemetry_from_dataset
+
+tele = synth_telemetry(fm, SynthOptions(n_releases=11, seed=1))
+write_netcdf_atomic(tele, OUT / "telemetry.nc")
+doc, curves = analyze(fm, telemetry_from_dataset(tele), AnalysisOptions(n_samples=20, seed=1))
+write_json_atomic(OUT / "impact.json", doc)
+write_netcdf_atomic(curves_dataset(curves, doc), OUT / "impact.nc")
+tk = doc["tukey"]
+print("Tukey: all compatible" if tk.get("all_compatible") else f"Tukey: {tk}")
+
+# %% 7. The report of this run directory (one self-contained HTML file)
+from gprm.report.build import write_report
+
+html = write_report(OUT, OUT / "report.html")
+print(f"report: {html} ({html.stat().st_size / 1e6:.1f} MB)")

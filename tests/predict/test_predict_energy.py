@@ -121,3 +121,22 @@ def test_bad_means(fm, tmp_path, truth):
     ds.to_netcdf(tmp_path / "zero.nc")
     with pytest.raises(GprmInputError, match="sem"):
         read_means(tmp_path / "zero.nc")
+
+
+def test_record_starting_before_zero(fm, truth, tmp_path):
+    """A mean-signals record that starts before t = 0 (alignment shift): the model is at rest
+    there, and the histograms equal those of the same record cut at t >= 0."""
+    ds = synthetic_means(truth, seed=5)
+    ds_neg = ds.assign_coords(time=ds["time"] - 0.1e-3)
+    ds_neg.to_netcdf(tmp_path / "neg.nc")
+    t, mean, sem = read_means(tmp_path / "neg.nc")
+    assert t[0] < 0
+    a = energy_check(fm, means=(t, mean, sem), samples=0, noise_draws=5,
+                     window=(0.87e-3, 1.1e-3))
+    keep = t >= 0
+    b = energy_check(fm, means=(t[keep], {k: v[keep] for k, v in mean.items()},
+                                {k: v[keep] for k, v in sem.items()}), samples=0,
+                     noise_draws=5, window=(0.87e-3, 1.1e-3))
+    np.testing.assert_allclose(a.hist_model_point, b.hist_model_point)
+    np.testing.assert_allclose(a.model_total[keep], b.model_total)
+    assert np.all(a.model_total[~keep] == 0)

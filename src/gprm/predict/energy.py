@@ -184,12 +184,20 @@ def energy_check(fm: FittedModel, *, piezo: int = 2, times=None, means=None,
     w = window_weights(t, window)
     sel = w > 0
 
+    # a record may start before the model's t = 0 (alignment shifts); the model is at rest
+    # there (all changes and rates zero), so it is simulated from the first t >= 0 only
+    k0 = int(np.searchsorted(t, 0.0))
+    if k0 >= t.size:
+        raise GprmInputError("the record ends before t = 0", field="time")
+
     def model_energies(pb):
-        m = body_motion(pb, t, piezo=piezo, voltage=voltage)
-        tot = kinetic_energy(m)["total"]
-        obs = observe(pb, t, FIVE, piezo=piezo, voltage=voltage,
+        ts = t[k0:]
+        m = body_motion(pb, ts, piezo=piezo, voltage=voltage)
+        obs = observe(pb, ts, FIVE, piezo=piezo, voltage=voltage,
                       z_bk_absolute=fm.z_bk_absolute)
-        rates = {n: differentiate(obs.y[:, i], t) for i, n in enumerate(FIVE)}
+        pad = ((0, 0), (k0, 0))
+        tot = np.pad(kinetic_energy(m)["total"], pad)
+        rates = {n: differentiate(np.pad(obs.y[:, i], pad), t) for i, n in enumerate(FIVE)}
         return tot, point_energy(rates, pb), m.ok & obs.ok
 
     best = batch([fm.params])

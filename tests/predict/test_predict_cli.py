@@ -93,3 +93,14 @@ def test_means_too_short(tmp_path):
     synthetic_means(paper(), t_end=1.1e-3).to_netcdf(means)
     r = run("paper", "--out", tmp_path / "x.nc", "--samples", 0, "--means", means)
     assert r.exit_code == 2 and "short.nc" in r.output and "not inside" in r.output
+
+
+def test_span_beyond_voltage_trace(tmp_path):
+    csv = tmp_path / "v.csv"
+    csv.write_text("time,voltage\n0,120\n0.001,120\n0.00103,10\n0.00105,0\n0.00115,0\n")
+    r = run("paper", "--out", tmp_path / "x.nc", "--samples", 0, "--voltage", csv)
+    assert r.exit_code == 2 and "after the end of the simulated input" in r.output
+    r = run("paper", "--out", tmp_path / "x.nc", "--samples", 5, "--voltage", csv,
+            "--t-end", 1.14e-3, "--t-start", 0.9e-3)
+    # the energy window (to 1.2 ms) is also beyond the trace
+    assert r.exit_code == 2 and len(r.output.strip().splitlines()) == 1

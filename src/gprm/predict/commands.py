@@ -67,6 +67,8 @@ def register(app: typer.Typer, synth_app: typer.Typer) -> None:
         gap: Optional[str] = typer.Option(None, "--gap", help="available plunger-TM gap "
                                           "along the indent normal, e.g. 2um"),
         gap_std: str = typer.Option("0", "--gap-std", help="its standard deviation"),
+        voltage: Optional[Path] = typer.Option(None, "--voltage", help="measured drive trace "
+                                               "CSV (time s, voltage V)"),
         whatif_out: Optional[Path] = typer.Option(None, "--whatif",
                                                   help="also write the standard what-if "
                                                        "table (JSON)"),
@@ -78,6 +80,7 @@ def register(app: typer.Typer, synth_app: typer.Typer) -> None:
         from gprm.predict.files import prediction_dataset
         from gprm.predict.scenarios import Scenario
         from gprm.predict.whatif import whatif
+        from gprm.simulate import read_voltage_csv
 
         if piezo not in (1, 2):
             raise GprmInputError(f"must be 1 or 2, got {piezo}", field="--piezo")
@@ -91,8 +94,9 @@ def register(app: typer.Typer, synth_app: typer.Typer) -> None:
         g = parse_length(gap, "--gap") if gap is not None else None
         gs = parse_length(gap_std, "--gap-std")
         t = prediction_times(t_start, t_end, rate)
+        trace = read_voltage_csv(voltage) if voltage is not None else None
         pred = predict(fm, scenario=sc, times=t, samples=samples, seed=seed, means=means,
-                       n_bins=bins, gap=g, gap_std=gs)
+                       n_bins=bins, gap=g, gap_std=gs, voltage=trace)
         write_netcdf_atomic(prediction_dataset(pred), out)
         os_ = pred.overshoot
         pts = list(pred.trajectories.points)
@@ -105,5 +109,6 @@ def register(app: typer.Typer, synth_app: typer.Typer) -> None:
                                              zip(pred.risk.planes, pred.risk.p_cross))
         typer.echo(msg)
         if whatif_out is not None:
-            write_json_atomic(whatif_out, whatif(fm, samples=min(samples, 100), seed=seed))
+            write_json_atomic(whatif_out, whatif(fm, samples=min(samples, 100), seed=seed,
+                                                 voltage=trace))
             typer.echo(f"wrote {whatif_out}")

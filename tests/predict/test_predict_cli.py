@@ -104,3 +104,6 @@ def test_span_beyond_voltage_trace(tmp_path):
             "--t-end", 1.14e-3, "--t-start", 0.9e-3)
     # the energy window (to 1.2 ms) is also beyond the trace
     assert r.exit_code == 2 and len(r.output.strip().splitlines()) == 1
+    r = run("paper", "--out", tmp_path / "x.nc", "--samples", 5, "--voltage", csv,
+            "--t-end", 1.14e-3, "--t-start", 0.9e-3, "--ke-end", 1.14e-3)
+    assert r.exit_code == 0, r.output

@@ -64,6 +64,8 @@ def register(app: typer.Typer, synth_app: typer.Typer) -> None:
         means: Optional[Path] = typer.Option(None, "--means", help="mean-signals NetCDF "
                                              "(measured kinetic energy, Fig. 8)"),
         bins: int = typer.Option(20, "--bins", help="kinetic-energy bins"),
+        ke_start: float = typer.Option(0.97e-3, "--ke-start", help="energy window start, s"),
+        ke_end: float = typer.Option(1.2e-3, "--ke-end", help="energy window end, s"),
         gap: Optional[str] = typer.Option(None, "--gap", help="available plunger-TM gap "
                                           "along the indent normal, e.g. 2um"),
         gap_std: str = typer.Option("0", "--gap-std", help="its standard deviation"),
@@ -96,7 +98,8 @@ def register(app: typer.Typer, synth_app: typer.Typer) -> None:
         t = prediction_times(t_start, t_end, rate)
         trace = read_voltage_csv(voltage) if voltage is not None else None
         pred = predict(fm, scenario=sc, times=t, samples=samples, seed=seed, means=means,
-                       n_bins=bins, gap=g, gap_std=gs, voltage=trace)
+                       n_bins=bins, gap=g, gap_std=gs, voltage=trace,
+                       energy_window=(ke_start, ke_end))
         write_netcdf_atomic(prediction_dataset(pred), out)
         os_ = pred.overshoot
         pts = list(pred.trajectories.points)

@@ -254,7 +254,11 @@ def simulate_contacts(model, t1: float, *, t_end: float | None = None,
         events.append(ContactEvent(float(tc), tuple(act), tuple(map(float, Pn)),
                                    tuple(np.concatenate([tm_v, tm_w]).tolist()), *dE))
     final = np.concatenate([tm_v, tm_w])
+    truncated = len(events) >= max_events
     return {"t1": float(t1), "t_end": float(t_end), "n_impacts": len(events),
+            "truncated": truncated,
+            "note": (f"stopped after {max_events} contacts (chattering, i.e. sustained contact: "
+                     "the instantaneous-impact model no longer applies)" if truncated else None),
             "events": [e.__dict__ for e in events],
             "final_tm_velocity": dict(zip(("vx", "vy", "vz", "wx", "wy", "wz"),
                                           map(float, final))),

@@ -13,8 +13,11 @@ import xarray as xr
 from scipy.optimize import least_squares
 
 from gprm.errors import GprmInputError
+from gprm.fit.covariance import covariance
+from gprm.fit.lm import levenberg_marquardt_batch
 from gprm.fit.multistart import LMOptions, MultiStartOptions, run_multistart
 from gprm.fit.objective import Objective, fit_data_from_means
+from gprm.fit.files import load_fit
 from gprm.fit.result import identify
 from gprm.params import paper
 
@@ -43,12 +46,18 @@ def test_objective_jacobian_matches_finite_differences(case):
     obj = Objective.create(data, paper())
     xn = obj.to_normalised(truth.vector(obj.names))
     r, J = obj(xn[None])
-    h = 1e-6
-    for k in (0, 5, 13, 21, 22):
+    # Richardson-extrapolated central differences (error O(h^4)) with h = 2e-3 of the
+    # normalised (O(1)) parameters: large enough that the round-off of the eigen-solution
+    # (~1e-12 relative in y, amplified by 1/h) stays negligible even for the weakest column
+    def central(k, h):
         e = np.zeros_like(xn)
         e[k] = h
-        fd = (obj.residuals((xn + e)[None]) - obj.residuals((xn - e)[None]))[0] / (2 * h)
-        assert np.max(np.abs(fd - J[0, :, k])) <= 1e-5 * np.max(np.abs(J[0, :, k]))
+        return (obj.residuals((xn + e)[None]) - obj.residuals((xn - e)[None]))[0] / (2 * h)
+
+    for k in range(len(obj.names)):
+        fd = (4 * central(k, 1e-3) - central(k, 2e-3)) / 3
+        assert np.max(np.abs(fd - J[0, :, k])) <= 1e-5 * np.max(np.abs(J[0, :, k])), \
+            obj.names[k]
 
 
 def test_reduced_chi2_near_one_and_truth_recovered(case):
@@ -68,22 +77,34 @@ def test_reduced_chi2_near_one_and_truth_recovered(case):
 
 
 def test_coverage_over_several_campaigns():
-    """Over several noise realisations, |best - truth| <= 1 stderr for about 68 % of
-    the parameters (and <= 2 stderr for about 95 %)."""
-    hits1 = hits2 = total = 0
+    """Over several noise realisations the Eq. 7 intervals cover the truth at the nominal
+    rate: |best - truth| <= 1 stderr for about 68 % of the parameters, <= 2 stderr for about
+    95 %. The local minimum next to the truth is found by LM started at the truth (the
+    multi-start search is tested elsewhere). Only parameters the data determine are counted
+    (stderr below half their value): six y-plane parameters have stderr 10-300 times their
+    value in these synthetic campaigns, where a linearised interval means nothing."""
+    z_all = []
     for seed in range(6):
         truth = truth_set(10 + seed)
         data = fit_data_from_means(make_means(truth, seed=100 + seed))
-        res = identify(data, paper(), MultiStartOptions(n_starts=16, seed=seed, chunk_size=16),
-                       band_samples=0)
-        z = np.abs(res.x - truth.vector(res.names)) / res.stderr
-        hits1 += int(np.sum(z <= 1))
-        hits2 += int(np.sum(z <= 2))
-        total += z.size
-    f1, f2 = hits1 / total, hits2 / total
-    sd1 = np.sqrt(0.68 * 0.32 / total)
-    assert abs(f1 - 0.683) < 4 * sd1, (f1, f2)
-    assert f2 > 0.85, (f1, f2)
+        obj = Objective.create(data, paper())
+        lo, hi = obj.bounds_normalised()
+        xt = obj.to_normalised(truth.vector(obj.names))
+        res = levenberg_marquardt_batch(obj, xt[None], residuals=obj.residuals, lower=lo,
+                                        upper=hi, max_iter=60, ftol=1e-10, ftol_abs=1e-4)
+        r, Jn = obj(res.x)
+        C = covariance(Jn[0] / obj.scale, r[0], obj.dof)
+        se = np.sqrt(np.diag(C))
+        x = obj.to_physical(res.x[0])
+        good = se < 0.5 * np.abs(truth.vector(obj.names))
+        assert good.sum() >= 15
+        z_all.append(np.abs(x - truth.vector(obj.names))[good] / se[good])
+    z = np.concatenate(z_all)
+    f1, f2 = np.mean(z <= 1), np.mean(z <= 2)
+    sd1 = np.sqrt(0.683 * 0.317 / z.size)
+    sd2 = np.sqrt(0.954 * 0.046 / z.size)
+    assert abs(f1 - 0.683) < 3 * sd1, (f1, f2, z.size)
+    assert abs(f2 - 0.954) < 3 * sd2 + 0.01, (f1, f2, z.size)
 
 
 def test_matches_scipy_least_squares_from_same_start(case):
@@ -149,10 +170,18 @@ def test_unstable_starts_are_resampled_or_reported(case):
         assert len(s) > len("failed: ")
 
 
+# fitted parameters the synthetic campaigns determine (stderr < value; see the coverage test)
+WELL_DETERMINED = ("v2", "g2", "gamma", "rho", "k_lr", "k_Ax", "k_Bx", "c_Ax", "c_Bx", "m1",
+                   "m2", "m3", "m4", "d1", "d2", "t0", "t1")
+
+
 def test_fit_files_follow_the_contract(case, tmp_path):
     truth, ds, data = case
-    res = identify(data, paper(), MultiStartOptions(n_starts=6, seed=2, chunk_size=6),
-                   band_samples=30)
+    # the y-plane parameters are held at their true values, so that the covariance is
+    # well-defined and the sampled band can be compared with the linear one
+    base = truth.with_fitted(WELL_DETERMINED)
+    res = identify(data, base, MultiStartOptions(n_starts=6, seed=2, chunk_size=6),
+                   band_samples=60)
     out = tmp_path / "fit.json"
     res.write(out)
     d = json.loads(out.read_text())
@@ -164,8 +193,15 @@ def test_fit_files_follow_the_contract(case, tmp_path):
     v2 = d["parameters"]["v2"]
     assert v2["unit"] == "m" and v2["fitted"] and v2["stderr"] > 0
     assert d["parameters"]["h3"]["fitted"] is False
+    assert d["parameters"]["k_Cy"]["fitted"] is False
+    # the JSON reads back through the loader later stages use
+    fm = load_fit(out)
+    assert fm.names == res.names
+    np.testing.assert_allclose(fm.params.vector(fm.names), res.x, rtol=1e-12)
+    np.testing.assert_allclose(fm.covariance, res.covariance, rtol=1e-9,
+                               atol=1e-12 * np.max(np.abs(res.covariance)))
     side = xr.open_dataset(out.with_suffix(".nc"))
-    assert side.sizes["start"] == 6 and side.sizes["param"] == 23
+    assert side.sizes["start"] == 6 and side.sizes["param"] == len(WELL_DETERMINED)
     assert {"x0", "x", "chi2", "iterations", "status", "model_best", "band_linear_std"} <= set(
         side.variables)
     # bands: linear propagation and sampling agree roughly where the signal is large
@@ -206,7 +242,7 @@ def test_bad_mean_signals(case, mutate, field):
 
 def test_too_few_observations_and_zero_starts(case):
     truth, ds, data = case
-    small = fit_data_from_means(ds, window=(1.0e-3, 1.02e-3))
+    small = fit_data_from_means(ds, window=(1.0e-3, 1.015e-3))   # 4 times x 5 signals < 23
     with pytest.raises(GprmInputError, match="too few observations"):
         Objective.create(small, paper())
     obj = Objective.create(data, paper())

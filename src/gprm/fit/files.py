@@ -58,13 +58,14 @@ class FittedModel:
         rng = np.random.default_rng(seed)
         lo = np.array([REGISTRY[k].lower for k in self.names])
         hi = np.array([REGISTRY[k].upper for k in self.names])
-        X = rng.multivariate_normal(x, self.covariance, size=n, method="svd")
+        from gprm.fit.covariance import sample_normal
+
+        X = sample_normal(x, self.covariance, n, rng)
         for _ in range(100):
             bad = np.any((X <= lo) | (X >= hi), axis=1)
             if not bad.any():
                 break
-            X[bad] = rng.multivariate_normal(x, self.covariance, size=int(bad.sum()),
-                                             method="svd")
+            X[bad] = sample_normal(x, self.covariance, int(bad.sum()), rng)
         else:
             X = np.clip(X, np.nextafter(lo, np.inf), np.nextafter(hi, -np.inf))
         return batch_from_vectors(self.params, self.names, X)

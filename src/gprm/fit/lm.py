@@ -27,11 +27,13 @@ Algorithm 1 as implemented (for every row of the batch independently):
    ``lambda_max`` (no smaller chi-square can be found along the ever shorter steepest-descent
    steps: the point is a minimum to machine precision, or sits against a bound).
 
-Bounds: a trial point outside the open box ``lower < x < upper`` is treated as a worse step
-(rejected, lambda x 10), so the damped step shrinks and turns towards the gradient until it
-stays inside. No transform is used, so the Jacobian, the covariance (Eq. 7) and the
-iteration path are those of the untransformed problem; a minimum on a bound ends with status
-``lambda_max`` and is reported as such by the caller.
+Bounds (projected Levenberg-Marquardt): the trial point ``x + dx`` is projected onto the box
+``lower < x < upper`` (clipped to 1e-9 max(1, |bound|) inside it) before it is evaluated, and
+then accepted or rejected by the rule above. A parameter pushed against a bound therefore
+stays just inside it while the others keep moving; merely rejecting steps that leave the box
+stalls the whole start there instead. No transform is used, so the Jacobian, the covariance
+(Eq. 7) and the iteration path are those of the untransformed problem; the caller reports
+parameters that end at a bound (their Eq. 7 errors are not meaningful).
 
 An iteration is one trial step (accepted or rejected), as ``i`` in Algorithm 1.
 """
@@ -44,6 +46,7 @@ from typing import Callable
 import numpy as np
 
 LAMBDA_MIN = 1e-15
+BOUND_MARGIN = 1e-9
 
 #: statuses that count as converged
 CONVERGED = ("ftol", "chi2_tol", "lambda_max")
@@ -164,6 +167,9 @@ def levenberg_marquardt_batch(fun: Callable, X0: np.ndarray, *, residuals: Calla
     B, P = X.shape
     lo = np.broadcast_to(np.asarray(-np.inf if lower is None else lower, float), (P,))
     hi = np.broadcast_to(np.asarray(np.inf if upper is None else upper, float), (P,))
+    # the box the trial points are projected onto: strictly inside the bounds
+    lo_in = np.where(np.isfinite(lo), lo + BOUND_MARGIN * np.maximum(1.0, np.abs(lo)), lo)
+    hi_in = np.where(np.isfinite(hi), hi - BOUND_MARGIN * np.maximum(1.0, np.abs(hi)), hi)
     r, J = fun(X)
     r = np.asarray(r, float)
     J = np.array(J, dtype=float)
@@ -205,7 +211,7 @@ def levenberg_marquardt_batch(fun: Callable, X0: np.ndarray, *, residuals: Calla
             if dmax is not None:
                 dmax[st] = np.maximum(dmax[st], np.einsum("bnp,bnp->bp", JJ, JJ))
         dx = damped_steps(J[idx], r[idx], lam[idx], None if dmax is None else dmax[idx])
-        Xt = X[idx] + dx
+        Xt = np.clip(X[idx] + dx, lo_in, hi_in)            # projection onto the box
         inside = np.all(np.isfinite(Xt) & (Xt > lo) & (Xt < hi), axis=1)
         chi_t = np.full(idx.size, np.inf)
         ev = np.nonzero(inside)[0]

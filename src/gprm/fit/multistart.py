@@ -11,6 +11,8 @@ of workers.
 
 from __future__ import annotations
 
+import contextlib
+import ctypes
 import hashlib
 import json
 import os
@@ -168,6 +170,53 @@ def _resample_invalid(obj: Objective, X0n: np.ndarray, start_ids: np.ndarray, op
 
 # ----------------------------------------------------------------------------- one chunk
 
+def _openblas_thread_setters() -> list:
+    """(set, get) functions of every OpenBLAS loaded in this process (numpy's, scipy's)."""
+    out = []
+    try:
+        with open("/proc/self/maps") as fh:
+            paths = {ln.split()[-1] for ln in fh if "openblas" in ln.lower() and "/" in ln}
+    except OSError:
+        return out
+    for path in sorted(paths):
+        try:
+            lib = ctypes.CDLL(path)
+        except OSError:
+            continue
+        for prefix in ("scipy_openblas", "openblas"):
+            for suffix in ("64_", ""):
+                set_n = getattr(lib, f"{prefix}_set_num_threads{suffix}", None)
+                get_n = getattr(lib, f"{prefix}_get_num_threads{suffix}", None)
+                if set_n is not None and get_n is not None:
+                    get_n.restype = ctypes.c_int
+                    out.append((set_n, get_n))
+                    break
+            else:
+                continue
+            break
+    return out
+
+
+@contextlib.contextmanager
+def single_thread_blas():
+    """Run the block with one BLAS thread, restoring the previous setting afterwards.
+
+    OpenBLAS splits some products differently with 1 or 2 threads, which changes the last
+    bits of the results; LM then amplifies them. Every chunk runs single-threaded -- in this
+    process or in a Dask worker -- so a seed gives the same bits for any number of workers
+    (parallelism comes from the workers, one chunk each).
+    """
+    setters = _openblas_thread_setters()
+    old = [int(g()) for _, g in setters]
+    for s_, _ in setters:
+        s_(ctypes.c_int(1))
+    try:
+        yield
+    finally:
+        for (s_, _), n in zip(setters, old):
+            s_(ctypes.c_int(n))
+
+
 @dataclass(frozen=True)
 class ChunkTask:
     index: int
@@ -183,6 +232,11 @@ def run_chunk(task: ChunkTask) -> dict:
     Starts that stay invalid after resampling are not optimised: they keep x = x0,
     chi2 = NaN, 0 iterations and status ``failed: <reason>``.
     """
+    with single_thread_blas():
+        return _run_chunk(task)
+
+
+def _run_chunk(task: ChunkTask) -> dict:
     obj, opts = task.objective, task.options
     X0n, counts, reasons = _resample_invalid(obj, task.X0n, task.start_ids, opts)
     n = X0n.shape[0]

@@ -17,7 +17,8 @@ import xarray as xr
 import gprm
 from gprm._io import write_json_atomic, write_netcdf_atomic
 from gprm.errors import GprmInputError
-from gprm.fit.covariance import CovarianceError, covariance, parameters_at_bounds
+from gprm.fit.covariance import (CovarianceError, covariance, parameters_at_bounds,
+                                 sample_normal)
 from gprm.fit.files import FORMAT_VERSION, MODEL_NAME
 from gprm.fit.lm import levenberg_marquardt_batch
 from gprm.fit.multistart import (LMOptions, MultiStartOptions, StartsOutcome, run_multistart,
@@ -229,11 +230,19 @@ def compute_bands(obj: Objective, x: np.ndarray, cov: np.ndarray | None, *, n_sa
         return Bands(obj.data.time, best, nanb, nanb, nanb, nanb, 0)
     J = o.dy[0]                                                   # (S, T, P)
     lin = np.sqrt(np.maximum(np.einsum("stp,pq,stq->st", J, cov, J), 0.0))
+    if n_samples <= 0:
+        return Bands(obj.data.time, best, lin, nanb, nanb, nanb, 0)
     rng = np.random.default_rng([seed, 3])
-    X = rng.multivariate_normal(x, cov, size=n_samples, method="svd")
+    X = sample_normal(x, cov, n_samples, rng)
+    lo, hi = obj.bounds()
+    X = X[np.all((X > lo) & (X < hi), axis=1)]           # physical sets only
+    if X.shape[0] < 2:          # (almost) every draw non-physical: no sampled band
+        return Bands(obj.data.time, best, lin, nanb, nanb, nanb, 0)
     ys = obj.model(X).y
     ok = np.all(np.isfinite(ys), axis=(1, 2))
     ys = ys[ok]
+    if ys.shape[0] < 2:
+        return Bands(obj.data.time, best, lin, nanb, nanb, nanb, 0)
     return Bands(obj.data.time, best, lin, ys.std(axis=0, ddof=1),
                  np.percentile(ys, 2.5, axis=0), np.percentile(ys, 97.5, axis=0),
                  int(ok.sum()))

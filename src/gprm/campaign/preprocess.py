@@ -14,11 +14,14 @@ Per position:
 2. *Mean, std, sem* across the synchronised runs as functions of time (std with ddof 1,
    sem = std / sqrt(n_runs)).
 3. *Alignment.* The mean signal is shifted so that its magnitude reaches
-   ``threshold_factor`` x noise_std at ``align_time`` (1 ms). The crossing t_x: i1 is the first
-   sample where |mean| >= min(5 x threshold, half the peak of |mean|); i0 is the last sample
-   before i1 with |mean| < threshold (|mean| stays at or above threshold from i0 + 1 to i1);
-   t_x is the root of |spline(t)| = threshold in [t_i0, t_i0+1], spline the cubic spline of the
-   mean. shift = align_time - t_x; new time = old time + shift.
+   ``threshold_factor`` x noise_std at ``align_time`` (1 ms). The crossing t_x is found on
+   the synchronised mean as a continuous function, M(t) = mean_r spline_r(t + s_r) (the same
+   interpolant as the output): M is scanned at 1/8 sample; t_x is the first up-crossing of
+   |M| through the threshold after which |M| stays at or above it for ``hold`` (1) sample,
+   refined by Brent's method on sign * M(t) = threshold. The hold skips sub-sample lobes that
+   barely touch the threshold (x_base starts with one) and spline ringing before a kink
+   (z_bk): without it the crossing jumps by about a sample with the sampling phase.
+   shift = align_time - t_x; new time = old time + shift.
 
 The synchronised runs are evaluated once more at (t' - shift + s_r) on the output grid (the
 record grid restricted to where every position and run has data), so each run is interpolated
@@ -45,6 +48,9 @@ TABLE1 = (("x_head", "x_lr", 3.0), ("x_head", "x_fl", 17.0), ("y_head", "y_lr", 
           ("y_head", "y_fl", 21.0), ("z_bk", "z_fl", 26.0))
 """Table 1: (numerator, denominator, paper value) of the ratios of mean-signal maxima."""
 
+UPSAMPLE = 8
+"""The synchronised mean is scanned at 1/UPSAMPLE of a sample for the threshold crossing."""
+
 HYPOTHESES = (
     ("flange fixed (Sec. 2, hypothesis 1)", ("x_fl", "y_fl", "z_fl"), 10.0),
     ("linear runner does not oscillate along x and y (Sec. 2, hypothesis 2)",
@@ -63,6 +69,7 @@ class PreprocessConfig:
     sync_window: float = 0.3e-3       # s of motion after the coarse onset used for the RMS
     onset_factor: float = 10.0        # coarse onset: median run exceeds this x noise std
     baseline_margin: int = 4          # samples kept clear before (onset - max_lag)
+    hold: int = 1                     # samples |mean| must stay >= threshold after a crossing
 
 
 @dataclass(frozen=True)
@@ -85,6 +92,7 @@ class MeanSignals:
     attrs: dict = field(default_factory=dict)
     truth_shift: np.ndarray | None = None
     truth_mean: np.ndarray | None = None
+    truth_shift_spread: np.ndarray | None = None
 
     def to_dataset(self) -> xr.Dataset:
         """The mean-signals NetCDF layout of contracts.md."""
@@ -121,6 +129,9 @@ class MeanSignals:
             ds["truth_shift"] = (("signal",), self.truth_shift, {
                 "units": "s", "long_name": "shift the same alignment rule gives the noise-free "
                 "truth response (synthetic campaigns)"})
+            ds["truth_shift_spread"] = (("signal",), self.truth_shift_spread, {
+                "units": "s", "long_name": "range of the truth's alignment shift over ten "
+                "sampling phases (the rule's inherent jitter at this sample rate)"})
             ds["truth_mean"] = (("signal", "time"), self.truth_mean, {
                 "units": "m", "long_name": "noise-free truth response aligned by the same "
                 "rule (synthetic campaigns)"})
@@ -149,13 +160,19 @@ def _detrend(Y: np.ndarray, time: np.ndarray, n_base: int) -> np.ndarray:
     return Y - (Xf @ coef).T
 
 
-def crossing_time(t: np.ndarray, y: np.ndarray, threshold: float, hold: int = 1
-                  ) -> float | None:
-    """Time at which |y| first reaches ``threshold`` (rule in the module docstring): the first
-    sample i with |y[i-1]| < threshold and |y[i..i+hold-1]| >= threshold; the crossing is the
-    root of sign(y[i]) * spline(t) = threshold in [t[i-1], t[i]], spline the cubic spline of y.
-    None if there is no such sample."""
+def first_crossing(f, t_start: float, t_stop: float, step: float, threshold: float,
+                   hold: int = 1) -> float | None:
+    """First time in [t_start, t_stop] at which |f(t)| reaches ``threshold`` and then stays at
+    or above it for ``hold`` scan steps: f (vectorised, continuous) is scanned at ``step``; in
+    the interval where |f| goes from below to at or above the threshold, the root of
+    sign * f(t) = threshold is found by Brent's method. None if there is no such crossing (or
+    |f| starts above the threshold: no incipient motion seen)."""
+    tt = np.arange(t_start, t_stop + 0.5 * step, step)
+    tt = tt[tt <= t_stop]
+    y = f(tt)
     a = np.abs(y) >= threshold
+    if a[0]:
+        return None
     ok = a.copy()
     for k in range(1, hold):
         ok[:-k] &= a[k:]
@@ -165,10 +182,20 @@ def crossing_time(t: np.ndarray, y: np.ndarray, threshold: float, hold: int = 1
         return None
     i = int(np.argmax(start))
     sgn = np.sign(y[i])
-    j = slice(max(i - 8, 0), min(i + 8, y.size))
-    cs = CubicSpline(t[j], y[j])
-    return float(brentq(lambda tt: sgn * cs(tt) - threshold, t[i - 1], t[i], xtol=1e-15,
-                        rtol=1e-14))
+    return float(brentq(lambda x: sgn * f(x) - threshold, tt[i - 1], tt[i],
+                        xtol=1e-6 * step, rtol=4 * np.finfo(float).eps))
+
+
+def _sampled_crossing(f, time: np.ndarray, delay: float, threshold: float, hold: int
+                      ) -> float | None:
+    """The alignment rule applied to a continuous signal f sampled on ``time`` after a delay
+    (samples f(time - delay)); returns the crossing on f's own time axis."""
+    dt = time[1] - time[0]
+    y = f(time - delay)
+    cs = CubicSpline(time, y)
+    tx = first_crossing(cs, time[0], time[-1], dt / UPSAMPLE, threshold,
+                        hold=hold * UPSAMPLE + 1)
+    return None if tx is None else tx - delay
 
 
 def synchronise(Y: np.ndarray, ref: int, win: np.ndarray, max_lag: int):
@@ -238,17 +265,22 @@ def preprocess(campaign: xr.Dataset, config: PreprocessConfig | None = None) -> 
     no_cross = []
     for i, name in enumerate(POSITIONS):
         d = _position(disp[i], noise[i], time, cfg, name, src)
-        # intermediate mean on the reference grid, where every run has data
+        # the synchronised mean as a continuous function of the reference run's sample
+        # index; its first crossing (scanned at 1/UPSAMPLE sample) gives the alignment
         lo = max(0.0, -d["shifts"].min())
         hi = min(T - 1.0, T - 1.0 - d["shifts"].max())
-        k = idx[(idx >= lo) & (idx <= hi)]
-        m = np.mean([d["splines"][r](k + d["shifts"][r]) for r in range(R)], axis=0)
-        tx = crossing_time(time[0] + k * dt, m, cfg.threshold_factor * d["noise_std"])
-        if tx is None:
+        sh, sps = d["shifts"], d["splines"]
+
+        def M(k, sh=sh, sps=sps):
+            return np.mean([sps[r](np.asarray(k) + sh[r]) for r in range(R)], axis=0)
+
+        kx = first_crossing(M, lo, hi, 1.0 / UPSAMPLE, cfg.threshold_factor * d["noise_std"],
+                            hold=cfg.hold * UPSAMPLE + 1)
+        if kx is None:
             no_cross.append(name)
             shift[i] = np.nan
         else:
-            shift[i] = cfg.align_time - tx
+            shift[i] = cfg.align_time - (time[0] + kx * dt)
         per[name] = d
     if no_cross:
         if set(no_cross) & set(MODEL_POSITIONS):
@@ -311,17 +343,30 @@ def preprocess(campaign: xr.Dataset, config: PreprocessConfig | None = None) -> 
     if "truth_json" in campaign.attrs:
         attrs["truth_json"] = campaign.attrs["truth_json"]
         attrs["seed"] = int(campaign.attrs.get("seed", -1))
+    truth_spread = None
     if "truth_displacement" in campaign.variables:
+        tt = np.asarray(campaign["truth_time"].values, float)
         clean = np.asarray(campaign["truth_displacement"].sel(position=list(POSITIONS)).values,
                            float)
+        offs = (np.asarray(campaign["trigger_offset"].sel(position=list(POSITIONS)).values)
+                if "trigger_offset" in campaign.variables else np.zeros((P, R)))
         truth_shift = np.empty(P)
+        truth_spread = np.empty(P)
         truth_mean = np.empty_like(mean)
         for i in range(P):
-            tx = crossing_time(time, clean[i], cfg.threshold_factor * nstd[i])
+            cs = CubicSpline(tt, clean[i])
+            thr = cfg.threshold_factor * nstd[i]
+            # the same rule on the truth sampled like the data (at the reference run's
+            # sampling phase), and its spread over ten sampling phases
+            d_ref = offs[i, ref[i]]
+            tx = _sampled_crossing(cs, time, d_ref, thr, cfg.hold)
             truth_shift[i] = np.nan if tx is None else cfg.align_time - tx
-            cs = CubicSpline(time, clean[i])
-            tt = tgrid - (0.0 if tx is None else truth_shift[i])
-            truth_mean[i] = np.where(tt < time[0], 0.0, cs(np.clip(tt, time[0], time[-1])))
+            phases = [_sampled_crossing(cs, time, ph * dt / 10, thr, cfg.hold)
+                      for ph in range(10)]
+            phases = [x for x in phases if x is not None]
+            truth_spread[i] = float(np.ptp(phases)) if phases else np.nan
+            ts_ = tgrid - (0.0 if tx is None else truth_shift[i])
+            truth_mean[i] = np.where(ts_ < tt[0], 0.0, cs(np.clip(ts_, tt[0], tt[-1])))
         if "truth_json" in campaign.attrs:
             tr = json.loads(campaign.attrs["truth_json"])
             ts = dict(zip(POSITIONS, truth_shift))
@@ -336,4 +381,4 @@ def preprocess(campaign: xr.Dataset, config: PreprocessConfig | None = None) -> 
             })
     return MeanSignals(POSITIONS, tgrid, mean, std, sem, nstd, shift,
                        np.full(P, R), sync, ref, table1, dropped, snr, attrs,
-                       truth_shift, truth_mean)
+                       truth_shift, truth_mean, truth_spread)

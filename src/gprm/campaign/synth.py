@@ -96,6 +96,9 @@ class SynthConfig:
             raise GprmInputError(f"must be positive, got {self.rate}", field="--rate")
 
 
+TRUTH_OVERSAMPLE = 10
+"""The noise-free truth response is stored at this multiple of the record's sample rate."""
+
 _VARIED = ("k_lr", "k_Ax", "k_Bx", "c_Ax", "c_Bx", "k_Cy", "k_Dy", "c_Cy", "c_Dy")
 _STATE_NAMES = ("x_base", "x_head", "y_base", "y_head", "z_bk", "x_A", "y_A", "eta", "theta",
                 "z_lr", "x_A_dot", "y_A_dot", "eta_dot", "theta_dot")
@@ -129,7 +132,7 @@ def _filt(sup: Support, rate: float, force: np.ndarray) -> np.ndarray:
     return lfilter(b, a, force, axis=-1)  # starts at rest (force is 0 before the retraction)
 
 
-def mechanism_signals(pb: dict, y: dict, cfg: SynthConfig) -> dict:
+def mechanism_signals(pb: dict, y: dict, cfg: SynthConfig, rate: float | None = None) -> dict:
     """All ten laser positions from the model states of a batch: the five Eq. 3 outputs and
     the flange / linear-runner points driven by the forces of the model's springs and dampers
     on the linear runner (lateral) and of the runner's nex-line spring on the flange (axial).
@@ -146,12 +149,13 @@ def mechanism_signals(pb: dict, y: dict, cfg: SynthConfig) -> dict:
           + P["c_Cy"] * (y["y_A_dot"] - b1 * y["theta_dot"])
           + P["c_Dy"] * (y["y_A_dot"] - b12 * y["theta_dot"]))
     Fz = P["k_lr"] * y["z_lr"]
+    fs = cfg.rate if rate is None else rate
     out = {k: y[k] for k in MODEL_POSITIONS}
-    out["x_lr"] = _filt(cfg.runner_x, cfg.rate, Fx)
-    out["y_lr"] = _filt(cfg.runner_y, cfg.rate, Fy)
-    out["x_fl"] = _filt(cfg.flange_x, cfg.rate, cfg.runner_x.k * out["x_lr"])
-    out["y_fl"] = _filt(cfg.flange_y, cfg.rate, cfg.runner_y.k * out["y_lr"])
-    out["z_fl"] = _filt(cfg.flange_z, cfg.rate, Fz)
+    out["x_lr"] = _filt(cfg.runner_x, fs, Fx)
+    out["y_lr"] = _filt(cfg.runner_y, fs, Fy)
+    out["x_fl"] = _filt(cfg.flange_x, fs, cfg.runner_x.k * out["x_lr"])
+    out["y_fl"] = _filt(cfg.flange_y, fs, cfg.runner_y.k * out["y_lr"])
+    out["z_fl"] = _filt(cfg.flange_z, fs, Fz)
     return out
 
 
@@ -223,16 +227,19 @@ def synth_campaign(truth: ParameterSet | None = None, *, seed: int = 0,
     dt = 1.0 / cfg.rate
     P, R = len(POSITIONS), cfg.n_runs
 
-    # nominal (noise-free) response of the truth: linear + nonlinear correction + mode
+    # nominal (noise-free) response of the truth: linear + nonlinear correction + mode, on a
+    # grid TRUTH_OVERSAMPLE times finer than the record (so checks need not interpolate it)
+    fine = np.arange((n - 1) * TRUTH_OVERSAMPLE + 1) / (cfg.rate * TRUTH_OVERSAMPLE)
     tb = batch([truth])
-    nominal = mechanism_signals(tb, _observe_states(tb, times, src), cfg)
+    nominal = mechanism_signals(tb, _observe_states(tb, fine, src), cfg,
+                                rate=cfg.rate * TRUTH_OVERSAMPLE)
     corr = nonlinear_correction(truth, times) if cfg.nonlinear else {}
     for k, c in corr.items():
-        nominal[k] = nominal[k] + c[None]
+        nominal[k] = nominal[k] + CubicSpline(times, c)(fine)[None]
     peak = {k: float(np.max(np.abs(nominal[k]))) for k in POSITIONS}
     onset0 = truth["t_c"] + truth["t0"]
     mode_amp = {k: cfg.mode_rel * peak[k] if k in MODEL_POSITIONS else 0.0 for k in POSITIONS}
-    clean = np.stack([nominal[k][0] + _mode(times, np.array([onset0]),
+    clean = np.stack([nominal[k][0] + _mode(fine, np.array([onset0]),
                                             np.array([mode_amp[k]]), cfg)[0]
                       for k in POSITIONS])
 
@@ -285,9 +292,13 @@ def synth_campaign(truth: ParameterSet | None = None, *, seed: int = 0,
         "trigger_offset": (("position", "run"), offset.reshape(P, R),
                            {"units": "s", "long_name": "injected trigger offset (the "
                             "retraction command of the run is at t_c + offset)"}),
-        "truth_displacement": (("position", "time"), clean,
+        "truth_displacement": (("position", "truth_time"), clean,
                                {"units": "m", "long_name": "noise-free response of the truth "
                                 "(nominal voltage, no offset, no variability, no drift)"}),
     }
-    return campaign_dataset(disp, noise, times, sample_rate=cfg.rate, voltage=volt,
-                            vtime=vtime, attrs=attrs, extra=extra)
+    ds = campaign_dataset(disp, noise, times, sample_rate=cfg.rate, voltage=volt,
+                          vtime=vtime, attrs=attrs, extra=extra)
+    ds = ds.assign_coords(truth_time=("truth_time", fine, {
+        "units": "s", "long_name": f"time of the noise-free truth ({TRUTH_OVERSAMPLE}x the "
+        "record's sample rate)"}))
+    return ds

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import json
 import re
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -15,6 +16,9 @@ from typer.testing import CliRunner
 
 from gprm.cli import app
 from gprm.report.build import FIGURE_IDS
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "report"))
+from report_browser import CHROMIUM, SKIP_REASON, check_not_blank, screenshot  # noqa: E402
 
 pytestmark = pytest.mark.slow
 
@@ -120,3 +124,11 @@ def test_rerun_skips_every_stage(demo_run):
     rec = json.loads((out / "run.json").read_text())
     assert all(v["status"] == "skipped" for k, v in rec["stages"].items() if k != "report")
     assert {n: (out / n).read_bytes() for n in before} == before
+
+
+@pytest.mark.skipif(CHROMIUM is None, reason=SKIP_REASON)
+def test_demo_report_renders_in_headless_chromium(demo_run, tmp_path):
+    out, _ = demo_run
+    png = tmp_path / "demo.png"
+    screenshot(out / "report.html", png, height=3000)
+    check_not_blank(png)

@@ -91,4 +91,11 @@ def make_impact(path: Path, *, releases: int = 11, seed: int = 0) -> None:
     pairs = [{"a": a, "b": b, "q": 0.5, "p": 0.9, "reject": False}
              for i, a in enumerate(AXES) for b in AXES[i + 1:]]
     write_json_atomic(path, {"releases": rel, "tukey": {"alpha": 0.01, "k": 6, "df": 60,
-                                                        "q_critical": 5.2, "pairs": pairs}})
+                                                        "q_critical": 5.2, "pairs": pairs},
+                             "truth": {"impact_time": [1.05e-3] * releases}})
+    # the sidecar: predicted velocity as a function of the impact time, per axis
+    t = np.linspace(1.0e-3, 1.2e-3, 101)
+    nominal = np.stack([1e-5 * np.sin(2 * np.pi * (t - 1e-3) / 1e-4 + k) for k in range(6)])
+    xr.Dataset({"nominal": (("axis", "time"), nominal),
+                "lo": (("axis", "time"), nominal - 2e-6), "hi": (("axis", "time"), nominal + 2e-6)},
+               coords={"axis": list(AXES), "time": t}).to_netcdf(path.with_suffix(".nc"))

@@ -10,6 +10,8 @@ from __future__ import annotations
 import importlib
 from pathlib import Path
 
+import numpy as np
+
 from gprm._io import open_netcdf, write_json_atomic, write_netcdf_atomic
 from gprm.demo.pipeline import DemoOptions, Stage, StageUnavailable
 
@@ -92,15 +94,31 @@ def _predict(run: Path, opts: DemoOptions, step) -> dict:
     todo = [(Scenario("piezo2", PIEZO_GROUND), "predict.nc")] + [
         (scen[name], fname) for name, fname in WHATIF_FILES.items()]
     step(0, len(todo) + 1)
+    samples, notes = opts.predict_samples, []
     for k, (sc, fname) in enumerate(todo):
-        pred = predict(fm, scenario=sc, times=t, samples=opts.predict_samples, seed=opts.seed,
-                       means=run / "means.nc")
+        try:
+            pred = predict(fm, scenario=sc, times=t, samples=samples, seed=opts.seed,
+                           means=run / "means.nc")
+        except np.linalg.LinAlgError as exc:
+            # parameter sets drawn from a poorly determined covariance can be degenerate
+            # (zero stiffnesses): keep the best-fit prediction, without sampled bands
+            samples = 0
+            notes.append(f"{sc.name}: sampled bands dropped ({exc}); best fit only")
+            pred = predict(fm, scenario=sc, times=t, samples=0, seed=opts.seed,
+                           means=run / "means.nc")
         write_netcdf_atomic(prediction_dataset(pred), run / fname)
         step(k + 1, len(todo) + 1)
-    table = whatif(fm, samples=min(opts.predict_samples, 100), seed=opts.seed)
+    try:
+        table = whatif(fm, samples=min(samples, 100), seed=opts.seed)
+    except np.linalg.LinAlgError as exc:
+        notes.append(f"what-if ranges dropped ({exc})")
+        table = whatif(fm, samples=0, seed=opts.seed)
     write_json_atomic(run / "whatif.json", table)
     step(len(todo) + 1, len(todo) + 1)
-    return {"whatif": {r["name"]: r.get("headline", {}) for r in table.get("ratios", [])[1:]}}
+    info = {"whatif": {r["name"]: r.get("headline", {}) for r in table.get("ratios", [])[1:]}}
+    if notes:
+        info["notes"] = notes
+    return info
 
 
 # ----------------------------------------------------------------------------- flight

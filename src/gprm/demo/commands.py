@@ -85,12 +85,12 @@ class _Progress:
                      "fail": "[red]✗ {} (failed)"}.get(kind)
             if label is None:
                 return
-            if stage in self.tasks:
-                self.bar.update(self.tasks[stage], description=label.format(title))
-                self.bar.stop_task(self.tasks[stage])
+            if stage in self.tasks:      # finished (full bar, no spinner), with its outcome
+                self.bar.update(self.tasks[stage], description=label.format(title), total=1,
+                                completed=1)
             else:
-                tid = self.bar.add_task(label.format(title), total=1, completed=1, start=False)
-                self.tasks[stage] = tid
+                self.tasks[stage] = self.bar.add_task(label.format(title), total=1)
+                self.bar.update(self.tasks[stage], completed=1)
 
 
 def _f(v, fmt="{:.4g}"):

@@ -44,3 +44,30 @@ def test_tm_momentum_equals_impulses(res):
     # a second impact changes the TM velocity noticeably with respect to the first alone
     v1 = np.array([res["first_tm_velocity"][k] for k in ("vx", "vy", "vz")])
     assert np.linalg.norm(v - v1) > 0.1 * np.linalg.norm(v1)
+
+
+def test_impulse_free_response_matches_matrix_exponential():
+    """The plunger's response to an impulse (eigen-decomposition of the state matrix) equals
+    scipy's matrix exponential."""
+    from scipy.linalg import expm
+
+    from gprm.flight.multi import _setup, _with_perturbation
+    from gprm.model.linear import state_space
+    from gprm.predict.kinematics import body_motion
+
+    m = paper_model()
+    pb, geom, (E, lam, V, Vinv), pts = _setup(m, None)
+    t = np.linspace(1.0e-3, 1.1e-3, 7)
+    base = body_motion(pb, t)
+    z0 = np.zeros(17)
+    z0[8:16] = np.random.default_rng(0).normal(0, 1e-3, 8)
+    pert = _with_perturbation(base, [(1.02e-3, z0)], lam, V, Vinv)
+    A = state_space(pb, m.piezo).A[0]
+    names = ("z_lr", "z_A", "x_A", "y_A", "eta", "theta", "mu3", "mu4")
+    for k, tk in enumerate(t):
+        dz = expm(A * (tk - 1.02e-3)) @ z0 if tk >= 1.02e-3 else np.zeros(17)
+        for i, n in enumerate(names):
+            got = pert.coords[n][0, k] - base.coords[n][0, k]
+            assert got == pytest.approx(dz[i], abs=1e-12 * np.abs(dz).max() + 1e-18)
+            gotr = pert.rates[f"{n}_dot"][0, k] - base.rates[f"{n}_dot"][0, k]
+            assert gotr == pytest.approx(dz[8 + i], abs=1e-9 * np.abs(dz).max() + 1e-18)

@@ -358,6 +358,10 @@ def provenance_section(run: Path) -> Section:
     for name, rec in (prov.get("stages") or {}).items():
         for fname, sha in (rec.get("inputs") or {}).items():
             rows.append((f"{name} input {fname}", f"sha256 {sha[:16]}…"))
+        for note in (rec.get("info") or {}).get("notes", []):
+            rows.append((f"{name} note", note))
+        if rec.get("status") in ("not available", "blocked", "failed"):
+            rows.append((f"{name} status", f"{rec['status']}: {rec.get('detail', '')}"))
     s.blocks.append(table(["item", "value"], rows, "Inputs, seed, versions",
                           "table-provenance"))
     tim = prov.get("stages") or {}

@@ -116,13 +116,15 @@ def test_report_holds_every_figure(demo_run):
 
 
 def test_rerun_skips_every_stage(demo_run):
+    from gprm.demo.pipeline import DemoOptions, run_demo
+
     out, _ = demo_run
     before = {n: (out / n).read_bytes() for n in EXPECTED_FILES if n not in ("run.json",
                                                                            "report.html")}
-    res = CliRunner().invoke(app, ["demo", "--quick", "--out", str(out)])
-    assert res.exit_code == 0, res.output
+    res = run_demo(out, DemoOptions.make(quick=True), report_html=False)
+    assert [r.status for r in res.records] == ["skipped"] * 6
     rec = json.loads((out / "run.json").read_text())
-    assert all(v["status"] == "skipped" for k, v in rec["stages"].items() if k != "report")
+    assert all(v["status"] == "skipped" for v in rec["stages"].values())
     assert {n: (out / n).read_bytes() for n in before} == before
 
 

@@ -20,7 +20,7 @@ COLORS = {
     "band": "#fdae6b", "measured": "#3182bd", "predicted": "#fd8d3c", "nominal": "#31a354",
     "vx": "#1f77b4", "vz_xz": "#17becf", "wy": "#9467bd", "vy": "#d62728", "vz_yz": "#ff7f0e",
     "wx": "#8c564b", "truth": "#111111", "piezo2": "#9aa3ad",
-    "M_xz": "#1f77b4", "M_yz": "#d62728", "tip": "#2ca02c",
+    "M_xz": "#1f77b4", "M_yz": "#d62728", "tip_edge": "#2ca02c", "com": "#7f7f7f",
 }
 # the six flight axes, in the order of INTERFACES.md
 AXES = ("vx", "vz_xz", "wy", "vy", "vz_yz", "wx")

@@ -71,3 +71,10 @@ def test_impulse_free_response_matches_matrix_exponential():
             assert got == pytest.approx(dz[i], abs=1e-12 * np.abs(dz).max() + 1e-18)
             gotr = pert.rates[f"{n}_dot"][0, k] - base.rates[f"{n}_dot"][0, k]
             assert gotr == pytest.approx(dz[8 + i], abs=1e-9 * np.abs(dz).max() + 1e-18)
+
+
+def test_no_missed_contact(res):
+    """With every detected impulse applied, the plunger points never penetrate the TM faces
+    over the whole record (a missed contact would show as a positive gap of the order of the
+    plunger motion, micrometres)."""
+    assert res["max_penetration"] < 1e-12

@@ -98,7 +98,7 @@ def _point_jacobian(motion, r_body):
 
 def simulate_contacts(model, t1: float, *, t_end: float | None = None,
                       geometry: ImpactGeometry | None = None, dt: float = 5e-8,
-                      max_events: int = 50) -> dict:
+                      max_events: int = 50, trace: bool = False) -> dict:
     """Integrate plunger and TM from the first impact at ``t1`` to ``t_end`` (default the end
     of the prediction window) and return the contact events and the final TM velocity."""
     from gprm.predict.kinematics import body_motion, point_motion
@@ -255,15 +255,35 @@ def simulate_contacts(model, t1: float, *, t_end: float | None = None,
                                    tuple(np.concatenate([tm_v, tm_w]).tolist()), *dE))
     final = np.concatenate([tm_v, tm_w])
     truncated = len(events) >= max_events
+    # whole-record gaps with every impulse applied (no missed contact: the gap stays <= 0
+    # except for the interpolation overshoot just after a detected contact)
+    full = _with_perturbation(nominal, dz_list, lam, V, Vinv)
+    starts = np.array([seg[0] for seg in tm_hist])
+    seg_idx = np.clip(np.searchsorted(starts, grid, side="right") - 1, 0, None)
+    Cg = np.empty((3, grid.size))
+    thg = np.empty((3, grid.size))
+    for j, (ts, Cs, vs, ws, ths) in enumerate(tm_hist):
+        sel = seg_idx == j
+        Cg[:, sel] = Cs[:, None] + vs[:, None] * (grid[sel] - ts)[None]
+        thg[:, sel] = ths[:, None] + ws[:, None] * (grid[sel] - ts)[None]
+    gaps = {}
+    for pl in ("xz", "yz"):
+        pos, _ = point_motion(full, r_c[pl])
+        f = faces[pl]
+        fpt = Cg + f[:, None] + np.cross(thg.T, f).T
+        nrm = normals[pl][:, None] + np.cross(thg.T, normals[pl]).T
+        gaps[pl] = np.sum(nrm * (pos[0] - fpt), axis=0)
     return {"t1": float(t1), "t_end": float(t_end), "n_impacts": len(events),
             "truncated": truncated,
+            "max_penetration": float(max(np.max(g) for g in gaps.values())),
             "note": (f"stopped after {max_events} contacts (chattering, i.e. sustained contact: "
                      "the instantaneous-impact model no longer applies)" if truncated else None),
             "events": [e.__dict__ for e in events],
             "final_tm_velocity": dict(zip(("vx", "vy", "vz", "wx", "wy", "wz"),
                                           map(float, final))),
             "first_tm_velocity": (dict(zip(("vx", "vy", "vz", "wx", "wy", "wz"),
-                                           events[0].tm_velocity)) if events else None)}
+                                           events[0].tm_velocity)) if events else None),
+            **({"trace": {"time": grid, "gap": gaps}} if trace else {})}
 
 
 def _skew(r):

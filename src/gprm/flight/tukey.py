@@ -46,11 +46,13 @@ class TukeyResult:
     method: str  # "tukey" (equal n, Eq. 9) or "tukey-kramer"
 
     def to_json(self) -> dict:
+        """JSON-ready dict (a non-finite q, from a zero within-treatment variance, is null)."""
+        fin = lambda x: float(x) if np.isfinite(x) else None  # noqa: E731
         return {"alpha": self.alpha, "k": self.k, "df": self.df, "mse": self.mse,
                 "q_critical": self.q_critical, "method": self.method,
                 "means": self.means, "counts": self.counts,
                 "pairs": [{"a": p.a, "b": p.b, "mean_a": p.mean_a, "mean_b": p.mean_b,
-                           "n_a": p.n_a, "n_b": p.n_b, "q": p.q, "p": p.p,
+                           "n_a": p.n_a, "n_b": p.n_b, "q": fin(p.q), "p": p.p,
                            "reject": p.reject} for p in self.pairs]}
 
 

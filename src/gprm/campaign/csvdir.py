@@ -43,6 +43,7 @@ def _read_two_columns(path: Path) -> tuple[np.ndarray, np.ndarray]:
         raise GprmInputError("data file listed in the manifest does not exist", source=src,
                              field="file")
     rows = []
+    lines = []
     with path.open(newline="", encoding="utf-8") as fh:
         for lineno, row in enumerate(csv.reader(fh), start=1):
             if not row or not "".join(row).strip() or row[0].lstrip().startswith("#"):
@@ -52,6 +53,7 @@ def _read_two_columns(path: Path) -> tuple[np.ndarray, np.ndarray]:
                                      source=src, field="value")
             try:
                 rows.append((float(row[0]), float(row[1])))
+                lines.append(lineno)
             except ValueError:
                 if rows:
                     raise GprmInputError(f"line {lineno}: not a number: {row[:2]}",
@@ -62,11 +64,16 @@ def _read_two_columns(path: Path) -> tuple[np.ndarray, np.ndarray]:
     a = np.array(rows, float)
     t, v = a[:, 0], a[:, 1]
     if not np.all(np.isfinite(t)):
-        raise GprmInputError("time column holds NaN or Inf", source=src, field="time")
+        i = int(np.argmax(~np.isfinite(t)))
+        raise GprmInputError(f"time column holds NaN or Inf (line {lines[i]})", source=src,
+                             field="time")
     if not np.all(np.isfinite(v)):
         i = int(np.argmax(~np.isfinite(v)))
-        raise GprmInputError(f"value column holds NaN or Inf (sample {i})", source=src,
+        raise GprmInputError(f"value column holds NaN or Inf (line {lines[i]})", source=src,
                              field="value")
+    if np.ptp(v) <= 0.0:
+        raise GprmInputError(f"flat (dead) channel: all {v.size} values equal {v[0]:g}",
+                             source=src, field="value")
     return t, v
 
 

@@ -114,3 +114,49 @@ def state_space_derivatives(pb: dict, piezo: int, names, ss: StateSpace):
     db = np.zeros(dAr.shape[:2] + (NSTATE,))
     db[..., 8:] = -(Einv @ (dEr @ ss.b[:, None, 8:, None]))[..., 0]
     return dA, db
+
+
+
+@dataclass(frozen=True)
+class SparseDerivatives:
+    """Non-zero entries of d(K, C, M)/dp for several parameters, over a batch.
+
+    Entry k is d(K, C, M)_mat[k][a[k], c[k]] / d names[p[k]] with values ``vals[:, k]`` (B,);
+    ``e = 9 mat + c`` indexes the stacked columns [K | C | M]. Only entries that are non-zero
+    for some set of the batch are kept (a few percent of 3 x 81 x P).
+    """
+
+    e: np.ndarray
+    a: np.ndarray
+    p: np.ndarray
+    vals: np.ndarray
+    n_params: int
+
+
+def coordinate_derivatives(pb: dict, piezo: int, names) -> SparseDerivatives:
+    """Parameter derivatives of K, C and M for the modal sensitivities (sparse form).
+
+    With Xi the coordinate rows of the eigenvectors, the descriptor derivative in the
+    eigenbasis is  -(dK Xi + dC Xi Lambda + dM Xi Lambda^2)  (simulate/modal.py). Parameters
+    that do not enter the equations of motion have no entries.
+    """
+    g = generated(piezo)
+    e, a, p, vals = [], [], [], []
+    for k, name in enumerate(names):
+        fn = g.DERIVATIVES.get(name)
+        if fn is None:
+            continue
+        dM, dC, dK = fn(pb)
+        for mat, d in enumerate((dK, dC, dM)):
+            d = d.reshape((-1, 9, 9))
+            rows, cols = np.nonzero(np.any(d != 0, axis=0))
+            e.append(9 * mat + cols)
+            a.append(rows)
+            p.append(np.full(rows.size, k))
+            vals.append(d[:, rows, cols])
+    if not e:
+        Bn = np.broadcast_shapes(*(np.shape(pb[k]) for k in g.PARAMETERS))
+        return SparseDerivatives(np.zeros(0, int), np.zeros(0, int), np.zeros(0, int),
+                                 np.zeros(Bn + (0,)), len(names))
+    return SparseDerivatives(np.concatenate(e), np.concatenate(a), np.concatenate(p),
+                             np.concatenate(vals, axis=-1), len(names))

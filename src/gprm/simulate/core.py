@@ -101,7 +101,7 @@ def observe(pb: Mapping[str, np.ndarray], times, names: Sequence[str] = OUTPUTS,
         y[singular] = np.nan
         if dy is not None:
             dy[singular] = np.nan
-    dy_out = None if dy is None else np.moveaxis(dy, 1, -1)
+    dy_out = dy
     return Observation(tuple(names), times, y, dy_out, tuple(sensitivities), ok, reason)
 
 

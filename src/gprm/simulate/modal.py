@@ -26,7 +26,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from gprm.model.linear import NSTATE, StateSpace, raw_derivatives, state_space
+from gprm.model.linear import NSTATE, coordinate_derivatives, state_space
 
 GAP_TOL = 1e-7
 COND_TOL = 1e10
@@ -76,40 +76,67 @@ def dphi2(z):
 
 # ------------------------------------------------------------------ modal convolutions
 
-def conv_default(lam, tau, V0, tau_v):
+_D1_SHORT = _D1[:10]          # |w| < _SMALL_J: truncation below 1e-15 relative
+_SMALL_J = 0.05
+
+
+def conv_default(lam, tau, V0, tau_v, need_J=True):
     """I, J = dI/dlam and u for u(s) = V0 (exp(-s/tau_v) - 1), s >= 0 (0 before).
 
-    lam: (B, n) complex; tau: (B, T) real; V0, tau_v: (B,). Returns I, J (B, n, T) and u
-    (B, T). With a = 1/tau_v, L = lam:
-    I = V0 [(e^{L t} - e^{-a t})/(L + a) - (e^{L t} - 1)/L], J = dI/dL, each divided
-    difference switched to its Taylor series where its argument is small (|z| < 0.5).
+    lam: (B, n) complex; tau: (B, T) real; V0, tau_v: (B,). Returns I, J (B, n, T) (J None
+    unless ``need_J``) and u (B, T). With a = 1/tau_v, L = lam, E = e^{L t}:
+
+        I = V0 [I_a - I_0],  I_a = (E - e^{-a t})/(L + a),  I_0 = (E - 1)/L,
+        J = V0 [(t E - I_a)/(L + a) - (t E - I_0)/L].
+
+    Where an argument w = L t or (L + a) t is small these differences cancel: I_0 and I_a use
+    expm1 there (|w| < 0.1, e.g. I_a = e^{-a t} expm1((L + a) t)/(L + a)), and J's terms,
+    t^2 phi1'(w), their Taylor series (|w| < 0.05, 10 terms, truncation < 1e-15). Only those
+    few entries are recomputed; elsewhere the direct forms are accurate to rounding relative to
+    the size of the term.
     """
     a = (1.0 / tau_v)[:, None, None]
     t = np.clip(tau, 0.0, None)[:, None, :]
     L = lam[:, :, None]
+    La = L + a
     z = L * t
+    za = La * t
     E = np.exp(z)
     ea = np.exp(-a * t)
-    za = (L + a) * t
-    s0 = np.abs(z) < _SMALL
-    sa = np.abs(za) < _SMALL
     with np.errstate(all="ignore"):
-        term_a = (E - ea) / (L + a)
-        dterm_a = (t * E - term_a) / (L + a)
         term_0 = (E - 1.0) / L
-        dterm_0 = (t * E - term_0) / L
-    tt = np.broadcast_to(t, z.shape)
-    if sa.any():
-        # small (L + a) t: e^{-a t} t phi1((L + a) t) and its derivative, by series
-        eat = np.broadcast_to(ea * t, z.shape)[sa]
-        term_a[sa] = eat * _series(za[sa], _F1)
-        dterm_a[sa] = eat * tt[sa] * _series(za[sa], _D1)
+        term_a = (E - ea) / La
+    s0 = np.abs(z) < 0.1
+    sa = np.abs(za) < 0.1
+    tb = np.broadcast_to(t, z.shape)
+    eab = np.broadcast_to(ea, z.shape)
     if s0.any():
-        term_0[s0] = tt[s0] * _series(z[s0], _F1)
-        dterm_0[s0] = tt[s0] ** 2 * _series(z[s0], _D1)
+        term_0[s0] = np.expm1(z[s0]) / np.broadcast_to(L, z.shape)[s0]
+    if sa.any():
+        Las = La[sa] if La.shape == z.shape else np.broadcast_to(La, z.shape)[sa]
+        with np.errstate(all="ignore"):
+            ta = eab[sa] * np.expm1(za[sa]) / Las
+        zero = Las == 0                              # L = -a exactly: the limit t e^{-a t}
+        ta[zero] = (eab[sa] * tb[sa])[zero]
+        term_a[sa] = ta
     V0b = V0[:, None, None]
     u = V0[:, None] * (np.exp(-np.clip(tau, 0, None) / tau_v[:, None]) - 1.0)
-    return V0b * (term_a - term_0), V0b * (dterm_a - dterm_0), np.where(tau > 0, u, 0.0)
+    u = np.where(tau > 0, u, 0.0)
+    if not need_J:
+        return V0b * (term_a - term_0), None, u
+    with np.errstate(all="ignore"):
+        tE = t * E
+        dterm_a = (tE - term_a) / La
+        dterm_0 = (tE - term_0) / L
+    s0 = np.abs(z) < _SMALL_J
+    sa = np.abs(za) < _SMALL_J
+    if sa.any():
+        tt = tb[sa]
+        dterm_a[sa] = eab[sa] * tt * tt * _series(za[sa], _D1_SHORT)
+    if s0.any():
+        tt = tb[s0]
+        dterm_0[s0] = tt * tt * _series(z[s0], _D1_SHORT)
+    return V0b * (term_a - term_0), V0b * (dterm_a - dterm_0), u
 
 
 def conv_trace(lam, tau, knot_t, knot_u):
@@ -154,7 +181,7 @@ def conv_trace(lam, tau, knot_t, knot_u):
 
 @dataclass(frozen=True)
 class ModalSolution:
-    """Observables y (B, n_obs, T); dy (B, P, n_obs, T) or None; ok (B,) and reason (B,)."""
+    """Observables y (B, n_obs, T); dy (B, n_obs, T, P) or None; ok (B,) and reason (B,)."""
 
     y: np.ndarray
     dy: np.ndarray | None
@@ -163,43 +190,47 @@ class ModalSolution:
     sens_names: tuple[str, ...]
 
 
-def _eig(ss: StateSpace):
-    lam, V = np.linalg.eig(ss.A)
-    W = np.linalg.inv(V)
-    return lam, V, W
+def _inv(V):
+    """Batched inverse; sets whose eigenvector matrix is exactly singular get NaN."""
+    try:
+        return np.linalg.inv(V)
+    except np.linalg.LinAlgError:
+        W = np.full_like(V, np.nan)
+        for k in range(V.shape[0]):
+            try:
+                W[k] = np.linalg.inv(V[k])
+            except np.linalg.LinAlgError:
+                pass
+        return W
 
 
 def _health(lam, V, W):
-    scale = np.max(np.abs(lam), axis=-1)
-    diff = np.abs(lam[:, :, None] - lam[:, None, :])
-    n = lam.shape[-1]
-    diff[:, np.arange(n), np.arange(n)] = np.inf
-    gap = diff.min(axis=(1, 2)) / scale
-    cond = np.linalg.norm(V, axis=(1, 2)) * np.linalg.norm(W, axis=(1, 2))
+    with np.errstate(all="ignore"):
+        scale = np.max(np.abs(lam), axis=-1)
+        diff = np.abs(lam[:, :, None] - lam[:, None, :])
+        n = lam.shape[-1]
+        diff[:, np.arange(n), np.arange(n)] = np.inf
+        gap = diff.min(axis=(1, 2)) / scale
+        cond = np.linalg.norm(V, axis=(1, 2)) * np.linalg.norm(W, axis=(1, 2))
+        smallest = np.min(np.abs(lam), axis=-1) / scale
     reason = np.full(lam.shape[0], "", dtype=object)
     reason[~np.all(np.isfinite(lam), axis=-1)] = "non-finite eigenvalues"
+    reason[(reason == "") & (smallest < 1e-12)] = ("singular stiffness: a free (zero-frequency) "
+                                                   "mode")
     reason[(reason == "") & (lam.real.max(axis=-1) >= 0)] = "unstable: eigenvalue with Re >= 0"
     reason[(reason == "") & (gap < GAP_TOL)] = "near-repeated eigenvalues"
     reason[(reason == "") & ~(cond < COND_TOL)] = "ill-conditioned eigenvectors"
     return reason == "", reason
 
 
-def modal_derivatives(pb, piezo, names, ss: StateSpace, V, lam, W):
-    """G_p = V^-1 dA_s/dp V (B, P, 17, 17) and V^-1 db/dp (B, P, 17) for each name.
+# rows of the state holding the 9 coordinates (8 positions and q); velocity rows 8..15
+_COORD_ROWS = np.r_[0:8, 16]
+_SPECIAL = ("t0", "t1", "V0", "t_c")
 
-    Uses only the rows of the descriptor that change (8..16):
-    G = (W[:, 8:] E_vv^-1) (dA_raw V - dE V Lambda), one batched product over all P.
-    """
-    dAr, dEr = raw_derivatives(pb, piezo, names)             # (B,P,9,17), (B,P,9,9)
-    Bn, P = dAr.shape[:2]
-    Wt = W[:, :, 8:] @ np.linalg.inv(ss.E[:, 8:, 8:])        # (B,17,9)
-    VL = V[:, 8:, :] * lam[:, None, :]                       # rows 8.. of V Lambda (B,9,17)
-    X = (dAr.reshape(Bn, P * 9, NSTATE) @ V).reshape(Bn, P, 9, NSTATE)
-    X -= dEr @ VL[:, None]
-    G = (Wt @ X.transpose(0, 2, 1, 3).reshape(Bn, 9, P * NSTATE))
-    G = G.reshape(Bn, NSTATE, P, NSTATE).transpose(0, 2, 1, 3)
-    gb = -(Wt[:, None] @ (dEr @ ss.b[:, None, 8:, None]))[..., 0]
-    return G, gb
+
+def _real_matmul(a, b):
+    """Re(a @ b) for complex a, b without forming the complex product."""
+    return a.real @ b.real - a.imag @ b.imag
 
 
 def solve(pb: dict, times: np.ndarray, H: np.ndarray, lagged: np.ndarray, *, piezo: int,
@@ -211,26 +242,38 @@ def solve(pb: dict, times: np.ndarray, H: np.ndarray, lagged: np.ndarray, *, pie
     trace: a VoltageTrace or None (default profile from V0, t_c, tau_v in ``pb``).
     sens: parameter names for sensitivities: any EOM parameter, t0, t1, V0 (default profile),
     and names in ``dH`` (output-map parameters: name -> (B, n_obs, 17) dH/dp).
+
+    Sensitivities of an EOM parameter p (module docstring) need, per kept mode i,
+    c_i = sum_j G_ij beta_j / (lambda_i - lambda_j) + (V^-1 db)_i and G_ii, and per output
+    row o and kept mode j, sum_i (HV)_oi G_ij / (lambda_i - lambda_j). With
+    G = Psi X, Psi = (V^-1)[:, velocity rows] E_vv^-1 (left eigenvectors on the equations) and
+    X = -(dK Xi + dC Xi Lambda + dM Xi Lambda^2) (Xi: coordinate rows of V), all three are
+    contractions of one real matrix product [rows of Y^T and D beta Y^T] @ dQ over all P
+    parameters at once, where Y = [Xi; Xi Lambda; Xi Lambda^2] and dQ stacks dK, dC, dM; the
+    17 x 17 matrices G are never formed.
     """
     times = np.asarray(times, float)
     Bn = pb["t0"].shape[0]
+    T = times.size
+    nobs = H.shape[1]
     dH = dH or {}
+    names = tuple(sens)
     ss = state_space(pb, piezo, desc)
     with np.errstate(all="ignore"):
-        lam, V, W = _eig(ss)
+        lam, V = np.linalg.eig(ss.A)
+        W = _inv(V)
     ok, reason = _health(lam, V, W)
     # Replace failed sets by a harmless copy of a good one (results are masked by ``ok``).
     if not ok.all():
         good = int(np.argmax(ok)) if ok.any() else None
         if good is None:
-            nanY = np.full((Bn, H.shape[1], times.size), np.nan)
-            dy = None if not sens else np.full((Bn, len(sens)) + nanY.shape[1:], np.nan)
-            return ModalSolution(nanY, dy, ok, reason, tuple(sens))
+            nanY = np.full((Bn, nobs, T), np.nan)
+            dy = None if not names else np.full(nanY.shape + (len(names),), np.nan)
+            return ModalSolution(nanY, dy, ok, reason, names)
         bad = ~ok
         lam[bad], V[bad], W[bad] = lam[good], V[good], W[good]
         for key in ("A", "b", "E"):
             getattr(ss, key)[bad] = getattr(ss, key)[good]
-    beta = np.einsum("bij,bj->bi", W, ss.b)
     # Conjugate symmetry: A is real, so modes come in conjugate pairs whose contributions are
     # conjugate. Order modes [Im > 0, real, Im < 0] and keep the first S of them with weights
     # 2 (pair), 1 (real), 0 (padding where a set has fewer pairs than the batch maximum).
@@ -239,94 +282,143 @@ def solve(pb: dict, times: np.ndarray, H: np.ndarray, lagged: np.ndarray, *, pie
     lam = np.take_along_axis(lam, perm, 1)
     V = np.take_along_axis(V, perm[:, None, :], 2)
     W = np.take_along_axis(W, perm[:, :, None], 1)
-    beta = np.take_along_axis(beta, perm, 1)
     key = np.take_along_axis(key, perm, 1)
     S = int(np.max(np.sum(key < 2, axis=1)))
     wS = np.choose(key[:, :S], [2.0, 1.0, 0.0])                   # (B, S)
-    lamS, betaS = lam[:, :S], beta[:, :S]
+    lamS = lam[:, :S]
+    betaS = np.einsum("bij,bj->bi", W[:, :S], ss.b)               # (B, S)
     HV = H @ V                                                     # (B, n_obs, 17)
-    HVS = HV[:, :, :S] * wS[:, None, :]
+    HVw = HV[:, :, :S] * (wS * betaS)[:, None, :]                  # (B, n_obs, S)
 
     t0 = pb["t0"]
-    if trace is None:
-        ts = pb["t_c"] + t0
-    else:
-        ts = t0
+    ts = pb["t_c"] + t0 if trace is None else t0
     tau = times[None, :] - ts[:, None]
-    taus = {False: tau}
-    if lagged.any():
-        taus[True] = tau - pb["t1"][:, None]
+    groups = [(False, ~lagged)] + ([(True, lagged)] if lagged.any() else [])
 
-    def conv(tv):
-        if trace is None:
-            return conv_default(lamS, tv, pb["V0"], pb["tau_v"])
+    # both lags in one evaluation: tau for the unlagged rows, tau - t1 for the lagged ones
+    tv = np.concatenate([tau] + ([tau - pb["t1"][:, None]] if len(groups) > 1 else []), axis=1)
+    if trace is None:
+        I, J, u = conv_default(lamS, tv, pb["V0"], pb["tau_v"], need_J=bool(names))
+    else:
         kt, ku = trace.knots(0.0)
-        return conv_trace(lamS, tv, kt, ku)
-
-    conv_res = {k: conv(tv) for k, tv in taus.items()}
-    y = np.zeros((Bn, H.shape[1], times.size))
-    for lag, (I, J, u) in conv_res.items():
-        rows = lagged == lag
-        y[:, rows] = np.real(HVS[:, rows] @ (betaS[:, :, None] * I))
+        I, J, u = conv_trace(lamS, tv, kt, ku)
+    conv_res = {}
+    for k, (lag, _) in enumerate(groups):
+        sl = slice(k * T, (k + 1) * T)
+        conv_res[lag] = (I[..., sl], None if J is None else J[..., sl], u[:, sl])
+    y = np.empty((Bn, nobs, T))
+    for lag, rows in groups:
+        y[:, rows] = _real_matmul(HVw[:, rows], conv_res[lag][0])
 
     dy = None
-    if sens:
-        names = tuple(sens)
-        dy = np.zeros((Bn, len(names), H.shape[1], times.size))
-        eom = [n for n in names if n not in ("t0", "t1", "V0", "t_c") and n not in dH]
+    if names:
+        dy = np.zeros((Bn, nobs, T, len(names)))
+        eom = [n for n in names if n not in _SPECIAL and n not in dH]
         unknown = [n for n in eom if n not in pb]
         if unknown:
             raise KeyError(f"no sensitivity for {unknown}")
         if eom:
-            G, gb = modal_derivatives(pb, piezo, eom, ss, V, lam, W)
-            P = len(eom)
-            n = NSTATE
-            with np.errstate(divide="ignore", invalid="ignore"):
-                Dm = 1.0 / (lam[:, :, None] - lam[:, None, :])
-            Dm[:, np.arange(n), np.arange(n)] = 0.0
-            Pm = G * Dm[:, None]
-            # only the kept modes i < S are needed as output modes (conjugates follow)
-            c = np.einsum("bpij,bj->bpi", Pm[:, :, :S], beta) + gb[:, :, :S]   # (B, P, S)
-            dg = np.diagonal(G, axis1=-2, axis2=-1)[:, :, :S] * betaS[:, None]
-            nobs = HV.shape[1]
-            PmS = Pm[..., :S].transpose(0, 2, 1, 3).reshape(Bn, n, P * S)
-            HVP = (HV @ PmS).reshape(Bn, nobs, P, S)
-            wS4 = wS[:, None, None, :]
-            Lm = (HV[:, :, None, :S] * c[:, None] - HVP * betaS[:, None, None, :]) * wS4
-            Nm = HV[:, :, None, :S] * dg[:, None] * wS4
-            LN = np.concatenate([Lm, Nm], axis=-1)                      # (B, o, P, 2S)
-            for lag, (I, J, u) in conv_res.items():
-                rows = lagged == lag
-                IJ = np.concatenate([I, J], axis=1)                     # (B, 2S, T)
-                sub = LN[:, rows]
-                val = (sub.reshape(Bn, -1, 2 * S) @ IJ).reshape(sub.shape[:3] + (times.size,))
-                idx = [names.index(e) for e in eom]
-                vr = np.real(val).transpose(0, 2, 1, 3)                 # (B, P, o_rows, T)
-                for k, j in enumerate(idx):
-                    dy[:, j, rows] = vr[:, k]
-        for name in names:
-            k = names.index(name)
-            if name in ("t0", "t_c") or (name == "t1" and lagged.any()):
-                for lag, (I, J, u) in conv_res.items():
+            de = _eom_sensitivities(pb, piezo, eom, ss, lam, V, W, HV, S, wS, betaS,
+                                    conv_res, groups)
+            idx = [names.index(e) for e in eom]
+            if idx == list(range(len(names))):
+                dy = de
+            else:
+                dy[..., idx] = de
+        for k, name in enumerate(names):
+            if name in ("t0", "t_c", "t1"):
+                if name == "t_c" and trace is not None:
+                    continue  # t_c does not act on a measured trace
+                for lag, rows in groups:
                     if name == "t1" and not lag:
                         continue
-                    rows = lagged == lag
+                    I, J, u = conv_res[lag]
                     rate = lamS[:, :, None] * I + u[:, None, :]
-                    zdot = np.real(HVS[:, rows] @ (betaS[:, :, None] * rate))
-                    if name == "t_c" and trace is not None:
-                        continue  # t_c does not act on a measured trace
-                    dy[:, k, rows] = -zdot
+                    dy[..., k][:, rows] = -_real_matmul(HVw[:, rows], rate)
             elif name == "V0":
                 if trace is not None:
                     raise KeyError("V0 sensitivity is defined for the default profile only")
-                dy[:, k] = y / pb["V0"][:, None, None]
+                dy[..., k] = y / pb["V0"][:, None, None]
             elif name in dH:
-                for lag, (I, J, u) in conv_res.items():
-                    rows = lagged == lag
-                    z = np.real((V[:, :, :S] * wS[:, None, :]) @ (betaS[:, :, None] * I))
-                    dy[:, k, rows] = dH[name][:, rows] @ z
+                VS = V[:, :, :S] * (wS * betaS)[:, None, :]
+                for lag, rows in groups:
+                    z = _real_matmul(VS, conv_res[lag][0])          # (B, 17, T)
+                    dy[..., k][:, rows] = dH[name][:, rows] @ z
     if not ok.all():
         y[~ok] = np.nan
         if dy is not None:
             dy[~ok] = np.nan
-    return ModalSolution(y, dy, ok, reason, tuple(sens))
+    return ModalSolution(y, dy, ok, reason, names)
+
+
+def _sparse_product(R, sd):
+    """R (B, r, 27) @ dQ (B, 27, 9 P) where dQ is given by its non-zero entries: one batched
+    product over only the columns of R that meet a non-zero entry (17 of 27 for the fitted
+    set) and only the target columns (a, p) that receive one (70 of 207)."""
+    Bn, r, _ = R.shape
+    out = np.zeros((Bn, r, 9 * sd.n_params))
+    if sd.e.size == 0:
+        return out
+    col = sd.a * sd.n_params + sd.p
+    ue, ei = np.unique(sd.e, return_inverse=True)
+    uc, ci = np.unique(col, return_inverse=True)
+    dQc = np.zeros((Bn, ue.size, uc.size))
+    dQc[:, ei, ci] = sd.vals                       # (e, a, p) triples are unique
+    out[:, :, uc] = R[:, :, ue] @ dQc
+    return out
+
+
+def _eom_sensitivities(pb, piezo, eom, ss, lam, V, W, HV, S, wS, betaS, conv_res, groups):
+    """dy/dp (B, n_obs, T, P) for parameters of the equations of motion (see ``solve``)."""
+    Bn, nobs = HV.shape[:2]
+    P = len(eom)
+    n = NSTATE
+    sd = coordinate_derivatives(pb, piezo, eom)
+    XiT = V[:, _COORD_ROWS, :].transpose(0, 2, 1)                  # (B, 17, 9): Xi^T
+    YT = np.concatenate([XiT, XiT * lam[:, :, None], XiT * (lam ** 2)[:, :, None]], axis=2)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        D = 1.0 / (lam[:, :S, None] - lam[:, None, :])             # (B, S, 17): 1/(l_i - l_j)
+    D[:, np.arange(S), np.arange(S)] = 0.0
+    beta = np.einsum("bij,bj->bi", W, ss.b)
+    DbYT = (D * beta[:, None, :]) @ YT                             # (B, S, 27)
+    # db = -E^-1 dE b: only the (velocity, q) rows of E change; as a vector over dQ's columns
+    bb = np.zeros((Bn, 1, 27))
+    bb[:, 0, 9 + 8] = ss.b[:, 16]                                  # dC[:, q] * b_q
+    bb[:, 0, 18:26] = ss.b[:, 8:16]                                # dM[:, :8] * b_v
+    R = np.concatenate([YT[:, :S].real, DbYT.real, YT[:, :S].imag, DbYT.imag, bb], axis=1)
+    out = _sparse_product(R, sd).reshape(Bn, 4 * S + 1, 9, P)     # R @ dQ, (a, p) columns
+    Xs = np.empty((Bn, S, 9, P), complex)                          # X[:, a, j] for j < S
+    Xs.real = out[:, :S]
+    Xs.imag = out[:, 2 * S:3 * S]
+    Xs *= -1.0
+    c1 = np.empty((Bn, S, 9, P), complex)                          # sum_j D_ij beta_j X[:, a, j]
+    c1.real = out[:, S:2 * S]
+    c1.imag = out[:, 3 * S:4 * S]
+    c1 += out[:, None, 4 * S]                                      # + dE b on the equations
+    c1 *= -1.0
+    Psi = W[:, :, 8:] @ np.linalg.inv(ss.E[:, 8:, 8:])             # (B, 17, 9)
+    PsiS = Psi[:, :S, None, :]                                     # (B, S, 1, 9)
+    c = (PsiS @ c1)[:, :, 0, :]                                    # (B, S, P)
+    dg = (PsiS @ Xs)[:, :, 0, :] * betaS[:, :, None]               # G_ii beta_i
+    # Z[j, o, a] = sum_i HV[o, i] D'[i, j] Psi[i, a] with D'[i, j] = 1/(l_i - l_j), j < S
+    Dc = np.zeros((Bn, n, S), complex)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        Dc[:] = 1.0 / (lam[:, :, None] - lam[:, None, :S])
+    Dc[:, np.arange(S), np.arange(S)] = 0.0
+    HD = HV[:, None, :, :] * Dc.transpose(0, 2, 1)[:, :, None, :]  # (B, S, o, 17)
+    HVP = (HD @ Psi[:, None]) @ Xs                                 # (B, S, o, P)
+    # dy[o, t, p] = Re sum_i (L[i, o, p] I_i(t) + N[i, o, p] J_i(t)), i < S
+    HVt = HV[:, :, :S].transpose(0, 2, 1)[..., None]               # (B, S, o, 1)
+    w = wS[:, :, None, None]
+    L = (HVt * c[:, :, None, :] - betaS[:, :, None, None] * HVP) * w
+    N = HVt * (dg * wS[:, :, None])[:, :, None, :]                 # (B, S, o, P)
+    LN = np.concatenate([L.real, L.imag, N.real, N.imag], axis=1)  # (B, 4S, o, P)
+    T = conv_res[False][0].shape[-1]
+    dyT = np.empty((Bn, T, nobs, P))                               # filled (B, T, o, P)
+    for lag, rows in groups:
+        I, J, _ = conv_res[lag]
+        IJ = np.concatenate([I.real, -I.imag, J.real, -J.imag], axis=1).transpose(0, 2, 1)
+        r = np.flatnonzero(rows)
+        LNr = LN[:, :, r].reshape(Bn, 4 * S, r.size * P)
+        dyT[:, :, r] = (IJ @ LNr).reshape(Bn, T, r.size, P)
+    return dyT.transpose(0, 2, 1, 3)

@@ -75,8 +75,9 @@ def test_richer_than_the_fitted_model(full_campaign):
         clean = full_campaign["truth_displacement"].sel(position=p).values
         peak = np.max(np.abs(clean))
         rest = clean - lin[p][0]
-        mode = rest - _mode(tt, np.array([truth["t_c"] + truth["t0"]]),
-                            np.array([cfg.mode_rel * peak]), cfg)[0]
+        lag = truth["t1"] if p == "z_bk" else 0.0
+        mode = rest - _mode(tt, np.array([truth["t_c"] + truth["t0"] + lag]),
+                            np.array([cfg.mode_rel * peak]), cfg, truth["tau_v"])[0]
         # what remains is the nonlinear correction
         assert 1e-13 < np.max(np.abs(mode)) < 5e-10, p
         assert np.max(np.abs(rest)) == pytest.approx(cfg.mode_rel * peak, rel=0.5)

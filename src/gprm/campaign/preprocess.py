@@ -198,6 +198,17 @@ def _sampled_crossing(f, time: np.ndarray, delay: float, threshold: float, hold:
     return None if tx is None else tx - delay
 
 
+def alignment_shift(time, y, threshold: float, *, align_time: float = 1.0e-3,
+                    hold: int = 1) -> float | None:
+    """The step-3 alignment applied to one sampled signal (for example a model output on the
+    record grid): the shift that moves its first sustained crossing of ``threshold`` to
+    ``align_time`` (new time = time + shift). None if it never crosses. Use it to compare a
+    model with the mean signals on equal terms (docs/data-formats.md, "t0 after alignment")."""
+    time = np.asarray(time, float)
+    tx = _sampled_crossing(CubicSpline(time, np.asarray(y, float)), time, 0.0, threshold, hold)
+    return None if tx is None else align_time - tx
+
+
 def synchronise(Y: np.ndarray, ref: int, win: np.ndarray, max_lag: int):
     """Sub-sample shifts (samples) s_r minimising RMS[y_r(i + s_r) - y_ref(i)] over indices
     ``win``; and the per-run splines (over the sample index)."""

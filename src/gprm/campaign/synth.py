@@ -180,15 +180,21 @@ def nonlinear_correction(truth: ParameterSet, times: np.ndarray) -> dict:
     return {k: nl.outputs[k][0] - lin.outputs[k][0] for k in MODEL_POSITIONS}
 
 
-def _mode(times, onset, amp, cfg):
-    """Impulse response of the unmodelled mode starting at ``onset`` (B,) with amplitude
-    ``amp`` (B,) at its first maximum envelope; (B, T)."""
+def _mode(times, onset, amp, cfg, tau_v: float = 10e-6):
+    """The unmodelled mode (frequency ``mode_freq``, damping ``mode_zeta``) excited from
+    ``onset`` (B,) by a force pulse proportional to the rate of the voltage drop,
+    exp(-s/tau_v): x'' + 2 zeta w x' + w^2 x ~ exp(-s/tau_v). Its response
+    Im[(e^{lam s} - e^{-s/tau_v}) / (lam + 1/tau_v)] starts with zero value and slope, and is
+    scaled so that its largest magnitude is ``amp`` (B,). Returns (B, T)."""
     w = 2 * np.pi * cfg.mode_freq
-    wd = w * np.sqrt(1 - cfg.mode_zeta ** 2)
-    s = times[None, :] - onset[:, None]
+    lam = -cfg.mode_zeta * w + 1j * w * np.sqrt(1 - cfg.mode_zeta ** 2)
+    a = 1.0 / tau_v
+    s = times[None, :] - np.asarray(onset, float)[:, None]
     sp = np.clip(s, 0, None)
-    return np.where(s > 0, amp[:, None] * np.exp(-cfg.mode_zeta * w * sp) * np.sin(wd * sp),
-                    0.0)
+    g = np.imag((np.exp(lam * sp) - np.exp(-a * sp)) / (lam + a))
+    ss = np.linspace(0, 10 / (cfg.mode_zeta * w + a), 20001)
+    gmax = np.max(np.abs(np.imag((np.exp(lam * ss) - np.exp(-a * ss)) / (lam + a))))
+    return np.where(s > 0, np.asarray(amp, float)[:, None] * g / gmax, 0.0)
 
 
 def _coloured(rng, shape, cfg):
@@ -239,8 +245,9 @@ def synth_campaign(truth: ParameterSet | None = None, *, seed: int = 0,
     peak = {k: float(np.max(np.abs(nominal[k]))) for k in POSITIONS}
     onset0 = truth["t_c"] + truth["t0"]
     mode_amp = {k: cfg.mode_rel * peak[k] if k in MODEL_POSITIONS else 0.0 for k in POSITIONS}
-    clean = np.stack([nominal[k][0] + _mode(fine, np.array([onset0]),
-                                            np.array([mode_amp[k]]), cfg)[0]
+    lag = {k: truth["t1"] if k == "z_bk" else 0.0 for k in POSITIONS}   # z laser lag (Eq. 3)
+    clean = np.stack([nominal[k][0] + _mode(fine, np.array([onset0 + lag[k]]),
+                                            np.array([mode_amp[k]]), cfg, truth["tau_v"])[0]
                       for k in POSITIONS])
 
     # per-run variability and trigger offsets (run (p, r) is retraction p*R + r)
@@ -262,7 +269,8 @@ def synth_campaign(truth: ParameterSet | None = None, *, seed: int = 0,
             cs = CubicSpline(times, corr[k])
             tt = times[None, :] - offset[sl, None]
             y += np.where(tt < times[0], 0.0, cs(np.clip(tt, times[0], times[-1])))
-        y += _mode(times, onset0 + offset[sl], mode_amp[k] * v0_mult[sl], cfg)
+        y += _mode(times, onset0 + lag[k] + offset[sl], mode_amp[k] * v0_mult[sl], cfg,
+                   truth["tau_v"])
         disp[i] = y
     disp += _noise_and_drift(rng, disp.shape, times, cfg)
     noise = _noise_and_drift(rng, (P, cfg.n_noise, n), times, cfg)

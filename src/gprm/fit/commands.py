@@ -35,6 +35,12 @@ def register(app: typer.Typer, synth_app: typer.Typer) -> None:
         chunk: int = typer.Option(100, "--chunk", help="starts per lock-step chunk (part of "
                                   "the result's definition, like the seed)"),
         max_iter: int = typer.Option(100, "--max-iter", help="LM iteration limit per start"),
+        prune_after: int = typer.Option(0, "--prune-after", help="stop starts whose chi2 is "
+                                        "over --prune-factor x the chunk's best after this "
+                                        "many iterations (0: never; docs/fitting.md)"),
+        prune_factor: float = typer.Option(100.0, "--prune-factor"),
+        band_samples: int = typer.Option(200, "--band-samples", help="covariance samples "
+                                         "for the sampled uncertainty bands"),
         profile: bool = typer.Option(False, "--profile", help="also compute profile "
                                      "likelihoods of every fitted parameter"),
         checkpoint: Optional[Path] = typer.Option(None, "--checkpoint", help="checkpoint "
@@ -63,7 +69,12 @@ def register(app: typer.Typer, synth_app: typer.Typer) -> None:
         data = fit_data_from_means(ds, window=window, sigma=sigma, source=str(means))
         base = load_params(params)
         opts = MultiStartOptions(n_starts=starts, seed=seed, spread=spread, sampling=sampling,
-                                 chunk_size=chunk, lm=LMOptions(max_iter=max_iter))
+                                 chunk_size=chunk, lm=LMOptions(max_iter=max_iter),
+                                 prune_after=prune_after, prune_factor=prune_factor)
+        if chunk < 1:
+            raise GprmInputError(f"must be at least 1, got {chunk}", field="--chunk")
+        if workers < 0:
+            raise GprmInputError(f"must be >= 0, got {workers}", field="--workers")
         ckpt = checkpoint if checkpoint is not None else Path(str(out) + ".ckpt")
         console = Console(stderr=True)
         with Progress(TextColumn("fit"), BarColumn(), TextColumn("{task.completed}/"
@@ -76,7 +87,8 @@ def register(app: typer.Typer, synth_app: typer.Typer) -> None:
 
             res = identify(data, base, opts, piezo=piezo, workers=workers,
                            scheduler=scheduler, checkpoint_dir=ckpt, progress=progress,
-                           profile=profile, z_bk_absolute=z_bk_absolute)
+                           profile=profile, z_bk_absolute=z_bk_absolute,
+                           band_samples=band_samples)
         side = res.write(out)
         shutil.rmtree(ckpt, ignore_errors=True)
         typer.echo(res.summary())

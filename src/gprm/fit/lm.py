@@ -168,8 +168,9 @@ def levenberg_marquardt_batch(fun: Callable, X0: np.ndarray, *, residuals: Calla
     lo = np.broadcast_to(np.asarray(-np.inf if lower is None else lower, float), (P,))
     hi = np.broadcast_to(np.asarray(np.inf if upper is None else upper, float), (P,))
     # the box the trial points are projected onto: strictly inside the bounds
-    lo_in = np.where(np.isfinite(lo), lo + BOUND_MARGIN * np.maximum(1.0, np.abs(lo)), lo)
-    hi_in = np.where(np.isfinite(hi), hi - BOUND_MARGIN * np.maximum(1.0, np.abs(hi)), hi)
+    with np.errstate(invalid="ignore"):
+        lo_in = np.where(np.isfinite(lo), lo + BOUND_MARGIN * np.maximum(1.0, np.abs(lo)), lo)
+        hi_in = np.where(np.isfinite(hi), hi - BOUND_MARGIN * np.maximum(1.0, np.abs(hi)), hi)
     r, J = fun(X)
     r = np.asarray(r, float)
     J = np.array(J, dtype=float)

@@ -367,7 +367,7 @@ def run_multistart(obj: Objective, opts: MultiStartOptions = MultiStartOptions()
             client = Client(scheduler)
         else:
             cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
-                                   dashboard_address=None, silence_logs=40)
+                                   dashboard_address=":0", silence_logs=40)
             client = Client(cluster)
         try:
             futs = [client.submit(run_chunk, t, pure=False) for t in pending]

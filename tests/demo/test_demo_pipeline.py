@@ -79,7 +79,8 @@ def test_interrupted_run_resumes_after_the_last_finished_stage(tmp_path):
     broken = chain[:2] + [Stage("c", "C", ("b.txt",), ("c.txt",), lambda o: {}, boom)]
     with pytest.raises(KeyboardInterrupt):
         run_demo(tmp_path, DemoOptions(), stages=broken, report_html=False)
-    assert json.loads((tmp_path / "run.json").read_text())["stages"]["c"]["status"] == "failed"
+    assert json.loads((tmp_path / "run.json").read_text())["stages"]["c"]["status"] == \
+        "interrupted"
     calls.clear()
     res = run_demo(tmp_path, DemoOptions(), stages=_chain(calls), report_html=False)
     assert calls == ["c.txt"]
@@ -98,3 +99,22 @@ def test_unavailable_stage_blocks_the_ones_that_need_it(tmp_path):
     assert [r.status for r in res.records] == ["ran", "not available", "blocked"]
     assert "b.txt" in res.records[2].detail
     assert not (tmp_path / "c.txt").exists()
+
+
+def test_failing_stage_is_recorded_and_the_rest_continues(tmp_path):
+    calls: list = []
+    chain = list(_chain(calls))
+
+    def bad(run_dir, opts, step):
+        (run_dir / "b.txt").write_text("half")
+        raise ValueError("no convergence")
+
+    chain[1] = Stage("b", "B", ("a.txt",), ("b.txt",), lambda o: {}, bad)
+    chain.append(Stage("d", "D", ("a.txt",), ("d.txt",), lambda o: {},
+                       _writer("d.txt", calls)))
+    res = run_demo(tmp_path, DemoOptions(), stages=chain, report_html=False)
+    assert [r.status for r in res.records] == ["ran", "failed", "blocked", "ran"]
+    assert res.records[1].detail == "ValueError: no convergence"
+    assert not (tmp_path / "b.txt").exists()          # no half-written output is kept
+    rec = json.loads((tmp_path / "run.json").read_text())["stages"]["b"]
+    assert rec["status"] == "failed" and "no convergence" in rec["traceback"][-1]

@@ -46,6 +46,11 @@ def register(app: typer.Typer, synth_app: typer.Typer) -> None:
             res = run_demo(out, opts, progress=prog.event,
                            command="gprm " + " ".join(sys.argv[1:]))
         print_summary(Console(), res)
+        failed = [r.name for r in res.records if r.status == "failed"]
+        if failed:
+            typer.echo(f"gprm: error: stage(s) failed: {', '.join(failed)} (details in "
+                       f"{out / 'run.json'})", err=True)
+            raise typer.Exit(code=1)
 
 
 class _Progress:

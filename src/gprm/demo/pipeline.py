@@ -208,9 +208,26 @@ def run_demo(out: str | Path, opts: DemoOptions = DemoOptions(), *, stages=None,
                 (run / name).unlink(missing_ok=True)
             _write_state(run, state)
             continue
-        except BaseException:
+        except Exception as exc:
+            # a failing stage does not stop the demo: it is recorded (with the traceback's
+            # last lines), the stages needing its output are blocked, the report says why
+            import traceback
+
+            detail = f"{type(exc).__name__}: {exc}"
+            tb = traceback.format_exc().strip().splitlines()[-12:]
+            rec = StageRecord(stage.name, "failed", seconds=time.perf_counter() - t0,
+                              detail=detail)
             report(stage.name, "fail", None, None)
-            state["stages"][stage.name] = {"status": "failed"}
+            records.append(rec)
+            state["stages"][stage.name] = {"status": "failed", "detail": detail,
+                                           "traceback": tb}
+            for name in stage.outputs:
+                (run / name).unlink(missing_ok=True)
+            _write_state(run, state)
+            continue
+        except BaseException:          # interrupted: record it and stop; a rerun resumes
+            report(stage.name, "fail", None, None)
+            state["stages"][stage.name] = {"status": "interrupted"}
             _write_state(run, state)
             raise
         dt = time.perf_counter() - t0

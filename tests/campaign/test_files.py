@@ -247,3 +247,30 @@ def test_cli_synth_and_preprocess(tmp_path):
     bad = tmp_path / "bad.nc"
     res = runner.invoke(app, ["synth", "campaign", "--runs", "1", "--out", str(bad)])
     assert res.exit_code == 2 and "--runs" in res.stderr and not bad.exists()
+
+
+def test_units_converted_on_read(small_campaign, tmp_path):
+    ds = small_campaign.copy(deep=True)
+    ds["displacement"] = ds["displacement"] * 1e6
+    ds["displacement"].attrs["units"] = "um"
+    ds.to_netcdf(tmp_path / "um.nc")
+    back = load_campaign(tmp_path / "um.nc")
+    assert back["displacement"].attrs["units"] == "m"
+    np.testing.assert_allclose(back["displacement"].values,
+                               small_campaign["displacement"].values, rtol=1e-12)
+    ds["displacement"].attrs["units"] = "furlongs per volt"
+    ds.to_netcdf(tmp_path / "bad_unit.nc")
+    with pytest.raises(GprmInputError, match="bad_unit.nc.*'displacement'"):
+        load_campaign(tmp_path / "bad_unit.nc")
+
+
+def test_cli_truth_file(tmp_path):
+    toml = tmp_path / "truth.toml"
+    toml.write_text('[parameters]\nm2 = "13.1 g"\nk_Ax = 1.0e8\n')
+    out = tmp_path / "c.nc"
+    res = CliRunner().invoke(app, ["synth", "campaign", "--truth", str(toml), "--runs", "2",
+                                   "--noise-runs", "1", "--no-nonlinear", "--out", str(out)])
+    assert res.exit_code == 0, res.output
+    ds = load_campaign(out)
+    truth = json.loads(ds.attrs["truth_json"])
+    assert truth["m2"] == pytest.approx(0.0131) and truth["k_Ax"] == 1.0e8

@@ -191,3 +191,16 @@ def test_mean_signals_contract(full_campaign, full_means):
     assert ds.attrs["seed"] == 7
     ta = json.loads(ds.attrs["truth_alignment_json"])
     assert set(ta) >= {"t0_expected_s", "t1_expected_s", "truth_shift_s"}
+
+
+def test_alignment_shift_of_a_sampled_signal():
+    """The step-3 rule applied to a sampled analytic onset -a (t - ts)^3."""
+    from gprm.campaign.preprocess import alignment_shift
+
+    a, ts, thr = 2e6, 1.0037e-3, 1e-9
+    t = np.arange(301) / 2e5
+    y = -a * np.clip(t - ts, 0, None) ** 3
+    sh = alignment_shift(t, y, thr)
+    # the spline of the samples of a cubic onset is exact away from the kink; allow 0.05 sample
+    assert sh == pytest.approx(1e-3 - (ts + (thr / a) ** (1 / 3)), abs=0.05 * 5e-6)
+    assert alignment_shift(t, y, 1.0) is None

@@ -72,19 +72,13 @@ def fig_fit(side, signals=("x_base", "x_head", "y_base", "y_head", "z_bk")):
 
 
 def fig_waterfall(side):
-    """Sorted final chi-square of every start: how many reach the best."""
-    chi = np.sort(side["chi2"].values[np.isfinite(side["chi2"].values)])
-    fig, ax = plt.subplots(figsize=(7.5, 3.0))
-    best = chi[0]
-    ax.semilogy(np.arange(1, chi.size + 1), chi - best + 1.0, ".", ms=3,
-                color=COLORS["model"])
-    ax.axhline(2.0, color="k", lw=0.8, ls="--", label="Δχ² = 1 from the best")
-    n_best = int(np.sum(chi <= best + 1))
-    ax.set_xlabel("start (sorted by final χ²)")
-    ax.set_ylabel("χ² − χ²_best + 1")
-    ax.set_title(f"Waterfall of {chi.size} starts: {n_best} within Δχ² ≤ 1 of the best "
-                 f"(χ²_best = {best:.4g})")
-    ax.legend(loc="lower right")
+    """Waterfall of the starts: sorted final chi-square of every start (the fit stage's
+    plot, :func:`gprm.fit.plots.waterfall`)."""
+    from gprm.fit.plots import waterfall
+
+    fig, ax = plt.subplots(figsize=(8.0, 3.2))
+    waterfall(side["chi2"].values, ax=ax,
+              title=f"Waterfall of {side.sizes.get('start', side['chi2'].size)} starts")
     fig.tight_layout()
     return fig
 

@@ -262,12 +262,14 @@ def _position(Y, N, time, cfg: PreprocessConfig, name: str, src: str):
 
 def preprocess(campaign: xr.Dataset, config: PreprocessConfig | None = None) -> MeanSignals:
     """Synchronise, average and align a validated campaign (see the module docstring)."""
+    from gprm.campaign.data import validate_campaign
+
     cfg = PreprocessConfig() if config is None else config
     src = str(campaign.attrs.get("source", "campaign"))
+    campaign = validate_campaign(campaign, source=src)
     time = np.asarray(campaign["time"].values, float)
     dt = float(time[1] - time[0])
     T = time.size
-    idx = np.arange(T, dtype=float)
     disp = np.asarray(campaign["displacement"].sel(position=list(POSITIONS)).values, float)
     noise = np.asarray(campaign["noise"].sel(position=list(POSITIONS)).values, float)
     R = disp.shape[1]

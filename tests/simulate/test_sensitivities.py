@@ -70,3 +70,19 @@ def test_sensitivity_order_and_shape():
     # t1 only acts on the lagged z_bk; d_x_head only on x_head
     assert np.all(o.dy[:, :4, :, 0] == 0) and np.any(o.dy[:, 4, :, 0] != 0)
     assert np.all(o.dy[:, [0, 2, 3, 4], :, 2] == 0) and np.any(o.dy[:, 1, :, 2] != 0)
+
+
+def test_failed_sets_are_masked_without_disturbing_the_others(random_sets):
+    """A batch with a singular set (no lateral x stiffness: a free mode) in the middle: that
+    set comes back NaN with ok False and a reason; the others equal their single-set runs."""
+    good = random_sets(2, seed=9)
+    bad = paper().with_values(k_Ax=0.0, k_Bx=0.0)
+    names = FITTED_DEFAULT[:5] + ("t1", "d_x_head")
+    o = observe(batch([good[0], bad, good[1]]), TIMES, NAMES, sensitivities=names)
+    assert o.ok.tolist() == [True, False, True]
+    assert o.reason[1] and np.all(np.isnan(o.y[1])) and np.all(np.isnan(o.dy[1]))
+    for k, ps in ((0, good[0]), (2, good[1])):
+        single = observe(batch([ps]), TIMES, NAMES, sensitivities=names)
+        np.testing.assert_allclose(o.y[k], single.y[0], rtol=1e-12, atol=1e-24)
+        np.testing.assert_allclose(o.dy[k], single.dy[0], rtol=1e-9,
+                                   atol=1e-12 * np.abs(single.dy[0]).max())

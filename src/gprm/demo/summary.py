@@ -13,7 +13,8 @@ from gprm._io import open_netcdf, read_json
 
 
 def truth_from_means(run: Path) -> dict | None:
-    """The synthetic truth (SI, name -> value) recorded in ``means.nc``, if any."""
+    """The synthetic truth (SI, name -> value) recorded in ``means.nc``, if any; t0 and t1 in
+    the aligned time base of the means (``truth_alignment_json``) where given."""
     p = Path(run) / "means.nc"
     if not p.exists():
         return None
@@ -25,7 +26,19 @@ def truth_from_means(run: Path) -> dict | None:
         truth = json.loads(raw)
     except (TypeError, json.JSONDecodeError):
         return None
-    return {k: float(v) for k, v in truth.items() if isinstance(v, (int, float))}
+    truth = {k: float(v) for k, v in truth.items() if isinstance(v, (int, float))}
+    # The aligned data's time base differs from the truth's (docs/data-formats.md, "The truth
+    # after alignment"): the lags a fit of the aligned means should find are t0_expected_s
+    # and t1_expected_s, not the truth's own t0, t1.
+    try:
+        align = json.loads(attrs.get("truth_alignment_json", "{}"))
+    except (TypeError, json.JSONDecodeError):
+        align = {}
+    for name in ("t0", "t1"):
+        v = align.get(f"{name}_expected_s")
+        if isinstance(v, (int, float)):
+            truth[name] = float(v)
+    return truth
 
 
 def truth_recovery(fit: dict, truth: dict) -> dict:

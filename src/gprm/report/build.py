@@ -198,7 +198,9 @@ def fit_section(run: Path) -> tuple[Section, dict | None]:
     s.blocks.append(table(head, table3_rows(fit, truth), "Table 3: best-fit parameters",
                           "table-3", note="Errors are 1σ from Eq. 7. The paper column is the "
                           "published Table 3; the initial values are the centre of the "
-                          "random starts."))
+                          "random starts. For synthetic data the truth of t0 and t1 is the "
+                          "lag expected in the aligned time base of the means "
+                          "(docs/data-formats.md)."))
     s.blocks.append(fig_to_img(F.fig_masses(fit, truth), "Masses: fitted value ± 1σ against "
                                "the CAD nominal, the initial value and the paper's 3D fit "
                                "(cf. Fig. 7)", "fig-masses"))
@@ -409,6 +411,14 @@ def summary_cards(run: Path, fit: dict | None) -> list[Card]:
                           "pairs differ", f"{s.get('releases')} releases, α = {tk['alpha']}",
                           "ok" if ok else "bad"))
     prov = _load_json(run, "run.json", "run record") or {}
+    stages = {k: v for k, v in (prov.get("stages") or {}).items() if k != "report"}
+    if stages:
+        done = [k for k, v in stages.items() if v.get("status") in ("ran", "skipped")]
+        bad = [k for k in stages if k not in done]
+        cards.append(Card("stages", f"{len(done)} / {len(stages)} done",
+                          ("not done: " + ", ".join(f"{k} ({stages[k].get('status')})"
+                                                    for k in bad)) if bad else
+                          "every stage ran or was up to date", "bad" if bad else "ok"))
     total = sum(v.get("seconds", 0.0) or 0.0 for v in (prov.get("stages") or {}).values())
     if total:
         cards.append(Card("run time", f"{total:.0f} s", "all stages (report excluded)"))

@@ -123,6 +123,7 @@ def fig_mean_signals(means):
     ax.fill_between(t, m - sd, m + sd, color=_color(s0), alpha=0.25, lw=0, label="±σ(t)")
     ax.plot(t, m, color=_color(s0), lw=1, label=f"mean {s0}")
     ax.set_title(f"(a) {s0} with σ(t)")
+    ax.set_xlim(0.9, t[-1])                       # the motion; σ(t) is visible here
     ax.legend()
     for ax, (axis, title) in zip([axes[0, 1], axes[1, 0], axes[1, 1]],
                                  [("x", "(b) x signals"), ("y", "(c) y signals"),

@@ -116,7 +116,7 @@ margin:1.2em 0}
 .card{background:#fff;border:1px solid var(--line);border-left:4px solid #0f4c81;
 border-radius:6px;padding:.65em .9em}
 .card .l{font-size:.78em;color:var(--muted);text-transform:uppercase;letter-spacing:.03em}
-.card .v{font-size:1.35em;font-weight:650;margin:.1em 0}.card .n{font-size:.8em;color:var(--muted)}
+.card .v{font-size:1.25em;font-weight:650;margin:.1em 0}.card .n{font-size:.8em;color:var(--muted)}
 .card.ok{border-left-color:#2f855a}.card.warn{border-left-color:#d69e2e}
 .card.bad{border-left-color:#c53030}
 section{background:#fff;border:1px solid var(--line);border-radius:8px;padding:.3em 1.3em 1em;

@@ -1,8 +1,8 @@
 """The exact modal solver against a general stiff integrator of the same linear equations
 (scipy solve_ivp, tight tolerances): to 1e-6 of each signal's peak amplitude.
 
-Radau (rtol 1e-9) for the paper set of each piezo; BDF (rtol 1e-10, faster here at equal
-accuracy) for the random sets and the measured trace, to keep the suite fast. Lags t0 and t1
+Radau at rtol 1e-10 (absolute tolerances 1e-12 of each group's scale, reference.py) for the
+paper set, random sets and a measured trace; BDF once as a second integrator. Lags t0 and t1
 are set off the 5 us sample grid so that the sub-sample handling is exercised.
 """
 
@@ -18,7 +18,7 @@ NAMES = OUTPUTS + COORDS + ("eta_dot", "mu4_dot")
 TOL = 1e-6
 
 
-def _compare(ps, piezo, trace=None, method="BDF", rtol=1e-10, times=None):
+def _compare(ps, piezo, trace=None, method="Radau", rtol=1e-10, times=None):
     times = record_times() if times is None else times
     ref = reference_linear(ps, times, piezo=piezo, voltage=trace, names=NAMES, method=method,
                            rtol=rtol)
@@ -34,7 +34,9 @@ def _compare(ps, piezo, trace=None, method="BDF", rtol=1e-10, times=None):
 @pytest.mark.parametrize("piezo", [1, 2])
 def test_paper_set_radau_subsample_lags(piezo):
     ps = paper().with_values(t0=3.3e-6, t1=6.7e-6)
-    _compare(ps, piezo, method="Radau", rtol=1e-9)
+    _compare(ps, piezo)
+    if piezo == 2:
+        _compare(ps, piezo, method="BDF")
 
 
 @pytest.mark.parametrize("piezo", [1, 2])

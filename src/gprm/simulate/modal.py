@@ -313,19 +313,15 @@ def solve(pb: dict, times: np.ndarray, H: np.ndarray, lagged: np.ndarray, *, pie
 
     dy = None
     if names:
-        dy = np.zeros((Bn, nobs, T, len(names)))
+        dyT = np.zeros((Bn, T, nobs, len(names)))                 # filled in (B, T, o, P)
+        dy = dyT.transpose(0, 2, 1, 3)                              # (B, o, T, P) view
         eom = [n for n in names if n not in _SPECIAL and n not in dH]
         unknown = [n for n in eom if n not in pb]
         if unknown:
             raise KeyError(f"no sensitivity for {unknown}")
         if eom:
-            de = _eom_sensitivities(pb, piezo, eom, ss, lam, V, W, HV, S, wS, betaS,
-                                    conv_res, groups)
-            idx = [names.index(e) for e in eom]
-            if idx == list(range(len(names))):
-                dy = de
-            else:
-                dy[..., idx] = de
+            _eom_sensitivities(pb, piezo, eom, ss, lam, V, W, HV, S, wS, betaS, conv_res,
+                               groups, dyT, np.array([names.index(e) for e in eom]))
         for k, name in enumerate(names):
             if name in ("t0", "t_c", "t1"):
                 if name == "t_c" and trace is not None:
@@ -371,8 +367,10 @@ def _sparse_product(R, sd):
     return out
 
 
-def _eom_sensitivities(pb, piezo, eom, ss, lam, V, W, HV, S, wS, betaS, conv_res, groups):
-    """dy/dp (B, n_obs, T, P) for parameters of the equations of motion (see ``solve``)."""
+def _eom_sensitivities(pb, piezo, eom, ss, lam, V, W, HV, S, wS, betaS, conv_res, groups,
+                       dyT, idx):
+    """dy/dp for parameters ``eom`` of the equations of motion (see ``solve``), written into
+    ``dyT[:, :, :, idx]`` (dyT: (B, T, n_obs, P_all))."""
     Bn, nobs = HV.shape[:2]
     P = len(eom)
     n = NSTATE
@@ -409,7 +407,8 @@ def _eom_sensitivities(pb, piezo, eom, ss, lam, V, W, HV, S, wS, betaS, conv_res
         Dc[:] = 1.0 / (lam[:, :, None] - lam[:, None, :S])
     Dc[:, np.arange(S), np.arange(S)] = 0.0
     HD = HV[:, None, :, :] * Dc.transpose(0, 2, 1)[:, :, None, :]  # (B, S, o, 17)
-    HVP = (HD @ Psi[:, None]) @ Xs                                 # (B, S, o, P)
+    Z = (HD.reshape(Bn, S * nobs, n) @ Psi).reshape(Bn, S, nobs, 9)
+    HVP = Z @ Xs                                                   # (B, S, o, P)
     # dy[o, t, p] = Re sum_i (L[i, o, p] I_i(t) + N[i, o, p] J_i(t)), i < S
     HVt = HV[:, :, :S].transpose(0, 2, 1)[..., None]               # (B, S, o, 1)
     w = wS[:, :, None, None]
@@ -417,11 +416,14 @@ def _eom_sensitivities(pb, piezo, eom, ss, lam, V, W, HV, S, wS, betaS, conv_res
     N = HVt * (dg * wS[:, :, None])[:, :, None, :]                 # (B, S, o, P)
     LN = np.concatenate([L.real, L.imag, N.real, N.imag], axis=1)  # (B, 4S, o, P)
     T = conv_res[False][0].shape[-1]
-    dyT = np.empty((Bn, T, nobs, P))                               # filled (B, T, o, P)
     for lag, rows in groups:
         I, J, _ = conv_res[lag]
         IJ = np.concatenate([I.real, -I.imag, J.real, -J.imag], axis=1).transpose(0, 2, 1)
         r = np.flatnonzero(rows)
         LNr = LN[:, :, r].reshape(Bn, 4 * S, r.size * P)
-        dyT[:, :, r] = (IJ @ LNr).reshape(Bn, T, r.size, P)
-    return dyT.transpose(0, 2, 1, 3)
+        val = (IJ @ LNr).reshape(Bn, T, r.size, P)
+        if np.array_equal(r, np.arange(r[0], r[-1] + 1)):
+            dyT[:, :, r[0]:r[-1] + 1, idx] = val
+        else:
+            for k, rr in enumerate(r):
+                dyT[:, :, rr, idx] = val[:, :, k]

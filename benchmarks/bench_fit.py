@@ -1,7 +1,8 @@
 """Benchmark of the identification stage (issue 4).
 
     .venv/bin/python benchmarks/bench_fit.py [--quick] [--nist] [--starts N] [--workers W]
-                                            [--chunk C] [--prune] [--full-baseline]
+                                            [--chunk C] [--no-prune] [--check-prune]
+                                            [--full-baseline]
 
 Default: the multi-start identification of a synthetic mean-signals set (tests/fit/
 means_factory.py: the linear model's five signals plus noise, 47 samples in the
@@ -151,7 +152,15 @@ def baseline(data, *, full: bool) -> dict:
             "chi2": float(np.sum(sp.fun ** 2)), "measured": False}
 
 
-def speed(n_starts: int, workers: int, chunk: int, prune: bool, full_baseline: bool) -> str:
+def _cpu() -> float:
+    """CPU seconds of this process plus its finished children (the Dask workers)."""
+    a = resource.getrusage(resource.RUSAGE_SELF)
+    b = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return a.ru_utime + a.ru_stime + b.ru_utime + b.ru_stime
+
+
+def speed(n_starts: int, workers: int, chunk: int, prune: bool, full_baseline: bool,
+          check_prune: bool = False) -> str:
     from means_factory import make_means
 
     from gprm.fit.multistart import MultiStartOptions
@@ -165,9 +174,18 @@ def speed(n_starts: int, workers: int, chunk: int, prune: bool, full_baseline: b
     data = fit_data_from_means(make_means(truth, seed=1), source="synthetic")
     opts = MultiStartOptions(n_starts=n_starts, seed=0, chunk_size=chunk,
                              prune_after=10 if prune else 0, prune_factor=100.0)
+    if check_prune:
+        other = MultiStartOptions(n_starts=n_starts, seed=0, chunk_size=chunk, prune_after=0)
+        t = time.perf_counter()
+        res0 = identify(data, p, other, workers=workers, band_samples=200)
+        t0 = time.perf_counter() - t
+    cpu0 = _cpu()
+    load0 = os.getloadavg()[0]
     t = time.perf_counter()
     res = identify(data, p, opts, workers=workers, band_samples=200)
     t_fit = time.perf_counter() - t
+    cpu_fit = _cpu() - cpu0
+    load1 = os.getloadavg()[0]
     rss_self = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
     rss_children = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss / 1024
     b = baseline(data, full=full_baseline)
@@ -177,7 +195,10 @@ def speed(n_starts: int, workers: int, chunk: int, prune: bool, full_baseline: b
         f"- gprm: {n_starts} starts, {workers} Dask worker(s) (0 = in process), chunks of "
         f"{chunk}, pruning {'on (after 10 iterations, factor 100)' if prune else 'off'}: "
         f"**{t_fit:.1f} s** wall (multi-start {res.timings['multistart']:.1f} s, covariance + "
-        f"bands {res.timings['uncertainty']:.1f} s; includes starting the Dask cluster)",
+        f"bands {res.timings['uncertainty']:.1f} s with {res.bands.n_samples} physical "
+        f"covariance samples; includes starting the Dask cluster); CPU time of this "
+        f"process and the workers {cpu_fit:.1f} s; load average (1 min) before/after "
+        f"{load0:.1f}/{load1:.1f} on {os.cpu_count()} cores",
         f"- best chi2 {res.chi2:.4f} (dof {res.dof}), starts within dchi2 <= 1 of the best: "
         f"{st.n_at_best()}, converged {int(st.converged.sum())}, median iterations "
         f"{np.median(st.iterations):.0f}",
@@ -187,6 +208,17 @@ def speed(n_starts: int, workers: int, chunk: int, prune: bool, full_baseline: b
             if not b["measured"] else f", measured {b['time']:.0f} s for one start")
         + f" (final chi2 {b['chi2']:.1f})",
         f"- ratio (baseline x {n_starts}) / gprm = **{ratio:.0f}**",
+    ]
+    if check_prune:
+        same = np.array_equal(res0.x, res.x)
+        i0, i1 = res0.starts.best_index, res.starts.best_index
+        lines.append(
+            f"- pruning check: without pruning {t0:.1f} s, best chi2 {res0.chi2:.6f} (start "
+            f"{i0}, {res0.starts.n_at_best()} within dchi2 <= 1); with pruning best chi2 "
+            f"{res.chi2:.6f} (start {i1}); best fit bit-identical: {same}; largest "
+            f"|difference| / stderr of the best-fit parameters "
+            f"{np.nanmax(np.abs(res0.x - res.x) / res.stderr):.2g}")
+    lines += [
         f"- peak memory (max RSS): this process {rss_self:.0f} MiB, largest child "
         f"(Dask worker) {rss_children:.0f} MiB",
     ]
@@ -200,7 +232,10 @@ def main(argv=None) -> None:
     ap.add_argument("--starts", type=int, default=None)
     ap.add_argument("--workers", type=int, default=2)
     ap.add_argument("--chunk", type=int, default=100)
-    ap.add_argument("--prune", action="store_true")
+    ap.add_argument("--no-prune", action="store_true", help="disable early stopping of far "
+                    "starts (on by default, as in gprm fit)")
+    ap.add_argument("--check-prune", action="store_true", help="also run without pruning "
+                    "and compare the best fits")
     ap.add_argument("--full-baseline", action="store_true")
     a = ap.parse_args(argv)
     cmd = "benchmarks/bench_fit.py " + " ".join(sys.argv[1:] if argv is None else argv)
@@ -213,7 +248,7 @@ def main(argv=None) -> None:
         return
     n = a.starts or (100 if a.quick else 1000)
     print("### Multi-start speed\n")
-    print(speed(n, a.workers, a.chunk, a.prune, a.full_baseline))
+    print(speed(n, a.workers, a.chunk, not a.no_prune, a.full_baseline, a.check_prune))
 
 
 if __name__ == "__main__":

@@ -35,7 +35,7 @@ def register(app: typer.Typer, synth_app: typer.Typer) -> None:
         chunk: int = typer.Option(100, "--chunk", help="starts per lock-step chunk (part of "
                                   "the result's definition, like the seed)"),
         max_iter: int = typer.Option(100, "--max-iter", help="LM iteration limit per start"),
-        prune_after: int = typer.Option(0, "--prune-after", help="stop starts whose chi2 is "
+        prune_after: int = typer.Option(10, "--prune-after", help="stop starts whose chi2 is "
                                         "over --prune-factor x the chunk's best after this "
                                         "many iterations (0: never; docs/fitting.md)"),
         prune_factor: float = typer.Option(100.0, "--prune-factor"),

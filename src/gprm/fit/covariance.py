@@ -56,15 +56,18 @@ def covariance(J: np.ndarray, r: np.ndarray, dof: int, *, rcond: float = 1e-12,
 
 def parameters_at_bounds(x: np.ndarray, lo: np.ndarray, hi: np.ndarray, *,
                          rtol: float = 1e-6) -> np.ndarray:
-    """Boolean mask of parameters within ``rtol`` (relative to the bound width, or to the
-    value where the box is unbounded) of a bound. Their standard errors are not reliable
-    (the minimum is constrained, not stationary)."""
+    """Boolean mask of parameters within ``rtol`` of a bound, for ``x`` in normalised (O(1))
+    coordinates: relative to the width of the box where it is finite, else to
+    max(1, |bound|). Their standard errors are not reliable (the minimum is constrained, not
+    stationary)."""
     x = np.asarray(x, float)
     lo = np.asarray(lo, float)
     hi = np.asarray(hi, float)
-    width = np.where(np.isfinite(hi - lo), hi - lo, np.maximum(np.abs(x), 1e-300))
-    tol = rtol * width
-    return (np.isfinite(lo) & (x - lo <= tol)) | (np.isfinite(hi) & (hi - x <= tol))
+    with np.errstate(invalid="ignore"):
+        width = hi - lo
+        tol_lo = rtol * np.where(np.isfinite(width), width, np.maximum(1.0, np.abs(lo)))
+        tol_hi = rtol * np.where(np.isfinite(width), width, np.maximum(1.0, np.abs(hi)))
+        return (np.isfinite(lo) & (x - lo <= tol_lo)) | (np.isfinite(hi) & (hi - x <= tol_hi))
 
 
 def sample_normal(x: np.ndarray, cov: np.ndarray, n: int, rng: np.random.Generator) -> np.ndarray:

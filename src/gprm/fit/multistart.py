@@ -62,8 +62,8 @@ class MultiStartOptions:
     sampling: str = "uniform"     # or "lhs" (Latin hypercube)
     chunk_size: int = 100
     lm: LMOptions = field(default_factory=LMOptions)
-    prune_after: int = 0          # 0: never prune (see make_prune_rule)
-    prune_factor: float = 10.0
+    prune_after: int = 10         # 0: never prune (see make_prune_rule)
+    prune_factor: float = 100.0
 
 
 @dataclass(frozen=True)
@@ -119,7 +119,7 @@ def draw_starts(center: np.ndarray, opts: MultiStartOptions) -> np.ndarray:
 
 
 def make_prune_rule(opts: MultiStartOptions):
-    """Early stop of starts that are clearly far from the best (off unless ``prune_after``).
+    """Early stop of starts that are clearly far from the best (``prune_after = 0``: off).
 
     From iteration ``prune_after`` on, a start still running whose chi-square exceeds
     ``prune_factor`` times the smallest chi-square reached in its chunk so far (running or

@@ -334,10 +334,8 @@ def identify(data: FitData, base: ParameterSet, opts: MultiStartOptions = MultiS
         cov = covariance(J, r[0], dof=obj.dof, names=obj.names)
     except CovarianceError as exc:
         msg = str(exc)
-    bounds = [base.bounds.get(n, (REGISTRY[n].lower, REGISTRY[n].upper)) for n in obj.names]
-    lo = np.array([b[0] for b in bounds])
-    hi = np.array([b[1] for b in bounds])
-    at_b = tuple(np.asarray(obj.names)[parameters_at_bounds(x, lo, hi)].tolist())
+    lo, hi = obj.bounds_normalised()
+    at_b = tuple(np.asarray(obj.names)[parameters_at_bounds(xn, lo, hi)].tolist())
     if at_b and cov is not None:
         msg = f"ok (parameters at a bound: {', '.join(at_b)}; their errors are not reliable)"
     params = base.with_values(**dict(zip(obj.names, map(float, x))))

@@ -57,6 +57,7 @@ def _params(tmp_path, body):
     ("k_Ax = -1.0e8", "k_Ax"),                             # negative stiffness
     ('C_a = "-0.5 uF"', "C_a"),                            # negative capacitance
     ('k_Ax = 0\nk_Bx = 0', "parameters"),                  # free lateral mode: singular K
+    ("c_Dy = -3.0", "c_Dy"),                               # negative damping (would be unstable)
     ('b1 = "0 mm"\nb2 = "0 mm"', "parameters"),            # no rotational stiffness about x
 ])
 def test_bad_parameter_file(tmp_path, body, field):

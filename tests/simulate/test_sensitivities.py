@@ -86,3 +86,14 @@ def test_failed_sets_are_masked_without_disturbing_the_others(random_sets):
         np.testing.assert_allclose(o.y[k], single.y[0], rtol=1e-12, atol=1e-24)
         np.testing.assert_allclose(o.dy[k], single.dy[0], rtol=1e-9,
                                    atol=1e-12 * np.abs(single.dy[0]).max())
+
+
+def test_unstable_and_singular_sets_are_flagged():
+    """Negative damping (rejected by parameter validation, so built here directly) gives an
+    unstable mode; zero rotational stiffness about x (b1 = b2 = 0) a free mode."""
+    base = batch([paper()])
+    unstable = dict(base, c_Cy=np.array([-50.0]), c_Dy=np.array([-50.0]))
+    free = dict(base, b1=np.array([0.0]), b2=np.array([0.0]))
+    o = observe({k: np.concatenate([unstable[k], free[k], base[k]]) for k in base}, TIMES)
+    assert o.ok.tolist() == [False, False, True]
+    assert "unstable" in o.reason[0] and "free" in o.reason[1]

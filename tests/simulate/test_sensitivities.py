@@ -97,3 +97,15 @@ def test_unstable_and_singular_sets_are_flagged():
     o = observe({k: np.concatenate([unstable[k], free[k], base[k]]) for k in base}, TIMES)
     assert o.ok.tolist() == [False, False, True]
     assert "unstable" in o.reason[0] and "free" in o.reason[1]
+
+
+def test_only_lagged_or_only_unlagged_rows():
+    ps = paper()
+    names = ("m2", "t0", "t1", "k_Az")
+    full = observe(batch([ps]), TIMES, ("x_head", "z_bk"), sensitivities=names)
+    for k, row in enumerate(("x_head", "z_bk")):
+        part = observe(batch([ps]), TIMES, (row,), sensitivities=names)
+        np.testing.assert_allclose(part.y[0, 0], full.y[0, k], rtol=1e-13,
+                                   atol=1e-14 * np.abs(full.y[0, k]).max())
+        np.testing.assert_allclose(part.dy[0, 0], full.dy[0, k], rtol=1e-12,
+                                   atol=1e-15 * np.abs(full.dy).max())

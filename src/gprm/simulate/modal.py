@@ -420,6 +420,8 @@ def _eom_sensitivities(pb, piezo, eom, ss, lam, V, W, HV, S, wS, betaS, conv_res
         I, J, _ = conv_res[lag]
         IJ = np.concatenate([I.real, -I.imag, J.real, -J.imag], axis=1).transpose(0, 2, 1)
         r = np.flatnonzero(rows)
+        if r.size == 0:
+            continue
         LNr = LN[:, :, r].reshape(Bn, 4 * S, r.size * P)
         val = (IJ @ LNr).reshape(Bn, T, r.size, P)
         if np.array_equal(r, np.arange(r[0], r[-1] + 1)):

@@ -149,6 +149,9 @@ def print_summary(console, res) -> None:
         tk = s["tukey"]
         k.add_row(f"Tukey test (α = {tk.get('alpha')})", f"{tk['verdict']}; "
                   f"{s.get('releases', '?')} releases")
+    for r in res.records:
+        for note in (r.info or {}).get("notes", []):
+            k.add_row(f"[yellow]note ({titles.get(r.name, r.name)})", note)
     if not s:
         k.add_row("no results", "no stage produced output (see the stage table)")
     console.print(k)

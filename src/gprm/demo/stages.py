@@ -151,13 +151,28 @@ def _impact(run: Path, opts: DemoOptions, step) -> dict:
 
     model = load_fit(run / "fit.json")
     tel = load_telemetry(run / "telemetry.nc")
-    doc, curves = analyze(model, tel, AnalysisOptions(n_samples=opts.predict_samples,
-                                                      seed=opts.seed))
+    aopts = AnalysisOptions(n_samples=opts.predict_samples, seed=opts.seed)
+    notes = []
+    try:
+        doc, curves = analyze(model, tel, aopts)
+    except np.linalg.LinAlgError as exc:
+        # parameter draws from a poorly determined covariance can be degenerate: keep the
+        # impact-geometry uncertainty, drop the model-parameter part of the bands
+        from dataclasses import replace
+
+        notes.append(f"velocity-curve bands without the fit covariance ({exc} in its "
+                     "draws); impact-time errors exclude the model-parameter uncertainty")
+        doc, curves = analyze(replace(model, covariance=np.zeros_like(model.covariance)),
+                              tel, aopts)
+        doc["notes"] = notes
     doc["curves"]["sidecar"] = "impact.nc"
     write_netcdf_atomic(curves_dataset(curves, doc), run / "impact.nc")
     write_json_atomic(run / "impact.json", doc)
     rej = [p for p in doc.get("tukey", {}).get("pairs", []) if p.get("reject")]
-    return {"tukey_rejected_pairs": len(rej)}
+    info = {"tukey_rejected_pairs": len(rej)}
+    if notes:
+        info["notes"] = notes
+    return info
 
 
 # ----------------------------------------------------------------------------- the chain

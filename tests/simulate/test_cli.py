@@ -99,3 +99,20 @@ def test_existing_output_survives_a_failed_run(tmp_path):
     p = _params(tmp_path, 'm2 = "3 mm"')
     res = _run(["simulate", "--params", p, "--out", out])
     assert res.exit_code != 0 and out.read_bytes() == b"old"
+
+
+def test_simulate_with_a_voltage_trace(tmp_path):
+    t = np.arange(0.9e-3, 1.2e-3, 2e-6)
+    v = 120 * np.exp(-np.clip(t - 1e-3, 0, None) / 8e-6)
+    p = _csv(tmp_path, list(zip(t, v)))
+    out = tmp_path / "sim.nc"
+    res = _run(["simulate", "--voltage", p, "--out", out, "--piezo", "2"])
+    assert res.exit_code == 0, res.stderr
+    with xr.open_dataset(out) as ds:
+        t0 = 4e-6                                            # paper set
+        expect = np.interp(ds["time"].values - t0, t, v)
+        np.testing.assert_allclose(ds["voltage"].values, expect, rtol=1e-12)
+        assert str(p) in ds.attrs["input"]
+        # the response starts when the trace starts to change (1.0 ms + t0)
+        moving = np.flatnonzero(np.abs(ds["mu4"].values) > 0)
+        assert abs(ds["time"].values[moving[0]] - (1.0e-3 + t0)) <= 5e-6

@@ -72,9 +72,15 @@ def descriptor(pb: dict, piezo: int):
 
 
 def state_space(pb: dict, piezo: int, desc=None) -> StateSpace:
+    """A_s = E^-1 A, b = E^-1 B. The first 8 rows of E are the identity, so only the 9 x 9
+    block of the equations (rows 8..16) is solved."""
     E, A, B = descriptor(pb, piezo) if desc is None else desc
-    As = np.linalg.solve(E, A)
-    b = np.linalg.solve(E, B[..., None])[..., 0]
+    rhs = np.concatenate([A[..., 8:, :], B[..., 8:, None]], axis=-1)
+    sol = np.linalg.solve(E[..., 8:, 8:], rhs)
+    As = A.copy()
+    As[..., 8:, :] = sol[..., :NSTATE]
+    b = B.copy()
+    b[..., 8:] = sol[..., NSTATE]
     return StateSpace(As, b, E)
 
 

@@ -28,7 +28,7 @@ def test_gprm_fit_writes_json_and_sidecar(means_file, tmp_path):
     out = tmp_path / "fit.json"
     r = CliRunner().invoke(app, ["fit", str(means_file), "--out", str(out), "--starts", "3",
                                  "--chunk", "3", "--max-iter", "8", "--band-samples", "0",
-                                 "--seed", "2"])
+                                 "--seed", "2", "--workers", "0"])
     assert r.exit_code == 0, r.output
     d = json.loads(out.read_text())
     assert d["starts"]["requested"] == 3 and d["seed"] == 2

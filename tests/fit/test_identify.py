@@ -206,6 +206,17 @@ def test_fit_files_follow_the_contract(case, tmp_path):
     np.testing.assert_allclose(fm.params.vector(fm.names), res.x, rtol=1e-12)
     np.testing.assert_allclose(fm.covariance, res.covariance, rtol=1e-9,
                                atol=1e-12 * np.max(np.abs(res.covariance)))
+    assert d["band_samples"] > 30
+    # a profile with a grid point that could not be evaluated still writes valid JSON
+    import dataclasses
+
+    from gprm.fit.result import Profile
+
+    prof = Profile("m2", np.array([1.0, 2.0, 3.0]), np.array([5.0, np.nan, 4.0]), np.nan, 2.5)
+    dataclasses.replace(res, profiles=(prof,)).write(tmp_path / "p.json")
+    pj = json.loads((tmp_path / "p.json").read_text())["profiles"][0]
+    assert pj["chi2"] == [5.0, None, 4.0] and pj["lower"] is None
+    assert pj["identifiable"] is False
     side = xr.open_dataset(out.with_suffix(".nc"))
     assert side.sizes["start"] == 6 and side.sizes["param"] == len(WELL_DETERMINED)
     assert {"x0", "x", "chi2", "iterations", "status", "model_best", "band_linear_std"} <= set(

@@ -28,8 +28,10 @@ def register(app: typer.Typer, synth_app: typer.Typer) -> None:
                                                    help="fit window start end, s"),
         sigma: str = typer.Option("sem", "--sigma", help="weights: sem (standard error of "
                                   "the mean) or std (the paper's across-run std)"),
-        workers: int = typer.Option(0, "--workers", help="local Dask worker processes "
-                                    "(0: run in this process)"),
+        workers: Optional[int] = typer.Option(None, "--workers", help="local Dask worker "
+                                              "processes (default: one per core; 0: run in "
+                                              "this process; the result does not depend "
+                                              "on it)"),
         scheduler: Optional[str] = typer.Option(None, "--scheduler",
                                                 help="address of an existing Dask scheduler"),
         chunk: int = typer.Option(100, "--chunk", help="starts per lock-step chunk (part of "
@@ -49,6 +51,7 @@ def register(app: typer.Typer, synth_app: typer.Typer) -> None:
                                            help="fit z_bk as z_lr + z_A"),
     ):
         """Multi-start Levenberg-Marquardt identification (Sec. 3.1)."""
+        import os
         import shutil
 
         from rich.console import Console
@@ -73,6 +76,8 @@ def register(app: typer.Typer, synth_app: typer.Typer) -> None:
                                  prune_after=prune_after, prune_factor=prune_factor)
         if chunk < 1:
             raise GprmInputError(f"must be at least 1, got {chunk}", field="--chunk")
+        if workers is None:
+            workers = 0 if scheduler else max(1, os.cpu_count() or 1)
         if workers < 0:
             raise GprmInputError(f"must be >= 0, got {workers}", field="--workers")
         ckpt = checkpoint if checkpoint is not None else Path(str(out) + ".ckpt")

@@ -133,7 +133,9 @@ def print_summary(console, res) -> None:
         k.add_row("reduced χ²", f"{_f(f['reduced_chi2'])} (weights: {f.get('sigma')})")
         k.add_row("starts at the best (Δχ² ≤ 1)", f"{f.get('n_at_best')} of {f.get('starts')}"
                   f" ({f.get('converged')} converged)")
-    if "truth_recovery" in s:
+    if "truth_recovery" in s and not s["truth_recovery"]["n"]:
+        k.add_row("truth recovery", "no standard errors (the fit has no covariance)")
+    elif "truth_recovery" in s:
         tr = s["truth_recovery"]
         k.add_row("truth recovery", f"{tr['within_1sigma']}/{tr['n']} parameters within 1σ, "
                   f"{tr['within_2sigma']}/{tr['n']} within 2σ, {tr['within_3sigma']}/{tr['n']}"
@@ -149,9 +151,12 @@ def print_summary(console, res) -> None:
         tk = s["tukey"]
         k.add_row(f"Tukey test (α = {tk.get('alpha')})", f"{tk['verdict']}; "
                   f"{s.get('releases', '?')} releases")
+    notes: dict[str, list[str]] = {}
     for r in res.records:
         for note in (r.info or {}).get("notes", []):
-            k.add_row(f"[yellow]note ({titles.get(r.name, r.name)})", note)
+            notes.setdefault(note, []).append(r.name)
+    for note, where in notes.items():
+        k.add_row(f"[yellow]note ({', '.join(where)})", note)
     if not s:
         k.add_row("no results", "no stage produced output (see the stage table)")
     console.print(k)

@@ -32,6 +32,33 @@ def _need(module: str, *attrs: str):
     return out[0] if len(out) == 1 else tuple(out)
 
 
+def load_model(run: Path) -> tuple:
+    """The fitted model of ``fit.json`` and notes. A fit without a covariance (singular
+    J'J: a direction the data do not determine) still gives its best-fit values: later stages
+    then run on them with a zero covariance (no parameter uncertainty), and say so."""
+    from gprm.errors import GprmInputError
+    from gprm.fit.files import FittedModel, load_fit
+
+    try:
+        return load_fit(run / "fit.json"), []
+    except GprmInputError as exc:
+        if exc.field != "correlation":
+            raise
+    from gprm._io import read_json
+    from gprm.params import ParameterSet, paper
+
+    doc = read_json(run / "fit.json", what="fit result")
+    values = dict(paper().values)
+    values.update({k: float(v["value"]) for k, v in doc["parameters"].items()})
+    names = tuple(k for k, v in doc["parameters"].items() if v.get("fitted"))
+    ps = ParameterSet(values, source=str(run / "fit.json")).with_fitted(names)
+    fm = FittedModel(ps, np.zeros((len(ps.fitted), len(ps.fitted))), piezo=int(doc["piezo"]),
+                     source=str(run / "fit.json"),
+                     z_bk_absolute=bool(doc.get("z_bk_absolute", False)))
+    return fm, ["the fit has no covariance (" + str(doc.get("covariance_message", "")) +
+                "): best-fit values without parameter uncertainty"]
+
+
 # ----------------------------------------------------------------------------- campaign
 
 def _campaign(run: Path, opts: DemoOptions, step) -> dict:
@@ -43,10 +70,11 @@ def _campaign(run: Path, opts: DemoOptions, step) -> dict:
 
 
 def _preprocess(run: Path, opts: DemoOptions, step) -> dict:
-    preprocess = _need("gprm.campaign.preprocess", "preprocess")
+    preprocess, PreprocessConfig = _need("gprm.campaign.preprocess", "preprocess",
+                                         "PreprocessConfig")
     load_campaign = _need("gprm.campaign.data", "load_campaign")
     camp = load_campaign(run / "campaign.nc")
-    means = preprocess(camp).to_dataset()
+    means = preprocess(camp, PreprocessConfig(align_time=opts.align_time)).to_dataset()
     write_netcdf_atomic(means, run / "means.nc")
     return {"signals": int(means.sizes.get("signal", 0)), "samples": int(means.sizes["time"])}
 
@@ -86,15 +114,13 @@ def _predict(run: Path, opts: DemoOptions, step) -> dict:
     Scenario, standard_scenarios = _need("gprm.predict.scenarios", "Scenario",
                                          "standard_scenarios")
     whatif = _need("gprm.predict.whatif", "whatif")
-    from gprm.fit.files import load_fit
-
-    fm = load_fit(run / "fit.json")
+    fm, notes = load_model(run)
     t = prediction_times(0.95e-3, 1.2e-3, 1e6)
     scen = {sc.name: sc for sc in standard_scenarios()}
     todo = [(Scenario("piezo2", PIEZO_GROUND), "predict.nc")] + [
         (scen[name], fname) for name, fname in WHATIF_FILES.items()]
     step(0, len(todo) + 1)
-    samples, notes = opts.predict_samples, []
+    samples = opts.predict_samples
     for k, (sc, fname) in enumerate(todo):
         try:
             pred = predict(fm, scenario=sc, times=t, samples=samples, seed=opts.seed,
@@ -126,17 +152,17 @@ def _predict(run: Path, opts: DemoOptions, step) -> dict:
 def _telemetry(run: Path, opts: DemoOptions, step) -> dict:
     SynthOptions, synth_telemetry = _need("gprm.flight.synth", "SynthOptions",
                                           "synth_telemetry")
-    from gprm.fit.files import load_fit
-
-    model = load_fit(run / "fit.json")
+    model, notes = load_model(run)
     info: dict = {"releases": opts.releases}
+    if notes:
+        info["notes"] = notes
     try:
         ds = synth_telemetry(model, SynthOptions(n_releases=opts.releases, seed=opts.seed))
     except np.linalg.LinAlgError as exc:
         # truths drawn from a poorly determined covariance can be degenerate: use the best
         # fit and the nominal geometry for every release instead
-        info["notes"] = [f"release truths from the best fit only ({exc} in the covariance "
-                         "draws)"]
+        info["notes"] = notes + [f"release truths from the best fit only ({exc} in the "
+                                 "covariance draws)"]
         ds = synth_telemetry(model, SynthOptions(n_releases=opts.releases, seed=opts.seed,
                                                  truth_spread=False))
     write_netcdf_atomic(ds, run / "telemetry.nc")
@@ -147,12 +173,9 @@ def _impact(run: Path, opts: DemoOptions, step) -> dict:
     AnalysisOptions, analyze, curves_dataset = _need("gprm.flight.analysis", "AnalysisOptions",
                                                      "analyze", "curves_dataset")
     load_telemetry = _need("gprm.flight.telemetry", "load_telemetry")
-    from gprm.fit.files import load_fit
-
-    model = load_fit(run / "fit.json")
+    model, notes = load_model(run)
     tel = load_telemetry(run / "telemetry.nc")
     aopts = AnalysisOptions(n_samples=opts.predict_samples, seed=opts.seed)
-    notes = []
     try:
         doc, curves = analyze(model, tel, aopts)
     except np.linalg.LinAlgError as exc:
@@ -164,6 +187,7 @@ def _impact(run: Path, opts: DemoOptions, step) -> dict:
                      "draws); impact-time errors exclude the model-parameter uncertainty")
         doc, curves = analyze(replace(model, covariance=np.zeros_like(model.covariance)),
                               tel, aopts)
+    if notes:
         doc["notes"] = notes
     doc["curves"]["sidecar"] = "impact.nc"
     write_netcdf_atomic(curves_dataset(curves, doc), run / "impact.nc")
@@ -181,7 +205,7 @@ STAGES: tuple[Stage, ...] = (
     Stage("campaign", "campaign (synthetic)", (), ("campaign.nc",),
           lambda o: {"seed": o.seed}, _campaign),
     Stage("preprocess", "preprocess", ("campaign.nc",),
-          ("means.nc",), lambda o: {}, _preprocess),
+          ("means.nc",), lambda o: {"align_time": o.align_time}, _preprocess),
     Stage("fit", "fit (multi-start LM)", ("means.nc",), ("fit.json", "fit.nc"),
           lambda o: {"starts": o.starts, "seed": o.seed, "band_samples": o.band_samples},
           _fit),

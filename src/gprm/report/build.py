@@ -394,7 +394,7 @@ def summary_cards(run: Path, fit: dict | None) -> list[Card]:
         m2 = fit["parameters"]["m2"]
         cards.append(Card("plunger mass m₂", pm(m2["value"], m2.get("stderr"), 1e3) + " g",
                           "nominal 12.3 g, paper 12.4 ± 0.9 g"))
-    if "truth_recovery" in s:
+    if "truth_recovery" in s and s["truth_recovery"]["n"]:
         tr = s["truth_recovery"]
         tone = "ok" if tr["within_3sigma"] == tr["n"] else "warn"
         cards.append(Card("truth recovered", f"{tr['within_2sigma']} / {tr['n']} within 2σ",

@@ -29,9 +29,12 @@ Algorithm 1 as implemented (for every row of the batch independently):
 
 Bounds (projected Levenberg-Marquardt): the trial point ``x + dx`` is projected onto the box
 ``lower < x < upper`` (clipped to 1e-9 max(1, |bound|) inside it) before it is evaluated, and
-then accepted or rejected by the rule above. A parameter pushed against a bound therefore
-stays just inside it while the others keep moving; merely rejecting steps that leave the box
-stalls the whole start there instead. No transform is used, so the Jacobian, the covariance
+then accepted or rejected by the rule above. A parameter already at a bound (within the
+margin) whose step points out of the box is frozen for that step, and the step of the other
+parameters is recomputed without it (its Jacobian column zeroed), so they move as if the
+bound were an equality. A parameter pushed against a bound therefore stays just inside it
+while the others keep moving; merely rejecting steps that leave the box stalls the whole
+start there instead. No transform is used, so the Jacobian, the covariance
 (Eq. 7) and the iteration path are those of the untransformed problem; the caller reports
 parameters that end at a bound (their Eq. 7 errors are not meaningful).
 
@@ -171,6 +174,8 @@ def levenberg_marquardt_batch(fun: Callable, X0: np.ndarray, *, residuals: Calla
     with np.errstate(invalid="ignore"):
         lo_in = np.where(np.isfinite(lo), lo + BOUND_MARGIN * np.maximum(1.0, np.abs(lo)), lo)
         hi_in = np.where(np.isfinite(hi), hi - BOUND_MARGIN * np.maximum(1.0, np.abs(hi)), hi)
+        near_lo = np.where(np.isfinite(lo), BOUND_MARGIN * np.maximum(1.0, np.abs(lo)), 0.0)
+        near_hi = np.where(np.isfinite(hi), BOUND_MARGIN * np.maximum(1.0, np.abs(hi)), 0.0)
     r, J = fun(X)
     r = np.asarray(r, float)
     J = np.array(J, dtype=float)
@@ -211,8 +216,18 @@ def levenberg_marquardt_batch(fun: Callable, X0: np.ndarray, *, residuals: Calla
             stale[st] = False
             if dmax is not None:
                 dmax[st] = np.maximum(dmax[st], np.einsum("bnp,bnp->bp", JJ, JJ))
-        dx = damped_steps(J[idx], r[idx], lam[idx], None if dmax is None else dmax[idx])
-        Xt = np.clip(X[idx] + dx, lo_in, hi_in)            # projection onto the box
+        dfl = None if dmax is None else dmax[idx]
+        dx = damped_steps(J[idx], r[idx], lam[idx], dfl)
+        # parameters held at a bound by a step pointing out of the box are frozen and the
+        # step of the others recomputed without them (active set)
+        Xa = X[idx]
+        blocked = (((Xa - lo_in <= near_lo) & (dx < 0)) | ((hi_in - Xa <= near_hi) & (dx > 0)))
+        rows = np.nonzero(np.any(blocked, axis=1))[0]
+        if rows.size:
+            Jb = J[idx[rows]] * ~blocked[rows][:, None, :]
+            dx[rows] = damped_steps(Jb, r[idx[rows]], lam[idx[rows]],
+                                    None if dfl is None else dfl[rows])
+        Xt = np.clip(Xa + dx, lo_in, hi_in)                  # projection onto the box
         inside = np.all(np.isfinite(Xt) & (Xt > lo) & (Xt < hi), axis=1)
         chi_t = np.full(idx.size, np.inf)
         ev = np.nonzero(inside)[0]

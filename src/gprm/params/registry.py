@@ -26,8 +26,9 @@ class ParamSpec:
     unit: the unit the paper quotes and the tool shows (a pint unit string).
     description: what the parameter is.
     group: ``fitted`` (Table 3), ``constant`` (Table 2), ``geometry`` (values the paper does
-        not give; MODEL.md defaults), ``input`` (voltage profile) or ``flight`` (test mass and
-        impact geometry).
+        not give; MODEL.md defaults), ``alignment`` (per-signal time offsets of the aligned
+        mean signals; default 0, not fitted by default), ``input`` (voltage profile) or
+        ``flight`` (test mass and impact geometry).
     default: the ``paper`` value, SI.
     initial: the paper's initial value (centre of the random starts), SI, fitted ones only.
     paper_stderr: the Table 3 uncertainty, SI, fitted ones only.
@@ -63,7 +64,10 @@ def _s(name, unit, scale, desc, group, default, initial=None, stderr=None, nomin
 
 # Table 3 (best fit = default, initial value, uncertainty), Table 2 constants,
 # MODEL.md assumed geometry. Bounds: physical sign constraints only (masses, stiffnesses,
-# dampings, distances, lags and electrical constants are non-negative; angles within ±0.5 rad).
+# dampings, distances and electrical constants are non-negative; angles within ±0.5 rad).
+# The lags t0, t1 and the alignment offsets are signed offsets in the aligned time base of the
+# mean signals (preprocessing puts each signal's own 2-sigma crossing at 1 ms), so they may be
+# negative: t0, t1 within ±1 ms, the alignment offsets within ±50 us.
 _SPECS = (
     # --- fitted (Table 3) ---
     _s("v2", "mm", 1e-3, "plunger CoM x coordinate in the plunger frame", "fitted",
@@ -101,10 +105,19 @@ _SPECS = (
     _s("b1", "mm", 1e-3, "distance of k_Cy, c_Cy from A", "fitted", 42.0, 39.0, 4.0, lower=0.0),
     _s("b2", "mm", 1e-3, "distance of k_Dy, c_Dy from k_Cy, c_Cy", "fitted", 4.0, 4.0, 6.0,
        lower=0.0),
-    _s("t0", "s", 1.0, "lag of the dynamic response behind the command", "fitted",
-       4e-6, 5e-6, 3e-6, lower=0.0),
-    _s("t1", "s", 1.0, "lag of the plunger back behind the tip (z_bk)", "fitted",
-       5e-6, 4e-6, 3e-6, lower=0.0),
+    _s("t0", "s", 1.0, "lag of the response behind the command (in the aligned time base of "
+       "the mean signals; may be negative)", "fitted", 4e-6, 5e-6, 3e-6,
+       lower=-1e-3, upper=1e-3),
+    _s("t1", "s", 1.0, "extra lag of the plunger back (z_bk) behind the other signals (in the "
+       "aligned time base of the mean signals; may be negative)", "fitted", 5e-6, 4e-6, 3e-6,
+       lower=-1e-3, upper=1e-3),
+    # --- per-signal alignment offsets (not in the paper; docs/model.md) ---
+    _s("dt_x_head", "us", 1e-6, "alignment offset of x_head: extra lag behind x_base (the "
+       "reference) in the aligned time base", "alignment", 0.0, lower=-50.0, upper=50.0),
+    _s("dt_y_base", "us", 1e-6, "alignment offset of y_base: extra lag behind x_base (the "
+       "reference) in the aligned time base", "alignment", 0.0, lower=-50.0, upper=50.0),
+    _s("dt_y_head", "us", 1e-6, "alignment offset of y_head: extra lag behind x_base (the "
+       "reference) in the aligned time base", "alignment", 0.0, lower=-50.0, upper=50.0),
     # --- constants (Table 2) ---
     _s("h3", "m", 1.0, "distance of the spacer from A", "constant", 0.0421, lower=0.0),
     _s("h4", "m", 1.0, "distance of the tip from the spacer", "constant", 0.0192, lower=0.0),
@@ -145,6 +158,10 @@ REGISTRY: MappingProxyType = MappingProxyType({s.name: s for s in _SPECS})
 
 FITTED_DEFAULT: tuple[str, ...] = tuple(s.name for s in _SPECS if s.group == "fitted")
 """The 23 parameters of Table 3, fitted by default."""
+
+ALIGNMENT_OFFSETS: dict[str, str] = {"x_head": "dt_x_head", "y_base": "dt_y_base",
+                                     "y_head": "dt_y_head"}
+"""Measured point -> its alignment offset (x_base is the reference; z_bk has t1)."""
 
 # Quantities that must be strictly positive for the model to make sense (an input error if not).
 STRICTLY_POSITIVE = frozenset({"m1", "m2", "m3", "m4", "J2", "C_a", "R", "tau_v", "m_tm", "s_tm",

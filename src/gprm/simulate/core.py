@@ -14,6 +14,7 @@ import numpy as np
 from gprm.errors import GprmInputError
 from gprm.model.linear import NSTATE, STATE_NAMES
 from gprm.params import ParameterSet, batch
+from gprm.params.registry import ALIGNMENT_OFFSETS
 from gprm.simulate import modal
 from gprm.simulate.inputs import VoltageTrace, default_voltage
 
@@ -33,16 +34,27 @@ _OUTPUT_DEF = {
 }
 
 
+# Extra lag of a measured point behind the common lag t0, as a sum of parameters: z_bk lags
+# by t1 (Eq. 3); x_head, y_base, y_head by their alignment offsets (docs/model.md, "Per-signal
+# alignment offsets"); x_base is the reference. Coordinates and rates have no extra lag.
+ROW_LAGS: dict[str, tuple[str, ...]] = {
+    "z_bk": ("t1",),
+    **{point: (offset,) for point, offset in ALIGNMENT_OFFSETS.items()},
+}
+
+
 def observation_rows(pb: Mapping[str, np.ndarray], names: Sequence[str], *,
                      z_bk_absolute: bool = False):
-    """Rows H (B, n_obs, 17) over the state, the lag mask and dH/dp for output-map params.
+    """Rows H (B, n_obs, 17) over the state, each row's lag and dH/dp for output-map params.
 
     Names: any state (``z_lr``, ..., ``mu4``, ``q``), state rate (``eta_dot``, ...), or output
     (Eq. 3). ``z_bk`` is z_A(t - t1), or (z_lr + z_A)(t - t1) with ``z_bk_absolute``.
+    Returns ``(H, lags, dH)``: ``lags[r]`` is a tuple of parameter names whose sum is row r's
+    extra lag behind t0 (``ROW_LAGS``; empty for no extra lag).
     """
     Bn = pb["t0"].shape[0]
     H = np.zeros((Bn, len(names), NSTATE))
-    lagged = np.zeros(len(names), bool)
+    lags = tuple(ROW_LAGS.get(name, ()) for name in names)
     dH: dict[str, np.ndarray] = {}
     for r, name in enumerate(names):
         if name in _IDX:
@@ -51,7 +63,6 @@ def observation_rows(pb: Mapping[str, np.ndarray], names: Sequence[str], *,
             H[:, r, _IDX["z_A"]] = 1.0
             if z_bk_absolute:
                 H[:, r, _IDX["z_lr"]] = 1.0
-            lagged[r] = True
         elif name in _OUTPUT_DEF:
             for state, coef in _OUTPUT_DEF[name]:
                 if coef is None:
@@ -63,7 +74,7 @@ def observation_rows(pb: Mapping[str, np.ndarray], names: Sequence[str], *,
                     dH.setdefault(pname, np.zeros_like(H))[:, r, _IDX[state]] = sign
         else:
             raise GprmInputError(f"unknown observable {name!r}", field="observable")
-    return H, lagged, dH
+    return H, lags, dH
 
 
 @dataclass(frozen=True)
@@ -86,12 +97,17 @@ def observe(pb: Mapping[str, np.ndarray], times, names: Sequence[str] = OUTPUTS,
 
     Sets that cannot be simulated (unstable, singular, degenerate eigenvalues) are returned
     as NaN with ``ok[b] = False`` and a ``reason``; nothing is raised for them.
+
+    Every row is evaluated at its own lag: t0 for all (through the input), plus t1 for
+    ``z_bk`` and the alignment offsets ``dt_x_head``, ``dt_y_base``, ``dt_y_head`` for those
+    points (``ROW_LAGS``; a missing offset in ``pb`` counts as 0). Sensitivities may name any
+    of them.
     """
     pb = {k: np.atleast_1d(np.asarray(v, float)) for k, v in pb.items()}
     times = np.asarray(times, float)
-    H, lagged, dH = observation_rows(pb, names, z_bk_absolute=z_bk_absolute)
+    H, lags, dH = observation_rows(pb, names, z_bk_absolute=z_bk_absolute)
     pb, singular, desc = _guard_singular(pb, piezo)
-    sol = modal.solve(pb, times, H, lagged, piezo=piezo, trace=voltage,
+    sol = modal.solve(pb, times, H, lags, piezo=piezo, trace=voltage,
                       sens=tuple(sensitivities), dH=dH, desc=desc)
     ok, reason = sol.ok.copy(), sol.reason.copy()
     y, dy = sol.y, sol.dy

@@ -15,7 +15,9 @@ exponential in the eigenbasis gives
     dz/dp = V h,  h_i = sum_{j != i} G_ij beta_j (I_i - I_j)/(lambda_i - lambda_j)
                        + G_ii beta_i J_i + (V^-1 db)_i I_i,
 
-where J_i = dI_i/dlambda_i. The lags enter through tau: dz/dt0 = -z'(t). The formulas need
+where J_i = dI_i/dlambda_i. The lags enter through tau: dz/dt0 = -z'(t); an output row with
+an extra lag (t1 for z_bk, an alignment offset for x_head, y_base, y_head) is evaluated at
+tau minus that lag, and its derivative with respect to that lag is minus its rate. The formulas need
 distinct eigenvalues; sets whose eigenvalues nearly coincide (relative gap below
 ``GAP_TOL``) or whose eigenvectors are ill-conditioned are flagged, not silently returned.
 """
@@ -227,6 +229,47 @@ def _health(lam, V, W):
 # rows of the state holding the 9 coordinates (8 positions and q); velocity rows 8..15
 _COORD_ROWS = np.r_[0:8, 16]
 _SPECIAL = ("t0", "t1", "V0", "t_c")
+LAG_PARAMS = ("t1", "dt_x_head", "dt_y_base", "dt_y_head")
+"""Parameters that only shift output rows in time (never in the equations of motion)."""
+
+
+def _row_lags(lags, nobs: int) -> tuple[tuple[str, ...], ...]:
+    """Per-row lag names; a boolean mask (the older form: True = lagged by t1) is accepted."""
+    if isinstance(lags, np.ndarray) and lags.dtype == bool:
+        return tuple(("t1",) if f else () for f in lags)
+    lags = tuple(tuple(x) for x in lags)
+    if len(lags) != nobs:
+        raise ValueError(f"{len(lags)} row lags for {nobs} rows")
+    return lags
+
+
+def lag_groups(pb: dict, lags, Bn: int) -> list[tuple[np.ndarray, np.ndarray]]:
+    """Rows with equal extra lag (B,) in every set share one group: ``[(lag, rows mask)]``.
+
+    ``lags[r]`` names the parameters whose sum is row r's lag (missing from ``pb``: 0). Rows
+    whose lags are equal for the whole batch (e.g. every alignment offset 0) are merged, so
+    the convolutions are computed once per distinct lag, not once per row.
+    """
+    groups: list[tuple[np.ndarray, np.ndarray]] = []
+    cache: dict[tuple[str, ...], np.ndarray] = {}
+    for r, names in enumerate(lags):
+        key = tuple(sorted(names))
+        if key not in cache:
+            v = np.zeros(Bn)
+            for n in key:
+                if n in pb:
+                    v = v + np.broadcast_to(np.asarray(pb[n], float), (Bn,))
+            cache[key] = v
+        lag = cache[key]
+        for glag, rows in groups:
+            if np.array_equal(glag, lag):
+                rows[r] = True
+                break
+        else:
+            rows = np.zeros(len(lags), bool)
+            rows[r] = True
+            groups.append((lag, rows))
+    return groups
 
 
 def _real_matmul(a, b):
@@ -234,15 +277,18 @@ def _real_matmul(a, b):
     return a.real @ b.real - a.imag @ b.imag
 
 
-def solve(pb: dict, times: np.ndarray, H: np.ndarray, lagged: np.ndarray, *, piezo: int,
+def solve(pb: dict, times: np.ndarray, H: np.ndarray, lags, *, piezo: int,
           trace=None, sens: tuple[str, ...] = (), dH: dict | None = None,
           desc=None) -> ModalSolution:
     """Evaluate observables ``y = H z`` at record ``times`` for a batch ``pb``.
 
-    H: (B, n_obs, 17) rows over the state; lagged: (n_obs,) bool, rows evaluated at t - t1.
+    H: (B, n_obs, 17) rows over the state. lags: per row, a tuple of parameter names whose
+    sum is the row's extra lag (row r is evaluated at t - lag_r, on top of t0, which acts
+    on the input); ``()`` for none. A boolean mask (True: lagged by t1) is accepted too.
     trace: a VoltageTrace or None (default profile from V0, t_c, tau_v in ``pb``).
-    sens: parameter names for sensitivities: any EOM parameter, t0, t1, V0 (default profile),
-    and names in ``dH`` (output-map parameters: name -> (B, n_obs, 17) dH/dp).
+    sens: parameter names for sensitivities: any EOM parameter, t0, any lag parameter
+    (``LAG_PARAMS``; zero for rows it does not lag), V0 (default profile), and names in
+    ``dH`` (output-map parameters: name -> (B, n_obs, 17) dH/dp).
 
     Sensitivities of an EOM parameter p (module docstring) need, per kept mode i,
     c_i = sum_j G_ij beta_j / (lambda_i - lambda_j) + (V^-1 db)_i and G_ii, and per output
@@ -259,6 +305,7 @@ def solve(pb: dict, times: np.ndarray, H: np.ndarray, lagged: np.ndarray, *, pie
     nobs = H.shape[1]
     dH = dH or {}
     names = tuple(sens)
+    lags = _row_lags(lags, nobs)
     ss = state_space(pb, piezo, desc)
     with np.errstate(all="ignore"):
         lam, V = np.linalg.eig(ss.A)
@@ -294,53 +341,70 @@ def solve(pb: dict, times: np.ndarray, H: np.ndarray, lagged: np.ndarray, *, pie
     t0 = pb["t0"]
     ts = pb["t_c"] + t0 if trace is None else t0
     tau = times[None, :] - ts[:, None]
-    groups = [(False, ~lagged)] + ([(True, lagged)] if lagged.any() else [])
-
-    # both lags in one evaluation: tau for the unlagged rows, tau - t1 for the lagged ones
-    tv = np.concatenate([tau] + ([tau - pb["t1"][:, None]] if len(groups) > 1 else []), axis=1)
+    # one group per distinct row lag; all groups' times in one evaluation of the convolutions
+    grouped = lag_groups(pb, lags, Bn) if nobs else [(np.zeros(Bn), np.zeros(0, bool))]
+    groups = [rows for _, rows in grouped]
+    tv = np.concatenate([tau - g[:, None] if g.any() else tau for g, _ in grouped], axis=1)
     if trace is None:
         I, J, u = conv_default(lamS, tv, pb["V0"], pb["tau_v"], need_J=bool(names))
     else:
         kt, ku = trace.knots(0.0)
         I, J, u = conv_trace(lamS, tv, kt, ku)
-    conv_res = {}
-    for k, (lag, _) in enumerate(groups):
+    conv_res = []
+    for k in range(len(groups)):
         sl = slice(k * T, (k + 1) * T)
-        conv_res[lag] = (I[..., sl], None if J is None else J[..., sl], u[:, sl])
+        conv_res.append((I[..., sl], None if J is None else J[..., sl], u[:, sl]))
     y = np.empty((Bn, nobs, T))
-    for lag, rows in groups:
-        y[:, rows] = _real_matmul(HVw[:, rows], conv_res[lag][0])
+    for k, rows in enumerate(groups):
+        y[:, rows] = _real_matmul(HVw[:, rows], conv_res[k][0])
 
     dy = None
     if names:
         dyT = np.zeros((Bn, T, nobs, len(names)))                 # filled in (B, T, o, P)
         dy = dyT.transpose(0, 2, 1, 3)                              # (B, o, T, P) view
-        eom = [n for n in names if n not in _SPECIAL and n not in dH]
+        lag_names = set(LAG_PARAMS).union(*map(set, lags))
+        eom = [n for n in names if n not in _SPECIAL and n not in lag_names and n not in dH]
         unknown = [n for n in eom if n not in pb]
         if unknown:
             raise KeyError(f"no sensitivity for {unknown}")
         if eom:
             _eom_sensitivities(pb, piezo, eom, ss, lam, V, W, HV, S, wS, betaS, conv_res,
                                groups, dyT, np.array([names.index(e) for e in eom]))
-        for k, name in enumerate(names):
-            if name in ("t0", "t_c", "t1"):
+        rates: dict[int, np.ndarray] = {}
+
+        def rate(k):
+            """Re of H z'(t - lag) for group k's rows (B, n_rows, T), computed once."""
+            if k not in rates:
+                I, J, u = conv_res[k]
+                rows = groups[k]
+                rates[k] = _real_matmul(HVw[:, rows], lamS[:, :, None] * I + u[:, None, :])
+            return rates[k]
+
+        for j, name in enumerate(names):
+            if name in ("t0", "t_c"):
                 if name == "t_c" and trace is not None:
                     continue  # t_c does not act on a measured trace
-                for lag, rows in groups:
-                    if name == "t1" and not lag:
-                        continue
-                    I, J, u = conv_res[lag]
-                    rate = lamS[:, :, None] * I + u[:, None, :]
-                    dy[..., k][:, rows] = -_real_matmul(HVw[:, rows], rate)
+                for k, rows in enumerate(groups):
+                    dy[..., j][:, rows] = -rate(k)
+            elif name in lag_names:
+                # d/d(lag) of y(t - lag) = -y'(t - lag), on the rows this lag acts on
+                acts = np.array([name in lg for lg in lags], bool)
+                for k, rows in enumerate(groups):
+                    sub = acts[rows]
+                    if sub.any():
+                        dy[..., j][:, rows & acts] = -rate(k)[:, sub]
             elif name == "V0":
                 if trace is not None:
                     raise KeyError("V0 sensitivity is defined for the default profile only")
-                dy[..., k] = y / pb["V0"][:, None, None]
+                dy[..., j] = y / pb["V0"][:, None, None]
             elif name in dH:
                 VS = V[:, :, :S] * (wS * betaS)[:, None, :]
-                for lag, rows in groups:
-                    z = _real_matmul(VS, conv_res[lag][0])          # (B, 17, T)
-                    dy[..., k][:, rows] = dH[name][:, rows] @ z
+                acts = np.any(dH[name] != 0, axis=(0, 2))
+                for k, rows in enumerate(groups):
+                    if not (rows & acts).any():
+                        continue
+                    z = _real_matmul(VS, conv_res[k][0])            # (B, 17, T)
+                    dy[..., j][:, rows] = dH[name][:, rows] @ z
     if not ok.all():
         y[~ok] = np.nan
         if dy is not None:
@@ -415,9 +479,9 @@ def _eom_sensitivities(pb, piezo, eom, ss, lam, V, W, HV, S, wS, betaS, conv_res
     L = (HVt * c[:, :, None, :] - betaS[:, :, None, None] * HVP) * w
     N = HVt * (dg * wS[:, :, None])[:, :, None, :]                 # (B, S, o, P)
     LN = np.concatenate([L.real, L.imag, N.real, N.imag], axis=1)  # (B, 4S, o, P)
-    T = conv_res[False][0].shape[-1]
-    for lag, rows in groups:
-        I, J, _ = conv_res[lag]
+    T = conv_res[0][0].shape[-1]
+    for k, rows in enumerate(groups):
+        I, J, _ = conv_res[k]
         IJ = np.concatenate([I.real, -I.imag, J.real, -J.imag], axis=1).transpose(0, 2, 1)
         r = np.flatnonzero(rows)
         if r.size == 0:

@@ -15,7 +15,7 @@ from scipy.optimize import fsolve
 from gprm.errors import GprmInputError
 from gprm.model.linear import generated
 from gprm.params import ParameterSet
-from gprm.simulate.core import COORDS, OUTPUTS, RATES, SimulationResult
+from gprm.simulate.core import COORDS, OUTPUTS, RATES, ROW_LAGS, SimulationResult
 from gprm.simulate.inputs import VoltageTrace, default_voltage
 
 
@@ -90,8 +90,9 @@ def simulate_nonlinear(params: ParameterSet, *, piezo: int = 2, time=None,
         acc = np.linalg.solve(M[:8, :8], Q[:8] * V - f[:8])
         return np.concatenate([xd[:8], [qd], acc])
 
-    t1 = p["t1"]
-    eval_t = np.unique(np.concatenate([times, times - t1]))
+    # each measured point's extra lag: t1 for z_bk, the alignment offsets (ROW_LAGS)
+    lag = {k: sum(p[n] for n in ROW_LAGS.get(k, ())) for k in OUTPUTS}
+    eval_t = np.unique(np.concatenate([times] + [times - d for d in set(lag.values())]))
     s0 = np.concatenate([x_eq, np.zeros(8)])
     later = eval_t[eval_t > ts]
     states = {tt: s0 for tt in eval_t[eval_t <= ts]}
@@ -103,14 +104,16 @@ def simulate_nonlinear(params: ParameterSet, *, piezo: int = 2, time=None,
                                  field="parameters")
         states.update({tt: sv for tt, sv in zip(sol.t, sol.y.T)})
     S = np.array([states[tt] for tt in times])                    # (T, 17)
-    S_lag = np.array([states[tt] for tt in times - t1])
     dev = S - s0
     coords = {c: dev[:, i][None] for i, c in enumerate(COORDS)}
     # rates: s[9:] are mechanical rates; q' from the ODE is not stored (not needed)
     rates = {r: S[:, 9 + i][None] for i, r in enumerate(RATES)}
-    pts = _point_outputs(S.T, p)
     pts0 = _point_outputs(s0, p)
-    outputs = {k: (pts[k] - pts0[k])[None] for k in pts}
+    outputs = {}
+    for k in pts0:
+        S_k = np.array([states[tt] for tt in times - lag[k]])
+        outputs[k] = (_point_outputs(S_k.T, p)[k] - pts0[k])[None]
+    S_lag = np.array([states[tt] for tt in times - lag["z_bk"]])
     zb = S_lag[:, 1] - s0[1]
     if z_bk_absolute:
         zb = zb + S_lag[:, 0] - s0[0]

@@ -41,6 +41,9 @@ def reference_linear(params: ParameterSet, times, *, piezo: int = 2,
                      z_bk_absolute: bool = False, method: str = "Radau") -> np.ndarray:
     """Observables (n_obs, T) by solve_ivp on z' = A z + b u, one parameter set.
 
+    Each row is read from the integrated states at its own time t - lag (t1 for z_bk, the
+    alignment offsets for x_head, y_base, y_head), independently of the modal solver.
+
     The state is exactly zero (rest in static equilibrium at V(0)) until the input starts to
     change; from there the integration restarts at every kink of the input, so the integrator
     never steps across a discontinuity of u'. Tolerances: ``rtol`` and absolute tolerances
@@ -51,10 +54,11 @@ def reference_linear(params: ParameterSet, times, *, piezo: int = 2,
     A, b = ss.A[0], ss.b[0]
     u, breaks = _input_change(p, voltage)
     times = np.asarray(times, float)
-    H, lagged, _ = observation_rows(p, names, z_bk_absolute=z_bk_absolute)
+    H, lags, _ = observation_rows(p, names, z_bk_absolute=z_bk_absolute)
     H = H[0]
-    t1 = float(p["t1"][0])
-    eval_t = np.unique(np.concatenate([times, times - t1]))
+    # each row's extra lag (t1 for z_bk, the alignment offsets; the sum of its parameters)
+    row_lag = np.array([sum(float(p[n][0]) for n in lg if n in p) for lg in lags])
+    eval_t = np.unique(np.concatenate([times] + [times - d for d in np.unique(row_lag)]))
     # absolute tolerances per group of state components (positions and angles, their rates,
     # the charge): atol_scale times the group's largest static response to the largest input
     # change (rates: |A| applied to it). Per group, not per component, because internal piezo
@@ -91,8 +95,6 @@ def reference_linear(params: ParameterSet, times, *, piezo: int = 2,
         states.update(zip(sol.t, sol.y.T))
         z = sol.y[:, -1]
     y = np.zeros((len(names), times.size))
-    for k, tt in enumerate(times):
-        y[~lagged, k] = H[~lagged] @ states[tt]
-        if lagged.any():
-            y[lagged, k] = H[lagged] @ states[tt - t1]
+    for r in range(len(names)):
+        y[r] = [H[r] @ states[tt - row_lag[r]] for tt in times]
     return y

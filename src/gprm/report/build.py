@@ -68,7 +68,7 @@ def _table1(means) -> list:
     rows = []
     for key, paper_v in _PAPER_T1.items():
         a, b = key.split("/")
-        v = stored.get(key, stored.get(f"{a}/{b}"))
+        v = stored.get(key, stored.get(f"max({a})/max({b})"))
         if isinstance(v, dict):
             v = v.get("value")
         if v is None and a in sig and b in sig:

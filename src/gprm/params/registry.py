@@ -108,9 +108,9 @@ _SPECS = (
     _s("t0", "s", 1.0, "lag of the response behind the command (in the aligned time base of "
        "the mean signals; may be negative)", "fitted", 4e-6, 5e-6, 3e-6,
        lower=-1e-3, upper=1e-3),
-    _s("t1", "s", 1.0, "extra lag of the plunger back (z_bk) behind the other signals (in the "
-       "aligned time base of the mean signals; may be negative)", "fitted", 5e-6, 4e-6, 3e-6,
-       lower=-1e-3, upper=1e-3),
+    _s("t1", "s", 1.0, "lag of the plunger back behind the tip: extra lag of z_bk on top of t0 "
+       "(in the aligned time base of the mean signals; may be negative)", "fitted",
+       5e-6, 4e-6, 3e-6, lower=-1e-3, upper=1e-3),
     # --- per-signal alignment offsets (not in the paper; docs/model.md) ---
     _s("dt_x_head", "us", 1e-6, "alignment offset of x_head: extra lag behind x_base (the "
        "reference) in the aligned time base", "alignment", 0.0, lower=-50.0, upper=50.0),

@@ -134,12 +134,16 @@ def print_summary(console, res) -> None:
         k.add_row("starts at the best (Δχ² ≤ 1)", f"{f.get('n_at_best')} of {f.get('starts')}"
                   f" ({f.get('converged')} converged)")
     if "truth_recovery" in s and not s["truth_recovery"]["n"]:
-        k.add_row("truth recovery", "no standard errors (the fit has no covariance)")
+        mrel = s["truth_recovery"].get("mass_max_relative_error")
+        k.add_row("truth recovery", "no standard errors (the fit has no covariance)" + (
+            "" if mrel is None else f"; masses m1–m4 within {100 * mrel:.1f} % of the truth"))
     elif "truth_recovery" in s:
         tr = s["truth_recovery"]
         k.add_row("truth recovery", f"{tr['within_1sigma']}/{tr['n']} parameters within 1σ, "
                   f"{tr['within_2sigma']}/{tr['n']} within 2σ, {tr['within_3sigma']}/{tr['n']}"
-                  f" within 3σ (max |z| = {_f(tr['max_abs_z'], '{:.2f}')})")
+                  f" within 3σ (max |z| = {_f(tr['max_abs_z'], '{:.2f}')})" + (
+                      "" if tr.get("mass_max_relative_error") is None else
+                      f"; masses within {100 * tr['mass_max_relative_error']:.1f} %"))
     if "whatif" in s and s["whatif"]:
         for name, ratios in s["whatif"].items():
             if isinstance(ratios, dict):

@@ -43,12 +43,17 @@ def truth_from_means(run: Path) -> dict | None:
 
 def truth_recovery(fit: dict, truth: dict) -> dict:
     """Per fitted parameter z = (fit - truth) / stderr, and how many lie within 1, 2, 3 sigma."""
-    z = {}
+    z, rel = {}, {}
     for name, p in fit["parameters"].items():
-        if p.get("fitted") and name in truth and p.get("stderr"):
-            z[name] = (p["value"] - truth[name]) / p["stderr"]
+        if p.get("fitted") and name in truth:
+            if truth[name]:
+                rel[name] = (p["value"] - truth[name]) / abs(truth[name])
+            if p.get("stderr"):
+                z[name] = (p["value"] - truth[name]) / p["stderr"]
     n = len(z)
-    out = {"n": n, "z": z}
+    out = {"n": n, "z": z, "relative_error": rel}
+    masses = [abs(rel[m]) for m in ("m1", "m2", "m3", "m4") if m in rel]
+    out["mass_max_relative_error"] = max(masses) if masses else None
     for k in (1, 2, 3):
         out[f"within_{k}sigma"] = sum(abs(v) <= k for v in z.values())
     out["max_abs_z"] = max((abs(v) for v in z.values()), default=math.nan)

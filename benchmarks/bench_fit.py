@@ -160,7 +160,7 @@ def _cpu() -> float:
 
 
 def speed(n_starts: int, workers: int, chunk: int, prune: bool, full_baseline: bool,
-          check_prune: bool = False) -> str:
+          check_prune: bool = False, means: str | None = None) -> str:
     from means_factory import make_means
 
     from gprm.fit.multistart import MultiStartOptions
@@ -169,9 +169,14 @@ def speed(n_starts: int, workers: int, chunk: int, prune: bool, full_baseline: b
     from gprm.params import paper
 
     p = paper()
-    rng = np.random.default_rng([1, 99])
-    truth = p.with_vector(p.vector() * (1 + 0.05 * rng.uniform(-1, 1, len(p.fitted))))
-    data = fit_data_from_means(make_means(truth, seed=1), source="synthetic")
+    if means:
+        from gprm._io import open_netcdf
+
+        data = fit_data_from_means(open_netcdf(means), source=str(means))
+    else:
+        rng = np.random.default_rng([1, 99])
+        truth = p.with_vector(p.vector() * (1 + 0.05 * rng.uniform(-1, 1, len(p.fitted))))
+        data = fit_data_from_means(make_means(truth, seed=1), source="synthetic")
     opts = MultiStartOptions(n_starts=n_starts, seed=0, chunk_size=chunk,
                              prune_after=10 if prune else 0, prune_factor=100.0)
     if check_prune:
@@ -192,6 +197,7 @@ def speed(n_starts: int, workers: int, chunk: int, prune: bool, full_baseline: b
     ratio = b["time"] * n_starts / t_fit
     st = res.starts
     lines = [
+        f"- data: {data.source} ({data.n_obs} observations, sigma = {data.sigma_kind})",
         f"- gprm: {n_starts} starts, {workers} Dask worker(s) (0 = in process), chunks of "
         f"{chunk}, pruning {'on (after 10 iterations, factor 100)' if prune else 'off'}: "
         f"**{t_fit:.1f} s** wall (multi-start {res.timings['multistart']:.1f} s, covariance + "
@@ -237,6 +243,8 @@ def main(argv=None) -> None:
     ap.add_argument("--check-prune", action="store_true", help="also run without pruning "
                     "and compare the best fits")
     ap.add_argument("--full-baseline", action="store_true")
+    ap.add_argument("--means", default=None, help="mean-signals NetCDF to fit instead of the "
+                    "synthetic one (e.g. from gprm synth campaign + gprm preprocess)")
     a = ap.parse_args(argv)
     cmd = "benchmarks/bench_fit.py " + " ".join(sys.argv[1:] if argv is None else argv)
     print("## Identification (gprm fit)\n")
@@ -248,7 +256,8 @@ def main(argv=None) -> None:
         return
     n = a.starts or (100 if a.quick else 1000)
     print("### Multi-start speed\n")
-    print(speed(n, a.workers, a.chunk, not a.no_prune, a.full_baseline, a.check_prune))
+    print(speed(n, a.workers, a.chunk, not a.no_prune, a.full_baseline, a.check_prune,
+                a.means))
 
 
 if __name__ == "__main__":

@@ -58,3 +58,38 @@ def test_gprm_fit_file_without_sigma(tmp_path):
     r = CliRunner().invoke(app, ["fit", str(path), "--out", str(tmp_path / "f.json")])
     assert r.exit_code == 2
     assert "sem" in r.output and str(path) in r.output
+
+
+@pytest.mark.slow
+def test_killed_run_resumes_to_the_identical_result(means_file, tmp_path):
+    """``gprm fit`` killed (SIGKILL) after its first checkpoint, then rerun: the same files
+    as an uninterrupted run (apart from timings)."""
+    import os
+    import signal
+    import subprocess
+    import time
+
+    args = ["--starts", "6", "--chunk", "1", "--max-iter", "15", "--band-samples", "0",
+            "--seed", "5", "--workers", "0"]
+    gprm = str(Path(sys.executable).with_name("gprm"))
+    ref = tmp_path / "ref.json"
+    assert CliRunner().invoke(app, ["fit", str(means_file), "--out", str(ref),
+                                    *args]).exit_code == 0
+    out = tmp_path / "killed.json"
+    ck = Path(str(out) + ".ckpt")
+    proc = subprocess.Popen([gprm, "fit", str(means_file), "--out", str(out), *args],
+                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    t0 = time.time()
+    while not list(ck.glob("chunk_*.npz")) and time.time() - t0 < 60 and proc.poll() is None:
+        time.sleep(0.05)
+    os.kill(proc.pid, signal.SIGKILL)
+    proc.wait()
+    done = len(list(ck.glob("chunk_*.npz")))
+    assert 1 <= done < 6 and not out.exists()
+    assert CliRunner().invoke(app, ["fit", str(means_file), "--out", str(out),
+                                    *args]).exit_code == 0
+    a, b = json.loads(ref.read_text()), json.loads(out.read_text())
+    for d in (a, b):
+        d.pop("timings_s")
+        d["data"].pop("source")
+    assert a == b

@@ -103,26 +103,30 @@ class LMResult:
         return self.converged
 
 
-def damped_steps(J: np.ndarray, r: np.ndarray, lam: np.ndarray,
-                 dfloor: np.ndarray | None = None) -> np.ndarray:
-    """Steps of Algorithm 1 for a batch: ``[J^T J + lam diag(J^T J)] dx = -J^T r``.
+def reduce_jacobian(J: np.ndarray, r: np.ndarray):
+    """Thin QR of a batch of Jacobians: ``R1`` (B, k, P), ``Q1^T r`` (B, k) and diag(J^T J)
+    (B, P). The damped step depends on J and r only through these (an orthogonal change of
+    the residual space), so they are computed once per Jacobian and reused while a start's
+    steps are rejected and only lambda changes."""
+    Q, R1 = np.linalg.qr(J)
+    return R1, np.einsum("bnk,bn->bk", Q, r), np.einsum("bnp,bnp->bp", J, J)
 
-    J (B, N, P), r (B, N), lam (B,). Solved as the stacked least-squares problem
-    ``[J; sqrt(lam) diag(|J_k|)] dx ~ [-r; 0]`` by QR. A column of zeros in J (a parameter
-    with no effect, or held fixed by zeroing its column) gets a tiny diagonal so the system
-    stays solvable, and its step is set to exactly 0.
-    """
-    B, N, P = J.shape
-    d = np.einsum("bnp,bnp->bp", J, J)                       # diag(J^T J)
+
+def damped_steps_reduced(R1: np.ndarray, qtr: np.ndarray, d: np.ndarray, lam: np.ndarray,
+                         dfloor: np.ndarray | None = None) -> np.ndarray:
+    """Steps of Algorithm 1 from :func:`reduce_jacobian`'s factors: the least-squares
+    solution of ``[R1; sqrt(lam) diag(sqrt(d))] dx ~ [-Q1^T r; 0]``, i.e. of
+    ``[J^T J + lam diag(J^T J)] dx = -J^T r``."""
+    B, k, P = R1.shape
     zero = d == 0
     if dfloor is not None:
         d = np.maximum(d, dfloor)
     dmax = np.max(d, axis=1, keepdims=True)
     d = np.maximum(d, np.where(dmax > 0, dmax, 1.0) * 1e-30)
-    A = np.concatenate([J, np.sqrt(lam[:, None, None] * d[:, None, :])
-                        * np.eye(P)[None]], axis=1)           # (B, N+P, P)
+    A = np.concatenate([R1, np.sqrt(lam[:, None, None] * d[:, None, :])
+                        * np.eye(P)[None]], axis=1)           # (B, k+P, P)
     Q, R = np.linalg.qr(A)
-    rhs = -np.einsum("bnp,bn->bp", Q[:, :N, :], r)
+    rhs = -np.einsum("bkp,bk->bp", Q[:, :k, :], qtr)
     try:
         out = np.linalg.solve(R, rhs[..., None])[..., 0]
     except np.linalg.LinAlgError:
@@ -134,6 +138,20 @@ def damped_steps(J: np.ndarray, r: np.ndarray, lam: np.ndarray,
                 pass
     out[zero] = 0.0
     return out
+
+
+def damped_steps(J: np.ndarray, r: np.ndarray, lam: np.ndarray,
+                 dfloor: np.ndarray | None = None) -> np.ndarray:
+    """Steps of Algorithm 1 for a batch: ``[J^T J + lam diag(J^T J)] dx = -J^T r``.
+
+    J (B, N, P), r (B, N), lam (B,). Solved as the stacked least-squares problem
+    ``[J; sqrt(lam) diag(|J_k|)] dx ~ [-r; 0]`` by QR (after a thin QR of J, see
+    :func:`reduce_jacobian`), never forming J^T J. ``dfloor`` (B, P), optional: lower limit
+    of the damping diagonal (the ``damping="max"`` variant). A column of zeros in J (a
+    parameter with no effect, or held fixed by zeroing its column) gets a tiny diagonal so the
+    system stays solvable, and its step is set to exactly 0.
+    """
+    return damped_steps_reduced(*reduce_jacobian(J, r), lam, dfloor)
 
 
 def _chi2(r: np.ndarray) -> np.ndarray:
@@ -195,6 +213,11 @@ def levenberg_marquardt_batch(fun: Callable, X0: np.ndarray, *, residuals: Calla
     if damping not in ("current", "max"):
         raise ValueError(f"damping must be 'current' or 'max', got {damping!r}")
     dmax = np.einsum("bnp,bnp->bp", J, J) if damping == "max" else None
+    kq = min(J.shape[1], P)
+    R1 = np.zeros((B, kq, P))             # factors of the current J (reduce_jacobian)
+    QTr = np.zeros((B, kq))
+    DJ = np.zeros((B, P))
+    fresh = np.zeros(B, bool)
 
     for _ in range(int(max_iter)):
         idx = np.nonzero(active)[0]
@@ -214,10 +237,15 @@ def levenberg_marquardt_batch(fun: Callable, X0: np.ndarray, *, residuals: Calla
             J[st] = JJ
             njev[st] += 1
             stale[st] = False
+            fresh[st] = False
             if dmax is not None:
                 dmax[st] = np.maximum(dmax[st], np.einsum("bnp,bnp->bp", JJ, JJ))
         dfl = None if dmax is None else dmax[idx]
-        dx = damped_steps(J[idx], r[idx], lam[idx], dfl)
+        new = idx[~fresh[idx]]
+        if new.size:
+            R1[new], QTr[new], DJ[new] = reduce_jacobian(J[new], r[new])
+            fresh[new] = True
+        dx = damped_steps_reduced(R1[idx], QTr[idx], DJ[idx], lam[idx], dfl)
         # parameters held at a bound by a step pointing out of the box are frozen and the
         # step of the others recomputed without them (active set)
         Xa = X[idx]
@@ -252,6 +280,7 @@ def levenberg_marquardt_batch(fun: Callable, X0: np.ndarray, *, residuals: Calla
             pos = np.searchsorted(ev, acc_local)            # rows of rt for accepted rows
             X[acc] = Xt[acc_local]
             r[acc] = rt[pos]
+            fresh[acc] = False
             chi2[acc] = chi_t[acc_local]
             if Jt is not None:
                 J[acc] = Jt[pos]

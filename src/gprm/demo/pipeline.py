@@ -54,6 +54,9 @@ class DemoOptions:
     # (about -6 us, docs/data-formats.md) while the registry bounds t0 >= 0; 1.01 ms gives
     # the positive lag the paper reports (t0 about 4 us) and a fit that recovers it.
     align_time: float = 1.01e-3
+    # Fit the per-signal alignment offsets dt_x_head, dt_y_base, dt_y_head as well (docs/
+    # model.md): each signal is aligned at its own crossing, which one t0 cannot absorb.
+    fit_offsets: bool = True
 
     @classmethod
     def make(cls, *, quick: bool = False, seed: int = 0, starts: int | None = None,

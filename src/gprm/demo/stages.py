@@ -94,7 +94,12 @@ def _fit(run: Path, opts: DemoOptions, step) -> dict:
     data = fit_data_from_means(means, source=str(run / "means.nc"))
     ms = MultiStartOptions(n_starts=opts.starts, seed=opts.seed, lm=LMOptions())
     ckpt = run / "fit.json.ckpt"
-    res = identify(data, paper(), ms, piezo=PIEZO_GROUND, workers=opts.workers,
+    base = paper()
+    if opts.fit_offsets:
+        from gprm.params import ALIGNMENT_OFFSETS
+
+        base = base.with_fitted(tuple(base.fitted) + tuple(ALIGNMENT_OFFSETS.values()))
+    res = identify(data, base, ms, piezo=PIEZO_GROUND, workers=opts.workers,
                    checkpoint_dir=ckpt, progress=step, band_samples=opts.band_samples)
     res.write(run / "fit.json")
     shutil.rmtree(ckpt, ignore_errors=True)
@@ -207,7 +212,8 @@ STAGES: tuple[Stage, ...] = (
     Stage("preprocess", "preprocess", ("campaign.nc",),
           ("means.nc",), lambda o: {"align_time": o.align_time}, _preprocess),
     Stage("fit", "fit (multi-start LM)", ("means.nc",), ("fit.json", "fit.nc"),
-          lambda o: {"starts": o.starts, "seed": o.seed, "band_samples": o.band_samples},
+          lambda o: {"starts": o.starts, "seed": o.seed, "band_samples": o.band_samples,
+                     "fit_offsets": o.fit_offsets},
           _fit),
     Stage("predict", "predict + what-ifs", ("fit.json",),
           ("predict.nc", "predict_piezo1.nc", "predict_ecc10.nc", "whatif.json"),

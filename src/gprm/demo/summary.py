@@ -38,7 +38,34 @@ def truth_from_means(run: Path) -> dict | None:
         v = align.get(f"{name}_expected_s")
         if isinstance(v, (int, float)):
             truth[name] = float(v)
+    # With the per-signal offsets fitted, x_base is the lag reference: t0 is x_base's
+    # equivalent lag, dt_P = lag(P) - lag(x_base), t1 = lag(z_bk) - lag(x_base).
+    eq = align.get("t0_equivalent_s") or {}
+    if isinstance(eq.get("x_base"), (int, float)):
+        ref = float(eq["x_base"])
+        truth["t0_with_offsets"] = ref
+        for point in ("x_head", "y_base", "y_head"):
+            if isinstance(eq.get(point), (int, float)):
+                truth[f"dt_{point}"] = float(eq[point]) - ref
+        zb = align.get("t0_plus_t1_equivalent_z_bk_s")
+        if isinstance(zb, (int, float)):
+            truth["t1_with_offsets"] = float(zb) - ref
     return truth
+
+
+def truth_for_fit(truth: dict, fit: dict) -> dict:
+    """The truth a given fit should find: t0, t1 referred to x_base when the fit has the
+    alignment offsets among its fitted parameters."""
+    out = {k: v for k, v in truth.items() if not k.endswith("_with_offsets")}
+    params = fit.get("parameters", {})
+    if any(params.get(f"dt_{p}", {}).get("fitted") for p in ("x_head", "y_base", "y_head")):
+        for name in ("t0", "t1"):
+            if f"{name}_with_offsets" in truth:
+                out[name] = truth[f"{name}_with_offsets"]
+    else:
+        for point in ("x_head", "y_base", "y_head"):
+            out.pop(f"dt_{point}", None)
+    return out
 
 
 def truth_recovery(fit: dict, truth: dict) -> dict:
@@ -72,7 +99,7 @@ def summarise(run: str | Path) -> dict:
                     "n_at_best": st.get("n_at_best"), "sigma": fit.get("sigma")}
         truth = truth_from_means(run)
         if truth:
-            s["truth_recovery"] = truth_recovery(fit, truth)
+            s["truth_recovery"] = truth_recovery(fit, truth_for_fit(truth, fit))
     if (run / "whatif.json").exists():
         wi = read_json(run / "whatif.json", what="what-if table")
         s["whatif"] = {r["name"]: r.get("headline", {}) for r in wi.get("ratios", [])

@@ -136,10 +136,11 @@ def campaign_section(run: Path) -> Section:
 
 # ----------------------------------------------------------------------------- fit
 
-def truth_of(run: Path) -> dict | None:
-    from gprm.demo.summary import truth_from_means
+def truth_of(run: Path, fit: dict) -> dict | None:
+    from gprm.demo.summary import truth_for_fit, truth_from_means
 
-    return truth_from_means(run)
+    truth = truth_from_means(run)
+    return None if truth is None else truth_for_fit(truth, fit)
 
 
 def table3_rows(fit: dict, truth: dict | None) -> list:
@@ -191,7 +192,7 @@ def fit_section(run: Path) -> tuple[Section, dict | None]:
                                    "found the same minimum", "fig-waterfall"))
     else:
         s.blocks.append(not_run("Fit figures", "fit.nc (the sidecar) is missing."))
-    truth = truth_of(run)
+    truth = truth_of(run, fit)
     head = ["parameter", "unit", "fit ± 1σ"]
     if truth is not None:
         head += ["synthetic truth", "(fit − truth)/σ"]
@@ -199,9 +200,10 @@ def fit_section(run: Path) -> tuple[Section, dict | None]:
     s.blocks.append(table(head, table3_rows(fit, truth), "Table 3: best-fit parameters",
                           "table-3", note="Errors are 1σ from Eq. 7. The paper column is the "
                           "published Table 3; the initial values are the centre of the "
-                          "random starts. For synthetic data the truth of t0 and t1 is the "
-                          "lag expected in the aligned time base of the means "
-                          "(docs/data-formats.md)."))
+                          "random starts. For synthetic data the truth of the lags t0, t1 "
+                          "and of the alignment offsets dt_* is the one expected in the "
+                          "aligned time base of the means (docs/data-formats.md, "
+                          "docs/model.md)."))
     s.blocks.append(fig_to_img(F.fig_masses(fit, truth), "Masses: fitted value ± 1σ against "
                                "the CAD nominal, the initial value and the paper's 3D fit "
                                "(cf. Fig. 7)", "fig-masses"))

@@ -70,10 +70,17 @@ from gprm.predict.whatif import whatif
 fm, notes = load_model(OUT)
 print(*notes, sep="\n")
 t = prediction_times(0.95e-3, 1.2e-3, 1e6)
-pred = predict(fm, scenario=Scenario("piezo2", 2), times=t, samples=20, seed=1,
-               means=OUT / "means.nc")
+try:                         # bands from 20 parameter sets drawn from the fit covariance
+    pred = predict(fm, scenario=Scenario("piezo2", 2), times=t, samples=20, seed=1,
+                   means=OUT / "means.nc")
+    samples = 20
+except np.linalg.LinAlgError as exc:   # a degenerate draw (e.g. a stiffness at its bound)
+    print(f"covariance draws unusable ({exc}): best fit only")
+    samples = 0
+    pred = predict(fm, scenario=Scenario("piezo2", 2), times=t, samples=0, seed=1,
+                   means=OUT / "means.nc")
 write_netcdf_atomic(prediction_dataset(pred), OUT / "predict.nc")
-wi = whatif(fm, samples=20, seed=1)
+wi = whatif(fm, samples=samples, seed=1)
 write_json_atomic(OUT / "whatif.json", wi)
 for r in wi["ratios"][1:]:
     print(f"overshoot Piezo 2 / {r['name']}:",
@@ -84,6 +91,10 @@ from gprm.flight.analysis import AnalysisOptions, analyze, curves_dataset
 from gprm.flight.synth import SynthOptions, synth_telemetry
 from gprm.flight.telemetry import telemetry_from_dataset
 
+if samples == 0:              # no usable covariance draws: the best fit without its covariance
+    from dataclasses import replace
+
+    fm = replace(fm, covariance=np.zeros_like(fm.covariance))
 tele = synth_telemetry(fm, SynthOptions(n_releases=11, seed=1))
 write_netcdf_atomic(tele, OUT / "telemetry.nc")
 doc, curves = analyze(fm, telemetry_from_dataset(tele), AnalysisOptions(n_samples=20, seed=1))

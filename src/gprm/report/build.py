@@ -155,12 +155,13 @@ def table3_rows(fit: dict, truth: dict | None) -> list:
         spec = REGISTRY[name]
         unit_scale = from_si(1.0, name)
         err = p.get("stderr")
-        row = [name, spec.unit, pm(p["value"], err, unit_scale)]
+        row = [name, spec.unit.replace("us", "µs"), pm(p["value"], err, unit_scale)]
         if truth is not None:
             t = truth.get(name)
             row.append("—" if t is None else num(t * unit_scale))
             row.append("—" if (t is None or not err) else f"{(p['value'] - t) / err:+.2f}")
-        row.append(pm(spec.default, spec.paper_stderr, unit_scale))
+        row.append(pm(spec.default, spec.paper_stderr, unit_scale)
+                   if spec.group == "fitted" else "— (not in the paper)")
         row.append("—" if spec.initial is None else num(spec.initial * unit_scale))
         row.append("—" if spec.nominal is None else num(spec.nominal * unit_scale))
         rows.append(row)

@@ -155,8 +155,13 @@ def test_same_result_for_one_and_two_dask_workers(case):
     truth, ds, data = case
     obj = Objective.create(data, paper())
     opts = MultiStartOptions(n_starts=4, seed=7, chunk_size=1, lm=LMOptions(max_iter=8))
+    from distributed import LocalCluster
+
     inproc = run_multistart(obj, opts, workers=0)
-    one = run_multistart(obj, opts, workers=1)
+    # one worker on an existing cluster (the --scheduler path), two on a local cluster
+    with LocalCluster(n_workers=1, threads_per_worker=1, processes=True,
+                      dashboard_address=":0", silence_logs=40) as cluster:
+        one = run_multistart(obj, opts, scheduler=cluster.scheduler_address)
     two = run_multistart(obj, opts, workers=2)
     for f in ("x", "chi2", "iterations", "status"):
         np.testing.assert_array_equal(getattr(one, f), getattr(two, f))
@@ -266,3 +271,40 @@ def test_too_few_observations_and_zero_starts(case):
     obj = Objective.create(data, paper())
     with pytest.raises(GprmInputError, match="at least 1"):
         run_multistart(obj, MultiStartOptions(n_starts=0))
+
+
+def test_profiles_in_the_fit_result(case, tmp_path):
+    truth, ds, data = case
+    base = truth.with_fitted(("k_lr", "m2", "t1"))
+    res = identify(data, base, MultiStartOptions(n_starts=2, seed=1, chunk_size=2),
+                   band_samples=0, profile=True)
+    assert [p.name for p in res.profiles] == list(res.names)
+    for p, x, se in zip(res.profiles, res.x, res.stderr):
+        assert p.identifiable
+        assert p.lower < x < p.upper
+        # with 3 well-determined parameters the profile and Eq. 7 agree closely
+        assert 0.8 < 0.5 * (p.upper - p.lower) / (se / np.sqrt(res.reduced_chi2)) < 1.25
+    res.write(tmp_path / "f.json")
+    d = json.loads((tmp_path / "f.json").read_text())
+    assert [p["name"] for p in d["profiles"]] == list(res.names)
+
+
+def test_sem_and_std_weights_give_the_same_fit_and_covariance(case):
+    """std = sqrt(10) sem in the factory: chi-square scales by 1/10, the best fit and the
+    Eq. 7 covariance (which rescales by the residual variance) do not change."""
+    truth, ds, data = case
+    out = {}
+    for kind in ("sem", "std"):
+        d = fit_data_from_means(ds, sigma=kind)
+        obj = Objective.create(d, paper())
+        lo, hi = obj.bounds_normalised()
+        xt = obj.to_normalised(truth.vector(obj.names))
+        res = levenberg_marquardt_batch(obj, xt[None], residuals=obj.residuals, lower=lo,
+                                        upper=hi, max_iter=15, ftol=0.0)
+        r, Jn = obj(res.x)
+        out[kind] = (res.chi2[0], obj.to_physical(res.x[0]),
+                     covariance(Jn[0] / obj.scale, r[0], obj.dof))
+    assert out["std"][0] == pytest.approx(out["sem"][0] / 10, rel=1e-6)
+    se = np.sqrt(np.diag(out["sem"][2]))
+    assert np.max(np.abs(out["std"][1] - out["sem"][1]) / se) < 1e-3
+    np.testing.assert_allclose(np.sqrt(np.diag(out["std"][2])), se, rtol=1e-3)

@@ -223,9 +223,11 @@ def predict_section(run: Path) -> Section:
     s.blocks.append(paragraph(
         "Trajectories of the contact middle points M_xz and M_yz and of the tip edge from the "
         "best fit (Eq. 8), with trajectories of parameter sets drawn from the fit covariance, "
-        "and the kinetic energy at the tip retraction, Piezo 2 "
-        f"({int(pred.attrs.get('samples_ok', 0))} of {int(pred.attrs.get('samples', 0))} "
-        "samples valid)."))
+        "and the kinetic energy at the tip retraction, Piezo 2 " + (
+            f"({int(pred.attrs.get('samples_ok', 0))} of {int(pred.attrs.get('samples', 0))} "
+            "parameter samples valid)." if int(pred.attrs.get("samples", 0)) else
+            "(best fit only: no usable draws from the covariance, see the provenance "
+            "notes).")))
     fig = F.fig_energy(pred, run)
     if fig is not None:
         s.blocks.append(fig_to_img(fig, "Kinetic energy E₅ of the five measured points: time "

@@ -50,12 +50,18 @@ def fig_fit(side, signals=("x_base", "x_head", "y_base", "y_head", "z_bk")):
         ax.plot(t, d, "o", ms=2.5, color=_color(s), label="mean signal")
         if "model_best" in side:
             m = side["model_best"].sel(signal=s).values * UM
+            lo = hi = None
+            label = "model 95 % band"
             if "band_sample_lo" in side:
                 lo = side["band_sample_lo"].sel(signal=s).values * UM
                 hi = side["band_sample_hi"].sel(signal=s).values * UM
-                if np.all(np.isfinite(lo)) and np.all(np.isfinite(hi)):
-                    ax.fill_between(t, lo, hi, color=COLORS["band"], alpha=0.55, lw=0,
-                                    label="model 95 % band")
+            if (lo is None or not np.all(np.isfinite(lo))) and "band_linear_std" in side:
+                # no usable covariance draws: the linear propagation J C J^T instead
+                sd = side["band_linear_std"].sel(signal=s).values * UM
+                lo, hi, label = m - 1.96 * sd, m + 1.96 * sd, "model 95 % band (linear)"
+            if lo is not None and np.all(np.isfinite(lo)) and np.all(np.isfinite(hi)):
+                ax.fill_between(t, lo, hi, color=COLORS["band"], alpha=0.55, lw=0,
+                                label=label)
             ax.plot(t, m, "-", lw=1.3, color=COLORS["model"], label="best fit")
         ax.set_title(s)
         ax.set_ylabel("displacement [µm]")

@@ -35,7 +35,8 @@ from gprm.report.html import (Card, Section, fig_to_img, not_run, num, paragraph
 FIGURE_IDS = {
     "fig-campaign": "Fig. 3", "fig-fit": "Fig. 6", "fig-waterfall": "waterfall of starts",
     "fig-masses": "Fig. 7", "fig-energy": "Fig. 8", "fig-trajectories": "Fig. 10",
-    "fig-velocity-impact": "Fig. 11", "fig-impact-times": "Fig. 12",
+    "fig-release-fit": "Fig. 11a", "fig-velocity-impact": "Fig. 11b",
+    "fig-impact-times": "Fig. 12",
     "fig-whatif-piezo1": "Fig. 13", "fig-whatif-eccentricity": "Fig. 14",
 }
 TABLE_IDS = ("table-1", "table-3", "table-whatif", "table-tukey", "table-provenance",
@@ -311,6 +312,12 @@ def flight_section(run: Path) -> Section:
         "at which the impact model (Appendix B) applied to the predicted plunger state gives "
         f"that velocity (first crossing): {n_ok} of {6 * n} impact times found. Tukey's range "
         "test asks whether the six axes' impact times share one mean (Eq. 9)."))
+    tele = _load_nc(run, "telemetry.nc", "telemetry file")
+    fig = F.fig_release_fit(tele, imp)
+    if fig is not None:
+        s.blocks.append(fig_to_img(fig, "Telemetry of the first release: the test mass's x "
+                                   "displacement and the line whose slope is the release "
+                                   "velocity (cf. Fig. 11a)", "fig-release-fit"))
     fig = F.fig_velocity_impact(imp, curves)
     if fig is not None:
         s.blocks.append(fig_to_img(fig, "Release velocity against the impact time, first "

@@ -334,3 +334,38 @@ def fig_impact_times(imp: dict, tele=None):
     ax.set_title(f"All {count} estimated impact times of {n} releases × 6 axes (cf. Fig. 12)")
     fig.tight_layout()
     return fig
+
+
+def fig_release_fit(tele, imp: dict, release: int = 0):
+    """Fig. 11a: the test mass's x displacement around the release (telemetry) and the line
+    whose slope is the release velocity v_x (fitted after the release)."""
+    from gprm.flight.telemetry import fit_release_velocity
+
+    if tele is None or "x" not in tele or "release_time" not in tele:
+        return None
+    t = np.asarray(tele["time"].isel(release=release).values, float)
+    x = np.asarray(tele["x"].isel(release=release).values, float)
+    t_rel = float(tele["release_time"].values[release])
+    ok = np.isfinite(t) & np.isfinite(x)
+    t, x = t[ok] - t_rel, x[ok]
+    after = t >= 0
+    if after.sum() < 3:
+        return None
+    line = fit_release_velocity(t[after], x[after])
+    rid = (imp.get("releases") or [{}])[release].get("id", release + 1)
+    v = ((imp.get("releases") or [{}])[release].get("velocity") or {}).get("vx", {})
+    fig, ax = plt.subplots(figsize=(8.0, 3.0))
+    ax.plot(t, x * UM, "o", ms=3, color=COLORS["vx"], label="telemetry x (test mass)")
+    tt = np.linspace(0, t.max(), 50)
+    ax.plot(tt, (line.intercept + line.value * tt) * UM, "-", color="#c62828", lw=1.2,
+            label=f"line fit after the release: v_x = {line.value * 1e6:.2f} µm/s")
+    ax.axvline(0, color="k", lw=0.8, ls=":", label="release")
+    ax.set_xlabel("time from the release [s]")
+    ax.set_ylabel("x [µm]")
+    ttl = f"Release {rid}: x displacement and release velocity (cf. Fig. 11a)"
+    if v.get("value") is not None:
+        ttl += f"; impact.json v_x = {v['value'] * 1e6:.2f} µm/s"
+    ax.set_title(ttl)
+    ax.legend(loc="upper left")
+    fig.tight_layout()
+    return fig

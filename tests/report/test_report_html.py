@@ -49,7 +49,8 @@ def _figure_ids_with_images(text: str) -> set[str]:
 def test_sections_present_have_their_figures_missing_ones_say_not_run(report_html):
     text = report_html.read_text()
     ids = _figure_ids_with_images(text)
-    expected = {"fig-campaign", "fig-fit", "fig-waterfall", "fig-masses", "fig-velocity-impact",
+    expected = {"fig-campaign", "fig-fit", "fig-residuals", "fig-waterfall", "fig-masses",
+                "fig-velocity-impact",
                 "fig-impact-times"}
     assert expected <= ids
     # no prediction in this run: those figures are absent and their sections say "not run"

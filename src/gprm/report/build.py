@@ -33,7 +33,8 @@ from gprm.report.html import (Card, Section, fig_to_img, not_run, num, paragraph
 
 # Figure id -> the paper's figure it mirrors.
 FIGURE_IDS = {
-    "fig-campaign": "Fig. 3", "fig-fit": "Fig. 6", "fig-waterfall": "waterfall of starts",
+    "fig-campaign": "Fig. 3", "fig-fit": "Fig. 6", "fig-residuals": "residuals of Fig. 6",
+    "fig-waterfall": "waterfall of starts",
     "fig-masses": "Fig. 7", "fig-energy": "Fig. 8", "fig-trajectories": "Fig. 10",
     "fig-release-fit": "Fig. 11a", "fig-velocity-impact": "Fig. 11b",
     "fig-impact-times": "Fig. 12",
@@ -189,6 +190,11 @@ def fit_section(run: Path) -> tuple[Section, dict | None]:
         s.blocks.append(fig_to_img(F.fig_fit(side), "Best fit over the mean signals with "
                                    "±σ and the 95 % model band from the parameter covariance "
                                    "(cf. Fig. 6)", "fig-fit"))
+        fig = F.fig_residuals(side)
+        if fig is not None:
+            s.blocks.append(fig_to_img(fig, "Normalised residuals (mean signal − best fit)/σ "
+                                       "per signal: systematic structure shows what the model "
+                                       "leaves out", "fig-residuals"))
         s.blocks.append(fig_to_img(F.fig_waterfall(side), "Waterfall of the starts: final χ² "
                                    "of every start, sorted; starts within Δχ² ≤ 1 of the best "
                                    "found the same minimum", "fig-waterfall"))

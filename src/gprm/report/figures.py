@@ -369,3 +369,23 @@ def fig_release_fit(tele, imp: dict, release: int = 0):
     ax.legend(loc="upper left")
     fig.tight_layout()
     return fig
+
+
+def fig_residuals(side, signals=("x_base", "x_head", "y_base", "y_head", "z_bk")):
+    """Normalised residuals (mean signal - best fit) / sigma of the fitted signals: where the
+    model departs from the data (the paper discusses these deviations after Fig. 6)."""
+    if "model_best" not in side:
+        return None
+    t = side["time"].values * MS
+    fig, ax = plt.subplots(figsize=(8.0, 3.0))
+    for s in signals:
+        r = (side["data_mean"].sel(signal=s).values - side["model_best"].sel(signal=s).values) \
+            / side["data_sigma"].sel(signal=s).values
+        ax.plot(t, r, "-", lw=1.0, color=_color(s), label=s)
+    ax.axhspan(-2, 2, color="#dddddd", alpha=0.5, lw=0, label="±2")
+    ax.set_xlabel("time [ms]")
+    ax.set_ylabel("(data − fit) / σ")
+    ax.legend(ncol=6, loc="upper center", bbox_to_anchor=(0.5, -0.25))
+    ax.set_title("Normalised residuals of the best fit")
+    fig.tight_layout()
+    return fig

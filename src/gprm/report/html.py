@@ -129,6 +129,8 @@ th,td{border-bottom:1px solid var(--line);padding:.3em .7em;text-align:right;
 font-variant-numeric:tabular-nums}
 th{background:#f0f2f5;text-align:right}td:first-child,th:first-child{text-align:left}
 tbody tr:nth-child(even){background:#fafbfc}
+#table-provenance td,#table-provenance th,#table-dropped td,#table-dropped th{text-align:left}
+#table-provenance td:last-child{word-break:break-word;max-width:760px}
 caption{text-align:left;font-weight:650;margin-bottom:.35em}.tnote{font-size:.8em;
 color:var(--muted);margin-top:-.6em}
 .notrun{background:#fff8e6;border:1px solid #f3d58a;border-radius:6px;padding:.6em .9em;

@@ -150,7 +150,10 @@ def print_summary(console, res) -> None:
                 txt = ", ".join(f"{a} {_f(v, '{:.3g}')}" for a, v in ratios.items())
             else:
                 txt = _f(ratios, "{:.3g}")
-            k.add_row(f"what-if overshoot ratio: {name}", txt)
+            paper = (s.get("whatif_paper") or {}).get(name)
+            if paper:
+                txt += " (paper: " + ", ".join(f"{a} {v:g}" for a, v in paper.items()) + ")"
+            k.add_row(f"overshoot Piezo 2 / {name}", txt)
     if "tukey" in s:
         tk = s["tukey"]
         k.add_row(f"Tukey test (α = {tk.get('alpha')})", f"{tk['verdict']}; "

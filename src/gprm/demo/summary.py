@@ -104,6 +104,8 @@ def summarise(run: str | Path) -> dict:
         wi = read_json(run / "whatif.json", what="what-if table")
         s["whatif"] = {r["name"]: r.get("headline", {}) for r in wi.get("ratios", [])
                        if r.get("name") != r.get("baseline")}
+        s["whatif_paper"] = {r["name"]: r["paper"] for r in wi.get("ratios", [])
+                             if r.get("paper")}
     if (run / "impact.json").exists():
         imp = read_json(run / "impact.json", what="impact result")
         tk = imp.get("tukey", {})

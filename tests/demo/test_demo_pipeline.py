@@ -95,6 +95,7 @@ def test_unavailable_stage_blocks_the_ones_that_need_it(tmp_path):
         raise StageUnavailable("gprm.nothing is not available")
 
     chain[1] = Stage("b", "B", ("a.txt",), ("b.txt",), lambda o: {}, missing)
+    (tmp_path / "c.txt").write_text("from an older run")
     res = run_demo(tmp_path, DemoOptions(), stages=chain, report_html=False)
     assert [r.status for r in res.records] == ["ran", "not available", "blocked"]
     assert "b.txt" in res.records[2].detail

@@ -189,6 +189,8 @@ def run_demo(out: str | Path, opts: DemoOptions = DemoOptions(), *, stages=None,
             report(stage.name, "blocked", None, None)
             records.append(rec)
             state["stages"][stage.name] = {"status": rec.status, "detail": rec.detail}
+            for name in stage.outputs:   # outputs of an older run would no longer match
+                (run / name).unlink(missing_ok=True)
             continue
         key = input_key(run, stage, opts)
         if up_to_date(run, stage, key, previous):

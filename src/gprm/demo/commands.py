@@ -162,8 +162,11 @@ def print_summary(console, res) -> None:
     for r in res.records:
         for note in (r.info or {}).get("notes", []):
             notes.setdefault(note, []).append(r.name)
-    for note, where in notes.items():
-        k.add_row(f"[yellow]note ({', '.join(where)})", note)
+    if notes:            # the first in full, the rest counted (all are in run.json)
+        first, where = next(iter(notes.items()))
+        stages = sorted({w for ws in notes.values() for w in ws})
+        more = f" (+{len(notes) - 1} more in run.json)" if len(notes) > 1 else ""
+        k.add_row(f"[yellow]notes ({', '.join(stages)})", first + more)
     if not s:
         k.add_row("no results", "no stage produced output (see the stage table)")
     console.print(k)

@@ -59,6 +59,47 @@ def load_model(run: Path) -> tuple:
                 "): best-fit values without parameter uncertainty"]
 
 
+def well_determined(fm, max_rel: float = 0.5):
+    """``fm`` with the covariance restricted to its well-determined parameters: a parameter
+    whose standard error exceeds ``max_rel`` of its value (a direction the data barely
+    constrain) is held at its best fit (its rows and columns set to zero). Returns the model
+    and the names held."""
+    from dataclasses import replace
+
+    se = np.sqrt(np.clip(np.diag(fm.covariance), 0.0, None))
+    x = np.array([fm.params.values[n] for n in fm.names])
+    keep = np.isfinite(se) & (se < max_rel * np.abs(x))
+    held = [n for n, k in zip(fm.names, keep) if not k]
+    cov = np.where(np.outer(keep, keep), fm.covariance, 0.0)
+    return replace(fm, covariance=cov), held
+
+
+def with_fallbacks(call, fm, notes: list, what: str):
+    """``call(fm)``; if drawing parameter sets from the fit covariance gives a degenerate set
+    (numpy LinAlgError: e.g. a stiffness drawn at its bound of zero), retry with the
+    covariance of the well-determined parameters only, then without a covariance. Each
+    fallback adds a note."""
+    from dataclasses import replace
+
+    try:
+        return call(fm)
+    except np.linalg.LinAlgError as exc:
+        first = exc
+    fm2, held = well_determined(fm)
+    try:
+        out = call(fm2)
+        note = (f"degenerate draws from the fit covariance ({first}): {what} use the "
+                f"well-determined parameters' uncertainty only ({', '.join(held)} held at "
+                "the best fit, standard error over 50 % of the value)")
+    except np.linalg.LinAlgError:
+        out = call(replace(fm, covariance=np.zeros_like(fm.covariance)))
+        note = (f"degenerate draws from the fit covariance ({first}): {what} without "
+                "parameter uncertainty")
+    if note not in notes:
+        notes.append(note)
+    return out
+
+
 # ----------------------------------------------------------------------------- campaign
 
 def _campaign(run: Path, opts: DemoOptions, step) -> dict:
@@ -125,25 +166,15 @@ def _predict(run: Path, opts: DemoOptions, step) -> dict:
     todo = [(Scenario("piezo2", PIEZO_GROUND), "predict.nc")] + [
         (scen[name], fname) for name, fname in WHATIF_FILES.items()]
     step(0, len(todo) + 1)
-    samples = opts.predict_samples
     for k, (sc, fname) in enumerate(todo):
-        try:
-            pred = predict(fm, scenario=sc, times=t, samples=samples, seed=opts.seed,
-                           means=run / "means.nc")
-        except np.linalg.LinAlgError as exc:
-            # parameter sets drawn from a poorly determined covariance can be degenerate
-            # (zero stiffnesses): keep the best-fit prediction, without sampled bands
-            samples = 0
-            notes.append(f"{sc.name}: sampled bands dropped ({exc}); best fit only")
-            pred = predict(fm, scenario=sc, times=t, samples=0, seed=opts.seed,
-                           means=run / "means.nc")
+        pred = with_fallbacks(
+            lambda m, sc=sc: predict(m, scenario=sc, times=t, samples=opts.predict_samples,
+                                     seed=opts.seed, means=run / "means.nc"),
+            fm, notes, "the predictions' bands")
         write_netcdf_atomic(prediction_dataset(pred), run / fname)
         step(k + 1, len(todo) + 1)
-    try:
-        table = whatif(fm, samples=min(samples, 100), seed=opts.seed)
-    except np.linalg.LinAlgError as exc:
-        notes.append(f"what-if ranges dropped ({exc})")
-        table = whatif(fm, samples=0, seed=opts.seed)
+    table = with_fallbacks(lambda m: whatif(m, samples=min(opts.predict_samples, 100),
+                                            seed=opts.seed), fm, notes, "the what-if ranges")
     write_json_atomic(run / "whatif.json", table)
     step(len(todo) + 1, len(todo) + 1)
     info = {"whatif": {r["name"]: r.get("headline", {}) for r in table.get("ratios", [])[1:]}}
@@ -159,17 +190,11 @@ def _telemetry(run: Path, opts: DemoOptions, step) -> dict:
                                           "synth_telemetry")
     model, notes = load_model(run)
     info: dict = {"releases": opts.releases}
+    ds = with_fallbacks(lambda m: synth_telemetry(m, SynthOptions(n_releases=opts.releases,
+                                                                  seed=opts.seed)),
+                        model, notes, "the releases' true parameters")
     if notes:
         info["notes"] = notes
-    try:
-        ds = synth_telemetry(model, SynthOptions(n_releases=opts.releases, seed=opts.seed))
-    except np.linalg.LinAlgError as exc:
-        # truths drawn from a poorly determined covariance can be degenerate: use the best
-        # fit and the nominal geometry for every release instead
-        info["notes"] = notes + [f"release truths from the best fit only ({exc} in the "
-                                 "covariance draws)"]
-        ds = synth_telemetry(model, SynthOptions(n_releases=opts.releases, seed=opts.seed,
-                                                 truth_spread=False))
     write_netcdf_atomic(ds, run / "telemetry.nc")
     return info
 
@@ -181,17 +206,8 @@ def _impact(run: Path, opts: DemoOptions, step) -> dict:
     model, notes = load_model(run)
     tel = load_telemetry(run / "telemetry.nc")
     aopts = AnalysisOptions(n_samples=opts.predict_samples, seed=opts.seed)
-    try:
-        doc, curves = analyze(model, tel, aopts)
-    except np.linalg.LinAlgError as exc:
-        # parameter draws from a poorly determined covariance can be degenerate: keep the
-        # impact-geometry uncertainty, drop the model-parameter part of the bands
-        from dataclasses import replace
-
-        notes.append(f"velocity-curve bands without the fit covariance ({exc} in its "
-                     "draws); impact-time errors exclude the model-parameter uncertainty")
-        doc, curves = analyze(replace(model, covariance=np.zeros_like(model.covariance)),
-                              tel, aopts)
+    doc, curves = with_fallbacks(lambda m: analyze(m, tel, aopts), model, notes,
+                                 "the velocity-curve bands")
     if notes:
         doc["notes"] = notes
     doc["curves"]["sidecar"] = "impact.nc"

@@ -27,34 +27,17 @@ from __future__ import annotations
 
 import argparse
 import os
-import platform
 import resource
-import subprocess
 import sys
 import time
 from pathlib import Path
 
 import numpy as np
 
+from _machine import machine
+
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "tests" / "fit"))
-
-
-def machine() -> str:
-    cpu = "?"
-    try:
-        for ln in Path("/proc/cpuinfo").read_text().splitlines():
-            if ln.startswith("model name"):
-                cpu = ln.split(":", 1)[1].strip()
-                break
-    except OSError:
-        pass
-    nproc = subprocess.run(["nproc"], capture_output=True, text=True).stdout.strip()
-    import scipy
-
-    return (f"- machine: {nproc} cores (`nproc`), {cpu}; load average at start "
-            f"{os.getloadavg()[0]:.2f}\n- Python {platform.python_version()}, numpy "
-            f"{np.__version__}, scipy {scipy.__version__}")
 
 
 # ----------------------------------------------------------------------------- NIST
@@ -248,7 +231,7 @@ def main(argv=None) -> None:
     a = ap.parse_args(argv)
     cmd = "benchmarks/bench_fit.py " + " ".join(sys.argv[1:] if argv is None else argv)
     print("## Identification (gprm fit)\n")
-    print(machine())
+    print(machine("scipy"))
     print(f"- command: `.venv/bin/python {cmd.strip()}`\n")
     if a.nist:
         print("### NIST StRD\n")

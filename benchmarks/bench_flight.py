@@ -5,31 +5,10 @@ Prints a markdown section (machine, versions, command, timings)."""
 from __future__ import annotations
 
 import argparse
-import os
-import platform
-import sys
-import time
 
 import numpy as np
 
-
-def cpu_model() -> str:
-    try:
-        for line in open("/proc/cpuinfo"):
-            if line.startswith("model name"):
-                return line.split(":", 1)[1].strip()
-    except OSError:
-        pass
-    return platform.processor() or "unknown"
-
-
-def timed(fn, repeat):
-    best, out = np.inf, None
-    for _ in range(repeat):
-        t0 = time.perf_counter()
-        out = fn()
-        best = min(best, time.perf_counter() - t0)
-    return best, out
+from _machine import best_time as timed, machine
 
 
 def main() -> None:
@@ -77,10 +56,8 @@ def main() -> None:
     t, mres = timed(lambda: simulate_contacts(fm, 1.0150e-3), 1)
     rows.append((f"multiple impacts from t1=1.015 ms ({mres['n_impacts']} contacts)", t))
 
-    import scipy
     print("## Flight analysis (`gprm.flight`)\n")
-    print(f"- machine: {os.cpu_count()} cores (nproc), {cpu_model()}")
-    print(f"- Python {sys.version.split()[0]}, numpy {np.__version__}, scipy {scipy.__version__}")
+    print(machine("scipy"))
     print(f"- command: `.venv/bin/python benchmarks/bench_flight.py{' --quick' if a.quick else ''}`"
           f" (best of {rep})\n")
     print("| step | time (s) |\n|---|---|")

@@ -6,32 +6,17 @@ from __future__ import annotations
 
 import argparse
 import os
-import platform
 import subprocess
 import sys
 import tempfile
 import time
 
-import numpy as np
 
-
-def cpu_model() -> str:
-    try:
-        for line in open("/proc/cpuinfo"):
-            if line.startswith("model name"):
-                return line.split(":", 1)[1].strip()
-    except OSError:
-        pass
-    return platform.processor() or "unknown"
+from _machine import best_time, machine
 
 
 def timed(fn, repeat):
-    best = np.inf
-    for _ in range(repeat):
-        t0 = time.perf_counter()
-        fn()
-        best = min(best, time.perf_counter() - t0)
-    return best
+    return best_time(fn, repeat)[0]
 
 
 def main() -> None:
@@ -80,8 +65,7 @@ def main() -> None:
         rows.append(("`gprm predict paper --samples 200 --gap 2um --whatif` (process)",
                      time.perf_counter() - t0))
     print("## predict\n")
-    print(f"- machine: {os.cpu_count()} CPUs (`nproc`), {cpu_model()}")
-    print(f"- Python {platform.python_version()}, numpy {np.__version__}")
+    print(machine())
     print(f"- command: `.venv/bin/python benchmarks/bench_predict.py"
           f"{' --quick' if a.quick else ''}` (best of {rep})\n")
     print("| task | seconds |\n|---|---|")

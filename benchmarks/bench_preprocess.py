@@ -13,9 +13,6 @@ and generating the campaign (with and without the nonlinear correction).
 from __future__ import annotations
 
 import argparse
-import os
-import platform
-import subprocess
 import sys
 import tempfile
 import time
@@ -23,23 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
-
-def machine() -> str:
-    cpu = "?"
-    try:
-        for ln in Path("/proc/cpuinfo").read_text().splitlines():
-            if ln.startswith("model name"):
-                cpu = ln.split(":", 1)[1].strip()
-                break
-    except OSError:
-        pass
-    nproc = subprocess.run(["nproc"], capture_output=True, text=True).stdout.strip()
-    import scipy
-    import xarray
-
-    return (f"- machine: {nproc} cores (`nproc`), {cpu}; load average at start "
-            f"{os.getloadavg()[0]:.2f}\n- Python {platform.python_version()}, numpy "
-            f"{np.__version__}, scipy {scipy.__version__}, xarray {xarray.__version__}")
+from _machine import machine
 
 
 def timed(fn, n):
@@ -80,7 +61,7 @@ def main() -> None:
         f" --repeat {args.repeat}" if args.repeat else "")
     print("## Campaign preprocessing (issue 3)\n")
     print(f"Command: `.venv/bin/{cmd}`\n")
-    print(machine())
+    print(machine("scipy", "xarray"))
     print(f"- campaign: {P} positions x ({R} actuated + {Nn} noise) runs x {T} samples "
           f"(0..{ds['time'].values[-1] * 1e3:.1f} ms at {ds.attrs['sample_rate'] / 1e3:g} kHz), "
           "synthetic, seed 0\n")

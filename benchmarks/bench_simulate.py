@@ -12,16 +12,15 @@ from __future__ import annotations
 
 import argparse
 import os
-import platform
-import subprocess
 import sys
 import time
 
 import numpy as np
-import scipy
+
+from _machine import machine
 
 from gprm.params import FITTED_DEFAULT, batch, batch_from_vectors, paper
-from gprm.simulate import observe, record_times, simulate
+from gprm.simulate import observe, simulate
 from gprm.simulate.core import OUTPUTS
 from gprm.simulate.reference import reference_linear
 
@@ -36,25 +35,6 @@ def _best(fn, reps):
         wall.append(time.perf_counter() - t)
         cpu.append(time.process_time() - c)
     return min(wall), min(cpu)
-
-
-def _machine() -> str:
-    cpu = "unknown"
-    try:
-        with open("/proc/cpuinfo") as fh:
-            for line in fh:
-                if line.startswith("model name"):
-                    cpu = line.split(":", 1)[1].strip()
-                    break
-    except OSError:
-        pass
-    try:
-        load = os.getloadavg()[0]
-    except OSError:
-        load = float("nan")
-    return (f"- machine: {os.cpu_count()} CPUs (`nproc`), {cpu}, load average {load:.1f} at "
-            f"start\n- Python {platform.python_version()}, numpy {np.__version__}, scipy "
-            f"{scipy.__version__}, threads: OMP_NUM_THREADS={os.environ.get('OMP_NUM_THREADS', 'unset')}")
 
 
 def _starts(n, seed=0):
@@ -109,7 +89,7 @@ def main(argv=None) -> None:
         os.environ.get("OMP_NUM_THREADS", "<unset>"), " --quick" if args.quick else "")
     print("## Simulation engine (`gprm.simulate`)\n")
     print(f"Command: `{cmd}`\n")
-    print(_machine() + "\n")
+    print(machine("scipy") + "\n")
     print("| case | sets | wall s (best) | CPU s (best) | simulations/s (wall) |")
     print("|---|---|---|---|---|")
     for label, n, w, c in rows:

@@ -18,6 +18,14 @@ def _plt():
     return plt
 
 
+def _save(plt, fig, path) -> str:
+    """Lay out, write ``path`` (120 dpi), close ``fig``; the path as a string."""
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+    return str(path)
+
+
 def plot_trajectories(ds, path: str | os.PathLike) -> str:
     """Fig. 10 layout from a prediction dataset: M_xz on x-z, M_yz on y-z, tip edge on x-y
     (displacements in um, axes centred on the initial position; sampled trajectories thin)."""
@@ -37,10 +45,7 @@ def plot_trajectories(ds, path: str | os.PathLike) -> str:
         ax.set_ylabel(f"{b} (um)")
         ax.set_title(f"{pt}: {a}-{b}")
     axs[0].legend(loc="best", fontsize=8)
-    fig.tight_layout()
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
-    return str(path)
+    return _save(plt, fig, path)
 
 
 def plot_energy_histogram(ds, path: str | os.PathLike) -> str:
@@ -63,10 +68,7 @@ def plot_energy_histogram(ds, path: str | os.PathLike) -> str:
     ax.set_xlabel("kinetic energy E_5 (uJ)")
     ax.set_ylabel("time in bin (us)")
     ax.legend()
-    fig.tight_layout()
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
-    return str(path)
+    return _save(plt, fig, path)
 
 
 def plot_masses(rows: list[dict], path: str | os.PathLike) -> str:
@@ -82,10 +84,7 @@ def plot_masses(rows: list[dict], path: str | os.PathLike) -> str:
     ax.set_xticks(x, [f"{r['name']} ({r['body']})" for r in rows])
     ax.set_ylabel("mass (g)")
     ax.legend()
-    fig.tight_layout()
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
-    return str(path)
+    return _save(plt, fig, path)
 
 
 def plot_sweep(sw: dict, path: str | os.PathLike) -> str:
@@ -99,7 +98,4 @@ def plot_sweep(sw: dict, path: str | os.PathLike) -> str:
         ax.set_xlabel(f"{sw['parameter']} ({sw['display_unit']})")
         ax.set_ylabel(f"overshoot {a} (um)")
     axs[0].legend(fontsize=8)
-    fig.tight_layout()
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
-    return str(path)
+    return _save(plt, fig, path)

@@ -8,6 +8,7 @@ import pytest
 from gprm.params import FITTED_DEFAULT, batch, paper
 from gprm.simulate import VoltageTrace, observe
 from gprm.simulate.core import OUTPUTS
+from sens_fd import compare_with_central_differences
 
 EXTRA = ("d_x_base", "d_x_head", "d_y_base", "d_y_head", "h2", "k3", "T_em")
 NAMES = OUTPUTS + ("mu4", "eta", "q")
@@ -19,31 +20,10 @@ def _fd_check(ps, piezo, sens, trace=None, rel=1e-4, tol=1e-5):
     rounding error (the solver's ~1e-13 relative accuracy divided by the step) both stay near
     2e-6 of a parameter's effect at rel = 1e-4 (measured: 1e-3 gives 2e-4, 1e-5 gives 2e-5),
     so 1e-5 is the tolerance; a wrong or missing sensitivity term gives O(1) errors."""
-    base = dict(ps.values)
-    sets = [base]
-    steps = []
-    for n in sens:
-        h = rel * abs(base[n])
-        steps.append(h)
-        for sgn in (1, -1):
-            d = dict(base)
-            d[n] = base[n] + sgn * h
-            sets.append(d)
-    pb = {k: np.array([s[k] for s in sets]) for k in base}
-    plain = observe(pb, TIMES, NAMES, piezo=piezo, voltage=trace)
-    exact = observe(batch([ps]), TIMES, NAMES, piezo=piezo, voltage=trace,
-                    sensitivities=sens)
-    assert plain.ok.all() and exact.ok.all()
+    exact, plain, worst, _ = compare_with_central_differences(
+        ps, sens, NAMES, TIMES, step=lambda n, v: rel * abs(v), piezo=piezo, trace=trace)
     np.testing.assert_allclose(exact.y[0], plain.y[0], rtol=0, atol=1e-12 * np.abs(plain.y[0]).max())
-    dy = exact.dy[0]                                              # (n_obs, T, P)
-    worst = {}
-    for j, n in enumerate(sens):
-        fd = (plain.y[1 + 2 * j] - plain.y[2 + 2 * j]) / (2 * steps[j])
-        # compare the change each parameter causes (dy * h) on the scale of each signal
-        scale = np.abs(plain.y[0]).max(axis=1, keepdims=True)
-        err = np.abs(dy[..., j] - fd) * steps[j] / scale
-        big = np.abs(dy[..., j] * steps[j] / scale).max()
-        worst[n] = err.max() / max(big, 1e-300)
+    for n in sens:
         assert worst[n] < tol, (n, worst[n])
     return worst
 

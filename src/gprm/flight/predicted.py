@@ -30,7 +30,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from gprm.errors import GprmInputError
-from gprm.flight.impact import planar_impact
+from gprm.flight.impact import _perp, planar_impact
 from gprm.flight.telemetry import AXES
 
 PLANES = ("xz", "yz")
@@ -69,10 +69,6 @@ class GeometryUncertainty:
     contact_offset: float = 0.5e-3
     tm_com_height: float = 0.5e-3
     restitution: float = 0.0
-
-
-def _perp2(w, r):
-    return np.stack([-w * r[..., 1], w * r[..., 0]], axis=-1)
 
 
 def _vec(x, B):
@@ -153,7 +149,7 @@ def tm_velocity_vs_time(motion, geometry: ImpactGeometry | list | None = None) -
         wA = w[:, wk, :]
         if vel_mode == "plunger":
             # rigid field of the plunger body: the contact point keeps its exact velocity
-            vA = np.moveaxis(vP[:, sel, :], 1, -1) - _perp2(wA, rhoA)
+            vA = np.moveaxis(vP[:, sel, :], 1, -1) - _perp(wA, rhoA)
         else:
             vA = np.moveaxis(vG[:, sel, :], 1, -1)
         rhoB = np.moveaxis(P[:, sel, :] - C_tm[:, sel, None], 1, -1)

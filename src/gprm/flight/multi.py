@@ -26,6 +26,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
+from gprm.flight.impact import _skew
 from gprm.flight.predicted import ImpactGeometry
 
 MECH = ("z_lr", "z_A", "x_A", "y_A", "eta", "theta", "mu3", "mu4")
@@ -284,10 +285,6 @@ def simulate_contacts(model, t1: float, *, t_end: float | None = None,
             "first_tm_velocity": (dict(zip(("vx", "vy", "vz", "wx", "wy", "wz"),
                                            events[0].tm_velocity)) if events else None),
             **({"trace": {"time": grid, "gap": gaps}} if trace else {})}
-
-
-def _skew(r):
-    return np.array([[0, -r[2], r[1]], [r[2], 0, -r[0]], [-r[1], r[0], 0]])
 
 
 def multi_impact_report(model, doc: dict, *, geometry=None) -> dict:

@@ -18,6 +18,7 @@ from typing import Sequence
 import numpy as np
 
 from gprm.fit.files import FittedModel
+from gprm.params import batch
 from gprm.predict.kinematics import (MECH, RATES, _point_kinematics, body_motion,
                                      linear_statics, named_points, point_motion)
 
@@ -144,11 +145,12 @@ def predict_trajectories(fm: FittedModel, times, *, piezo: int = 2, voltage=None
 
     t = check_times(times)
     points = tuple(points)
-    best_p, best_v, _ = sampled_points(_best_batch(fm), t, points, piezo=piezo, voltage=voltage)
-    m0 = body_motion(fm, t[:1], piezo=piezo, voltage=voltage)
-    pts0 = named_points(m0.params)
-    static = np.stack([pts0[p].body_coordinates(m0.mu_eq["mu3"], m0.mu_eq["mu4"])[0]
-                       for p in points])
+    pb0 = batch([fm.params])
+    best_p, best_v, _ = sampled_points(pb0, t, points, piezo=piezo, voltage=voltage)
+    # initial position: the static equilibrium, no simulation needed
+    mu0 = linear_statics(pb0, piezo)
+    pts0 = named_points(pb0)
+    static = np.stack([pts0[p].body_coordinates(mu0["mu3"], mu0["mu4"])[0] for p in points])
     shape = best_p[0].shape
     nan = np.full(shape, np.nan)
     lo = hi = sd = vlo = vhi = vsd = nan
@@ -173,9 +175,3 @@ def predict_trajectories(fm: FittedModel, times, *, piezo: int = 2, voltage=None
                         static=static, pos_lo=lo, pos_hi=hi, pos_std=sd, vel_lo=vlo,
                         vel_hi=vhi, vel_std=vsd, pos_std_lin=lin_p, vel_std_lin=lin_v,
                         samples_pos=keep, n_samples=int(samples), n_ok=n_ok)
-
-
-def _best_batch(fm: FittedModel) -> dict:
-    from gprm.params import batch
-
-    return batch([fm.params])

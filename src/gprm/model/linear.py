@@ -84,45 +84,6 @@ def state_space(pb: dict, piezo: int, desc=None) -> StateSpace:
     return StateSpace(As, b, E)
 
 
-def raw_derivatives(pb: dict, piezo: int, names):
-    """Rows 8..16 of dA (unsolved) and dE for each name: arrays (B, P, 9, 17), (B, P, 9, 9).
-
-    Only these rows of the descriptor depend on parameters (the first 8 rows are the
-    kinematic identity q' = v). Parameters that do not enter the equations get zeros.
-    """
-    g = generated(piezo)
-    Bsh = np.broadcast_shapes(*(np.shape(pb[k]) for k in g.PARAMETERS))
-    dA = np.zeros(Bsh + (len(names), 9, NSTATE))
-    dE = np.zeros(Bsh + (len(names), 9, 9))
-    F = np.zeros(9)
-    for k, name in enumerate(names):
-        fn = g.DERIVATIVES.get(name)
-        if fn is None:
-            continue
-        dM, dC, dK = fn(pb)
-        dEf, dAf, _ = _assemble(dM, dC, dK, F)
-        dA[..., k, :, :] = dAf[..., 8:, :]
-        dE[..., k, :, :] = dEf[..., 8:, 8:]
-    return dA, dE
-
-
-def state_space_derivatives(pb: dict, piezo: int, names, ss: StateSpace):
-    """dA_s/dp and db/dp for each name (arrays (B, P, 17, 17) and (B, P, 17)).
-
-    d(E^-1 A) = E^-1 (dA - dE A_s);  d(E^-1 B) = -E^-1 dE b. (Reference form; the solver
-    uses the same identities restricted to the rows that change.)
-    """
-    dAr, dEr = raw_derivatives(pb, piezo, names)
-    Einv = np.linalg.inv(ss.E[..., 8:, 8:])[:, None]
-    rhs = dAr - dEr @ ss.A[:, None, 8:, :]
-    dA = np.zeros(dAr.shape[:2] + (NSTATE, NSTATE))
-    dA[..., 8:, :] = Einv @ rhs
-    db = np.zeros(dAr.shape[:2] + (NSTATE,))
-    db[..., 8:] = -(Einv @ (dEr @ ss.b[:, None, 8:, None]))[..., 0]
-    return dA, db
-
-
-
 @dataclass(frozen=True)
 class SparseDerivatives:
     """Non-zero entries of d(K, C, M)/dp for several parameters, over a batch.

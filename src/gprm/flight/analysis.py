@@ -8,6 +8,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from gprm.errors import GprmInputError
 from gprm.flight.impact_time import first_crossing
 from gprm.flight.predicted import velocity_curves
 from gprm.flight.telemetry import AXES, AXIS_UNIT, release_velocities
@@ -55,11 +56,8 @@ def analyze(model, tel, opts: AnalysisOptions = AnalysisOptions(), curves=None):
     tk = None
     tukey_note = None
     try:
-        tk = tukey_range_test({a: g for a, g in groups.items()}, alpha=opts.alpha)
-    except Exception as exc:  # too few crossings: report, do not fail
-        from gprm.errors import GprmInputError
-        if not isinstance(exc, GprmInputError):
-            raise
+        tk = tukey_range_test(groups, alpha=opts.alpha)
+    except GprmInputError as exc:  # too few crossings: report, do not fail
         tukey_note = f"Tukey test not possible: {exc.problem}"
     doc = {
         "format": "gprm-impact", "format_version": 1,

@@ -190,10 +190,9 @@ def levenberg_marquardt_batch(fun: Callable, X0: np.ndarray, *, residuals: Calla
     hi = np.broadcast_to(np.asarray(np.inf if upper is None else upper, float), (P,))
     # the box the trial points are projected onto: strictly inside the bounds
     with np.errstate(invalid="ignore"):
-        lo_in = np.where(np.isfinite(lo), lo + BOUND_MARGIN * np.maximum(1.0, np.abs(lo)), lo)
-        hi_in = np.where(np.isfinite(hi), hi - BOUND_MARGIN * np.maximum(1.0, np.abs(hi)), hi)
         near_lo = np.where(np.isfinite(lo), BOUND_MARGIN * np.maximum(1.0, np.abs(lo)), 0.0)
         near_hi = np.where(np.isfinite(hi), BOUND_MARGIN * np.maximum(1.0, np.abs(hi)), 0.0)
+    lo_in, hi_in = lo + near_lo, hi - near_hi
     r, J = fun(X)
     r = np.asarray(r, float)
     J = np.array(J, dtype=float)
@@ -265,7 +264,7 @@ def levenberg_marquardt_batch(fun: Callable, X0: np.ndarray, *, residuals: Calla
                 rt = np.asarray(residuals(Xt[ev]), float)
             else:
                 rt, Jt = fun(Xt[ev])
-                rt = np.asarray(rt, float)
+                rt, Jt = np.asarray(rt, float), np.asarray(Jt, float)
             chi_t[ev] = _chi2(rt)
             nfev[idx[ev]] += 1
         iters[idx] += 1
@@ -275,7 +274,7 @@ def levenberg_marquardt_batch(fun: Callable, X0: np.ndarray, *, residuals: Calla
         acc_local = np.nonzero(better)[0]
         acc = idx[acc_local]
         rej = idx[~better]
-        old = chi2[acc].copy()
+        old = chi2[acc]                                     # (fancy indexing: a copy)
         if acc.size:
             pos = np.searchsorted(ev, acc_local)            # rows of rt for accepted rows
             X[acc] = Xt[acc_local]
@@ -283,10 +282,11 @@ def levenberg_marquardt_batch(fun: Callable, X0: np.ndarray, *, residuals: Calla
             fresh[acc] = False
             chi2[acc] = chi_t[acc_local]
             if Jt is not None:
-                J[acc] = Jt[pos]
+                Ja = Jt[pos]
+                J[acc] = Ja
                 njev[acc] += 1
                 if dmax is not None:
-                    dmax[acc] = np.maximum(dmax[acc], np.einsum("bnp,bnp->bp", J[acc], J[acc]))
+                    dmax[acc] = np.maximum(dmax[acc], np.einsum("bnp,bnp->bp", Ja, Ja))
             else:
                 stale[acc] = True
             lam[acc] = np.maximum(lam[acc] / 10.0, LAMBDA_MIN)

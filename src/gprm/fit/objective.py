@@ -10,12 +10,13 @@ the order ``SIGNALS`` (the paper's q* of Eq. 5, appended signal after signal).
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from functools import cached_property
 
 import numpy as np
 import xarray as xr
 
 from gprm.errors import GprmInputError
-from gprm.params import ParameterSet, batch_from_vectors
+from gprm.params import REGISTRY, ParameterSet, batch_from_vectors
 from gprm.simulate import OUTPUTS, observe
 
 SIGNALS: tuple[str, ...] = OUTPUTS
@@ -117,8 +118,6 @@ class Objective:
 
     def bounds(self) -> tuple[np.ndarray, np.ndarray]:
         """Physical bounds (P,) of the fitted parameters (the set's, else the registry's)."""
-        from gprm.params import REGISTRY
-
         b = [self.base.bounds.get(n, (REGISTRY[n].lower, REGISTRY[n].upper))
              for n in self.names]
         return np.array([v[0] for v in b], float), np.array([v[1] for v in b], float)
@@ -152,7 +151,7 @@ class Objective:
         """
         Xn = np.atleast_2d(np.asarray(Xn, float))
         obs = self.model(self.to_physical(Xn), jacobian=True)
-        w = 1.0 / self.data.sigma                                      # (S, T)
+        w = self._weights                                              # (S, T)
         r = ((self.data.values[None] - obs.y) * w[None]).reshape(Xn.shape[0], -1)
         J = (-obs.dy * w[None, :, :, None] * self.scale).reshape(Xn.shape[0], -1, Xn.shape[1])
         return r, J
@@ -161,8 +160,12 @@ class Objective:
         """Residuals only (no sensitivities), for any batch of normalised rows."""
         Xn = np.atleast_2d(np.asarray(Xn, float))
         obs = self.model(self.to_physical(Xn))
-        w = 1.0 / self.data.sigma
-        return ((self.data.values[None] - obs.y) * w[None]).reshape(Xn.shape[0], -1)
+        return ((self.data.values[None] - obs.y) * self._weights[None]).reshape(Xn.shape[0], -1)
+
+    @cached_property
+    def _weights(self) -> np.ndarray:
+        """1 / sigma (S, T): the weights D of Eq. 6, computed once per objective."""
+        return 1.0 / self.data.sigma
 
     def chi2(self, Xn: np.ndarray) -> np.ndarray:
         r = self.residuals(Xn)

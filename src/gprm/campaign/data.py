@@ -13,7 +13,6 @@ stage relies on and raises a one-line :class:`GprmInputError` naming file and fi
 
 from __future__ import annotations
 
-import functools
 import hashlib
 import os
 from pathlib import Path
@@ -174,19 +173,14 @@ def validate_campaign(ds: xr.Dataset, source: str = "campaign") -> xr.Dataset:
 def _unit_factor(unit: str, si: str, src: str, field: str) -> float:
     import pint
 
+    from gprm.params.files import ureg
+
     try:
-        q = _ureg().Quantity(1.0, unit)
+        q = ureg().Quantity(1.0, unit)
         return float(q.to(si).magnitude)
     except (pint.errors.PintError, AttributeError, ValueError, TypeError) as exc:
         raise GprmInputError(f"unit {unit!r} cannot be converted to {si} ({exc})", source=src,
                              field=field) from None
-
-
-@functools.lru_cache(maxsize=1)
-def _ureg():
-    import pint
-
-    return pint.UnitRegistry()
 
 
 def write_campaign(ds: xr.Dataset, path: str | os.PathLike) -> None:

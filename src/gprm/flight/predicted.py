@@ -71,10 +71,6 @@ class GeometryUncertainty:
     restitution: float = 0.0
 
 
-def _vec(x, B):
-    return np.broadcast_to(np.asarray(x, float), (B, 3))
-
-
 def tm_velocity_vs_time(motion, geometry: ImpactGeometry | list | None = None) -> dict:
     """Post-impact TM velocities if the impact happened at each time of ``motion``.
 

@@ -111,6 +111,14 @@ def tm_velocity_vs_time(motion, geometry: ImpactGeometry | list | None = None) -
     I_tm = m_tm * s_tm ** 2 / 6.0
     # TM CoM at rest: plunger CoM lateral position, tm_com_height above the contact points
     com0 = pts["com"].r                                      # (B, 3) body frame = ground at rest
+    # assembly inertia option: parallel-axis terms of spacer and tip (point masses); the
+    # static positions do not depend on the plane
+    use = np.array([g.plunger_inertia == "assembly" for g in geoms])
+    if use.any():
+        from gprm.predict.kinematics import static_position
+        gA = static_position(motion, asm)
+        masses_at = tuple((m, static_position(motion, pts[n]))
+                          for m, n in ((m2, "com"), (m3, "spacer"), (m4, "tip_edge")))
     out = {}
     for plane in PLANES:
         key = "M_xz" if plane == "xz" else "M_yz"
@@ -118,18 +126,10 @@ def tm_velocity_vs_time(motion, geometry: ImpactGeometry | list | None = None) -
         r_c = bp.r + off[plane]                              # body coordinates of contact
         P, vP = point_motion(motion, r_c)                    # (B, 3, T)
         C_tm = np.stack([com0[:, 0], com0[:, 1], bp.r[:, 2] + H], -1)   # (B, 3)
-        # assembly inertia option: parallel-axis terms of spacer and tip (point masses)
         Jp = J.copy()
-        if any(g.plunger_inertia == "assembly" for g in geoms):
-            from gprm.predict.kinematics import static_position
-            gA = static_position(motion, asm)
-            sp = static_position(motion, pts["spacer"])
-            tp = static_position(motion, pts["tip_edge"])
-            comp = static_position(motion, pts["com"])
+        if use.any():
             ax = 0 if plane == "xz" else 1                  # lateral axis of the plane
-            par = sum(m * ((p - gA)[:, ax] ** 2 + (p - gA)[:, 2] ** 2)
-                      for m, p in ((m2, comp), (m3, sp), (m4, tp)))
-            use = np.array([g.plunger_inertia == "assembly" for g in geoms])
+            par = sum(m * ((p - gA)[:, ax] ** 2 + (p - gA)[:, 2] ** 2) for m, p in masses_at)
             Jp = np.where(use, J + par, J)
         if plane == "xz":
             idx, wk, sgn = (2, 0), 1, np.sign(np.broadcast_to(pb["dist_x"], (B,)))

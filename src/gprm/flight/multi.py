@@ -137,10 +137,12 @@ def simulate_contacts(model, t1: float, *, t_end: float | None = None,
         C = C0 + tm_v * (t - t_imp)
         return tm_v + np.cross(tm_w, p - C)
 
-    def resolve(t, planes):
-        """Simultaneous frictionless impact at the given contacts at time t."""
+    def resolve(t, planes, mo=None):
+        """Simultaneous frictionless impact at the given contacts at time t (``mo``: the
+        plunger state at t, if already computed)."""
         nonlocal tm_v, tm_w
-        mo = state_at(t)
+        if mo is None:
+            mo = state_at(t)
         Jp, P, u, rho = {}, {}, {}, {}
         C = C0 + tm_v * (t - t_imp)
         for pl in planes:
@@ -187,7 +189,7 @@ def simulate_contacts(model, t1: float, *, t_end: float | None = None,
         pos, _ = point_motion(mo1, r_c[pl])
         faces[pl] = pos[0, :, 0] - C0        # face point in TM body coordinates
     C_ref = C0.copy()
-    res = resolve(t1, ("xz", "yz"))
+    res = resolve(t1, ("xz", "yz"), mo1)
     if res is not None:
         act, Pn, dq, dE = res
         dz_list.append((t1, np.concatenate([np.zeros(8), dq, [0.0]])))

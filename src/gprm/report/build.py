@@ -57,6 +57,13 @@ def _load_json(run: Path, name: str, what: str):
     return read_json(p, what=what) if p.exists() else None
 
 
+def _not_run(s: Section, what: str, why: str) -> Section:
+    """``s`` marked as not run (greyed in the navigation), with a note saying why."""
+    s.ran = False
+    s.blocks.append(not_run(what, why))
+    return s
+
+
 # ----------------------------------------------------------------------------- campaign
 
 def _table1(means) -> list:
@@ -86,10 +93,8 @@ def campaign_section(run: Path) -> Section:
     s = Section("Ground-test campaign", "campaign")
     means = _load_nc(run, "means.nc", "mean-signals file")
     if means is None:
-        s.ran = False
-        s.blocks.append(not_run("Campaign and preprocessing",
-                                "means.nc is missing (gprm synth campaign + gprm preprocess)."))
-        return s
+        return _not_run(s, "Campaign and preprocessing",
+                        "means.nc is missing (gprm synth campaign + gprm preprocess).")
     camp = _load_nc(run, "campaign.nc", "campaign file")
     n_runs = means["n_runs"].values if "n_runs" in means else None
     align = float(means.attrs.get("align_time", 1e-3))
@@ -174,9 +179,7 @@ def fit_section(run: Path) -> tuple[Section, dict | None]:
     s = Section("Identification", "fit")
     fit = _load_json(run, "fit.json", "fit result")
     if fit is None:
-        s.ran = False
-        s.blocks.append(not_run("Fit", "fit.json is missing (gprm fit)."))
-        return s, None
+        return _not_run(s, "Fit", "fit.json is missing (gprm fit)."), None
     side = _load_nc(run, "fit.nc", "fit sidecar")
     st = fit.get("starts", {})
     s.blocks.append(paragraph(
@@ -224,9 +227,7 @@ def predict_section(run: Path) -> Section:
     s = Section("Prediction", "predict")
     pred = _load_nc(run, "predict.nc", "prediction file")
     if pred is None:
-        s.ran = False
-        s.blocks.append(not_run("Prediction", "predict.nc is missing (gprm predict)."))
-        return s
+        return _not_run(s, "Prediction", "predict.nc is missing (gprm predict).")
     s.blocks.append(paragraph(
         "Trajectories of the contact middle points M_xz and M_yz and of the tip edge from the "
         "best fit (Eq. 8), with trajectories of parameter sets drawn from the fit covariance, "
@@ -267,10 +268,8 @@ def whatif_section(run: Path) -> Section:
     e10 = _load_nc(run, "predict_ecc10.nc", "what-if prediction")
     base = _load_nc(run, "predict.nc", "prediction file")
     if wi is None and p1 is None and e10 is None:
-        s.ran = False
-        s.blocks.append(not_run("What-ifs", "whatif.json and the what-if predictions are "
-                                "missing (gprm predict --piezo 1, --scale-eccentricity 0.1)."))
-        return s
+        return _not_run(s, "What-ifs", "whatif.json and the what-if predictions are missing "
+                        "(gprm predict --piezo 1, --scale-eccentricity 0.1).")
     s.blocks.append(paragraph(
         "Two strategies of Sec. 4.2: driving Piezo 1 instead of Piezo 2, and Piezo 1 with the "
         "eccentricities v2, g2, ρ and γ divided by ten. The ratios are the overshoot with "
@@ -305,10 +304,8 @@ def flight_section(run: Path) -> Section:
     s = Section("Flight: impact analysis", "flight")
     imp = _load_json(run, "impact.json", "impact result")
     if imp is None:
-        s.ran = False
-        s.blocks.append(not_run("Flight analysis", "impact.json is missing (gprm synth "
-                                "telemetry + gprm impact)."))
-        return s
+        return _not_run(s, "Flight analysis",
+                        "impact.json is missing (gprm synth telemetry + gprm impact).")
     curves = _load_nc(run, "impact.nc", "impact curves")
     n = len(imp.get("releases", []))
     n_ok = sum(1 for r in imp.get("releases", []) for a in (r.get("impact_time") or {}).values()

@@ -12,6 +12,18 @@ from pathlib import Path
 from gprm._io import open_netcdf, read_json
 
 
+def json_attr(attrs, key: str, default=None):
+    """A JSON document stored in a NetCDF attribute, or ``default`` where the attribute is
+    missing or not valid JSON."""
+    raw = attrs.get(key)
+    if raw is None:
+        return default
+    try:
+        return json.loads(raw)
+    except (TypeError, json.JSONDecodeError):
+        return default
+
+
 def truth_from_means(run: Path) -> dict | None:
     """The synthetic truth (SI, name -> value) recorded in ``means.nc``, if any; t0 and t1 in
     the aligned time base of the means (``truth_alignment_json``) where given."""
@@ -19,21 +31,14 @@ def truth_from_means(run: Path) -> dict | None:
     if not p.exists():
         return None
     attrs = open_netcdf(p, what="mean-signals file").attrs
-    raw = attrs.get("truth_json")
-    if raw is None:
-        return None
-    try:
-        truth = json.loads(raw)
-    except (TypeError, json.JSONDecodeError):
+    truth = json_attr(attrs, "truth_json")
+    if truth is None:
         return None
     truth = {k: float(v) for k, v in truth.items() if isinstance(v, (int, float))}
     # The aligned data's time base differs from the truth's (docs/data-formats.md, "The truth
     # after alignment"): the lags a fit of the aligned means should find are t0_expected_s
     # and t1_expected_s, not the truth's own t0, t1.
-    try:
-        align = json.loads(attrs.get("truth_alignment_json", "{}"))
-    except (TypeError, json.JSONDecodeError):
-        align = {}
+    align = json_attr(attrs, "truth_alignment_json", {})
     for name in ("t0", "t1"):
         v = align.get(f"{name}_expected_s")
         if isinstance(v, (int, float)):

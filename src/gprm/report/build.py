@@ -20,12 +20,12 @@ Figures carry stable HTML ids (:data:`FIGURE_IDS`) so that tests and links can f
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 import numpy as np
 
 from gprm._io import open_netcdf, read_json, write_text_atomic
+from gprm.demo.summary import json_attr, summarise, truth_for_fit, truth_from_means
 from gprm.errors import GprmInputError
 from gprm.report import figures as F
 from gprm.report.html import (Card, Section, fig_to_img, not_run, num, paragraph, pm, render,
@@ -67,12 +67,7 @@ def _not_run(s: Section, what: str, why: str) -> Section:
 # ----------------------------------------------------------------------------- campaign
 
 def _table1(means) -> list:
-    stored = {}
-    if "table1_json" in means.attrs:
-        try:
-            stored = json.loads(means.attrs["table1_json"])
-        except (TypeError, json.JSONDecodeError):
-            stored = {}
+    stored = json_attr(means.attrs, "table1_json", {})
     sig = [str(s) for s in means["signal"].values]
     rows = []
     for key, paper_v in _PAPER_T1.items():
@@ -116,36 +111,30 @@ def campaign_section(run: Path) -> Section:
                               "Table 1: ratios of the maxima of the mean signals", "table-1",
                               note="Dimensionless. The fit uses x_base, x_head, y_base, "
                                    "y_head and z_bk; the others serve the hypotheses of Sec. 2."))
-    if "dropped_json" in means.attrs:
-        try:
-            dropped = json.loads(means.attrs["dropped_json"])
-        except (TypeError, json.JSONDecodeError):
-            dropped = None
-        if dropped:
-            rows = []
-            entries = dropped.items() if isinstance(dropped, dict) else \
-                [(d.get("position", "?"), d) for d in dropped]
-            for pos, d in entries:
-                if isinstance(d, dict):
-                    v, thr = d.get("value"), d.get("support_threshold")
-                    rows.append((pos, d.get("hypothesis", ""), d.get("ratio", ""),
-                                 "—" if v is None else f"{v:.3g}",
-                                 "—" if thr is None else f"> {thr:g}",
-                                 "yes" if d.get("supported") else "no"))
-                else:
-                    rows.append((pos, str(d), "", "", "", ""))
-            s.blocks.append(table(["position", "hypothesis (Sec. 2)", "ratio", "value",
-                                   "needed", "supported"], rows,
-                                  "Positions the hypotheses of Sec. 2 drop from the fit",
-                                  "table-dropped"))
+    dropped = json_attr(means.attrs, "dropped_json")
+    if dropped:
+        rows = []
+        entries = dropped.items() if isinstance(dropped, dict) else \
+            [(d.get("position", "?"), d) for d in dropped]
+        for pos, d in entries:
+            if isinstance(d, dict):
+                v, thr = d.get("value"), d.get("support_threshold")
+                rows.append((pos, d.get("hypothesis", ""), d.get("ratio", ""),
+                             "—" if v is None else f"{v:.3g}",
+                             "—" if thr is None else f"> {thr:g}",
+                             "yes" if d.get("supported") else "no"))
+            else:
+                rows.append((pos, str(d), "", "", "", ""))
+        s.blocks.append(table(["position", "hypothesis (Sec. 2)", "ratio", "value",
+                               "needed", "supported"], rows,
+                              "Positions the hypotheses of Sec. 2 drop from the fit",
+                              "table-dropped"))
     return s
 
 
 # ----------------------------------------------------------------------------- fit
 
 def truth_of(run: Path, fit: dict) -> dict | None:
-    from gprm.demo.summary import truth_for_fit, truth_from_means
-
     truth = truth_from_means(run)
     return None if truth is None else truth_for_fit(truth, fit)
 
@@ -395,8 +384,6 @@ def provenance_section(run: Path) -> Section:
 # ----------------------------------------------------------------------------- assembly
 
 def summary_cards(run: Path, fit: dict | None) -> list[Card]:
-    from gprm.demo.summary import summarise
-
     s = summarise(run)
     cards = []
     if "fit" in s:

@@ -72,26 +72,21 @@ def _with_perturbation(motion, dz_list, lam, V, Vinv):
     coords = {n: motion.coords[n] + dz[i][None] for i, n in enumerate(MECH)}
     rates = {f"{n}_dot": motion.rates[f"{n}_dot"] + dz[8 + i][None]
              for i, n in enumerate(MECH)}
-    from gprm.predict.kinematics import angular_velocity, rotation
+    from gprm.predict.kinematics import motion_omega, rotation
     R = rotation(coords["theta"], coords["eta"])
-    omega = np.moveaxis(angular_velocity(coords["theta"], rates["eta_dot"],
-                                         rates["theta_dot"]), -1, 1)
-    return replace(motion, coords=coords, rates=rates, R=R, omega=omega)
+    return replace(motion, coords=coords, rates=rates, R=R, omega=motion_omega(coords, rates))
 
 
 def _point_jacobian(motion, r_body):
     """∂p/∂ξ (3, 8) of a plunger-fixed point at the single time of ``motion``: the point's
     velocity for a unit rate of each coordinate (velocity is linear in the rates)."""
-    from gprm.predict.kinematics import point_motion
+    from gprm.predict.kinematics import motion_omega, point_motion
 
     cols = []
     for n in MECH:
         rates = {f"{m}_dot": np.zeros_like(motion.rates[f"{m}_dot"]) for m in MECH}
         rates[f"{n}_dot"] = np.ones_like(rates[f"{n}_dot"])
-        from gprm.predict.kinematics import angular_velocity
-        om = np.moveaxis(angular_velocity(motion.coords["theta"], rates["eta_dot"],
-                                          rates["theta_dot"]), -1, 1)
-        m2 = replace(motion, rates=rates, omega=om)
+        m2 = replace(motion, rates=rates, omega=motion_omega(motion.coords, rates))
         _, v = point_motion(m2, r_body)
         cols.append(v[0, :, 0])
     return np.stack(cols, 1)

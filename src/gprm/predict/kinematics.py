@@ -105,6 +105,13 @@ def angular_velocity(theta, eta_dot, theta_dot) -> np.ndarray:
                      eta_dot * np.sin(theta)], -1)
 
 
+def motion_omega(coords: Mapping[str, np.ndarray],
+                 rates: Mapping[str, np.ndarray]) -> np.ndarray:
+    """omega (B, 3, T) from simulated coordinates and rates ``{name: (B, T)}``."""
+    return np.moveaxis(angular_velocity(coords["theta"], rates["eta_dot"],
+                                        rates["theta_dot"]), -1, 1)
+
+
 def linear_statics(pb: Mapping[str, np.ndarray], piezo: int) -> dict[str, np.ndarray]:
     """Equilibrium mu3, mu4 (B,) at V0 (linear model, K x = Q V0)."""
     from gprm.model.linear import generated
@@ -187,10 +194,9 @@ def body_motion(source, times, *, piezo: int = 2, voltage=None,
     if sensitivities:
         sens = {n: obs.dy[:, k[n]] for n in names}
     R = rotation(coords["theta"], coords["eta"])                       # (B, T, 3, 3)
-    omega = np.moveaxis(angular_velocity(coords["theta"], rates["eta_dot"],
-                                         rates["theta_dot"]), -1, 1)  # (B, 3, T)
     return PlungerMotion(time=t, params=pb, piezo=piezo, coords=coords, rates=rates,
-                         mu_eq=linear_statics(pb, piezo), R=R, omega=omega, ok=obs.ok,
+                         mu_eq=linear_statics(pb, piezo), R=R,
+                         omega=motion_omega(coords, rates), ok=obs.ok,
                          sens=sens, sens_names=tuple(sensitivities))
 
 
@@ -281,7 +287,7 @@ def _point_kinematics(bp: BodyPoint, coords, rates, mu_eq, relative):
     A = np.stack([c["x_A"], c["y_A"], c["z_lr"] + c["z_A"]], 1)
     pos = A + Rr
     Ad = np.stack([d["x_A_dot"], d["y_A_dot"], d["z_lr_dot"] + d["z_A_dot"]], 1)
-    w = np.moveaxis(angular_velocity(c["theta"], d["eta_dot"], d["theta_dot"]), -1, 1)
+    w = motion_omega(c, d)                                               # (B, 3, T)
     s_dot = bp.a3[:, None] * d["mu3_dot"] + bp.a4[:, None] * d["mu4_dot"]    # (B, T)
     Ru = np.einsum("btij,bj->bit", R, bp.u)
     vel = Ad + np.cross(w, Rr, axis=1) + s_dot[:, None, :] * Ru

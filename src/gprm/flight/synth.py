@@ -95,6 +95,8 @@ def synth_telemetry(model, opts: SynthOptions = SynthOptions(), *, geometry=None
     grid, win = plausible_window(model, step=opts.grid_step, geometry=geometry,
                                  mode=opts.window_mode)
     pb0 = batch([model.params])
+    if not opts.truth_spread:   # every candidate is the best fit: simulate it once
+        vel0 = tm_velocity_vs_time(body_motion(pb0, grid, piezo=model.piezo), geometry)
     chosen_t, chosen_v = [], []
     chosen_idx = []
     attempt = 0
@@ -104,10 +106,9 @@ def synth_telemetry(model, opts: SynthOptions = SynthOptions(), *, geometry=None
             pc = model.sample(nc, seed=opts.seed * 1000 + attempt)
             geos = sample_geometries(geometry, uncertainty, nc, opts.seed * 1000 + 500 + attempt,
                                      pb0)
+            vel = tm_velocity_vs_time(body_motion(pc, grid, piezo=model.piezo), geos)
         else:
-            pc = {k: np.repeat(v, nc) for k, v in pb0.items()}
-            geos = [geometry] * nc
-        vel = tm_velocity_vs_time(body_motion(pc, grid, piezo=model.piezo), geos)
+            vel = {k: np.repeat(v, nc, axis=0) for k, v in vel0.items()}
         k = rng.integers(0, grid.size, size=nc)
         for j in range(nc):
             if len(chosen_t) >= R:

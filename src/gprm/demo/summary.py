@@ -92,6 +92,12 @@ def truth_recovery(fit: dict, truth: dict) -> dict:
     return out
 
 
+def impact_times_found(imp: dict) -> int:
+    """How many impact times (release x axis) of an impact result have a value."""
+    return sum(1 for r in imp.get("releases", []) for a in (r.get("impact_time") or {}).values()
+               if a.get("value") is not None)
+
+
 def summarise(run: str | Path) -> dict:
     run = Path(run)
     s: dict = {}
@@ -123,7 +129,5 @@ def summarise(run: str | Path) -> dict:
                                   f"{len(rejected)} pair(s) differ" if pairs else
                                   "no test (" + str(tk.get("note", "no pairs")) + ")")}
         s["releases"] = len(imp.get("releases", []))
-        s["impact_times_found"] = sum(1 for r in imp.get("releases", [])
-                                      for a in (r.get("impact_time") or {}).values()
-                                      if a.get("value") is not None)
+        s["impact_times_found"] = impact_times_found(imp)
     return s

@@ -25,7 +25,8 @@ from pathlib import Path
 import numpy as np
 
 from gprm._io import open_netcdf, read_json, write_text_atomic
-from gprm.demo.summary import json_attr, summarise, truth_for_fit, truth_from_means
+from gprm.demo.summary import (impact_times_found, json_attr, summarise, truth_for_fit,
+                               truth_from_means)
 from gprm.errors import GprmInputError
 from gprm.report import figures as F
 from gprm.report.html import (Card, Section, fig_to_img, not_run, num, paragraph, pm, render,
@@ -297,8 +298,7 @@ def flight_section(run: Path) -> Section:
                         "impact.json is missing (gprm synth telemetry + gprm impact).")
     curves = _load_nc(run, "impact.nc", "impact curves")
     n = len(imp.get("releases", []))
-    n_ok = sum(1 for r in imp.get("releases", []) for a in (r.get("impact_time") or {}).values()
-               if a.get("value") is not None)
+    n_ok = impact_times_found(imp)
     s.blocks.append(paragraph(
         f"{n} releases: the release velocity per axis from the telemetry, and the impact time "
         "at which the impact model (Appendix B) applied to the predicted plunger state gives "

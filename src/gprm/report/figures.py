@@ -309,7 +309,7 @@ def fig_velocity_impact(imp: dict, curves=None, release: int = 0):
     return fig
 
 
-def fig_impact_times(imp: dict, tele=None):
+def fig_impact_times(imp: dict):
     """Fig. 12: every estimated impact time (release x axis) with its 1-sigma error, and the
     true impact time of synthetic releases."""
     releases = imp.get("releases") or []

@@ -226,6 +226,18 @@ class _quiet:
         return self._w.__exit__(*a)
 
 
+def _repeat_motion(motion, n: int):
+    """A one-set motion as ``n`` identical sets (the best fit under ``n`` geometry draws),
+    without simulating it again."""
+    def rep(d):
+        return {k: np.repeat(v, n, axis=0) for k, v in d.items()}
+
+    return replace(motion, params=rep(motion.params), coords=rep(motion.coords),
+                   rates=rep(motion.rates), mu_eq=rep(motion.mu_eq),
+                   R=np.repeat(motion.R, n, axis=0), omega=np.repeat(motion.omega, n, axis=0),
+                   ok=np.repeat(motion.ok, n))
+
+
 def default_window(pb) -> tuple[float, float]:
     """[t_c, t_c + 0.2 ms]: from the retraction command to the end of the paper's record."""
     tc = float(np.asarray(pb["t_c"]).ravel()[0])
@@ -258,9 +270,7 @@ def velocity_curves(model, *, window=None, n_times: int = 401, n_samples: int = 
     fit_c = tm_velocity_vs_time(body_motion(pf, t, piezo=model.piezo, voltage=voltage),
                                 geometry)
     geos = sample_geometries(geometry, uncertainty, n_samples, seed + 1, pb0)
-    rep = {k: np.repeat(v, n_samples) for k, v in pb0.items()}
-    m_rep = body_motion(rep, t, piezo=model.piezo, voltage=voltage)
-    geo_c = tm_velocity_vs_time(m_rep, geos)
+    geo_c = tm_velocity_vs_time(_repeat_motion(nom_m, n_samples), geos)
     pj = model.sample(n_samples, seed=seed + 2)
     geos_j = sample_geometries(geometry, uncertainty, n_samples, seed + 3, pb0)
     joint = tm_velocity_vs_time(body_motion(pj, t, piezo=model.piezo, voltage=voltage), geos_j)

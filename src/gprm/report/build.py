@@ -349,9 +349,9 @@ def flight_section(run: Path) -> Section:
 
 # ----------------------------------------------------------------------------- provenance
 
-def provenance_section(run: Path) -> Section:
+def provenance_section(run: Path, prov: dict) -> Section:
+    """``prov``: the run record (run.json; empty where there is none)."""
     s = Section("Provenance", "provenance")
-    prov = _load_json(run, "run.json", "run record") or {}
     rows = []
     for key in ("command", "seed", "started", "finished"):
         if key in prov:
@@ -383,7 +383,7 @@ def provenance_section(run: Path) -> Section:
 
 # ----------------------------------------------------------------------------- assembly
 
-def summary_cards(run: Path, fit: dict | None) -> list[Card]:
+def summary_cards(run: Path, fit: dict | None, prov: dict) -> list[Card]:
     s = summarise(run)
     cards = []
     if "fit" in s:
@@ -420,7 +420,6 @@ def summary_cards(run: Path, fit: dict | None) -> list[Card]:
         cards.append(Card("Tukey test", "compatible" if ok else f"{len(tk['rejected'])} "
                           "pairs differ", f"{s.get('releases')} releases, α = {tk['alpha']}",
                           "ok" if ok else "bad"))
-    prov = _load_json(run, "run.json", "run record") or {}
     stages = {k: v for k, v in (prov.get("stages") or {}).items() if k != "report"}
     if stages:
         done = [k for k, v in stages.items() if v.get("status") in ("ran", "skipped")]
@@ -445,17 +444,18 @@ def build_report(run_dir: str | Path) -> str:
                              source=str(run))
     fit_s, fit = fit_section(run)
     sections = [campaign_section(run), fit_s, predict_section(run), whatif_section(run),
-                flight_section(run), provenance_section(run)]
+                flight_section(run)]
+    prov = _load_json(run, "run.json", "run record") or {}
+    sections.append(provenance_section(run, prov))
     from gprm import __version__
 
-    prov = _load_json(run, "run.json", "run record") or {}
     sub = f"gprm {__version__} · run directory {run.resolve().name}"
     if "seed" in prov:
         sub += f" · seed {prov['seed']}"
     if prov.get("started"):
         sub += f" · run started {prov['started']}"
     return render("GPRM tip retraction: identification, prediction and flight analysis", sub,
-                  summary_cards(run, fit), sections,
+                  summary_cards(run, fit, prov), sections,
                   footer="Self-contained report: figures are embedded PNG images; nothing is "
                          "fetched over the network.")
 

@@ -181,16 +181,24 @@ def run_demo(out: str | Path, opts: DemoOptions = DemoOptions(), *, stages=None,
         "timings_s": {},
     }
     records: list[StageRecord] = []
+
+    def not_done(stage: Stage, rec: StageRecord, event: str, **entry) -> None:
+        """Record a stage that produced no outputs (blocked, not available, failed) and
+        remove its outputs: those of an older run would no longer match, a half-written one
+        must not be reused."""
+        report(stage.name, event, None, None)
+        records.append(rec)
+        state["stages"][stage.name] = {"status": rec.status, "detail": rec.detail, **entry}
+        for name in stage.outputs:
+            (run / name).unlink(missing_ok=True)
+        _write_state(run, state)
+
     t_all = time.perf_counter()
     for stage in stages:
         missing = [n for n in stage.inputs if not (run / n).exists()]
         if missing:
-            rec = StageRecord(stage.name, "blocked", detail="needs " + ", ".join(missing))
-            report(stage.name, "blocked", None, None)
-            records.append(rec)
-            state["stages"][stage.name] = {"status": rec.status, "detail": rec.detail}
-            for name in stage.outputs:   # outputs of an older run would no longer match
-                (run / name).unlink(missing_ok=True)
+            not_done(stage, StageRecord(stage.name, "blocked",
+                                        detail="needs " + ", ".join(missing)), "blocked")
             continue
         key = input_key(run, stage, opts)
         if up_to_date(run, stage, key, previous):
@@ -210,13 +218,8 @@ def run_demo(out: str | Path, opts: DemoOptions = DemoOptions(), *, stages=None,
         try:
             info = stage.run(run, opts, lambda d, t, _n=stage.name: report(_n, "step", d, t))
         except StageUnavailable as exc:
-            rec = StageRecord(stage.name, "not available", detail=str(exc))
-            report(stage.name, "unavailable", None, None)
-            records.append(rec)
-            state["stages"][stage.name] = {"status": rec.status, "detail": rec.detail}
-            for name in stage.outputs:   # a stale output from an older run must not be reused
-                (run / name).unlink(missing_ok=True)
-            _write_state(run, state)
+            not_done(stage, StageRecord(stage.name, "not available", detail=str(exc)),
+                     "unavailable")
             continue
         except Exception as exc:
             # a failing stage does not stop the demo: it is recorded (with the traceback's
@@ -225,15 +228,8 @@ def run_demo(out: str | Path, opts: DemoOptions = DemoOptions(), *, stages=None,
 
             detail = f"{type(exc).__name__}: {exc}"
             tb = traceback.format_exc().strip().splitlines()[-12:]
-            rec = StageRecord(stage.name, "failed", seconds=time.perf_counter() - t0,
-                              detail=detail)
-            report(stage.name, "fail", None, None)
-            records.append(rec)
-            state["stages"][stage.name] = {"status": "failed", "detail": detail,
-                                           "traceback": tb}
-            for name in stage.outputs:
-                (run / name).unlink(missing_ok=True)
-            _write_state(run, state)
+            not_done(stage, StageRecord(stage.name, "failed", seconds=time.perf_counter() - t0,
+                                        detail=detail), "fail", traceback=tb)
             continue
         except BaseException:          # interrupted: record it and stop; a rerun resumes
             report(stage.name, "fail", None, None)

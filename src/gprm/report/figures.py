@@ -352,8 +352,9 @@ def fig_release_fit(tele, imp: dict, release: int = 0):
     if after.sum() < 3:
         return None
     line = fit_release_velocity(t[after], x[after])
-    rid = (imp.get("releases") or [{}])[release].get("id", release + 1)
-    v = ((imp.get("releases") or [{}])[release].get("velocity") or {}).get("vx", {})
+    rel = (imp.get("releases") or [{}])[release]
+    rid = rel.get("id", release + 1)
+    v = (rel.get("velocity") or {}).get("vx", {})
     fig, ax = plt.subplots(figsize=(8.0, 3.0))
     ax.plot(t, x * UM, "o", ms=3, color=COLORS["vx"], label="telemetry x (test mass)")
     tt = np.linspace(0, t.max(), 50)

@@ -12,7 +12,7 @@ from pathlib import Path
 
 import numpy as np
 
-from gprm._io import open_netcdf, write_json_atomic, write_netcdf_atomic
+from gprm._io import open_netcdf, read_json, write_json_atomic, write_netcdf_atomic
 from gprm.demo.pipeline import DemoOptions, Stage, StageUnavailable
 
 PIEZO_GROUND = 2            # the ground campaign and the flight releases drive Piezo 2
@@ -44,7 +44,6 @@ def load_model(run: Path) -> tuple:
     except GprmInputError as exc:
         if exc.field != "correlation":
             raise
-    from gprm._io import read_json
     from gprm.params import ParameterSet, paper
 
     doc = read_json(run / "fit.json", what="fit result")

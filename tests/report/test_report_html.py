@@ -162,3 +162,14 @@ def test_report_renders_in_headless_chromium(report_html, tmp_path):
     check_not_blank(png)
     dom = dump_dom(report_html)
     assert 'id="fig-fit"' in dom and 'id="table-3"' in dom
+
+
+def test_run_time_card_leaves_out_the_report_stage(tmp_path):
+    from gprm.report.build import summary_cards
+
+    prov = {"stages": {"campaign": {"status": "ran", "seconds": 3.0},
+                       "fit": {"status": "ran", "seconds": 40.0},
+                       "report": {"status": "ran", "seconds": 500.0}}}
+    cards = {c.label: c for c in summary_cards(tmp_path, None, prov)}
+    assert cards["run time"].value == "43 s"
+    assert cards["stages"].value == "2 / 2 done"

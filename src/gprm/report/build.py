@@ -428,7 +428,7 @@ def summary_cards(run: Path, fit: dict | None, prov: dict) -> list[Card]:
                           ("not done: " + ", ".join(f"{k} ({stages[k].get('status')})"
                                                     for k in bad)) if bad else
                           "every stage ran or was up to date", "bad" if bad else "ok"))
-    total = sum(v.get("seconds", 0.0) or 0.0 for v in (prov.get("stages") or {}).values())
+    total = sum(v.get("seconds", 0.0) or 0.0 for v in stages.values())
     if total:
         cards.append(Card("run time", f"{total:.0f} s", "all stages (report excluded)"))
     return cards

@@ -82,15 +82,59 @@ _D1_SHORT = _D1[:10]          # |w| < _SMALL_J: truncation below 1e-15 relative
 _SMALL_J = 0.05
 
 
-def conv_default(lam, tau, V0, tau_v, need_J=True):
+UNIFORM_TOL = 1e-12
+"""Relative spread of the sample spacing below which a time axis counts as uniform (then
+exp(lambda t) is built from powers, :func:`exp_lt`); the error this admits in exp(lambda t)
+is below |lambda| h UNIFORM_TOL, about 1e-12 for the model's fastest modes at 200 kHz."""
+
+
+def exp_lt(lam, tau, period=None):
+    """exp(lam t) (B, n, T) for t = max(tau, 0); lam (B, n), tau (B, T).
+
+    ``period``: tau's columns are consecutive blocks of this length (one per lag group),
+    each possibly a uniform grid. Where they are (spacing h equal to ``UNIFORM_TOL``), the
+    exponentials are products exp(lam t_1) exp(lam h K i) exp(lam h j) over the live samples
+    (t > 0, first live time t_1, sample k = k_1 + K i + j) with K ~ sqrt(T): about 2 sqrt(T)
+    complex exponentials per mode and block instead of T, each factor exact to rounding.
+    Elsewhere (or for a non-uniform axis) it is np.exp directly.
+    """
+    Bn, T = tau.shape
+    t = np.clip(tau, 0.0, None)
+    if period is None or period < 4 or T % period:
+        return np.exp(lam[:, :, None] * t[:, None, :])
+    G = T // period
+    tg = tau.reshape(Bn, G, period)
+    d = np.diff(tg, axis=2)
+    h = float(np.mean(d))
+    if not (h > 0 and np.max(np.abs(d - h)) <= UNIFORM_TOL * h):
+        return np.exp(lam[:, :, None] * t[:, None, :])
+    k1 = np.minimum(np.sum(tg <= 0.0, axis=2), period - 1)             # first live sample
+    t1 = np.take_along_axis(tg, k1[:, :, None], axis=2)[:, :, 0]        # (B, G)
+    K = int(np.ceil(np.sqrt(period)))
+    nb = -(-period // K)
+    small = np.exp(lam[:, :, None] * (h * np.arange(K)))                # (B, n, K)
+    big = np.exp(lam[:, :, None] * (h * K * np.arange(nb)))             # (B, n, nb)
+    powers = (big[:, :, :, None] * small[:, :, None, :]).reshape(Bn, -1, nb * K)
+    j = np.arange(period)[None, None, :] - k1[:, :, None]               # (B, G, period)
+    idx = np.clip(j, 0, period - 1)
+    E = np.take_along_axis(powers[:, :, None, :period], idx[:, None], axis=3)
+    E *= np.exp(lam[:, :, None] * t1[:, None, :])[..., None]            # (B, n, G, period)
+    E = np.where(((j >= 0) & (tg > 0.0))[:, None], E, 1.0)
+    return E.reshape(Bn, -1, T)
+
+
+def conv_default(lam, tau, V0, tau_v, need_J=True, period=None):
     """I, J = dI/dlam and u for u(s) = V0 (exp(-s/tau_v) - 1), s >= 0 (0 before).
 
     lam: (B, n) complex; tau: (B, T) real; V0, tau_v: (B,). Returns I, J (B, n, T) (J None
-    unless ``need_J``) and u (B, T). With a = 1/tau_v, L = lam, E = e^{L t}:
+    unless ``need_J``) and u (B, T). ``period``: see :func:`exp_lt`. With a = 1/tau_v,
+    L = lam, E = e^{L t}:
 
         I = V0 [I_a - I_0],  I_a = (E - e^{-a t})/(L + a),  I_0 = (E - 1)/L,
         J = V0 [(t E - I_a)/(L + a) - (t E - I_0)/L].
 
+    Without J, I is evaluated as V0 [-a E / (L (L + a)) + 1/L - e^{-a t}/(L + a)], the same
+    sum with the per-mode factors taken out (one product per entry instead of two quotients).
     Where an argument w = L t or (L + a) t is small these differences cancel: I_0 and I_a use
     expm1 there (|w| < 0.1, e.g. I_a = e^{-a t} expm1((L + a) t)/(L + a)), and J's terms,
     t^2 phi1'(w), their Taylor series (|w| < 0.05, 10 terms, truncation < 1e-15). Only those
@@ -101,32 +145,43 @@ def conv_default(lam, tau, V0, tau_v, need_J=True):
     t = np.clip(tau, 0.0, None)[:, None, :]
     L = lam[:, :, None]
     La = L + a
-    z = L * t
-    za = La * t
-    E = np.exp(z)
+    E = exp_lt(lam, tau, period)
     ea = np.exp(-a * t)
-    with np.errstate(all="ignore"):
-        term_0 = (E - 1.0) / L
-        term_a = (E - ea) / La
-    live = np.broadcast_to(t > 0, z.shape)        # t = 0: I = J = 0 (direct forms give 0)
-    s0 = (np.abs(z) < 0.1) & live
-    sa = (np.abs(za) < 0.1) & live
-    tb = np.broadcast_to(t, z.shape)
-    eab = np.broadcast_to(ea, z.shape)
-    if s0.any():
-        term_0[s0] = np.expm1(z[s0]) / np.broadcast_to(L, z.shape)[s0]
-    if sa.any():
-        Las = La[sa] if La.shape == z.shape else np.broadcast_to(La, z.shape)[sa]
-        with np.errstate(all="ignore"):
-            ta = eab[sa] * np.expm1(za[sa]) / Las
-        zero = Las == 0                              # L = -a exactly: the limit t e^{-a t}
-        ta[zero] = (eab[sa] * tb[sa])[zero]
-        term_a[sa] = ta
+    live = t > 0                                   # t = 0: I = J = 0 (direct forms give 0)
+    shape = E.shape
     V0b = V0[:, None, None]
     u = V0[:, None] * (np.exp(-np.clip(tau, 0, None) / tau_v[:, None]) - 1.0)
     u = np.where(tau > 0, u, 0.0)
     if not need_J:
-        return V0b * (term_a - term_0), None, u
+        with np.errstate(all="ignore"):
+            c3 = 1.0 / L
+            c2 = 1.0 / La
+            I = (-a * c3 * c2) * E + (c3 - c2 * ea)
+        # entries where L t or (L + a) t is small: both terms in their accurate forms
+        m = ((np.abs(L) * t < 0.1) | (np.abs(La) * t < 0.1)) & live
+        m |= ~np.isfinite(I) & live
+        if m.any():
+            Lm = np.broadcast_to(L, shape)[m]
+            Lam = np.broadcast_to(La, shape)[m]
+            tm = np.broadcast_to(t, shape)[m]
+            eam = np.broadcast_to(ea, shape)[m]
+            I[m] = _term_a(Lam, tm, eam, E[m]) - _term_0(Lm, tm, E[m])
+        I = np.where(live, I, 0.0)
+        return V0b * I, None, u
+    z = L * t
+    za = La * t
+    with np.errstate(all="ignore"):
+        term_0 = (E - 1.0) / L
+        term_a = (E - ea) / La
+    live = np.broadcast_to(live, shape)
+    s0 = (np.abs(z) < 0.1) & live
+    sa = (np.abs(za) < 0.1) & live
+    tb = np.broadcast_to(t, shape)
+    eab = np.broadcast_to(ea, shape)
+    if s0.any():
+        term_0[s0] = np.expm1(z[s0]) / np.broadcast_to(L, shape)[s0]
+    if sa.any():
+        term_a[sa] = _term_a(np.broadcast_to(La, shape)[sa], tb[sa], eab[sa], E[sa])
     with np.errstate(all="ignore"):
         tE = t * E
         dterm_a = (tE - term_a) / La
@@ -140,6 +195,23 @@ def conv_default(lam, tau, V0, tau_v, need_J=True):
         tt = tb[s0]
         dterm_0[s0] = tt * tt * _series(z[s0], _D1_SHORT)
     return V0b * (term_a - term_0), V0b * (dterm_a - dterm_0), u
+
+
+def _term_0(L, t, E):
+    """(E - 1)/L with E = e^{L t}, accurate for small L t (entries, 1-D)."""
+    z = L * t
+    with np.errstate(all="ignore"):
+        return np.where(np.abs(z) < 0.1, np.expm1(z) / L, (E - 1.0) / L)
+
+
+def _term_a(La, t, ea, E):
+    """(E - e^{-a t})/(L + a), accurate for small (L + a) t, and t e^{-a t} at L = -a."""
+    za = La * t
+    with np.errstate(all="ignore"):
+        out = np.where(np.abs(za) < 0.1, ea * np.expm1(za) / La, (E - ea) / La)
+    zero = La == 0
+    out[zero] = (ea * t)[zero]
+    return out
 
 
 def conv_trace(lam, tau, knot_t, knot_u):
@@ -346,7 +418,8 @@ def solve(pb: dict, times: np.ndarray, H: np.ndarray, lags, *, piezo: int,
     groups = [rows for _, rows in grouped]
     tv = np.concatenate([tau - g[:, None] if g.any() else tau for g, _ in grouped], axis=1)
     if trace is None:
-        I, J, u = conv_default(lamS, tv, pb["V0"], pb["tau_v"], need_J=bool(names))
+        I, J, u = conv_default(lamS, tv, pb["V0"], pb["tau_v"], need_J=bool(names),
+                               period=T)
     else:
         kt, ku = trace.knots(0.0)
         I, J, u = conv_trace(lamS, tv, kt, ku)

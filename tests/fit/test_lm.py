@@ -16,11 +16,11 @@ sys.path.insert(0, str(Path(__file__).parent))
 import nist  # noqa: E402
 
 PROBLEMS = nist.names()
-# MGH17 from start 1: plain Algorithm 1 (damping lambda diag(J^T J) at the current point)
-# runs b4 to infinity, where its Jacobian column vanishes and its damping with it; the
-# MINPACK-style damping (largest diag(J^T J) seen so far) with enough iterations reaches the
-# certified values. See test_mgh17_start1 and docs/fitting.md.
-NEEDS_OPTIONS = {("MGH17", 0): dict(damping="max", max_iter=5000)}
+# Plain Algorithm 1 (lambda diag(J^T J) at the current point, no acceleration) is what the
+# multi-start fit uses. From MGH17's start 1 it runs b4 to infinity, where its Jacobian column
+# vanishes and its damping with it (test_mgh17_start1_plain_algorithm1_fails_honestly); the
+# standalone optimizer's defaults (MINPACK damping scale and geodesic acceleration) reach it.
+PLAIN = dict(damping="current", geodesic=False)
 
 
 def test_all_nineteen_problems_are_present_and_read():
@@ -41,15 +41,30 @@ def test_all_nineteen_problems_are_present_and_read():
 @pytest.mark.parametrize("start", [0, 1], ids=["start1", "start2"])
 @pytest.mark.parametrize("name", PROBLEMS)
 def test_nist_certified_values_to_four_digits(name, start, analytic):
+    """The standalone optimizer with its default options."""
     p = nist.load(name)
-    opts = NEEDS_OPTIONS.get((name, start), {})
     with np.errstate(all="ignore"):
         res = levenberg_marquardt(p.residuals, p.starts[start],
-                                  p.jacobian if analytic else None, **opts)
+                                  p.jacobian if analytic else None)
     assert res.converged, res.message
     assert nist.digits(res.x, p.certified) >= 4.0, (res.x, p.certified)
     assert res.chi2 == pytest.approx(float(np.sum(res.fun ** 2)))
     assert res.chi2 <= p.rss * (1 + 1e-6) + 1e-20
+
+
+@pytest.mark.parametrize("start", [0, 1], ids=["start1", "start2"])
+@pytest.mark.parametrize("name", PROBLEMS)
+def test_nist_plain_algorithm1_as_the_multistart_uses_it(name, start):
+    """Plain Algorithm 1 (analytic Jacobian) reaches every certified value but one: MGH17 from
+    start 1 (next test)."""
+    if (name, start) == ("MGH17", 0):
+        pytest.skip("MGH17 from start 1 is the documented failure of plain Algorithm 1 "
+                    "(test_mgh17_start1_plain_algorithm1_fails_honestly)")
+    p = nist.load(name)
+    with np.errstate(all="ignore"):
+        res = levenberg_marquardt(p.residuals, p.starts[start], p.jacobian, **PLAIN)
+    assert res.converged, res.message
+    assert nist.digits(res.x, p.certified) >= 4.0, (res.x, p.certified)
 
 
 def test_mgh17_start1_plain_algorithm1_fails_honestly():
@@ -57,7 +72,8 @@ def test_mgh17_start1_plain_algorithm1_fails_honestly():
     from start 1 (it stops at a degenerate point with chi-square ~1.1, certified 5.5e-5)."""
     p = nist.load("MGH17")
     with np.errstate(all="ignore"):
-        res = levenberg_marquardt(p.residuals, p.starts[0], p.jacobian, max_iter=5000)
+        res = levenberg_marquardt(p.residuals, p.starts[0], p.jacobian, max_iter=5000,
+                                  **PLAIN)
     assert nist.digits(res.x, p.certified) < 4
     assert res.chi2 > 1e3 * p.rss
 
@@ -75,7 +91,7 @@ def test_worse_steps_are_rejected_and_chi2_never_increases():
     def jac(x):
         return np.array([[-20 * x[0], 10.0], [-1.0, 0.0]])
 
-    out = levenberg_marquardt(res, [-1.2, 1.0], jac, lambda0=1.0)
+    out = levenberg_marquardt(res, [-1.2, 1.0], jac, lambda0=1.0, **PLAIN)
     assert out.converged
     np.testing.assert_allclose(out.x, [1, 1], atol=1e-6)
     # accepted points: running minimum of evaluated chi-square must end at the final chi2
@@ -118,5 +134,73 @@ def test_batch_rows_are_independent_of_each_other():
         alone = levenberg_marquardt_batch(fun, X0[i:i + 1], max_iter=200, ftol=1e-12)
         np.testing.assert_array_equal(alone.x[0], together.x[i])
         assert alone.iterations[0] == together.iterations[i]
-        single = levenberg_marquardt(p.residuals, X0[i], p.jacobian, max_iter=200, ftol=1e-12)
+        single = levenberg_marquardt(p.residuals, X0[i], p.jacobian, max_iter=200, ftol=1e-12,
+                                     **PLAIN)
         np.testing.assert_array_equal(single.x, together.x[i])
+
+
+def test_stall_window_stops_when_chi2_falls_less_than_the_tolerance_over_the_window():
+    """The window rule stops a row at the first iteration k >= W where chi2 fell by at most
+    ``stall_tol`` over the last W iterations, and never earlier."""
+    p = nist.load("Lanczos1")         # creeps for hundreds of iterations
+    W, tol = 5, 1e-9
+
+    def fun(X):
+        return (np.stack([p.residuals(x) for x in X]), np.stack([p.jacobian(x) for x in X]))
+
+    hist = []
+
+    def record(chi2, active):
+        hist.append(chi2.copy())
+        return np.zeros_like(active)
+
+    res = levenberg_marquardt_batch(fun, p.starts[0][None], max_iter=1000, ftol=0.0,
+                                    stall_window=W, stall_tol=tol, prune=record)
+    assert res.status[0] == "stalled" and res.converged[0]
+    chi = np.array([h[0] for h in hist] + [res.chi2[0]])   # chi2 before each iteration, final
+    k = int(res.iterations[0])
+    assert k == chi.size - 1
+    drop = chi[:-W] - chi[W:]                                # over every window of W iterations
+    assert drop[-1] <= tol
+    assert np.all(drop[:-1] > tol)
+    off = levenberg_marquardt_batch(fun, p.starts[0][None], max_iter=k + 50, ftol=0.0)
+    assert off.iterations[0] > k and off.status[0] != "stalled"
+
+
+def test_geodesic_acceleration_solves_the_damped_system_with_the_second_derivative():
+    """For residuals quadratic in x the finite-difference second directional derivative is
+    exact, so the acceleration must equal the solution of
+    [J^T J + lam diag(J^T J)] a = -J^T (v^T H v), computed here by a dense solve."""
+    from gprm.fit.lm import _geodesic_correction, reduce_jacobian, scaled_svd, svd_steps
+
+    rng = np.random.default_rng(3)
+    N, P = 12, 4
+    A = rng.normal(size=(N, P))
+    Hs = rng.normal(size=(N, P, P))
+    Hs = Hs + Hs.transpose(0, 2, 1)                          # r_n = A x + x^T H_n x / 2
+    x = rng.normal(size=P)
+
+    def r_of(X):
+        return X @ A.T + 0.5 * np.einsum("bp,npq,bq->bn", X, Hs, X)
+
+    J = A + np.einsum("npq,q->np", Hs, x)
+    r = r_of(x[None])[0]
+    lam = np.array([0.3])
+    R1, qtr, d = reduce_jacobian(J[None], r[None])
+    W, sv, g = scaled_svd(R1, qtr, d)
+    v = svd_steps(W, sv, g, lam)
+    nfev = np.zeros(1, int)
+    step, bad = _geodesic_correction(None, r_of, x[None], v, r[None], J[None], W, sv, lam,
+                                     d, np.ones(1, bool), np.full(P, -np.inf),
+                                     np.full(P, np.inf), 0.1, 1e9, nfev, np.arange(1))
+    rvv = np.einsum("p,npq,q->n", v[0], Hs, v[0])
+    M = J.T @ J + lam[0] * np.diag(np.diag(J.T @ J))
+    a = np.linalg.solve(M, -J.T @ rvv)
+    np.testing.assert_allclose(step[0], v[0] + 0.5 * a, rtol=1e-9, atol=1e-12)
+    np.testing.assert_allclose(v[0], np.linalg.solve(M, -J.T @ r), rtol=1e-10)
+    assert nfev[0] == 1 and not bad[0]
+    # the same step with a tight limit on 2|a|/|v| is flagged for rejection
+    _, bad2 = _geodesic_correction(None, r_of, x[None], v, r[None], J[None], W, sv, lam, d,
+                                   np.ones(1, bool), np.full(P, -np.inf), np.full(P, np.inf),
+                                   0.1, 1e-12, nfev, np.arange(1))
+    assert bad2[0]

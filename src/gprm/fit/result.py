@@ -290,7 +290,7 @@ def profile_likelihood(obj: Objective, x_best: np.ndarray, stderr: np.ndarray, n
     if inside.any():
         f = _FixedOne(obj, k)
         kw = lm.as_kwargs()
-        kw.update(ftol_abs=min(kw["ftol_abs"], 1e-4))
+        kw.update(ftol_abs=min(kw["ftol_abs"], 1e-4), stall_window=0)
         res = levenberg_marquardt_batch(f, X0[inside], residuals=f.residuals, lower=lo,
                                         upper=hi, **kw)
         chi[inside] = np.where(np.isfinite(res.chi2), res.chi2, np.nan)
@@ -363,7 +363,7 @@ def polish_best(obj: Objective, x: np.ndarray, lm: LMOptions, *, max_iter: int =
     looser stopping rule used for the many starts. Chi-square can only decrease."""
     lo, hi = obj.bounds_normalised()
     kw = lm.as_kwargs()
-    kw.update(max_iter=max_iter, ftol=ftol, ftol_abs=0.0)
+    kw.update(max_iter=max_iter, ftol=ftol, ftol_abs=0.0, stall_window=0)
     res = levenberg_marquardt_batch(obj, obj.to_normalised(x)[None], lower=lo, upper=hi,
                                     residuals=obj.residuals, **kw)
     info = {"chi2_before": float(res.chi2_0[0]), "chi2_after": float(res.chi2[0]),

@@ -3,7 +3,7 @@
 Do not edit: run `python -m gprm.model.derive` to regenerate. A test checks that this
 file matches a fresh derivation."""
 # flake8: noqa
-# fingerprint: 9bfbfca8386fc5d2
+# fingerprint: 60ca4925be9be4c9
 import numpy as np
 from numpy import sin, cos
 
@@ -16,7 +16,8 @@ INPUT = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0)
 
 
 def _shape(p):
-    return np.broadcast_shapes(*(np.shape(p[k]) for k in PARAMETERS))
+    shapes = {np.shape(p[k]) for k in PARAMETERS}
+    return shapes.pop() if len(shapes) == 1 else np.broadcast_shapes(*shapes)
 
 
 def linear_matrices(p):

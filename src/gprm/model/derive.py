@@ -148,7 +148,8 @@ def generate_source(dm: DerivedModel) -> str:
         "",
         "",
         "def _shape(p):",
-        "    return np.broadcast_shapes(*(np.shape(p[k]) for k in PARAMETERS))",
+        "    shapes = {np.shape(p[k]) for k in PARAMETERS}",
+        "    return shapes.pop() if len(shapes) == 1 else np.broadcast_shapes(*shapes)",
         "",
         "",
     ]

@@ -11,6 +11,7 @@ so z' = A_s z + b V with A_s = E^-1 A, b = E^-1 B.
 
 from __future__ import annotations
 
+import functools
 import importlib
 from dataclasses import dataclass
 from types import ModuleType
@@ -100,6 +101,19 @@ class SparseDerivatives:
     n_params: int
 
 
+@functools.lru_cache(maxsize=None)
+def _derivative_pattern(piezo: int, name: str) -> tuple:
+    """The entries of dK, dC, dM (in that order) that the generated derivative of ``name``
+    assigns: ((rows, cols), ...) of its structural non-zeros. Found once by evaluating it with
+    every parameter NaN: an assigned entry is then NaN or a non-zero constant, an untouched
+    one stays 0."""
+    g = generated(piezo)
+    nan = {k: np.full(1, np.nan) for k in g.PARAMETERS}
+    dM, dC, dK = g.DERIVATIVES[name](nan)
+    with np.errstate(all="ignore"):
+        return tuple(np.nonzero(d.reshape(9, 9) != 0) for d in (dK, dC, dM))
+
+
 def coordinate_derivatives(pb: dict, piezo: int, names) -> SparseDerivatives:
     """Parameter derivatives of K, C and M for the modal sensitivities (sparse form).
 
@@ -113,10 +127,9 @@ def coordinate_derivatives(pb: dict, piezo: int, names) -> SparseDerivatives:
         fn = g.DERIVATIVES.get(name)
         if fn is None:
             continue
-        dM, dC, dK = fn(pb)
-        for mat, d in enumerate((dK, dC, dM)):
-            d = d.reshape((-1, 9, 9))
-            rows, cols = np.nonzero(np.any(d != 0, axis=0))
+        mats = fn(pb)
+        for mat, (rows, cols) in enumerate(_derivative_pattern(piezo, name)):
+            d = mats[2 - mat].reshape((-1, 9, 9))                   # dK, dC, dM
             e.append(9 * mat + cols)
             a.append(rows)
             p.append(np.full(rows.size, k))

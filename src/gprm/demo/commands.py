@@ -22,8 +22,10 @@ def register(app: typer.Typer, synth_app: typer.Typer) -> None:
         seed: int = typer.Option(0, "--seed", help="seed of the synthetic data and the starts"),
         starts: Optional[int] = typer.Option(None, "--starts", help="random starts of the fit "
                                              "(default 1000, or 50 with --quick)"),
-        workers: int = typer.Option(0, "--workers", help="local Dask worker processes for the "
-                                    "fit (0: in this process)"),
+        workers: Optional[int] = typer.Option(None, "--workers", help="local Dask worker "
+                                              "processes for the fit (default: one per core, "
+                                              "or 0 with --quick; 0: in this process; the "
+                                              "result does not depend on it)"),
     ):
         """The whole chain on generated data, resumable, ending in report.html.
 
@@ -38,6 +40,10 @@ def register(app: typer.Typer, synth_app: typer.Typer) -> None:
 
         if starts is not None and starts < 1:
             raise GprmInputError(f"must be at least 1, got {starts}", field="--starts")
+        if workers is None:
+            import os
+
+            workers = 0 if quick else max(1, os.cpu_count() or 1)
         if workers < 0:
             raise GprmInputError(f"must be >= 0, got {workers}", field="--workers")
         opts = DemoOptions.make(quick=quick, seed=seed, starts=starts, workers=workers)

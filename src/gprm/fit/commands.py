@@ -34,12 +34,14 @@ def register(app: typer.Typer, synth_app: typer.Typer) -> None:
                                               "on it)"),
         scheduler: Optional[str] = typer.Option(None, "--scheduler",
                                                 help="address of an existing Dask scheduler"),
-        chunk: int = typer.Option(100, "--chunk", help="starts per lock-step chunk (part of "
-                                  "the result's definition, like the seed)"),
+        chunk: int = typer.Option(250, "--chunk", help="starts per lock-step chunk (part of "
+                                  "the result's definition, like the seed; smaller chunks "
+                                  "spread over more workers)"),
         max_iter: int = typer.Option(100, "--max-iter", help="LM iteration limit per start"),
         prune_after: int = typer.Option(10, "--prune-after", help="stop starts whose chi2 is "
                                         "over --prune-factor x the chunk's best after this "
-                                        "many iterations (0: never; docs/fitting.md)"),
+                                        "many iterations, or that cannot reach it at their "
+                                        "recent rate (0: never; docs/fitting.md)"),
         prune_factor: float = typer.Option(100.0, "--prune-factor"),
         band_samples: int = typer.Option(200, "--band-samples", help="covariance samples "
                                          "for the sampled uncertainty bands"),

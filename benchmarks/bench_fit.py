@@ -1,8 +1,8 @@
 """Benchmark of the identification stage (issue 4).
 
-    .venv/bin/python benchmarks/bench_fit.py [--quick] [--nist] [--starts N] [--workers W]
-                                            [--chunk C] [--no-prune] [--check-prune]
-                                            [--full-baseline]
+    .venv/bin/python benchmarks/bench_fit.py [--quick] [--nist] [--demo] [--starts N]
+                                            [--workers W] [--chunk C] [--no-prune]
+                                            [--check-prune] [--full-baseline]
 
 Default: the multi-start identification of a synthetic mean-signals set (tests/fit/
 means_factory.py: the linear model's five signals plus noise, 47 samples in the
@@ -14,8 +14,10 @@ baseline's time is its measured time per simulation times the number of simulati
 ``least_squares`` needs from that start (counted on the same problem with gprm's exact
 residuals -- the count does not depend on which simulator computes them); ``--full-baseline``
 runs it for real instead (about 10 minutes). Ratio = baseline x N / gprm N-start time.
-Peak memory: maximum resident set size of this process and of the Dask workers
-(``resource.getrusage``).
+--demo fits the demo's campaign instead (synthetic with model mismatch: nonlinear terms, an
+unmodelled mode, coloured noise; the paper's 23 parameters plus the 3 alignment offsets),
+exactly as ``gprm demo`` does. Peak memory: maximum resident set size of this process and of
+the Dask workers (``resource.getrusage``).
 
 --nist: the NIST StRD table (digits of the certified values reached, log relative error,
 minimum over the parameters) of ``gprm.fit.levenberg_marquardt`` from both official starts,
@@ -95,15 +97,13 @@ def nist_table() -> str:
 
 # ----------------------------------------------------------------------------- speed
 
-def baseline(data, *, full: bool) -> dict:
+def baseline(data, base, *, full: bool) -> dict:
     """One start of scipy least_squares around solve_ivp (Radau)."""
     from scipy.optimize import least_squares
 
     from gprm.fit.objective import Objective
-    from gprm.params import paper
     from gprm.simulate.reference import reference_linear
 
-    base = paper()
     obj = Objective.create(data, base)
     names = obj.names
     x0 = base.initial_vector(names)
@@ -142,8 +142,26 @@ def _cpu() -> float:
     return a.ru_utime + a.ru_stime + b.ru_utime + b.ru_stime
 
 
-def speed(n_starts: int, workers: int, chunk: int, prune: bool, full_baseline: bool,
-          check_prune: bool = False, means: str | None = None) -> str:
+def demo_fit_input():
+    """The demo's fit: its synthetic campaign (seed 0: nonlinear terms, an unmodelled mode,
+    coloured noise, run-to-run variability), preprocessed as the demo does, and the paper's
+    fitted set plus the three alignment offsets (26 parameters)."""
+    from gprm.campaign.preprocess import PreprocessConfig, preprocess
+    from gprm.campaign.synth import synth_campaign
+    from gprm.demo.pipeline import DemoOptions
+    from gprm.fit.objective import fit_data_from_means
+    from gprm.params import ALIGNMENT_OFFSETS, paper
+
+    d = DemoOptions()
+    means = preprocess(synth_campaign(seed=d.seed),
+                       PreprocessConfig(align_time=d.align_time)).to_dataset()
+    base = paper()
+    base = base.with_fitted(tuple(base.fitted) + tuple(ALIGNMENT_OFFSETS.values()))
+    return fit_data_from_means(means, source="demo campaign (synthetic, seed 0)"), base
+
+
+def speed(n_starts: int, workers: int, chunk: int | None, prune: bool, full_baseline: bool,
+          check_prune: bool = False, means: str | None = None, demo: bool = False) -> str:
     from means_factory import make_means
 
     from gprm.fit.multistart import MultiStartOptions
@@ -152,7 +170,10 @@ def speed(n_starts: int, workers: int, chunk: int, prune: bool, full_baseline: b
     from gprm.params import paper
 
     p = paper()
-    if means:
+    chunk = chunk or MultiStartOptions().chunk_size
+    if demo:
+        data, p = demo_fit_input()
+    elif means:
         from gprm._io import open_netcdf
 
         data = fit_data_from_means(open_netcdf(means), source=str(means))
@@ -161,7 +182,7 @@ def speed(n_starts: int, workers: int, chunk: int, prune: bool, full_baseline: b
         truth = p.with_vector(p.vector() * (1 + 0.05 * rng.uniform(-1, 1, len(p.fitted))))
         data = fit_data_from_means(make_means(truth, seed=1), source="synthetic")
     opts = MultiStartOptions(n_starts=n_starts, seed=0, chunk_size=chunk,
-                             prune_after=10 if prune else 0, prune_factor=100.0)
+                             prune_after=10 if prune else 0)
     if check_prune:
         other = MultiStartOptions(n_starts=n_starts, seed=0, chunk_size=chunk, prune_after=0)
         t = time.perf_counter()
@@ -176,13 +197,13 @@ def speed(n_starts: int, workers: int, chunk: int, prune: bool, full_baseline: b
     load1 = os.getloadavg()[0]
     rss_self = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
     rss_children = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss / 1024
-    b = baseline(data, full=full_baseline)
+    b = baseline(data, p, full=full_baseline)
     ratio = b["time"] * n_starts / t_fit
     st = res.starts
     lines = [
         f"- data: {data.source} ({data.n_obs} observations, sigma = {data.sigma_kind})",
         f"- gprm: {n_starts} starts, {workers} Dask worker(s) (0 = in process), chunks of "
-        f"{chunk}, pruning {'on (after 10 iterations, factor 100)' if prune else 'off'}: "
+        f"{chunk}, pruning {'on (after 10 iterations: factor 100 and rate rule)' if prune else 'off'}: "
         f"**{t_fit:.1f} s** wall (multi-start {res.timings['multistart']:.1f} s, covariance + "
         f"bands {res.timings['uncertainty']:.1f} s with {res.bands.n_samples} physical "
         f"covariance samples; includes starting the Dask cluster); CPU time of this "
@@ -190,7 +211,8 @@ def speed(n_starts: int, workers: int, chunk: int, prune: bool, full_baseline: b
         f"{load0:.1f}/{load1:.1f} on {os.cpu_count()} cores",
         f"- best chi2 {res.chi2:.4f} (dof {res.dof}), starts within dchi2 <= 1 of the best: "
         f"{st.n_at_best()}, converged {int(st.converged.sum())}, median iterations "
-        f"{np.median(st.iterations):.0f}",
+        f"{np.median(st.iterations):.0f}; outcomes "
+        + ", ".join(f"{k} {v}" for k, v in zip(*np.unique(st.status, return_counts=True))),
         f"- baseline (scipy least_squares, 2-point Jacobian, solve_ivp Radau rtol 1e-6): "
         f"{b['per_eval']:.2f} s per simulation" + (
             f", {b['nfev_total']} simulations for one start -> {b['time']:.0f} s per start"
@@ -220,12 +242,15 @@ def main(argv=None) -> None:
     ap.add_argument("--nist", action="store_true", help="print the NIST StRD table only")
     ap.add_argument("--starts", type=int, default=None)
     ap.add_argument("--workers", type=int, default=2)
-    ap.add_argument("--chunk", type=int, default=100)
+    ap.add_argument("--chunk", type=int, default=None, help="starts per chunk (default: "
+                    "gprm's, 250)")
     ap.add_argument("--no-prune", action="store_true", help="disable early stopping of far "
                     "starts (on by default, as in gprm fit)")
     ap.add_argument("--check-prune", action="store_true", help="also run without pruning "
                     "and compare the best fits")
     ap.add_argument("--full-baseline", action="store_true")
+    ap.add_argument("--demo", action="store_true", help="fit the demo's campaign (model "
+                    "mismatch, 26 parameters) instead of the matched synthetic signals")
     ap.add_argument("--means", default=None, help="mean-signals NetCDF to fit instead of the "
                     "synthetic one (e.g. from gprm synth campaign + gprm preprocess)")
     a = ap.parse_args(argv)
@@ -240,7 +265,7 @@ def main(argv=None) -> None:
     n = a.starts or (100 if a.quick else 1000)
     print("### Multi-start speed\n")
     print(speed(n, a.workers, a.chunk, not a.no_prune, a.full_baseline, a.check_prune,
-                a.means))
+                a.means, a.demo))
 
 
 if __name__ == "__main__":

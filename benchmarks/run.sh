@@ -10,3 +10,5 @@ for b in simulate preprocess fit predict flight; do
   echo
   "$PY" "benchmarks/bench_${b}.py" "$@"
 done
+echo
+"$PY" benchmarks/bench_fit.py --demo "$@"     # the fit with model mismatch (issue 4 target)

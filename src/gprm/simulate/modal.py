@@ -133,13 +133,14 @@ def conv_default(lam, tau, V0, tau_v, need_J=True, period=None):
         I = V0 [I_a - I_0],  I_a = (E - e^{-a t})/(L + a),  I_0 = (E - 1)/L,
         J = V0 [(t E - I_a)/(L + a) - (t E - I_0)/L].
 
-    Without J, I is evaluated as V0 [-a E / (L (L + a)) + 1/L - e^{-a t}/(L + a)], the same
-    sum with the per-mode factors taken out (one product per entry instead of two quotients).
-    Where an argument w = L t or (L + a) t is small these differences cancel: I_0 and I_a use
-    expm1 there (|w| < 0.1, e.g. I_a = e^{-a t} expm1((L + a) t)/(L + a)), and J's terms,
-    t^2 phi1'(w), their Taylor series (|w| < 0.05, 10 terms, truncation < 1e-15). Only those
-    few entries are recomputed; elsewhere the direct forms are accurate to rounding relative to
-    the size of the term.
+    They are evaluated with the per-mode factors c1 = -a/(L (L + a)), c2 = 1/(L + a) and
+    c3 = 1/L taken out, I = V0 [c1 E + c3 - c2 e^{-a t}] and
+    J = V0 [c1 E (t - c2 - c3) + c2^2 e^{-a t} - c3^2]: a few products per entry instead of
+    quotients. Where an argument w = L t or (L + a) t is small (|w| < 0.1) these sums
+    cancel, and those few entries are recomputed from the accurate forms: I_0 and I_a with
+    expm1 (e.g. I_a = e^{-a t} expm1((L + a) t)/(L + a)), J's terms t^2 phi1'(w) by their
+    Taylor series where |w| < 0.05 (10 terms, truncation < 1e-15). Elsewhere the sums lose
+    at most about three digits to cancellation (relative error ~1e-13 of the term).
     """
     a = (1.0 / tau_v)[:, None, None]
     t = np.clip(tau, 0.0, None)[:, None, :]
@@ -147,54 +148,36 @@ def conv_default(lam, tau, V0, tau_v, need_J=True, period=None):
     La = L + a
     E = exp_lt(lam, tau, period)
     ea = np.exp(-a * t)
-    live = t > 0                                   # t = 0: I = J = 0 (direct forms give 0)
+    live = t > 0                                   # t = 0: I = J = 0
     shape = E.shape
-    V0b = V0[:, None, None]
     u = V0[:, None] * (np.exp(-np.clip(tau, 0, None) / tau_v[:, None]) - 1.0)
     u = np.where(tau > 0, u, 0.0)
-    if not need_J:
-        with np.errstate(all="ignore"):
-            c3 = 1.0 / L
-            c2 = 1.0 / La
-            I = (-a * c3 * c2) * E + (c3 - c2 * ea)
-        # entries where L t or (L + a) t is small: both terms in their accurate forms
-        m = ((np.abs(L) * t < 0.1) | (np.abs(La) * t < 0.1)) & live
-        m |= ~np.isfinite(I) & live
-        if m.any():
-            Lm = np.broadcast_to(L, shape)[m]
-            Lam = np.broadcast_to(La, shape)[m]
-            tm = np.broadcast_to(t, shape)[m]
-            eam = np.broadcast_to(ea, shape)[m]
-            I[m] = _term_a(Lam, tm, eam, E[m]) - _term_0(Lm, tm, E[m])
-        I = np.where(live, I, 0.0)
-        return V0b * I, None, u
-    z = L * t
-    za = La * t
+    J = None
     with np.errstate(all="ignore"):
-        term_0 = (E - 1.0) / L
-        term_a = (E - ea) / La
-    live = np.broadcast_to(live, shape)
-    s0 = (np.abs(z) < 0.1) & live
-    sa = (np.abs(za) < 0.1) & live
-    tb = np.broadcast_to(t, shape)
-    eab = np.broadcast_to(ea, shape)
-    if s0.any():
-        term_0[s0] = np.expm1(z[s0]) / np.broadcast_to(L, shape)[s0]
-    if sa.any():
-        term_a[sa] = _term_a(np.broadcast_to(La, shape)[sa], tb[sa], eab[sa], E[sa])
-    with np.errstate(all="ignore"):
-        tE = t * E
-        dterm_a = (tE - term_a) / La
-        dterm_0 = (tE - term_0) / L
-    s0 = (np.abs(z) < _SMALL_J) & live
-    sa = (np.abs(za) < _SMALL_J) & live
-    if sa.any():
-        tt = tb[sa]
-        dterm_a[sa] = eab[sa] * tt * tt * _series(za[sa], _D1_SHORT)
-    if s0.any():
-        tt = tb[s0]
-        dterm_0[s0] = tt * tt * _series(z[s0], _D1_SHORT)
-    return V0b * (term_a - term_0), V0b * (dterm_a - dterm_0), u
+        c3 = 1.0 / L
+        c2 = 1.0 / La
+        c1E = (-a * c3 * c2) * E
+        I = c1E + (c3 - c2 * ea)
+        if need_J:
+            J = c1E * (t - c2 - c3) + (c2 * c2) * ea - c3 * c3
+    m = ((np.abs(L) * t < 0.1) | (np.abs(La) * t < 0.1)) & live
+    m |= ~np.isfinite(I) & live
+    if m.any():
+        Lm = np.broadcast_to(L, shape)[m]
+        Lam = np.broadcast_to(La, shape)[m]
+        tm = np.broadcast_to(t, shape)[m]
+        eam = np.broadcast_to(ea, shape)[m]
+        Em = E[m]
+        t0 = _term_0(Lm, tm, Em)
+        ta = _term_a(Lam, tm, eam, Em)
+        I[m] = ta - t0
+        if need_J:
+            J[m] = _dterm_a(Lam, tm, eam, Em, ta) - _dterm_0(Lm, tm, Em, t0)
+    V0b = V0[:, None, None]
+    I = V0b * np.where(live, I, 0.0)
+    if need_J:
+        J = V0b * np.where(live, J, 0.0)
+    return I, J, u
 
 
 def _term_0(L, t, E):
@@ -212,6 +195,23 @@ def _term_a(La, t, ea, E):
     zero = La == 0
     out[zero] = (ea * t)[zero]
     return out
+
+
+def _dterm_0(L, t, E, term_0):
+    """(t E - I_0)/L = t^2 phi1'(L t), by its series for small L t (entries, 1-D)."""
+    z = L * t
+    with np.errstate(all="ignore"):
+        direct = (t * E - term_0) / L
+    return np.where(np.abs(z) < _SMALL_J, t * t * _series(z, _D1_SHORT), direct)
+
+
+def _dterm_a(La, t, ea, E, term_a):
+    """(t E - I_a)/(L + a) = e^{-a t} t^2 phi1'((L + a) t), by its series for small
+    (L + a) t (entries, 1-D)."""
+    za = La * t
+    with np.errstate(all="ignore"):
+        direct = (t * E - term_a) / La
+    return np.where(np.abs(za) < _SMALL_J, ea * t * t * _series(za, _D1_SHORT), direct)
 
 
 def conv_trace(lam, tau, knot_t, knot_u):

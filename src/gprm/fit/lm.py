@@ -129,11 +129,14 @@ class LMResult:
 
 def reduce_jacobian(J: np.ndarray, r: np.ndarray):
     """Thin QR of a batch of Jacobians: ``R1`` (B, k, P), ``Q1^T r`` (B, k) and diag(J^T J)
-    (B, P). The damped step depends on J and r only through these (an orthogonal change of
+    (B, P), k = min(N, P); R1 and Q1^T r come from the R factor of ``[J, r]``. The damped step depends on J and r only through these (an orthogonal change of
     the residual space), so they are computed once per Jacobian and reused while a start's
     steps are rejected and only lambda changes."""
-    Q, R1 = np.linalg.qr(J)
-    return R1, np.einsum("bnk,bn->bk", Q, r), np.einsum("bnp,bnp->bp", J, J)
+    B, N, P = J.shape
+    k = min(N, P)
+    # R of [J, r] is [[R1, Q1^T r], [0, rho]]: one factorisation without forming Q
+    R = np.linalg.qr(np.concatenate([J, r[:, :, None]], axis=2), mode="r")
+    return R[:, :k, :P], R[:, :k, P], np.einsum("bnp,bnp->bp", J, J)
 
 
 def damped_steps_reduced(R1: np.ndarray, qtr: np.ndarray, d: np.ndarray, lam: np.ndarray,

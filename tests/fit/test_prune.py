@@ -68,3 +68,37 @@ def test_local_workers_keep_dasks_thread_settings_without_the_malloc_trim_thresh
     assert env == {k: v for k, v in default.items() if k != "MALLOC_TRIM_THRESHOLD_"}
     assert env.get("OPENBLAS_NUM_THREADS") == 1
     assert cfg["distributed.worker.profile.enabled"] is False
+
+
+def test_jacobian_at_rows_just_evaluated_reuses_their_spectrum_bit_for_bit():
+    """Objective.__call__ on rows of the last residuals call reuses their eigen-
+    decompositions; the residuals and Jacobian equal a fresh evaluation bit for bit, and a
+    pickled objective (a Dask task) carries no cached rows."""
+    import pickle
+    import sys
+    from pathlib import Path
+
+    sys.path.insert(0, str(Path(__file__).parent))
+    from means_factory import make_means
+
+    from gprm.fit.objective import Objective, fit_data_from_means
+    from gprm.params import paper
+
+    p = paper()
+    data = fit_data_from_means(make_means(p, seed=4), source="synthetic")
+    obj = Objective.create(data, p)
+    rng = np.random.default_rng(0)
+    X = obj.to_normalised(p.initial_vector(obj.names))[None] * (
+        1 + 0.1 * rng.uniform(-1, 1, (6, len(obj.names))))
+    obj.residuals(X)
+    rows = X[[4, 1, 1]]                                  # a subset, reordered, repeated
+    assert obj._prepared_for(rows) is not None
+    r1, J1 = obj(rows)
+    fresh = Objective.create(data, p)
+    assert fresh._prepared_for(rows) is None
+    r2, J2 = fresh(rows)
+    np.testing.assert_array_equal(r1, r2)
+    np.testing.assert_array_equal(J1, J2)
+    # a row not in the last batch: no reuse
+    assert obj._prepared_for(X[:1] * 1.01) is None
+    assert pickle.loads(pickle.dumps(obj))._last == {}

@@ -91,6 +91,16 @@ class Objective:
     scale: np.ndarray
     piezo: int = 2
     z_bk_absolute: bool = False
+    # the parameter rows and prepared simulation of the last ``residuals`` call (see __call__)
+    _last: dict = field(default_factory=dict, init=False, repr=False, compare=False)
+
+    def __getstate__(self):
+        state = dict(self.__dict__)
+        state["_last"] = {}
+        return state
+
+    def __setstate__(self, state):
+        self.__dict__.update(state)
 
     @classmethod
     def create(cls, data: FitData, base: ParameterSet, names=None, *, piezo: int = 2,
@@ -133,24 +143,38 @@ class Objective:
     def to_normalised(self, X: np.ndarray) -> np.ndarray:
         return np.asarray(X) / self.scale
 
-    def model(self, X: np.ndarray, *, jacobian: bool = False, times=None):
+    def model(self, X: np.ndarray, *, jacobian: bool = False, times=None, prepared=None):
         """Model signals for physical parameter rows X (B, P): y (B, S, T) [, dy (B,S,T,P)]."""
         X = np.atleast_2d(X)
         pb = batch_from_vectors(self.base, self.names, X)
         t = self.data.time if times is None else np.asarray(times, float)
         obs = observe(pb, t, self.data.signals, piezo=self.piezo,
                       sensitivities=self.names if jacobian else (),
-                      z_bk_absolute=self.z_bk_absolute)
+                      z_bk_absolute=self.z_bk_absolute, prepared=prepared)
         return obs
+
+    def _prepared_for(self, Xn: np.ndarray):
+        """The last residual call's prepared simulation of exactly these rows, if it has all
+        of them (Levenberg-Marquardt asks for the Jacobian at trial points it has just
+        evaluated and accepted), else None."""
+        last = self._last
+        if not last:
+            return None
+        index = last["index"]
+        rows = [index.get(x.tobytes()) for x in Xn]
+        if any(r is None for r in rows):
+            return None
+        return last["prepared"].take(np.array(rows, int))
 
     def __call__(self, Xn: np.ndarray):
         """Residuals r (B, N) and Jacobian dr/dXn (B, N, P) for normalised rows Xn (B, P).
 
         Sets that cannot be simulated give NaN residuals (the optimiser treats them as a
-        worse step, or as a failed start).
+        worse step, or as a failed start). Rows that the last :meth:`residuals` call
+        evaluated reuse its eigen-decompositions (bit-identical results, ~8 % of the fit).
         """
         Xn = np.atleast_2d(np.asarray(Xn, float))
-        obs = self.model(self.to_physical(Xn), jacobian=True)
+        obs = self.model(self.to_physical(Xn), jacobian=True, prepared=self._prepared_for(Xn))
         w = self._weights                                              # (S, T)
         r = ((self.data.values[None] - obs.y) * w[None]).reshape(Xn.shape[0], -1)
         J = (-obs.dy * w[None, :, :, None] * self.scale).reshape(Xn.shape[0], -1, Xn.shape[1])
@@ -160,6 +184,9 @@ class Objective:
         """Residuals only (no sensitivities), for any batch of normalised rows."""
         Xn = np.atleast_2d(np.asarray(Xn, float))
         obs = self.model(self.to_physical(Xn))
+        self._last.clear()
+        self._last.update(index={x.tobytes(): i for i, x in enumerate(Xn)},
+                          prepared=obs.prepared)
         return ((self.data.values[None] - obs.y) * self._weights[None]).reshape(Xn.shape[0], -1)
 
     @cached_property

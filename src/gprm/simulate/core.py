@@ -88,11 +88,32 @@ class Observation:
     sens_names: tuple[str, ...]
     ok: np.ndarray
     reason: np.ndarray
+    prepared: "Prepared | None" = None
+
+
+@dataclass(frozen=True)
+class Prepared:
+    """What :func:`observe` computes from the parameter sets alone, before any time, output
+    or sensitivity: the sets as simulated (sets with a singular mass matrix swapped for a good
+    one), which of them are singular, and their :class:`~gprm.simulate.modal.Spectrum`.
+    Handing it back to ``observe`` for the same sets (``take`` selects rows) skips that work;
+    the results are bit for bit those of a fresh call."""
+
+    pb: dict
+    singular: np.ndarray
+    spectrum: modal.Spectrum
+
+    def take(self, rows) -> "Prepared":
+        rows = np.asarray(rows)
+        n = self.singular.shape[0]
+        pb = {k: (v[rows] if np.shape(v)[:1] == (n,) else v) for k, v in self.pb.items()}
+        return Prepared(pb, self.singular[rows], self.spectrum.take(rows))
 
 
 def observe(pb: Mapping[str, np.ndarray], times, names: Sequence[str] = OUTPUTS, *,
             piezo: int = 2, voltage: VoltageTrace | None = None,
-            sensitivities: Sequence[str] = (), z_bk_absolute: bool = False) -> Observation:
+            sensitivities: Sequence[str] = (), z_bk_absolute: bool = False,
+            prepared: Prepared | None = None) -> Observation:
     """Batched exact simulation of ``names`` at ``times`` for parameter batch ``pb``.
 
     Sets that cannot be simulated (unstable, singular, degenerate eigenvalues) are returned
@@ -102,13 +123,20 @@ def observe(pb: Mapping[str, np.ndarray], times, names: Sequence[str] = OUTPUTS,
     ``z_bk`` and the alignment offsets ``dt_x_head``, ``dt_y_base``, ``dt_y_head`` for those
     points (``ROW_LAGS``; a missing offset in ``pb`` counts as 0). Sensitivities may name any
     of them.
+
+    ``prepared``: the ``.prepared`` of an earlier call for the same sets (or its ``take`` of
+    some of them), to skip the eigen-decomposition; ``pb`` must still be those sets.
     """
     pb = {k: np.atleast_1d(np.asarray(v, float)) for k, v in pb.items()}
     times = np.asarray(times, float)
     H, lags, dH = observation_rows(pb, names, z_bk_absolute=z_bk_absolute)
-    pb, singular, desc = _guard_singular(pb, piezo)
+    if prepared is None:
+        pb, singular, desc = _guard_singular(pb, piezo)
+        spec = None
+    else:
+        pb, singular, desc, spec = prepared.pb, prepared.singular, None, prepared.spectrum
     sol = modal.solve(pb, times, H, lags, piezo=piezo, trace=voltage,
-                      sens=tuple(sensitivities), dH=dH, desc=desc)
+                      sens=tuple(sensitivities), dH=dH, desc=desc, spec=spec)
     ok, reason = sol.ok.copy(), sol.reason.copy()
     y, dy = sol.y, sol.dy
     if singular.any():
@@ -118,7 +146,8 @@ def observe(pb: Mapping[str, np.ndarray], times, names: Sequence[str] = OUTPUTS,
         if dy is not None:
             dy[singular] = np.nan
     dy_out = dy
-    return Observation(tuple(names), times, y, dy_out, tuple(sensitivities), ok, reason)
+    return Observation(tuple(names), times, y, dy_out, tuple(sensitivities), ok, reason,
+                       Prepared(pb, singular, sol.spectrum))
 
 
 def _guard_singular(pb, piezo):

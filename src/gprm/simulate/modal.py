@@ -28,7 +28,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from gprm.model.linear import NSTATE, coordinate_derivatives, state_space
+from gprm.model.linear import NSTATE, StateSpace, coordinate_derivatives, state_space
 
 GAP_TOL = 1e-7
 COND_TOL = 1e10
@@ -256,13 +256,55 @@ def conv_trace(lam, tau, knot_t, knot_u):
 
 @dataclass(frozen=True)
 class ModalSolution:
-    """Observables y (B, n_obs, T); dy (B, n_obs, T, P) or None; ok (B,) and reason (B,)."""
+    """Observables y (B, n_obs, T); dy (B, n_obs, T, P) or None; ok (B,) and reason (B,);
+    the batch's :class:`Spectrum` (to evaluate the same sets again without recomputing it)."""
 
     y: np.ndarray
     dy: np.ndarray | None
     ok: np.ndarray
     reason: np.ndarray
     sens_names: tuple[str, ...]
+    spectrum: "Spectrum | None" = None
+
+
+@dataclass(frozen=True)
+class Spectrum:
+    """The eigen-decomposition A = V diag(lam) V^-1 (W = V^-1) of a batch's state matrix, its
+    state space ``ss`` and health ``ok``/``reason``; failed sets hold a copy of a good set
+    (their results are masked). It depends on the parameter sets only, not on the times,
+    outputs or sensitivities asked for, and each row is computed independently of the other
+    rows (LAPACK per matrix), so a row can be reused bit for bit."""
+
+    ss: StateSpace
+    lam: np.ndarray
+    V: np.ndarray
+    W: np.ndarray
+    ok: np.ndarray
+    reason: np.ndarray
+
+    def take(self, rows) -> "Spectrum":
+        """The spectrum of a subset (or reordering) of the batch's sets."""
+        rows = np.asarray(rows)
+        ss = StateSpace(self.ss.A[rows], self.ss.b[rows], self.ss.E[rows])
+        return Spectrum(ss, self.lam[rows], self.V[rows], self.W[rows], self.ok[rows],
+                        self.reason[rows])
+
+
+def spectrum(pb: dict, piezo: int, desc=None) -> Spectrum:
+    """Eigen-decomposition of the state matrix for a batch ``pb`` (see :class:`Spectrum`)."""
+    ss = state_space(pb, piezo, desc)
+    with np.errstate(all="ignore"):
+        lam, V = np.linalg.eig(ss.A)
+        W = _inv(V)
+    ok, reason = _health(lam, V, W)
+    # Replace failed sets by a harmless copy of a good one (results are masked by ``ok``).
+    if not ok.all() and ok.any():
+        good = int(np.argmax(ok))
+        bad = ~ok
+        lam[bad], V[bad], W[bad] = lam[good], V[good], W[good]
+        for key in ("A", "b", "E"):
+            getattr(ss, key)[bad] = getattr(ss, key)[good]
+    return Spectrum(ss, lam, V, W, ok, reason)
 
 
 def _inv(V):
@@ -351,7 +393,7 @@ def _real_matmul(a, b):
 
 def solve(pb: dict, times: np.ndarray, H: np.ndarray, lags, *, piezo: int,
           trace=None, sens: tuple[str, ...] = (), dH: dict | None = None,
-          desc=None) -> ModalSolution:
+          desc=None, spec: Spectrum | None = None) -> ModalSolution:
     """Evaluate observables ``y = H z`` at record ``times`` for a batch ``pb``.
 
     H: (B, n_obs, 17) rows over the state. lags: per row, a tuple of parameter names whose
@@ -378,22 +420,13 @@ def solve(pb: dict, times: np.ndarray, H: np.ndarray, lags, *, piezo: int,
     dH = dH or {}
     names = tuple(sens)
     lags = _row_lags(lags, nobs)
-    ss = state_space(pb, piezo, desc)
-    with np.errstate(all="ignore"):
-        lam, V = np.linalg.eig(ss.A)
-        W = _inv(V)
-    ok, reason = _health(lam, V, W)
-    # Replace failed sets by a harmless copy of a good one (results are masked by ``ok``).
-    if not ok.all():
-        good = int(np.argmax(ok)) if ok.any() else None
-        if good is None:
-            nanY = np.full((Bn, nobs, T), np.nan)
-            dy = None if not names else np.full(nanY.shape + (len(names),), np.nan)
-            return ModalSolution(nanY, dy, ok, reason, names)
-        bad = ~ok
-        lam[bad], V[bad], W[bad] = lam[good], V[good], W[good]
-        for key in ("A", "b", "E"):
-            getattr(ss, key)[bad] = getattr(ss, key)[good]
+    spec = spectrum(pb, piezo, desc) if spec is None else spec
+    ss, lam, V, W, ok, reason = spec.ss, spec.lam, spec.V, spec.W, spec.ok, spec.reason
+    ok, reason = ok.copy(), reason.copy()
+    if not ok.any():
+        nanY = np.full((Bn, nobs, T), np.nan)
+        dy = None if not names else np.full(nanY.shape + (len(names),), np.nan)
+        return ModalSolution(nanY, dy, ok, reason, names, spec)
     # Conjugate symmetry: A is real, so modes come in conjugate pairs whose contributions are
     # conjugate. Order modes [Im > 0, real, Im < 0] and keep the first S of them with weights
     # 2 (pair), 1 (real), 0 (padding where a set has fewer pairs than the batch maximum).
@@ -482,7 +515,7 @@ def solve(pb: dict, times: np.ndarray, H: np.ndarray, lags, *, piezo: int,
         y[~ok] = np.nan
         if dy is not None:
             dy[~ok] = np.nan
-    return ModalSolution(y, dy, ok, reason, names)
+    return ModalSolution(y, dy, ok, reason, names, spec)
 
 
 def _sparse_product(R, sd):

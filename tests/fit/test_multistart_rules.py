@@ -1,5 +1,6 @@
 """The multi-start driver's early-stop rules (gprm.fit.multistart.make_prune_rule) on chi-square
-sequences with known answers, and the settings of the local Dask workers."""
+sequences with known answers, the settings of the local Dask workers, and the reuse of a
+trial point's spectrum for its Jacobian."""
 
 from __future__ import annotations
 

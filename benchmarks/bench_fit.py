@@ -8,8 +8,9 @@ Default: the multi-start identification of a synthetic mean-signals set (tests/f
 means_factory.py: the linear model's five signals plus noise, 47 samples in the
 [0.97, 1.2] ms window) with N starts (1000; --quick 100) on W Dask workers (2), against the
 baseline a user would otherwise write: scipy ``least_squares`` (default trust-region method,
-2-point finite-difference Jacobian) around a ``solve_ivp`` Radau simulation of the same
-linear model (``gprm.simulate.reference.reference_linear``, rtol 1e-6), one start. The
+2-point finite-difference Jacobian, the fit's parameter bounds) around a ``solve_ivp`` Radau
+simulation of the same linear model (``gprm.simulate.reference.reference_linear``, rtol
+1e-6), one start. The
 baseline's time is its measured time per simulation times the number of simulations
 ``least_squares`` needs from that start (counted on the same problem with gprm's exact
 residuals -- the count does not depend on which simulator computes them); ``--full-baseline``
@@ -115,13 +116,14 @@ def baseline(data, base, *, full: bool) -> dict:
         return ((data.values - y) * w).ravel()
 
     x0n = x0 / obj.scale
+    bounds = obj.bounds_normalised()         # the same box as gprm's fit
     t = time.perf_counter()
     for _ in range(3):
         radau_residuals(x0n)
     per_eval = (time.perf_counter() - t) / 3
     if full:
         t = time.perf_counter()
-        sp = least_squares(radau_residuals, x0n, jac="2-point")
+        sp = least_squares(radau_residuals, x0n, jac="2-point", bounds=bounds)
         return {"time": time.perf_counter() - t, "nfev_total": None, "per_eval": per_eval,
                 "chi2": float(np.sum(sp.fun ** 2)), "measured": True}
     count = {"n": 0}
@@ -130,7 +132,7 @@ def baseline(data, base, *, full: bool) -> dict:
         count["n"] += 1
         return obj.residuals(xn[None])[0]
 
-    sp = least_squares(fast, x0n, jac="2-point")
+    sp = least_squares(fast, x0n, jac="2-point", bounds=bounds)
     return {"time": per_eval * count["n"], "nfev_total": count["n"], "per_eval": per_eval,
             "chi2": float(np.sum(sp.fun ** 2)), "measured": False}
 
@@ -213,7 +215,7 @@ def speed(n_starts: int, workers: int, chunk: int | None, prune: bool, full_base
         f"{st.n_at_best()}, converged {int(st.converged.sum())}, median iterations "
         f"{np.median(st.iterations):.0f}; outcomes "
         + ", ".join(f"{k} {v}" for k, v in zip(*np.unique(st.status, return_counts=True))),
-        f"- baseline (scipy least_squares, 2-point Jacobian, solve_ivp Radau rtol 1e-6): "
+        f"- baseline (scipy least_squares, 2-point Jacobian, bounds, solve_ivp Radau rtol 1e-6): "
         f"{b['per_eval']:.2f} s per simulation" + (
             f", {b['nfev_total']} simulations for one start -> {b['time']:.0f} s per start"
             if not b["measured"] else f", measured {b['time']:.0f} s for one start")

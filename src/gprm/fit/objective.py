@@ -157,14 +157,14 @@ class Objective:
         """The last residual call's prepared simulation of exactly these rows, if it has all
         of them (Levenberg-Marquardt asks for the Jacobian at trial points it has just
         evaluated and accepted), else None."""
-        last = self._last
-        if not last:
+        entry = self._last.get("entry")          # (index, prepared) of one call, read once
+        if entry is None:
             return None
-        index = last["index"]
+        index, prepared = entry
         rows = [index.get(x.tobytes()) for x in Xn]
         if any(r is None for r in rows):
             return None
-        return last["prepared"].take(np.array(rows, int))
+        return prepared.take(np.array(rows, int))
 
     def __call__(self, Xn: np.ndarray):
         """Residuals r (B, N) and Jacobian dr/dXn (B, N, P) for normalised rows Xn (B, P).
@@ -184,9 +184,7 @@ class Objective:
         """Residuals only (no sensitivities), for any batch of normalised rows."""
         Xn = np.atleast_2d(np.asarray(Xn, float))
         obs = self.model(self.to_physical(Xn))
-        self._last.clear()
-        self._last.update(index={x.tobytes(): i for i, x in enumerate(Xn)},
-                          prepared=obs.prepared)
+        self._last["entry"] = ({x.tobytes(): i for i, x in enumerate(Xn)}, obs.prepared)
         return ((self.data.values[None] - obs.y) * self._weights[None]).reshape(Xn.shape[0], -1)
 
     @cached_property

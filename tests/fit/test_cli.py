@@ -43,6 +43,7 @@ def test_gprm_fit_writes_json_and_sidecar(means_file, tmp_path):
     (["--starts", "0"], "at least 1"),
     (["--sigma", "var"], "sem or std"),
     (["--window", "0.5", "0.6"], "outside the data"),
+    (["--stall-window", "-1"], "--stall-window"),
 ])
 def test_gprm_fit_bad_options(means_file, tmp_path, args, text):
     r = CliRunner().invoke(app, ["fit", str(means_file), "--out", str(tmp_path / "f.json"),
@@ -50,6 +51,28 @@ def test_gprm_fit_bad_options(means_file, tmp_path, args, text):
     assert r.exit_code == 2
     assert text in r.output
     assert not (tmp_path / "f.json").exists()
+
+
+def test_gprm_fit_stall_window_reaches_the_starts(means_file, tmp_path):
+    """--stall-window 2 with a huge tolerance stops every start after exactly 2 iterations;
+    --stall-window 0 switches the rule off."""
+    import xarray as xr
+
+    base = ["--starts", "3", "--chunk", "3", "--max-iter", "8", "--band-samples", "0",
+            "--workers", "0", "--prune-after", "0"]
+    out = tmp_path / "a.json"
+    r = CliRunner().invoke(app, ["fit", str(means_file), "--out", str(out), *base,
+                                 "--stall-window", "2", "--stall-tol", "1e9"])
+    assert r.exit_code == 0, r.output
+    with xr.open_dataset(out.with_suffix(".nc")) as ds:
+        assert set(ds["status"].values.astype(str)) == {"stalled"}
+        assert set(ds["iterations"].values.tolist()) == {2}
+    out0 = tmp_path / "b.json"
+    r = CliRunner().invoke(app, ["fit", str(means_file), "--out", str(out0), *base,
+                                 "--stall-window", "0"])
+    assert r.exit_code == 0, r.output
+    with xr.open_dataset(out0.with_suffix(".nc")) as ds:
+        assert "stalled" not in set(ds["status"].values.astype(str))
 
 
 def test_gprm_fit_file_without_sigma(tmp_path):

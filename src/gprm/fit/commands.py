@@ -38,6 +38,10 @@ def register(app: typer.Typer, synth_app: typer.Typer) -> None:
                                   "the result's definition, like the seed; smaller chunks "
                                   "spread over more workers)"),
         max_iter: int = typer.Option(100, "--max-iter", help="LM iteration limit per start"),
+        stall_window: int = typer.Option(5, "--stall-window", help="stop a start once chi2 "
+                                         "fell by at most --stall-tol over this many "
+                                         "iterations (0: off; docs/fitting.md)"),
+        stall_tol: float = typer.Option(0.05, "--stall-tol"),
         prune_after: int = typer.Option(10, "--prune-after", help="stop starts whose chi2 is "
                                         "over --prune-factor x the chunk's best after this "
                                         "many iterations, or that cannot reach it at their "
@@ -74,10 +78,16 @@ def register(app: typer.Typer, synth_app: typer.Typer) -> None:
         data = fit_data_from_means(ds, window=window, sigma=sigma, source=str(means))
         base = load_params(params)
         opts = MultiStartOptions(n_starts=starts, seed=seed, spread=spread, sampling=sampling,
-                                 chunk_size=chunk, lm=LMOptions(max_iter=max_iter),
+                                 chunk_size=chunk,
+                                 lm=LMOptions(max_iter=max_iter, stall_window=stall_window,
+                                              stall_tol=stall_tol),
                                  prune_after=prune_after, prune_factor=prune_factor)
         if chunk < 1:
             raise GprmInputError(f"must be at least 1, got {chunk}", field="--chunk")
+        if stall_window < 0:
+            raise GprmInputError(f"must be >= 0, got {stall_window}", field="--stall-window")
+        if not stall_tol >= 0:
+            raise GprmInputError(f"must be >= 0, got {stall_tol}", field="--stall-tol")
         if workers is None:
             workers = 0 if scheduler else max(1, os.cpu_count() or 1)
         if workers < 0:

@@ -32,6 +32,8 @@ def test_gprm_fit_writes_json_and_sidecar(means_file, tmp_path):
     assert r.exit_code == 0, r.output
     d = json.loads(out.read_text())
     assert d["starts"]["requested"] == 3 and d["seed"] == 2
+    assert d["starts"]["max_iter"] == 8 and d["starts"]["chunk_size"] == 3
+    assert d["starts"]["stall_window"] == 5 and d["starts"]["stall_tol"] == 0.05
     assert out.with_suffix(".nc").exists()
     assert not Path(str(out) + ".ckpt").exists()        # checkpoints removed after success
     fm = load_fit(out) if d["correlation"]["matrix"] is not None else None

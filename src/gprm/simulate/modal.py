@@ -109,7 +109,8 @@ def exp_lt(lam, tau, period=None):
     if not (h > 0 and np.max(np.abs(d - h)) <= UNIFORM_TOL * h):
         return np.exp(lam[:, :, None] * t[:, None, :])
     k1 = np.minimum(np.sum(tg <= 0.0, axis=2), period - 1)             # first live sample
-    t1 = np.take_along_axis(tg, k1[:, :, None], axis=2)[:, :, 0]        # (B, G)
+    # first live time (B, G); a block with no live sample gets 0 (its entries are all 1)
+    t1 = np.maximum(np.take_along_axis(tg, k1[:, :, None], axis=2)[:, :, 0], 0.0)
     K = int(np.ceil(np.sqrt(period)))
     nb = -(-period // K)
     small = np.exp(lam[:, :, None] * (h * np.arange(K)))                # (B, n, K)

@@ -60,6 +60,7 @@ print(fit.summary().splitlines()[2])
 
 # %% 5. Prediction: trajectories of the contact points, kinetic energy, what-ifs (Sec. 4.2)
 from gprm.demo.stages import load_model
+from gprm.fit.files import with_covariance_fallbacks
 from gprm.predict.core import predict, prediction_times
 from gprm.predict.files import prediction_dataset
 from gprm.predict.scenarios import Scenario
@@ -68,19 +69,17 @@ from gprm.predict.whatif import whatif
 # what later stages read: a FittedModel (gprm.fit.files.load_fit; load_model also accepts a
 # fit whose covariance is singular, keeping its best-fit values)
 fm, notes = load_model(OUT)
-print(*notes, sep="\n")
 t = prediction_times(0.95e-3, 1.2e-3, 1e6)
-try:                         # bands from 20 parameter sets drawn from the fit covariance
-    pred = predict(fm, scenario=Scenario("piezo2", 2), times=t, samples=20, seed=1,
-                   means=OUT / "means.nc")
-    samples = 20
-except np.linalg.LinAlgError as exc:   # a degenerate draw (e.g. a stiffness at its bound)
-    print(f"covariance draws unusable ({exc}): best fit only")
-    samples = 0
-    pred = predict(fm, scenario=Scenario("piezo2", 2), times=t, samples=0, seed=1,
-                   means=OUT / "means.nc")
+# Bands come from 20 parameter sets drawn from the fit covariance. A degenerate draw (e.g. a
+# stiffness at its bound) makes numpy raise LinAlgError; with_covariance_fallbacks then
+# retries with the well-determined parameters' covariance only, then without one, and says
+# so in `notes` -- exactly what `gprm demo` does.
+pred = with_covariance_fallbacks(
+    lambda m: predict(m, scenario=Scenario("piezo2", 2), times=t, samples=20, seed=1,
+                      means=OUT / "means.nc"), fm, notes, "the predictions' bands")
 write_netcdf_atomic(prediction_dataset(pred), OUT / "predict.nc")
-wi = whatif(fm, samples=samples, seed=1)
+wi = with_covariance_fallbacks(lambda m: whatif(m, samples=20, seed=1), fm, notes,
+                               "the what-if ranges")
 write_json_atomic(OUT / "whatif.json", wi)
 for r in wi["ratios"][1:]:
     print(f"overshoot Piezo 2 / {r['name']}:",
@@ -91,13 +90,14 @@ from gprm.flight.analysis import AnalysisOptions, analyze, curves_dataset
 from gprm.flight.synth import SynthOptions, synth_telemetry
 from gprm.flight.telemetry import telemetry_from_dataset
 
-if samples == 0:              # no usable covariance draws: the best fit without its covariance
-    from dataclasses import replace
-
-    fm = replace(fm, covariance=np.zeros_like(fm.covariance))
-tele = synth_telemetry(fm, SynthOptions(n_releases=11, seed=1))
+tele = with_covariance_fallbacks(
+    lambda m: synth_telemetry(m, SynthOptions(n_releases=11, seed=1)), fm, notes,
+    "the releases' true parameters")
 write_netcdf_atomic(tele, OUT / "telemetry.nc")
-doc, curves = analyze(fm, telemetry_from_dataset(tele), AnalysisOptions(n_samples=20, seed=1))
+doc, curves = with_covariance_fallbacks(
+    lambda m: analyze(m, telemetry_from_dataset(tele), AnalysisOptions(n_samples=20, seed=1)),
+    fm, notes, "the velocity-curve bands")
+print(*notes, sep="\n")
 write_json_atomic(OUT / "impact.json", doc)
 write_netcdf_atomic(curves_dataset(curves, doc), OUT / "impact.nc")
 tk = doc["tukey"]

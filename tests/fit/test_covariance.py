@@ -89,3 +89,44 @@ def test_starts_within_spread_and_lhs_stratified(sampling):
         for k in range(3):
             strata = np.floor((u[:, k] + 1) / 2 * 50).astype(int)
             assert sorted(strata) == list(range(50))
+
+
+def test_covariance_fallbacks_hold_poorly_determined_parameters_then_drop_the_covariance():
+    """with_covariance_fallbacks: the full covariance first; on LinAlgError the covariance of
+    the parameters with stderr < 50 % of their value; then none. Each fallback is noted once."""
+    from dataclasses import replace
+
+    from gprm.fit.files import paper_model, well_determined, with_covariance_fallbacks
+
+    fm = paper_model()
+    x = np.array([fm.params.values[n] for n in fm.names])
+    assert np.all(x != 0)
+    se = 0.1 * np.abs(x)                                    # all well determined ...
+    se[0] = 2.0 * abs(x[0])                                 # ... but one
+    fm = replace(fm, covariance=np.diag(se ** 2))
+    reduced, held = well_determined(fm)
+    assert held == [fm.names[0]]
+    assert reduced.covariance[0, 0] == 0 and reduced.covariance[1, 1] == fm.covariance[1, 1]
+
+    seen = []
+
+    def picky(m, fail_while):
+        seen.append(float(np.trace(m.covariance)))
+        if fail_while(m):
+            raise np.linalg.LinAlgError("degenerate draw")
+        return "ok"
+
+    notes: list = []
+    assert with_covariance_fallbacks(lambda m: picky(m, lambda _: False), fm, notes, "x") == "ok"
+    assert notes == [] and len(seen) == 1
+    out = with_covariance_fallbacks(lambda m: picky(m, lambda m: m.covariance[0, 0] > 0), fm,
+                                    notes, "the bands")
+    assert out == "ok" and len(notes) == 1 and fm.names[0] in notes[0]
+    assert "the bands" in notes[0]
+    out = with_covariance_fallbacks(lambda m: picky(m, lambda m: np.any(m.covariance)), fm,
+                                    notes, "the bands")
+    assert out == "ok" and len(notes) == 2 and "without parameter uncertainty" in notes[1]
+    assert seen[-1] == 0.0                                  # the last call had no covariance
+    with_covariance_fallbacks(lambda m: picky(m, lambda m: np.any(m.covariance)), fm, notes,
+                              "the bands")
+    assert len(notes) == 2                                  # the same note is not repeated

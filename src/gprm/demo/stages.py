@@ -14,6 +14,7 @@ import numpy as np
 
 from gprm._io import open_netcdf, read_json, write_json_atomic, write_netcdf_atomic
 from gprm.demo.pipeline import DemoOptions, Stage, StageUnavailable
+from gprm.fit.files import with_covariance_fallbacks
 
 PIEZO_GROUND = 2            # the ground campaign and the flight releases drive Piezo 2
 
@@ -56,47 +57,6 @@ def load_model(run: Path) -> tuple:
                      z_bk_absolute=bool(doc.get("z_bk_absolute", False)))
     return fm, ["the fit has no covariance (" + str(doc.get("covariance_message", "")) +
                 "): best-fit values without parameter uncertainty"]
-
-
-def well_determined(fm, max_rel: float = 0.5):
-    """``fm`` with the covariance restricted to its well-determined parameters: a parameter
-    whose standard error exceeds ``max_rel`` of its value (a direction the data barely
-    constrain) is held at its best fit (its rows and columns set to zero). Returns the model
-    and the names held."""
-    from dataclasses import replace
-
-    se = np.sqrt(np.clip(np.diag(fm.covariance), 0.0, None))
-    x = np.array([fm.params.values[n] for n in fm.names])
-    keep = np.isfinite(se) & (se < max_rel * np.abs(x))
-    held = [n for n, k in zip(fm.names, keep) if not k]
-    cov = np.where(np.outer(keep, keep), fm.covariance, 0.0)
-    return replace(fm, covariance=cov), held
-
-
-def with_fallbacks(call, fm, notes: list, what: str):
-    """``call(fm)``; if drawing parameter sets from the fit covariance gives a degenerate set
-    (numpy LinAlgError: e.g. a stiffness drawn at its bound of zero), retry with the
-    covariance of the well-determined parameters only, then without a covariance. Each
-    fallback adds a note."""
-    from dataclasses import replace
-
-    try:
-        return call(fm)
-    except np.linalg.LinAlgError as exc:
-        first = exc
-    fm2, held = well_determined(fm)
-    try:
-        out = call(fm2)
-        note = (f"degenerate draws from the fit covariance ({first}): {what} use the "
-                f"well-determined parameters' uncertainty only ({', '.join(held)} held at "
-                "the best fit, standard error over 50 % of the value)")
-    except np.linalg.LinAlgError:
-        out = call(replace(fm, covariance=np.zeros_like(fm.covariance)))
-        note = (f"degenerate draws from the fit covariance ({first}): {what} without "
-                "parameter uncertainty")
-    if note not in notes:
-        notes.append(note)
-    return out
 
 
 # ----------------------------------------------------------------------------- campaign
@@ -166,14 +126,15 @@ def _predict(run: Path, opts: DemoOptions, step) -> dict:
         (scen[name], fname) for name, fname in WHATIF_FILES.items()]
     step(0, len(todo) + 1)
     for k, (sc, fname) in enumerate(todo):
-        pred = with_fallbacks(
+        pred = with_covariance_fallbacks(
             lambda m, sc=sc: predict(m, scenario=sc, times=t, samples=opts.predict_samples,
                                      seed=opts.seed, means=run / "means.nc"),
             fm, notes, "the predictions' bands")
         write_netcdf_atomic(prediction_dataset(pred), run / fname)
         step(k + 1, len(todo) + 1)
-    table = with_fallbacks(lambda m: whatif(m, samples=min(opts.predict_samples, 100),
-                                            seed=opts.seed), fm, notes, "the what-if ranges")
+    table = with_covariance_fallbacks(
+        lambda m: whatif(m, samples=min(opts.predict_samples, 100), seed=opts.seed),
+        fm, notes, "the what-if ranges")
     write_json_atomic(run / "whatif.json", table)
     step(len(todo) + 1, len(todo) + 1)
     info = {"whatif": {r["name"]: r.get("headline", {}) for r in table.get("ratios", [])[1:]}}
@@ -189,9 +150,9 @@ def _telemetry(run: Path, opts: DemoOptions, step) -> dict:
                                           "synth_telemetry")
     model, notes = load_model(run)
     info: dict = {"releases": opts.releases}
-    ds = with_fallbacks(lambda m: synth_telemetry(m, SynthOptions(n_releases=opts.releases,
-                                                                  seed=opts.seed)),
-                        model, notes, "the releases' true parameters")
+    ds = with_covariance_fallbacks(
+        lambda m: synth_telemetry(m, SynthOptions(n_releases=opts.releases, seed=opts.seed)),
+        model, notes, "the releases' true parameters")
     if notes:
         info["notes"] = notes
     write_netcdf_atomic(ds, run / "telemetry.nc")
@@ -205,8 +166,8 @@ def _impact(run: Path, opts: DemoOptions, step) -> dict:
     model, notes = load_model(run)
     tel = load_telemetry(run / "telemetry.nc")
     aopts = AnalysisOptions(n_samples=opts.predict_samples, seed=opts.seed)
-    doc, curves = with_fallbacks(lambda m: analyze(m, tel, aopts), model, notes,
-                                 "the velocity-curve bands")
+    doc, curves = with_covariance_fallbacks(lambda m: analyze(m, tel, aopts), model, notes,
+                                            "the velocity-curve bands")
     if notes:
         doc["notes"] = notes
     doc["curves"]["sidecar"] = "impact.nc"

@@ -129,9 +129,10 @@ class LMResult:
 
 def reduce_jacobian(J: np.ndarray, r: np.ndarray):
     """Thin QR of a batch of Jacobians: ``R1`` (B, k, P), ``Q1^T r`` (B, k) and diag(J^T J)
-    (B, P), k = min(N, P); R1 and Q1^T r come from the R factor of ``[J, r]``. The damped step depends on J and r only through these (an orthogonal change of
-    the residual space), so they are computed once per Jacobian and reused while a start's
-    steps are rejected and only lambda changes."""
+    (B, P), k = min(N, P); R1 and Q1^T r come from the R factor of ``[J, r]``. The damped
+    step depends on J and r only through these (an orthogonal change of the residual space),
+    so they are computed once per Jacobian and reused while a start's steps are rejected and
+    only lambda changes."""
     B, N, P = J.shape
     k = min(N, P)
     # R of [J, r] is [[R1, Q1^T r], [0, rho]]: one factorisation without forming Q
@@ -139,17 +140,28 @@ def reduce_jacobian(J: np.ndarray, r: np.ndarray):
     return R[:, :k, :P], R[:, :k, P], np.einsum("bnp,bnp->bp", J, J)
 
 
-def damped_steps_reduced(R1: np.ndarray, qtr: np.ndarray, d: np.ndarray, lam: np.ndarray,
-                         dfloor: np.ndarray | None = None) -> np.ndarray:
-    """Steps of Algorithm 1 from :func:`reduce_jacobian`'s factors: the least-squares
-    solution of ``[R1; sqrt(lam) diag(sqrt(d))] dx ~ [-Q1^T r; 0]``, i.e. of
-    ``[J^T J + lam diag(J^T J)] dx = -J^T r``."""
-    B, k, P = R1.shape
+def _damping_diagonal(d: np.ndarray, dfloor: np.ndarray | None = None):
+    """The damping diagonal (B, P) used with diag(J^T J) = ``d``: raised to ``dfloor`` (the
+    ``damping="max"`` variant) and, for a zero column (a parameter with no effect, or held
+    fixed by zeroing its column), to a tiny fraction of the row's largest entry so the system
+    stays solvable; also returns the mask of zero columns, whose steps are set to exactly 0."""
     zero = d == 0
     if dfloor is not None:
         d = np.maximum(d, dfloor)
     dmax = np.max(d, axis=1, keepdims=True)
-    d = np.maximum(d, np.where(dmax > 0, dmax, 1.0) * 1e-30)
+    return np.maximum(d, np.where(dmax > 0, dmax, 1.0) * 1e-30), zero
+
+
+def damped_steps_reduced(R1: np.ndarray, qtr: np.ndarray, d: np.ndarray, lam: np.ndarray,
+                         dfloor: np.ndarray | None = None) -> np.ndarray:
+    """Steps of Algorithm 1 from :func:`reduce_jacobian`'s factors: the least-squares
+    solution of ``[R1; sqrt(lam) diag(sqrt(d))] dx ~ [-Q1^T r; 0]``, i.e. of
+    ``[J^T J + lam diag(J^T J)] dx = -J^T r``, with the damping diagonal of
+    :func:`_damping_diagonal`. Used for the rows with parameters frozen at a bound (their
+    columns of R1 and entries of d zeroed: J with those columns zeroed is Q1 times R1 with
+    them zeroed, so Q1^T r is unchanged)."""
+    B, k, P = R1.shape
+    d, zero = _damping_diagonal(d, dfloor)
     A = np.concatenate([R1, np.sqrt(lam[:, None, None] * d[:, None, :])
                         * np.eye(P)[None]], axis=1)           # (B, k+P, P)
     Q, R = np.linalg.qr(A)
@@ -178,11 +190,7 @@ def scaled_svd(R1: np.ndarray, qtr: np.ndarray, d: np.ndarray,
     :func:`svd_steps` returns the step for any lambda. Rows of W of parameters with a zero
     Jacobian column are zero (their step is exactly 0). A row whose SVD fails (non-finite
     Jacobian) gets NaN factors, hence a NaN step, which the optimiser rejects."""
-    zero = d == 0
-    if dfloor is not None:
-        d = np.maximum(d, dfloor)
-    dmax = np.max(d, axis=1, keepdims=True)
-    d = np.maximum(d, np.where(dmax > 0, dmax, 1.0) * 1e-30)
+    d, zero = _damping_diagonal(d, dfloor)
     sq = np.sqrt(d)
     A = R1 / sq[:, None, :]
     B, k, P = A.shape
@@ -207,20 +215,6 @@ def svd_steps(W: np.ndarray, sv: np.ndarray, g: np.ndarray, lam: np.ndarray) -> 
     return -np.einsum("bpm,bm->bp", W, sv * g / (sv * sv + lam[:, None]))
 
 
-def damped_steps(J: np.ndarray, r: np.ndarray, lam: np.ndarray,
-                 dfloor: np.ndarray | None = None) -> np.ndarray:
-    """Steps of Algorithm 1 for a batch: ``[J^T J + lam diag(J^T J)] dx = -J^T r``.
-
-    J (B, N, P), r (B, N), lam (B,). Solved as the stacked least-squares problem
-    ``[J; sqrt(lam) diag(|J_k|)] dx ~ [-r; 0]`` by QR (after a thin QR of J, see
-    :func:`reduce_jacobian`), never forming J^T J. ``dfloor`` (B, P), optional: lower limit
-    of the damping diagonal (the ``damping="max"`` variant). A column of zeros in J (a
-    parameter with no effect, or held fixed by zeroing its column) gets a tiny diagonal so the
-    system stays solvable, and its step is set to exactly 0.
-    """
-    return damped_steps_reduced(*reduce_jacobian(J, r), lam, dfloor)
-
-
 def _chi2(r: np.ndarray) -> np.ndarray:
     with np.errstate(over="ignore", invalid="ignore"):
         c = np.sum(r * r, axis=1)
@@ -231,7 +225,8 @@ def _geodesic_correction(fun, residuals, X, v, r, J, W, sv, lam, dd, free, lo_in
                          alpha, nfev, idx):
     """Geodesic acceleration for the rows of a batch (module docstring): returns the
     corrected steps ``v + a/2`` and a (rows,) bool of the rows whose ``2|a|/|v|`` exceeds
-    ``alpha`` (to be rejected without evaluation). Rows not ``free`` (a parameter held at a
+    ``alpha`` (to be rejected without evaluation); ``dd`` is the damping diagonal of the
+    metric (:func:`_damping_diagonal`). Rows not ``free`` (a parameter held at a
     bound) or whose ``x + h v`` leaves the box keep ``v``. ``nfev`` is updated in place."""
     Xh = X + h * v
     ok = free & np.all(np.isfinite(Xh) & (Xh > lo_in) & (Xh < hi_in), axis=1)
@@ -247,7 +242,7 @@ def _geodesic_correction(fun, residuals, X, v, r, J, W, sv, lam, dd, free, lo_in
         # [J^T J + lam D] a = -J^T r'' with J^T J + lam D = W diag(s^2 + lam) W^T
         c = np.einsum("bpm,bp->bm", W[e], np.einsum("bnp,bn->bp", J[e], rvv))
         a[e] = -np.einsum("bpm,bm->bp", W[e], c / (sv[e] ** 2 + lam[e, None]))
-        d = np.maximum(dd[e], np.max(dd[e], axis=1, keepdims=True) * 1e-30)
+        d = dd[e]
         ratio = 2.0 * np.sqrt(np.sum(d * a[e] ** 2, axis=1) / np.sum(d * v[e] ** 2, axis=1))
         bad[e] = ratio > alpha
     return v + 0.5 * a, bad
@@ -369,8 +364,8 @@ def levenberg_marquardt_batch(fun: Callable, X0: np.ndarray, *, residuals: Calla
         if geodesic:
             dx, too_curved = _geodesic_correction(
                 fun, residuals, Xa, dx, r[idx], J[idx], SW[idx], SS[idx], lam[idx],
-                DJ[idx] if dmax is None else np.maximum(DJ[idx], dmax[idx]),
-                ~np.any(blocked, axis=1), lo_in, hi_in, geo_h, geo_alpha, nfev, idx)
+                _damping_diagonal(DJ[idx], dfl)[0], ~np.any(blocked, axis=1), lo_in, hi_in,
+                geo_h, geo_alpha, nfev, idx)
         Xt = np.clip(Xa + dx, lo_in, hi_in)                  # projection onto the box
         inside = np.all(np.isfinite(Xt) & (Xt > lo) & (Xt < hi), axis=1) & ~too_curved
         chi_t = np.full(idx.size, np.inf)

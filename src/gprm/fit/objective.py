@@ -95,12 +95,8 @@ class Objective:
     _last: dict = field(default_factory=dict, init=False, repr=False, compare=False)
 
     def __getstate__(self):
-        state = dict(self.__dict__)
-        state["_last"] = {}
-        return state
-
-    def __setstate__(self, state):
-        self.__dict__.update(state)
+        """Pickled (e.g. for a Dask task) without the cached rows of the last call."""
+        return {**self.__dict__, "_last": {}}
 
     @classmethod
     def create(cls, data: FitData, base: ParameterSet, names=None, *, piezo: int = 2,

@@ -260,7 +260,7 @@ def compute_bands(obj: Objective, x: np.ndarray, cov: np.ndarray | None, *, n_sa
 
 class _FixedOne:
     """The objective with parameter k held fixed: its Jacobian column is zero, so the damped
-    step never moves it (see :func:`gprm.fit.lm.damped_steps`). Each row keeps its own fixed
+    step never moves it (see :func:`gprm.fit.lm.scaled_svd`). Each row keeps its own fixed
     value, whatever subset of rows the lock-step optimizer evaluates."""
 
     def __init__(self, obj: Objective, k: int):

@@ -99,15 +99,12 @@ def exp_lt(lam, tau, period=None):
     Elsewhere (or for a non-uniform axis) it is np.exp directly.
     """
     Bn, T = tau.shape
-    t = np.clip(tau, 0.0, None)
-    if period is None or period < 4 or T % period:
-        return np.exp(lam[:, :, None] * t[:, None, :])
-    G = T // period
-    tg = tau.reshape(Bn, G, period)
-    d = np.diff(tg, axis=2)
-    h = float(np.mean(d))
+    G = T // period if period and period >= 4 and T % period == 0 else 0
+    tg = tau.reshape(Bn, G, period) if G else None
+    d = None if tg is None else np.diff(tg, axis=2)
+    h = 0.0 if d is None else float(np.mean(d))
     if not (h > 0 and np.max(np.abs(d - h)) <= UNIFORM_TOL * h):
-        return np.exp(lam[:, :, None] * t[:, None, :])
+        return np.exp(lam[:, :, None] * np.clip(tau, 0.0, None)[:, None, :])
     k1 = np.minimum(np.sum(tg <= 0.0, axis=2), period - 1)             # first live sample
     # first live time (B, G); a block with no live sample gets 0 (its entries are all 1)
     t1 = np.maximum(np.take_along_axis(tg, k1[:, :, None], axis=2)[:, :, 0], 0.0)
@@ -151,8 +148,7 @@ def conv_default(lam, tau, V0, tau_v, need_J=True, period=None):
     ea = np.exp(-a * t)
     live = t > 0                                   # t = 0: I = J = 0
     shape = E.shape
-    u = V0[:, None] * (np.exp(-np.clip(tau, 0, None) / tau_v[:, None]) - 1.0)
-    u = np.where(tau > 0, u, 0.0)
+    u = np.where(tau > 0, V0[:, None] * (np.exp(-t[:, 0] / tau_v[:, None]) - 1.0), 0.0)
     J = None
     with np.errstate(all="ignore"):
         c3 = 1.0 / L
@@ -423,7 +419,6 @@ def solve(pb: dict, times: np.ndarray, H: np.ndarray, lags, *, piezo: int,
     lags = _row_lags(lags, nobs)
     spec = spectrum(pb, piezo, desc) if spec is None else spec
     ss, lam, V, W, ok, reason = spec.ss, spec.lam, spec.V, spec.W, spec.ok, spec.reason
-    ok, reason = ok.copy(), reason.copy()
     if not ok.any():
         nanY = np.full((Bn, nobs, T), np.nan)
         dy = None if not names else np.full(nanY.shape + (len(names),), np.nan)

@@ -2,7 +2,7 @@
 
     .venv/bin/python benchmarks/bench_fit.py [--quick] [--nist] [--demo] [--starts N]
                                             [--workers W] [--chunk C] [--no-prune]
-                                            [--check-prune] [--full-baseline]
+                                            [--check-prune] [--full-baseline] [--variants]
 
 Default: the multi-start identification of a synthetic mean-signals set (tests/fit/
 means_factory.py: the linear model's five signals plus noise, 47 samples in the
@@ -19,6 +19,11 @@ runs it for real instead (about 10 minutes). Ratio = baseline x N / gprm N-start
 unmodelled mode, coloured noise; the paper's 23 parameters plus the 3 alignment offsets),
 exactly as ``gprm demo`` does. Peak memory: maximum resident set size of this process and of
 the Dask workers (``resource.getrusage``).
+
+--variants: the comparisons behind the multi-start's defaults, on the demo's fit: stopping
+rules (window, pruning) over the 1000 starts, plain Algorithm 1 against geodesic acceleration
+and the MINPACK damping, chunk sizes, and one chunk in a Dask worker with Dask's default
+environment and with ``local_worker_config`` (about 5 minutes).
 
 --nist: the NIST StRD table (digits of the certified values reached, log relative error,
 minimum over the parameters) of ``gprm.fit.levenberg_marquardt`` from both official starts,
@@ -133,8 +138,16 @@ def baseline(data, base, *, full: bool) -> dict:
         return obj.residuals(xn[None])[0]
 
     sp = least_squares(fast, x0n, jac="2-point", bounds=bounds)
-    return {"time": per_eval * count["n"], "nfev_total": count["n"], "per_eval": per_eval,
-            "chi2": float(np.sum(sp.fun ** 2)), "measured": False}
+    n_sim = count["n"]
+    # the same start without the bounds, to show why the baseline gets them
+    free = least_squares(fast, x0n, jac="2-point")
+    lo, hi = bounds
+    out = [f"{n} = {v * sc:.3g}" for n, v, a, b, sc in zip(obj.names, free.x, lo, hi, obj.scale)
+           if not a < v < b]
+    return {"time": per_eval * n_sim, "nfev_total": n_sim, "per_eval": per_eval,
+            "chi2": float(np.sum(sp.fun ** 2)), "measured": False,
+            "unbounded": f"{float(np.sum(free.fun ** 2)):.1f}"
+                         + (f" with {', '.join(out)} outside the bounds" if out else "")}
 
 
 def _cpu() -> float:
@@ -219,7 +232,8 @@ def speed(n_starts: int, workers: int, chunk: int | None, prune: bool, full_base
         f"{b['per_eval']:.2f} s per simulation" + (
             f", {b['nfev_total']} simulations for one start -> {b['time']:.0f} s per start"
             if not b["measured"] else f", measured {b['time']:.0f} s for one start")
-        + f" (final chi2 {b['chi2']:.1f})",
+        + f" (final chi2 {b['chi2']:.1f}"
+        + (f"; without the bounds {b['unbounded']}" if "unbounded" in b else "") + ")",
         f"- ratio (baseline x {n_starts}) / gprm = **{ratio:.0f}**",
     ]
     if check_prune:
@@ -238,6 +252,95 @@ def speed(n_starts: int, workers: int, chunk: int | None, prune: bool, full_base
     return "\n".join(lines)
 
 
+# ----------------------------------------------------------------------------- variants
+
+def variants(workers: int) -> str:
+    """The comparisons behind the defaults of the multi-start (docs/fitting.md), on the demo's
+    fit: stopping rules over all 1000 starts, optimizer variants and chunk sizes on the first
+    250 starts in this process, and one chunk in a Dask worker with and without
+    ``local_worker_config``."""
+    from dataclasses import replace
+
+    from gprm.fit.multistart import (ChunkTask, LMOptions, MultiStartOptions, draw_starts,
+                                     local_worker_config, run_chunk, run_multistart)
+    from gprm.fit.objective import Objective
+
+    data, base = demo_fit_input()
+    obj = Objective.create(data, base)
+    out = []
+
+    def summary(st, wall, cpu):
+        c = np.where(np.isfinite(st.chi2), st.chi2, np.inf)
+        return (f"{wall:.1f} | {cpu:.1f} | {np.median(st.iterations):.0f} | "
+                f"{c.min():.4f} (start {int(np.argmin(c))}) | {st.n_at_best()}")
+
+    out += ["### Stopping rules (1000 starts, %d workers)\n" % workers,
+            "| variant | wall s | CPU s | median iterations | best chi2 before the polish "
+            "| starts within dchi2 <= 1 |", "|---|---|---|---|---|---|"]
+    d = MultiStartOptions()
+    for name, o in [
+            ("default: window 5 / 0.05, pruning", d),
+            ("window 10 / 0.1, pruning", replace(d, lm=LMOptions(stall_window=10,
+                                                                   stall_tol=0.1))),
+            ("no window, pruning", replace(d, lm=LMOptions(stall_window=0))),
+            ("no window, no pruning (the paper's statistic)",
+             replace(d, lm=LMOptions(stall_window=0), prune_after=0))]:
+        c0, t0 = _cpu(), time.perf_counter()
+        st = run_multistart(obj, o, workers=workers)
+        out.append(f"| {name} | {summary(st, time.perf_counter() - t0, _cpu() - c0)} |")
+
+    X = draw_starts(obj.to_normalised(base.initial_vector(obj.names)), d)
+    ids = np.arange(250)
+
+    def chunk(o, rows=ids, index=0):
+        c0 = time.process_time()
+        res = run_chunk(ChunkTask(index, rows, X[rows], obj, o))
+        return res, time.process_time() - c0
+
+    out += ["\n### Optimizer variants (the first 250 starts, one chunk, in this process)\n",
+            "| variant | CPU s | median iterations | starts within dchi2 <= 1 of the chunk's best |",
+            "|---|---|---|---|"]
+    for name, lm in [("plain Algorithm 1 (default)", LMOptions()),
+                     ("geodesic acceleration", LMOptions(geodesic=True)),
+                     ("MINPACK damping (max)", LMOptions(damping="max"))]:
+        res, cpu = chunk(replace(d, lm=lm))
+        c = res["chi2"][np.isfinite(res["chi2"])]
+        out.append(f"| {name} | {cpu:.1f} | {np.median(res['iterations']):.0f} | "
+                   f"{int(np.sum(c <= c.min() + 1))} |")
+
+    out += ["\n### Chunk size (the first 250 starts in this process)\n",
+            "| chunk | CPU s per 100 starts |", "|---|---|"]
+    for size in (25, 50, 100, 250):
+        o = replace(d, chunk_size=size)
+        cpu = sum(chunk(o, ids[i:i + size], i // size)[1] for i in range(0, 250, size))
+        out.append(f"| {size} | {cpu / 2.5:.2f} |")
+
+    import dask
+    from distributed import Client, LocalCluster
+
+    def in_worker(warm, task):
+        run_chunk(warm)                     # first calls: imports, caches
+        t0 = time.process_time()
+        run_chunk(task)
+        return time.process_time() - t0
+
+    out += ["\n### One chunk of 250 starts: in this process and in a (warmed-up) Dask "
+            "worker\n",
+            "| where | CPU s |", "|---|---|", f"| this process | {chunk(d)[1]:.1f} |"]
+    for name, cfg in [("Dask worker, Dask's default environment", {}),
+                      ("Dask worker, local_worker_config (as gprm fit)",
+                       local_worker_config())]:
+        with dask.config.set(cfg):
+            cluster = LocalCluster(n_workers=1, threads_per_worker=1, processes=True,
+                                   dashboard_address=":0", silence_logs=40)
+        with Client(cluster) as client:
+            cpu = client.submit(in_worker, ChunkTask(1, ids[:10], X[:10], obj, d),
+                                ChunkTask(0, ids, X[ids], obj, d), pure=False).result()
+        cluster.close()
+        out.append(f"| {name} | {cpu:.1f} |")
+    return "\n".join(out)
+
+
 def main(argv=None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--quick", action="store_true", help="100 starts instead of 1000")
@@ -251,6 +354,8 @@ def main(argv=None) -> None:
     ap.add_argument("--check-prune", action="store_true", help="also run without pruning "
                     "and compare the best fits")
     ap.add_argument("--full-baseline", action="store_true")
+    ap.add_argument("--variants", action="store_true", help="the comparisons behind the "
+                    "multi-start defaults on the demo's fit (about 5 minutes)")
     ap.add_argument("--demo", action="store_true", help="fit the demo's campaign (model "
                     "mismatch, 26 parameters) instead of the matched synthetic signals")
     ap.add_argument("--means", default=None, help="mean-signals NetCDF to fit instead of the "
@@ -263,6 +368,10 @@ def main(argv=None) -> None:
     if a.nist:
         print("### NIST StRD\n")
         print(nist_table())
+        return
+    if a.variants:
+        print("### Variants on the demo's fit\n")
+        print(variants(a.workers))
         return
     n = a.starts or (100 if a.quick else 1000)
     print("### Multi-start speed\n")

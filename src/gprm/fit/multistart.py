@@ -47,13 +47,15 @@ class LMOptions:
     ``stall_window``/``stall_tol``: a start whose chi-square fell by at most ``stall_tol``
     over its last ``stall_window`` iterations stops (status ``stalled``). The starts' job is
     to find the basin of the smallest chi-square, not to converge each of them to machine
-    precision: on the demo campaign about half of the starts otherwise creep along a flat
+    precision: on the demo campaign many starts otherwise creep along a flat
     valley (the weakly determined y-plane parameters) by a few thousandths of chi-square per
-    iteration until the iteration limit, all within Delta chi2 < 0.1 of the best. The default,
-    0.05 over 5 iterations (a mean 0.01 per iteration, a hundredth of the Delta chi2 = 1 that
-    separates distinguishable fits), cut the median iterations of the demo's starts from 83
-    to 21; the best fit after the polish is the same start with the same parameters, and the
-    starts within Delta chi2 <= 1 of the best went from 917 to 889 (docs/fitting.md).
+    iteration until the iteration limit, already at the best minimum. The default, 0.05 over
+    5 iterations (a mean 0.01 per iteration, a hundredth of the Delta chi2 = 1 that separates
+    distinguishable fits), finds the same best start on the demo's fit in about half the time
+    (``benchmarks/bench_fit.py --variants``, docs/fitting.md).
+
+    ``damping``/``geodesic``: the optimizer variants of :mod:`gprm.fit.lm`; the
+    identification keeps plain Algorithm 1 (measured by the same command).
     """
 
     max_iter: int = 100
@@ -66,6 +68,8 @@ class LMOptions:
     ftol_reduced: float = 0.0
     stall_window: int = 5
     stall_tol: float = 0.05
+    damping: str = "current"       # Algorithm 1; "max": MINPACK's scale (gprm.fit.lm)
+    geodesic: bool = False         # geodesic acceleration (gprm.fit.lm); off, as measured
 
     def as_kwargs(self) -> dict:
         d = asdict(self)
@@ -374,13 +378,14 @@ def _chunks(n: int, size: int) -> list[np.ndarray]:
 
 
 def local_worker_config() -> dict:
-    """Dask settings for the local cluster's workers (measured on the demo's fit, 100 starts
-    per chunk: 10 s per chunk with Dask's defaults, 6-7 s with these, as in one process).
+    """Dask settings for the local cluster's workers (a warmed-up chunk of 250 demo starts:
+    14.8 s CPU with Dask's defaults, 12.7 s with these, 8.5 s in one process;
+    ``benchmarks/bench_fit.py --variants``).
 
     - Dask starts workers with ``MALLOC_TRIM_THRESHOLD_=65536``, which also switches off
       glibc's adaptive mmap threshold: every multi-megabyte temporary array of the batched
-      solver is then a fresh mmap that page-faults in, costing about 50 % more time. The
-      workers here get Dask's other settings (one BLAS/OpenMP thread) without it.
+      solver is then a fresh mmap that page-faults in. The workers here get Dask's other
+      settings (one BLAS/OpenMP thread) without it.
     - The statistical profiler, which samples the worker thread every 10 ms, is off.
 
     Workers of an existing cluster (``--scheduler``) keep their own settings; start them

@@ -167,7 +167,8 @@ class Objective:
 
         Sets that cannot be simulated give NaN residuals (the optimiser treats them as a
         worse step, or as a failed start). Rows that the last :meth:`residuals` call
-        evaluated reuse its eigen-decompositions (bit-identical results, ~8 % of the fit).
+        evaluated reuse its eigen-decompositions (bit-identical results; one decomposition
+        per accepted point instead of two).
         """
         Xn = np.atleast_2d(np.asarray(Xn, float))
         obs = self.model(self.to_physical(Xn), jacobian=True, prepared=self._prepared_for(Xn))

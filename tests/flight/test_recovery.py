@@ -1,5 +1,8 @@
-"""Synthetic telemetry with known impact times: the estimated times recover the truth within
-their error bars at the rate a normal error predicts; the CLI end to end."""
+"""Synthetic telemetry with known impact times (truth: the one-contact 3D impact with friction,
+drawn within the model's uncertainty): the estimated times are found on all six axes and
+recover the truth within their error bars; the joint estimate's interval covers the truth;
+the paper's planar analysis shows its systematic error on the same data; the CLI end to
+end."""
 
 import json
 
@@ -11,9 +14,7 @@ from gprm.flight.analysis import AnalysisOptions, analyze
 from gprm.flight.synth import SynthOptions, synth_telemetry
 from gprm.flight.telemetry import telemetry_from_dataset
 
-# v_z: the synthetic TM's z velocity is the sum of both planes' (both contact lines strike,
-# docs/flight.md), so the per-plane v_z curves are biased by design and are not scored here.
-SCORED = ("vx", "wy", "vy", "wx")
+SCORED = ("vx", "vz_xz", "wy", "vy", "vz_yz", "wx")
 
 
 @pytest.fixture(scope="module")
@@ -21,7 +22,7 @@ def run():
     m = paper_model()
     ds = synth_telemetry(m, SynthOptions(n_releases=40, seed=5))
     tel = telemetry_from_dataset(ds, source="synthetic")
-    doc, curves = analyze(m, tel, AnalysisOptions(n_samples=150, n_times=301, seed=1))
+    doc, curves = analyze(m, tel, AnalysisOptions(seed=1))
     return ds, tel, doc, curves
 
 
@@ -36,13 +37,45 @@ def test_truth_recovered_at_expected_rate(run):
                 z.append((it["value"] - tt[i]) / it["stderr"])
     z = np.abs(np.array(z))
     n = z.size
-    assert n >= 0.8 * 40 * len(SCORED)          # most releases/axes have a crossing
+    assert n >= 0.95 * 40 * len(SCORED), n      # issue 14: >= 95 % of the times found
     f1, f2 = np.mean(z < 1), np.mean(z < 2)
-    # normal errors: 68 % within 1 sigma, 95 % within 2 sigma. The four axes of a release
-    # share one truth draw, so the effective sample is ~40 releases: the bounds are about
-    # 3 binomial standard deviations for n = 40 (seeds 5-8 give 0.57-0.69 and 0.85-0.99).
-    assert 0.46 < f1 < 0.90, f1
-    assert f2 > 0.80, f2
+    # the error bar is the rms of the model draws' crossings about the estimate; the six
+    # axes of a release share one truth draw, so the effective sample is ~40 releases.
+    assert 0.46 < f1 < 0.97, f1
+    assert f2 >= 0.90, f2
+
+
+def test_joint_estimate_covers_truth(run):
+    _, tel, doc, _ = run
+    tt = tel.truth_impact_time
+    inside = [r["joint"]["ci95"][0] <= tt[i] <= r["joint"]["ci95"][1]
+              for i, r in enumerate(doc["releases"]) if r["joint"]["value"] is not None]
+    assert len(inside) >= 38
+    # 95 % interval, 40 releases: P(coverage < 0.8) < 0.5 % for a calibrated interval, while
+    # an interval of half the width (±1 sigma for 95 %) covers ~68 % (seeds 0-9 of 40
+    # releases: 35-40, 376 of 400 in all; this seed, 5, is the lowest)
+    assert 0.8 <= np.mean(inside) <= 1.0, np.mean(inside)
+    s = doc["truth"]["summary"]
+    assert s["joint_truth_in_ci95"] == sum(inside)
+    # both v_z axes observe the one v_z with the one curve: used once in the joint fit
+    r0 = doc["releases"][0]
+    assert "vz_yz" not in r0["joint"]["axes"] and "vz_xz" in r0["joint"]["axes"]
+    assert abs(sum(r0["joint"]["weights"]) - 1) < 1e-12
+    assert min(r0["joint"]["weights"]) >= 0
+
+
+def test_planar_analysis_systematic_error_is_measured(run):
+    """The paper's two-plane planar analysis on the same 3D truth: it finds crossings, but
+    they are biased (the one-contact impulse is smaller than either plane's), so far fewer lie
+    within 2 sigma (seed 5: 70 % against 92 % for the 3D analysis)."""
+    m = paper_model()
+    ds, tel, doc3, _ = run
+    docp, _ = analyze(m, tel, AnalysisOptions(seed=1,
+                                              impact_model="planar"))
+    s3, sp = doc3["truth"]["summary"], docp["truth"]["summary"]
+    assert docp["impact_model"] == "planar" and doc3["impact_model"] == "3d"
+    assert sp["within_2sigma"] / sp["found"] < s3["within_2sigma"] / s3["found"] - 0.1
+    assert sp["within_2sigma"] / sp["found"] < 0.85
 
 
 def test_missing_crossings_reported_not_dropped(run):
@@ -61,7 +94,7 @@ def test_missing_crossings_reported_not_dropped(run):
 def test_release_velocities_match_truth(run):
     ds, tel, doc, _ = run
     truth = json.loads(ds.attrs["truth_json"])["tm_velocity"]
-    comp = {"vx": "vx", "vy": "vy", "wy": "wy", "wx": "wx", "vz_xz": "vz"}
+    comp = {"vx": "vx", "vy": "vy", "wy": "wy", "wx": "wx", "vz_xz": "vz", "vz_yz": "vz"}
     zs = []
     for i, r in enumerate(doc["releases"]):
         for a, c in comp.items():

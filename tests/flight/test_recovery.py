@@ -133,3 +133,32 @@ def test_cli_end_to_end(tmp_path):
                              "--out", str(tel2)])
     with xr.open_dataset(tel) as a, xr.open_dataset(tel2) as b:
         np.testing.assert_array_equal(a["x"].values, b["x"].values)
+
+
+class _BestFitOnly:
+    """A fitted model without usable uncertainty, as ``gprm fit`` may write it (issue 12's
+    contract): ``has_uncertainty`` False and ``sample`` the best fit repeated."""
+
+    def __init__(self, fm):
+        self._fm = fm
+        self.params, self.piezo, self.source = fm.params, fm.piezo, "fit-without-covariance"
+        self.has_uncertainty = False
+
+    def sample(self, n, seed=0):
+        from gprm.params import batch
+        return {k: np.repeat(v, n) for k, v in batch([self.params]).items()}
+
+
+def test_chain_runs_on_a_fit_without_uncertainty():
+    m = _BestFitOnly(paper_model())
+    ds = synth_telemetry(m, SynthOptions(n_releases=6, seed=3))
+    tel = telemetry_from_dataset(ds, source="synthetic")
+    doc, curves = analyze(m, tel, AnalysisOptions(n_samples=60, n_times=301))
+    assert "best fit only" in doc["model_uncertainty"]
+    # no fit spread (round-off of identical batched runs only)
+    assert np.nanmax(curves.sigma_fit["vx"]) < 1e-9 * np.nanmax(np.abs(curves.nominal["vx"]))
+    s = doc["truth"]["summary"]
+    assert s["found"] >= 0.9 * s["impact_times"]
+    for r in doc["releases"]:                                        # geometry still spreads
+        assert all(v["stderr"] > 0 for v in r["impact_time"].values() if v["value"])
+    json.dumps(doc)

@@ -311,7 +311,13 @@ def flight_section(run: Path) -> Section:
         "Tukey's range test asks whether the six axes' impact times share one mean (Eq. 9); "
         "the joint estimate combines the axes into one impact time per release (weighted "
         "least squares with the model's covariance between the axes), and its χ² is a second "
-        "consistency check."))
+        "consistency check."
+        + ("" if not imp.get("missing") else
+           " Missing impact times, each with its reason: " + "; ".join(
+               f"{m.get('release')} {m.get('axis')}: {m.get('reason')}"
+               for m in imp["missing"][:12])
+           + (f"; … ({len(imp['missing'])} in all, listed in impact.json)"
+              if len(imp["missing"]) > 12 else "") + ".")))
     tele = _load_nc(run, "telemetry.nc", "telemetry file")
     fig = F.fig_release_fit(tele, imp)
     if fig is not None:

@@ -188,8 +188,9 @@ def impact_time_mc(time, nominal, sigma, samples, v_meas: float, s_meas: float, 
     possible true curve; with the measured velocity v (+ its noise, s_m z_k) it gives the
     impact time t_k at which that curve would have produced v. The estimate is the nominal
     crossing (or the draws' weighted median where v is beyond the nominal peak), the error bar
-    the weighted rms of t_k about it (weights 1/|dv/dt| at t_k, :func:`draw_weights`). Missing (``value`` None, with a reason) where fewer than
-    ``min_fraction`` of the draws reach v or the nominal curve has no rising branch.
+    the weighted rms of t_k about it (weights 1/|dv/dt| at t_k, :func:`draw_weights`).
+    Missing (``value`` None, with a reason) where fewer than ``min_fraction`` of the draws
+    reach v or the nominal curve has no rising branch.
     """
     t = np.asarray(time, float)
     c = np.asarray(nominal, float)

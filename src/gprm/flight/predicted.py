@@ -5,6 +5,9 @@ For every time t of a window, the plunger assembly's state at t (from the model'
 of the contact line (M_xz or M_yz) on an indent face; the planar impact of Appendix B
 (:func:`gprm.flight.impact.planar_impact`) gives the TM velocity after the impact. The x–z plane
 gives v_x, v_z, ω_y, the y–z plane v_y, v_z, ω_x: the six axes ``vx, vz_xz, wy, vy, vz_yz, wx``.
+Since issue 14 the default is the one-contact 3D impact instead (:class:`ImpactGeometry`
+``impact_model``; docs/flight.md §2), whose six axes are the TM's own components (both v_z
+axes the one v_z).
 
 Bodies (MODEL.md):
 
@@ -40,7 +43,13 @@ PLANE_AXES = {"xz": ("vx", "vz_xz", "wy"), "yz": ("vy", "vz_yz", "wx")}
 @dataclass(frozen=True)
 class ImpactGeometry:
     """Impact geometry and model options (SI). ``None`` values come from the parameters
-    (``indent_angle`` registry value, ``tm_com_height`` = s_tm/2 − ``indent_depth``)."""
+    (``indent_angle`` registry value, ``tm_com_height`` = s_tm/2 − ``indent_depth``).
+
+    ``impact_model``: ``"3d"`` (default) one contact of the plunger tip corner on the indent
+    face, one impulse, restitution and Coulomb friction ``friction`` (nominal 0.1, an
+    assumption; :func:`_tm_velocity_3d`); ``"planar"`` the paper's two independent planar
+    impacts (Appendix B) at M_xz and M_yz (frictionless). ``contact_offset_3d`` moves the 3D
+    contact point, ``contact_offset_xz``/``_yz`` the planar ones."""
 
     indent_angle: float | None = None
     indent_depth: float = 3.0e-3
@@ -179,9 +188,9 @@ def tm_velocity_vs_time(motion, geometry: ImpactGeometry | list | None = None) -
 def _tm_velocity_3d(motion, geoms) -> dict:
     """The one-contact 3D impact (:class:`ImpactGeometry` ``impact_model="3d"``).
 
-    Contact point: the plunger tip corner M = G + (dist_x, dist_y, dist_z) + ``contact_offset_3d``
-    (its projections on the x–z and y–z planes are M_xz and M_yz). Normal (impulse direction
-    on the TM), fixed with the TM: n ∝ (sgn(dist_x) tan α, sgn(dist_y) tan α, 1), the face whose
+    Contact point: the plunger tip corner M = C_p + (dist_x, dist_y, dist_z) +
+    ``contact_offset_3d``, C_p the plunger CoM (its projections on the x–z and y–z planes are
+    M_xz and M_yz). Normal (impulse direction on the TM), fixed with the TM: n ∝ (sgn(dist_x) tan α, sgn(dist_y) tan α, 1), the face whose
     traces in the two planes are the planar indent lines. Plunger: m2 + m3 + m4 with the
     isotropic inertia J2·1 about the assembly CoM (``plunger_inertia="assembly"`` adds the spacer
     and tip point masses' parallel-axis tensor), velocity field of the plunger body. TM: the cube

@@ -116,8 +116,11 @@ def test_cli_end_to_end(tmp_path):
     r = CliRunner().invoke(app, ["impact", "paper", str(tel), "--out", str(out),
                                  "--samples", "30", "--alpha", "0.01"])
     assert r.exit_code == 0, r.output
+    assert "truth (synthetic):" in r.output and "3d impact model" in r.output
     doc = json.loads(out.read_text())
     assert len(doc["releases"]) == 11
+    assert doc["impact_model"] == "3d" and doc["joint"]["n"] >= 1
+    assert all("ci95" in rel["joint"] for rel in doc["releases"])
     assert set(doc["releases"][0]["velocity"]) == {"vx", "vz_xz", "wy", "vy", "vz_yz", "wx"}
     tk = doc["tukey"]
     assert tk["alpha"] == 0.01 and tk["k"] == 6 and len(tk["pairs"]) == 15
@@ -162,3 +165,33 @@ def test_chain_runs_on_a_fit_without_uncertainty():
     for r in doc["releases"]:                                        # geometry still spreads
         assert all(v["stderr"] > 0 for v in r["impact_time"].values() if v["value"])
     json.dumps(doc)
+
+
+def test_synthetic_truth_is_the_3d_impact():
+    """The default truth is the one-contact 3D impact: one v_z (both v_z axes hold it, the
+    TM's vz equals it), a spin about z from the off-axis impulse, and the truth velocities are
+    the model's at the true impact time for the drawn parameters (checked here without spread:
+    the best fit and the nominal geometry)."""
+    from gprm.flight.predicted import tm_velocity_vs_time
+    from gprm.params import batch
+    from gprm.predict.kinematics import body_motion
+
+    m = paper_model()
+    ds = synth_telemetry(m, SynthOptions(n_releases=5, seed=8, truth_spread=False))
+    truth = json.loads(ds.attrs["truth_json"])
+    assert truth["truth_model"] == "3d" and truth["z_from"] is None
+    tv = ds["truth_velocity"].values
+    ax = list(ds["axis"].values)
+    np.testing.assert_array_equal(tv[:, ax.index("vz_xz")], tv[:, ax.index("vz_yz")])
+    np.testing.assert_array_equal(truth["tm_velocity"]["vz"], tv[:, ax.index("vz_xz")])
+    assert np.all(np.abs(truth["tm_velocity"]["wz"]) > 0)
+    t = ds["truth_impact_time"].values
+    ref = tm_velocity_vs_time(body_motion(batch([m.params]), np.sort(t), piezo=m.piezo))
+    o = np.argsort(t)
+    for a in ("vx", "vy", "vz_xz", "wx", "wy"):
+        np.testing.assert_allclose(tv[o, ax.index(a)], ref[a][0], rtol=1e-9)
+    planar = synth_telemetry(m, SynthOptions(n_releases=5, seed=8, truth_spread=False,
+                                             truth_model="planar"))
+    tp = json.loads(planar.attrs["truth_json"])["tm_velocity"]
+    pv = planar["truth_velocity"].values
+    np.testing.assert_allclose(tp["vz"], pv[:, ax.index("vz_xz")] + pv[:, ax.index("vz_yz")])

@@ -79,10 +79,12 @@ def joint_impact_time(times: dict, stderrs: dict, draws: dict, slopes: dict | No
     """
     from scipy.stats import chi2 as chi2_dist
 
-    axes = tuple(a for a in times if times[a] is not None and stderrs.get(a))
+    axes = tuple(a for a in times if times[a] is not None and stderrs.get(a) is not None
+                 and stderrs[a] > 0)
     if not axes:
-        return JointEstimate(None, None, None, None, None, None, (), (), 0,
-                             "no axis with an impact time")
+        reason = ("no axis with an impact time" if all(v is None for v in times.values())
+                  else "no axis with a positive error bar (the model has no spread)")
+        return JointEstimate(None, None, None, None, None, None, (), (), 0, reason)
     t = np.array([times[a] for a in axes], float)
     s = np.array([stderrs[a] for a in axes], float)
     D = np.stack([np.asarray(draws[a], float) for a in axes], 1)      # (n, A)

@@ -1,6 +1,6 @@
 """Benchmark of the flight stage:
 `.venv/bin/python benchmarks/bench_flight.py [--quick] [--campaigns N] [--releases R]
-[--seed0 S] [--no-planar] [--no-timings]`.
+[--seed0 S] [--no-planar] [--no-timings] [--variants]`.
 
 Prints a markdown section (machine, versions, command, timings) and the recovery study of
 issue 14: N synthetic telemetry campaigns (R releases each, seeds S .. S+N-1; truth drawn
@@ -21,8 +21,10 @@ import numpy as np
 from _machine import best_time as timed, machine
 
 
-def recovery(fm, n_campaigns: int, releases: int, seed0: int, model: str) -> dict:
-    """Totals over campaigns of :func:`gprm.flight.analysis.truth_summary` and the tests."""
+def recovery(fm, n_campaigns: int, releases: int, seed0: int, model: str,
+             models=None) -> dict:
+    """Totals over campaigns of :func:`gprm.flight.analysis.truth_summary` and the tests
+    (``models``: one model per campaign instead of ``fm`` for all)."""
     from gprm.flight import AnalysisOptions, SynthOptions, analyze, synth_telemetry
     from gprm.flight.telemetry import telemetry_from_dataset
 
@@ -31,10 +33,13 @@ def recovery(fm, n_campaigns: int, releases: int, seed0: int, model: str) -> dic
            "tukey_rejecting_campaigns": 0, "missing_reasons": {}}
     zs = []
     curves = None
-    for s in range(seed0, seed0 + n_campaigns):
-        ds = synth_telemetry(fm, SynthOptions(n_releases=releases, seed=s))
+    for i, s in enumerate(range(seed0, seed0 + n_campaigns)):
+        m = fm if models is None else models[i]
+        ds = synth_telemetry(m, SynthOptions(n_releases=releases, seed=s))
         tel = telemetry_from_dataset(ds, source=f"seed {s}")
-        doc, curves = analyze(fm, tel, AnalysisOptions(impact_model=model), curves=curves)
+        if models is not None:
+            curves = None
+        doc, curves = analyze(m, tel, AnalysisOptions(impact_model=model), curves=curves)
         sm = doc["truth"]["summary"]
         for k in ("impact_times", "found", "within_2sigma", "joint_releases",
                   "joint_truth_in_ci95"):
@@ -53,6 +58,37 @@ def recovery(fm, n_campaigns: int, releases: int, seed0: int, model: str) -> dic
     zs = np.abs(np.array(zs))
     tot["median_abs_z"] = float(np.median(zs)) if zs.size else float("nan")
     return tot
+
+
+class BestFitOnly:
+    """A model without usable uncertainty as issue 12's contract gives it for a fit without
+    covariance: ``has_uncertainty`` False, ``sample`` the best fit repeated."""
+
+    def __init__(self, fm, params=None):
+        self.params = params if params is not None else fm.params
+        self.piezo, self.source, self.has_uncertainty = fm.piezo, "best fit only", False
+
+    def sample(self, n, seed=0):
+        from gprm.params import batch
+        return {k: np.repeat(v, n) for k, v in batch([self.params]).items()}
+
+
+# chain-check's truths: the paper's values of these parameters times 1 + U(-0.1, 0.1)
+PERTURBED = ("v2", "g2", "gamma", "rho", "k_lr", "k_Ax", "k_Bx", "c_Ax", "c_Bx", "k_Cy",
+             "k_Dy", "c_Cy", "c_Dy", "m1", "m2", "m3", "m4", "d1", "d2", "b1", "b2")
+
+
+def perturbed_models(fm, n: int, seed0: int):
+    """``n`` models with the paper's covariance about parameters perturbed by +-10 %."""
+    from dataclasses import replace
+
+    out = []
+    for i in range(n):
+        rng = np.random.default_rng(seed0 + i)
+        ps = fm.params.with_values(**{k: fm.params[k] * (1 + rng.uniform(-0.1, 0.1))
+                                      for k in PERTURBED})
+        out.append(replace(fm, params=ps, source=f"perturbed {seed0 + i}"))
+    return out
 
 
 def print_recovery(rows, cmd) -> None:
@@ -86,6 +122,9 @@ def main() -> None:
     ap.add_argument("--seed0", type=int, default=1000)
     ap.add_argument("--no-planar", action="store_true")
     ap.add_argument("--no-timings", action="store_true")
+    ap.add_argument("--variants", action="store_true",
+                    help="also: best fit only (no covariance), and 10 models perturbed by "
+                         "+-10 %% (chain-check's truths), 3D analysis")
     a = ap.parse_args()
     from gprm.fit.files import paper_model
     from gprm.flight import (AnalysisOptions, SynthOptions, analyze, impact_3d, planar_impact,
@@ -159,6 +198,13 @@ def _recovery_section(fm, a, cmd) -> None:
     if not a.no_planar:
         rows.append(("planar, two planes (paper)", recovery(fm, n, a.releases, a.seed0,
                                                             "planar"), a.releases))
+    if a.variants:
+        k = 10 if not a.quick else 2
+        rows.append(("3D, best fit only (no covariance)",
+                     recovery(BestFitOnly(fm), k, a.releases, a.seed0, "3d"), a.releases))
+        rows.append(("3D, paper covariance about +-10 % perturbed parameters",
+                     recovery(fm, k, a.releases, a.seed0, "3d",
+                              models=perturbed_models(fm, k, a.seed0)), a.releases))
     print_recovery(rows, cmd)
     print(f"\n(recovery study: {time.process_time() - t0:.0f} s CPU)")
 

@@ -176,8 +176,7 @@ def main() -> None:
 
     print("## Flight analysis (`gprm.flight`)\n")
     print(machine("scipy"))
-    print(f"- command: `.venv/bin/python benchmarks/bench_flight.py{' --quick' if a.quick else ''}`"
-          f" (best of {rep})\n")
+    print(f"- command: `{cmd.strip()}` (timings: best of {rep})\n")
     print("| step | time (s) |\n|---|---|")
     for name, t in rows:
         print(f"| {name} | {t:.3f} |")

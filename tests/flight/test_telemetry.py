@@ -225,7 +225,7 @@ def test_bad_real_inputs(tmp_path):
     d2 = df.astype({"x [mm]": object})
     d2.loc[7, "x [mm]"] = "n/a"
     d2.to_csv(tmp_path / "n.csv", index=False)
-    with pytest.raises(GprmInputError, match="row 9"):
+    with pytest.raises(GprmInputError, match="line 9"):
         load_telemetry(tmp_path / "n.csv")
     df.iloc[[0, 40, 1] + list(range(2, 40)) + list(range(41, 60))].to_csv(
         tmp_path / "s.csv", index=False)
@@ -234,6 +234,12 @@ def test_bad_real_inputs(tmp_path):
     (tmp_path / "e.csv").write_bytes(b"")
     with pytest.raises(GprmInputError, match="cannot be read as CSV"):
         load_telemetry(tmp_path / "e.csv")
+    (tmp_path / "b.csv").write_bytes(b"release,time\n\xff\xfe,1\n")
+    with pytest.raises(GprmInputError, match="cannot be read as CSV"):
+        load_telemetry(tmp_path / "b.csv")
+    (tmp_path / "r.csv").write_text("# measured\n" + p.read_text().replace("\n", ",1\n", 3))
+    with pytest.raises(GprmInputError, match="fields"):
+        load_telemetry(tmp_path / "r.csv")
 
 
 def test_cli_reads_csv(tmp_path):

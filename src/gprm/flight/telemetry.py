@@ -164,32 +164,43 @@ def telemetry_csv_dataset(path: str | os.PathLike):
     ``theta (µrad)``; no unit: SI): ``release`` (id), ``time``, ``release_time`` (the release
     instant, the same on every row of a release), ``x, y, z`` (length), ``theta, eta``
     (angle), optional ``phi`` and ``<channel>_std`` (per-sample std, the channel's kinds of
-    unit). Rows of a release must be in time order; releases may have different lengths.
-    Every problem is a GprmInputError naming the file, the column and the row.
+    unit). Rows of a release must be in time order; releases may have different lengths;
+    blank lines and lines starting with ``#`` are skipped. Every problem is a GprmInputError
+    naming the file, the column and the line.
     """
     from pathlib import Path
 
-    import pandas as pd
+    import csv
 
     src = str(path)
     if not Path(path).exists():
         raise GprmInputError("telemetry CSV does not exist", source=src)
     try:
-        df = pd.read_csv(path, comment="#", skipinitialspace=True)
-    except Exception as exc:   # not CSV, empty, undecodable
+        with open(path, newline="", encoding="utf-8-sig") as fh:
+            lines = [(i + 1, ln) for i, ln in enumerate(fh)
+                     if ln.strip() and not ln.lstrip().startswith("#")]
+        rows = list(csv.reader([ln for _, ln in lines], skipinitialspace=True))
+    except (UnicodeDecodeError, csv.Error, OSError) as exc:
         raise GprmInputError(f"cannot be read as CSV ({type(exc).__name__}: {exc})",
                              source=src) from None
+    if len(rows) < 2:
+        raise GprmInputError("cannot be read as CSV (no header and data rows)", source=src)
+    header, body, lineno = rows[0], rows[1:], [n for n, _ in lines[1:]]
+    for k, r in enumerate(body):
+        if len(r) != len(header):
+            raise GprmInputError(f"line {lineno[k]}: {len(r)} fields, the header has "
+                                 f"{len(header)}", source=src)
     cols = {}
-    for c in df.columns:
+    for j, c in enumerate(header):
         name, unit = _csv_header(str(c))
         if name in cols:
             raise GprmInputError("column given twice", source=src, field=name)
-        cols[name] = (c, unit)
+        cols[name] = (j, unit)
     for need in ("release", "time", "release_time") + REQUIRED:
         if need not in cols:
             raise GprmInputError(f"missing column (have: {', '.join(cols)})", source=src,
                                  field=need)
-    rel = df[cols["release"][0]].astype(str).str.strip().to_numpy()
+    rel = np.array([r[cols["release"][0]].strip() for r in body], dtype=object)
     ids = list(dict.fromkeys(rel))
     num = {}
     for name, (c, unit) in cols.items():
@@ -199,11 +210,15 @@ def telemetry_csv_dataset(path: str | os.PathLike):
         kind = ("time" if name in ("time", "release_time") else CHANNEL_KIND.get(base))
         if kind is None:
             continue                               # unknown extra column: ignored
-        vals = pd.to_numeric(df[c], errors="coerce").to_numpy(float)
-        bad = np.flatnonzero(~np.isfinite(vals))
-        if bad.size:
-            raise GprmInputError(f"row {int(bad[0]) + 2}: not a finite number "
-                                 f"({df[c].iloc[int(bad[0])]!r})", source=src, field=name)
+        vals = np.empty(len(body))
+        for k, r in enumerate(body):
+            try:
+                vals[k] = float(r[c])
+            except ValueError:
+                vals[k] = np.nan
+            if not np.isfinite(vals[k]):
+                raise GprmInputError(f"line {lineno[k]}: not a finite number ({r[c]!r})",
+                                     source=src, field=name)
         num[name] = vals * unit_factor(unit, kind, source=src, field=name)
     R = len(ids)
     idx = [np.flatnonzero(rel == r) for r in ids]
@@ -212,8 +227,8 @@ def telemetry_csv_dataset(path: str | os.PathLike):
     trel = np.empty(R)
     for k, (r, ii) in enumerate(zip(ids, idx)):
         if ii.size > 1 and np.any(np.diff(ii) != 1):
-            raise GprmInputError(f"release {r}: its rows are not contiguous (row "
-                                 f"{int(ii[np.argmax(np.diff(ii) != 1) + 1]) + 2})",
+            raise GprmInputError(f"release {r}: its rows are not contiguous (line "
+                                 f"{lineno[int(ii[np.argmax(np.diff(ii) != 1) + 1])]})",
                                  source=src, field="release")
         tr = num["release_time"][ii]
         if np.ptp(tr) != 0:

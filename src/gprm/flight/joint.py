@@ -105,7 +105,7 @@ def joint_impact_time(times: dict, stderrs: dict, draws: dict, slopes: dict | No
     # eigen-floor for χ²: the draws' covariance is nearly singular (a few physical sources
     # move all axes together) and its smallest eigenvalues are poorly determined by a finite
     # set of draws; 1e-3 of the largest keeps the χ² test's size near nominal on synthetic
-    # campaigns (docs/flight.md §9: seeds 100-119 to choose, 0-29 to check)
+    # campaigns (docs/flight.md §5a, §9: seeds 100-119 to choose, 1000-1099 to check)
     lam, V = np.linalg.eigh(Sig)
     lam = np.maximum(lam, 1e-3 * lam.max())
     Si = (V / lam) @ V.T

@@ -11,6 +11,7 @@ import typer
 
 def register(app: typer.Typer, synth_app: typer.Typer) -> None:
     from gprm.cli import one_line_errors
+    from gprm.options import Int, Quantity
 
     @synth_app.command("campaign")
     @one_line_errors
@@ -19,18 +20,25 @@ def register(app: typer.Typer, synth_app: typer.Typer) -> None:
         truth: Optional[Path] = typer.Option(None, "--truth",
                                              help="TOML parameter file of the true set "
                                                   "(default: drawn around the paper set)"),
-        seed: int = typer.Option(0, "--seed", help="random seed (same seed, same file)"),
-        runs: int = typer.Option(10, "--runs", help="actuated runs per position"),
-        noise_runs: int = typer.Option(5, "--noise-runs", help="noise runs per position"),
-        t_end: float = typer.Option(1.5e-3, "--t-end", help="record length, s"),
+        seed: int = typer.Option(0, "--seed", parser=Int(min=0),
+                                 help="random seed (same seed, same file)"),
+        runs: int = typer.Option(10, "--runs", parser=Int(min=2, max=10000),
+                                 help="actuated runs per position"),
+        noise_runs: int = typer.Option(5, "--noise-runs", parser=Int(min=1, max=10000),
+                                       help="noise runs per position"),
+        t_end: float = typer.Option(1.5e-3, "--t-end", parser=Quantity("s", 0, 1.0,
+                                    min_open=True), metavar="TIME",
+                                    help="record length, e.g. 1.5ms (bare: s)"),
         no_nonlinear: bool = typer.Option(False, "--no-nonlinear",
                                           help="skip the nonlinear correction (faster)"),
     ):
         """Synthetic ground-test campaign with known truth (richer model than the fit's)."""
         from gprm.campaign.data import write_campaign
         from gprm.campaign.synth import SynthConfig, synth_campaign
+        from gprm._io import check_outputs
         from gprm.params import load_params
 
+        check_outputs({out: "--out"}, inputs=[truth])
         ps = load_params(truth) if truth is not None else None
         cfg = SynthConfig(n_runs=runs, n_noise=noise_runs, t_end=t_end,
                           nonlinear=not no_nonlinear)
@@ -46,14 +54,17 @@ def register(app: typer.Typer, synth_app: typer.Typer) -> None:
         campaign: Path = typer.Argument(..., help="campaign NetCDF file or CSV directory"),
         out: Path = typer.Option(..., "--out", help="output mean-signals NetCDF"),
         align_time: float = typer.Option(1.0e-3, "--align-time",
+                                         parser=Quantity("s", 0, min_open=True),
+                                         metavar="TIME",
                                          help="time at which each mean signal reaches the "
-                                              "threshold, s"),
+                                              "threshold, e.g. 1ms (bare: s)"),
     ):
         """Synchronise, average and align a campaign (Sec. 2); prints Table 1."""
-        from gprm._io import write_netcdf_atomic
+        from gprm._io import check_outputs, write_netcdf_atomic
         from gprm.campaign.data import load_campaign
         from gprm.campaign.preprocess import PreprocessConfig, preprocess
 
+        check_outputs({out: "--out"}, inputs=[campaign])
         ds = load_campaign(campaign)
         ms = preprocess(ds, PreprocessConfig(align_time=align_time))
         write_netcdf_atomic(ms.to_dataset(), out)

@@ -140,7 +140,8 @@ def check_outputs(outputs: dict, inputs=(), *, folders: dict | None = None) -> N
     """Refuse, before any work, outputs that cannot be written or would destroy data.
 
     ``outputs`` maps each file to be written to the option it comes from (a sidecar names its
-    option too: ``{"fit.json": "--out", "fit.nc": "--out (sidecar)"}``); ``folders`` the same
+    option too: ``{"fit.json": "--out", "fit.nc": "--out (sidecar)"}``; a list of
+    ``(path, option)`` pairs where two options may name the same file); ``folders`` the same
     for output folders (a checkpoint folder). Refused: an output that is an existing folder
     (or a folder output that is a file), an output in a folder where no file can be created,
     an output that is one of ``inputs`` (or a file inside an input folder), and two outputs
@@ -149,7 +150,8 @@ def check_outputs(outputs: dict, inputs=(), *, folders: dict | None = None) -> N
     folders = folders or {}
     ins = [Path(p) for p in inputs if p is not None]
     seen: list[tuple[Path, str]] = []
-    items = [*((Path(p), o, False) for p, o in outputs.items() if p is not None),
+    pairs = outputs.items() if isinstance(outputs, dict) else outputs
+    items = [*((Path(p), o, False) for p, o in pairs if p is not None),
              *((Path(p), o, True) for p, o in folders.items() if p is not None)]
     for path, opt, is_folder in items:
         if is_folder:

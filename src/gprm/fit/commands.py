@@ -82,7 +82,6 @@ def register(app: typer.Typer, synth_app: typer.Typer) -> None:
         from rich.console import Console
         from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 
-        from gprm._io import open_netcdf
         from gprm.errors import GprmInputError
         from gprm.fit.multistart import LMOptions, MultiStartOptions
         from gprm.fit.objective import fit_data_from_means
@@ -103,7 +102,9 @@ def register(app: typer.Typer, synth_app: typer.Typer) -> None:
         if out.suffix == ".nc":
             raise GprmInputError("must not end in .nc (that name is the sidecar's)",
                                  source=str(out), field="--out")
-        ds = open_netcdf(means, what="mean-signals file")
+        from gprm.validate import read_means
+
+        ds = read_means(means)
         data = fit_data_from_means(ds, window=window, sigma=sigma, source=str(means))
         base = load_params(params)
         check_memory(starts, starts_memory(1, len(base.fitted)), field="--starts",

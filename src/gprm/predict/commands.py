@@ -116,8 +116,12 @@ def register(app: typer.Typer, synth_app: typer.Typer) -> None:
         if not ke_start < ke_end:
             raise GprmInputError(f"must be after --ke-start, got {ke_end:g} s <= "
                                  f"{ke_start:g} s", field="--ke-end")
-        check_outputs({out: "--out", whatif_out: "--whatif"},
+        check_outputs([(out, "--out"), (whatif_out, "--whatif")],
                       inputs=[None if fit == "paper" else fit, means, voltage])
+        if means is not None:
+            from gprm.validate import read_means
+
+            read_means(means)         # refuse a bad file before the prediction runs
         fm = load_model(fit)
         sc = Scenario("cli", piezo, scale_eccentricity, parse_overrides(set_))
         g, gs = gap, gap_std

@@ -25,7 +25,9 @@ from pathlib import Path
 
 from typer import _click as click  # typer ships its own click; its errors are these
 import typer
+from typer._click.exceptions import NoArgsIsHelpError
 from typer.core import TyperGroup
+from typer.exceptions import Abort
 
 from gprm.errors import GprmInputError
 
@@ -84,11 +86,14 @@ class _GprmGroup(TyperGroup):
         except GprmInputError as exc:
             click.echo(f"gprm: error: {_one_line(exc)}", err=True)
             code = 2
+        except NoArgsIsHelpError as exc:          # `gprm`, `gprm synth`: the help
+            click.echo(exc.ctx.get_help() if exc.ctx is not None else exc.format_message())
+            code = exc.exit_code
         except click.ClickException as exc:       # usage errors: bad option or argument
             msg = _one_line(exc.format_message()).replace(": Value error, ", ": ")
             click.echo(f"gprm: error: {msg}", err=True)
             code = exc.exit_code
-        except click.exceptions.Abort:
+        except Abort:
             click.echo("gprm: aborted", err=True)
             code = 130
         except Exception as exc:                   # a bug or an environment problem

@@ -50,11 +50,12 @@ def largest_that_fits(bytes_per_unit: float, fixed: float = 0.0, *,
 
 def check_memory(count: float, bytes_per_unit: float, *, field: str, what: str,
                  fixed: float = 0.0, available: int | None = None, unit_scale: float = 1.0,
-                 unit: str = "") -> None:
+                 unit: str = "", integer: bool = False) -> None:
     """Refuse ``count`` units of work when the estimate exceeds the memory available.
 
     ``unit_scale`` turns the count into the option's value for the message (e.g. samples per
-    Hz of ``--rate``); the message gives the largest option value that fits.
+    Hz of ``--rate``); the message gives the largest option value that fits (rounded down to
+    a whole number for an ``integer`` option).
     """
     avail = available_memory() if available is None else available
     need = fixed + float(count) * bytes_per_unit
@@ -62,7 +63,7 @@ def check_memory(count: float, bytes_per_unit: float, *, field: str, what: str,
         return
     n_max = largest_that_fits(bytes_per_unit, fixed, available=avail)
     v_max = n_max / unit_scale
-    vtxt = f"{int(v_max)}" if unit_scale == 1.0 else f"{v_max:.4g}"
+    vtxt = f"{int(v_max)}" if (unit_scale == 1.0 or integer) else f"{v_max:.4g}"
     raise GprmInputError(f"{what} would need about {_fmt_bytes(need)} of memory, "
                          f"{_fmt_bytes(avail)} available; the largest value that fits is "
                          f"{vtxt}{(' ' + unit) if unit else ''}", field=field)

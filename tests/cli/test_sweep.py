@@ -98,6 +98,8 @@ CASES = [
     ("preprocess-binary-csv", ["preprocess", "csv", "--out", "x.nc"], "csv", _csv_binary_data),
     ("preprocess-align", ["preprocess", "c.nc", "--out", "x.nc", "--align-time", "-1ms"],
      "--align-time", None),
+    ("predict-samples-huge", ["predict", "paper", "--out", "p.nc", "--samples", "1000000",
+                              "--rate", "100MHz"], "largest value that fits", None),
     ("simulate-rate-huge", ["simulate", "--out", "s.nc", "--rate", "1e12"],
      "largest value that fits", None),
     ("simulate-rate-unit", ["simulate", "--out", "s.nc", "--rate", "2 m"], "--rate", None),

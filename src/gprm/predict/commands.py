@@ -118,6 +118,14 @@ def register(app: typer.Typer, synth_app: typer.Typer) -> None:
                                  f"{ke_start:g} s", field="--ke-end")
         check_outputs([(out, "--out"), (whatif_out, "--whatif")],
                       inputs=[None if fit == "paper" else fit, means, voltage])
+        from gprm.resources import check_memory
+
+        # about 1.95 kB per drawn set and time (measured with tracemalloc at 20 and 80 sets
+        # over the default 251 times; docs/README.md) plus a fixed 50 MB
+        n_times = (t_end - t_start) * rate + 1
+        check_memory(max(samples, 1) * n_times, 2500.0, fixed=50e6, field="--samples",
+                     what=f"{samples} sets x {n_times:.4g} times", unit_scale=n_times,
+                     integer=True)
         if means is not None:
             from gprm.validate import read_means
 

@@ -43,7 +43,7 @@ def register(app: typer.Typer, synth_app: typer.Typer) -> None:
             raise GprmInputError(f"must be 1 or 2, got {piezo}", field="--piezo")
         check_outputs({out: "--out"}, inputs=[params, voltage])
         # about 1.6 kB per sample (the simulated states, their rates and outputs, the dataset;
-        # measured with tracemalloc, docs/data-formats.md) plus a fixed 50 MB
+        # measured with tracemalloc, docs/README.md) plus a fixed 50 MB
         check_memory(t_end * rate + 1, 2000.0, fixed=50e6, field="--rate", unit="Hz",
                      what=f"{t_end * rate + 1:.4g} samples", unit_scale=t_end)
         ps = load_params(params)

@@ -78,8 +78,9 @@ def register(app: typer.Typer, synth_app: typer.Typer) -> None:
         if z_from not in ("sum", "xz", "yz"):
             raise GprmInputError(f"must be sum, xz or yz, got {z_from!r}", field="--z-from")
         check_outputs({out: "--out"}, inputs=[None if fit == "paper" else fit])
-        # the record of each release: 15 channels of 8 bytes and their copies (x4)
-        check_memory(releases * (post * rate + 1), 15 * 8 * 4, fixed=50e6, field="--rate",
+        # 150 B per record sample (tracemalloc peak: 96 B per sample between 2 x 1e4 and
+        # 2 x 4e4 samples; docs/README.md) plus a fixed 50 MB
+        check_memory(releases * (post * rate + 1), 150.0, fixed=50e6, field="--rate",
                      unit="Hz", what=f"{releases} records of {post * rate + 1:.4g} samples",
                      unit_scale=releases * post)
         if releases < 1:

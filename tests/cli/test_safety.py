@@ -111,7 +111,7 @@ def test_local_cluster_binds_to_localhost_without_dashboard(obj, monkeypatch):
 
     class FakeClient:
         def __init__(self, cluster):
-            pass
+            seen["client_of"] = cluster
 
         def submit(self, fn, task, pure=False):
             return FakeFuture(fn(task))
@@ -131,6 +131,10 @@ def test_local_cluster_binds_to_localhost_without_dashboard(obj, monkeypatch):
     with dask_dashboard("127.0.0.1:8787"):
         run_multistart(obj, OPTS, workers=2)
     assert seen["dashboard_address"] == "127.0.0.1:8787"
+    seen.clear()
+    out = run_multistart(obj, OPTS, scheduler="tcp://10.1.2.3:8786")   # an existing cluster
+    assert seen == {"client_of": "tcp://10.1.2.3:8786"}                 # no local cluster
+    np.testing.assert_array_equal(ref.x, out.x)
 
 
 # ----------------------------------------------------------------------------- crashes

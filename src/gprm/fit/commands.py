@@ -91,7 +91,8 @@ def register(app: typer.Typer, synth_app: typer.Typer) -> None:
         if sigma not in ("sem", "std"):
             raise GprmInputError(f"must be sem or std, got {sigma!r}", field="--sigma")
         from gprm._io import check_outputs
-        from gprm.fit.multistart import remove_checkpoints, starts_memory
+        from gprm.fit.multistart import (check_checkpoint_folder, remove_checkpoints,
+                                         starts_memory)
         from gprm.resources import check_memory
 
         if sampling not in ("uniform", "lhs"):
@@ -99,6 +100,7 @@ def register(app: typer.Typer, synth_app: typer.Typer) -> None:
         ckpt = checkpoint if checkpoint is not None else Path(str(out) + ".ckpt")
         check_outputs({out: "--out", out.with_suffix(".nc"): "--out (its .nc sidecar)"},
                       inputs=[means, params], folders={ckpt: "--checkpoint"})
+        check_checkpoint_folder(ckpt, field="--checkpoint")
         if out.suffix == ".nc":
             raise GprmInputError("must not end in .nc (that name is the sidecar's)",
                                  source=str(out), field="--out")

@@ -398,20 +398,28 @@ class Checkpoints:
                 np.savez(fh, **res)
 
 
+def check_checkpoint_folder(folder: str | os.PathLike, field: str = "checkpoint") -> None:
+    """Refuse (without touching anything) a folder gprm may not use for checkpoints: a file,
+    or an existing folder with files that is not marked as a gprm checkpoint folder."""
+    folder = Path(folder)
+    if folder.exists() and not folder.is_dir():
+        raise GprmInputError("is a file; expected a checkpoint folder", source=str(folder),
+                             field=field)
+    if folder.is_dir() and not (folder / CHECKPOINT_MARKER).is_file() \
+            and any(folder.iterdir()):
+        raise GprmInputError("exists and is not a gprm checkpoint folder (no "
+                             f"{CHECKPOINT_MARKER}); choose a new or empty folder",
+                             source=str(folder), field=field)
+
+
 def prepare_checkpoint_folder(folder: str | os.PathLike) -> Path:
     """Create or adopt ``folder`` as a checkpoint folder (see :class:`Checkpoints`)."""
     folder = Path(folder)
     marker = folder / CHECKPOINT_MARKER
-    if folder.exists() and not folder.is_dir():
-        raise GprmInputError("is a file; expected a checkpoint folder", source=str(folder),
-                             field="checkpoint")
+    check_checkpoint_folder(folder)
     if folder.is_dir():
         if marker.is_file():
             return folder
-        if any(folder.iterdir()):
-            raise GprmInputError("exists and is not a gprm checkpoint folder (no "
-                                 f"{CHECKPOINT_MARKER}); choose a new or empty folder",
-                                 source=str(folder), field="checkpoint")
         created = False
     else:
         try:

@@ -26,9 +26,10 @@ def register(app: typer.Typer, synth_app: typer.Typer) -> None:
                                  help="actuated runs per position"),
         noise_runs: int = typer.Option(5, "--noise-runs", parser=Int(min=1, max=10000),
                                        help="noise runs per position"),
-        t_end: float = typer.Option(1.5e-3, "--t-end", parser=Quantity("s", 0, 1.0,
+        t_end: float = typer.Option(1.5e-3, "--t-end", parser=Quantity("s", 1.2e-3, 0.1,
                                     min_open=True), metavar="TIME",
-                                    help="record length, e.g. 1.5ms (bare: s)"),
+                                    help="record length in (1.2 ms, 100 ms], e.g. 1.5ms "
+                                         "(bare: s)"),
         no_nonlinear: bool = typer.Option(False, "--no-nonlinear",
                                           help="skip the nonlinear correction (faster)"),
     ):
@@ -39,6 +40,14 @@ def register(app: typer.Typer, synth_app: typer.Typer) -> None:
         from gprm.params import load_params
 
         check_outputs({out: "--out"}, inputs=[truth])
+        from gprm.resources import check_memory
+
+        # 1.5 kB per recorded sample of each run and position (tracemalloc peak: 1.12 kB
+        # between 4+2 and 16+8 runs of 301 samples; docs/README.md) plus a fixed 50 MB
+        per_run = 9 * (t_end * SynthConfig().rate + 1)
+        check_memory(runs * per_run, 1500.0, fixed=50e6 + 1500.0 * per_run * noise_runs,
+                     field="--runs", what=f"{runs} + {noise_runs} runs", unit_scale=per_run,
+                     integer=True)
         ps = load_params(truth) if truth is not None else None
         cfg = SynthConfig(n_runs=runs, n_noise=noise_runs, t_end=t_end,
                           nonlinear=not no_nonlinear)

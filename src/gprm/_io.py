@@ -144,8 +144,9 @@ def check_outputs(outputs: dict, inputs=(), *, folders: dict | None = None) -> N
     ``(path, option)`` pairs where two options may name the same file); ``folders`` the same
     for output folders (a checkpoint folder). Refused: an output that is an existing folder
     (or a folder output that is a file), an output in a folder where no file can be created,
-    an output that is one of ``inputs`` (or a file inside an input folder), and two outputs
-    that are the same file. Inputs are never opened for writing.
+    an output that is one of ``inputs`` (for a folder output: one that holds an input), and
+    two outputs that are the same file. Inputs are never opened for writing. A command that
+    reads a folder lists the files it reads in it (:func:`files_read_from`).
     """
     folders = folders or {}
     ins = [Path(p) for p in inputs if p is not None]
@@ -162,8 +163,7 @@ def check_outputs(outputs: dict, inputs=(), *, folders: dict | None = None) -> N
             raise GprmInputError("is a folder; expected a file to write", source=str(path),
                                  field=opt)
         for i in ins:
-            if _same(path, i) or (i.is_dir() and _same(path.parent, i) and path.exists()) \
-                    or (is_folder and (_same(path, i) or _is_inside(i, path))):
+            if _same(path, i) or (is_folder and _is_inside(i, path)):
                 raise GprmInputError(f"would overwrite the input {i}; choose another name",
                                      source=str(path), field=opt)
         for other, oopt in seen:
@@ -174,6 +174,26 @@ def check_outputs(outputs: dict, inputs=(), *, folders: dict | None = None) -> N
         why = _probe_writable(path if is_folder else path.parent)
         if why:
             raise GprmInputError(f"cannot be written: {why}", source=str(path), field=opt)
+
+
+def files_read_from(folder: str | os.PathLike, *, suffixes=None) -> list[Path]:
+    """The files of an input folder a command may read: a CSV campaign folder's manifest and
+    the files it lists (as far as the manifest can be read; a bad one is refused later), or,
+    with ``suffixes``, every file with those endings (a run directory)."""
+    folder = Path(folder)
+    if not folder.is_dir():
+        return []
+    if suffixes is not None:
+        return [p for p in folder.iterdir() if p.is_file() and p.suffix in suffixes]
+    manifest = folder / "manifest.csv"
+    out = [manifest]
+    try:
+        from gprm.campaign.csvdir import read_manifest
+
+        out += [folder / row["file"] for row in read_manifest(manifest)]
+    except GprmInputError:
+        pass
+    return out
 
 
 def _is_inside(child: Path, folder: Path) -> bool:

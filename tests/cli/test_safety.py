@@ -180,3 +180,25 @@ def test_memory_guard_names_the_largest_value_that_fits(monkeypatch):
     samples = rate_max * 1.2e-3 + 1
     assert 50e6 + 2000 * samples <= 0.8 * avail * 1.0001
     assert 50e6 + 2000 * samples * 1.01 > 0.8 * avail
+
+
+# ----------------------------------------------------------------------------- outputs
+
+def test_outputs_beside_inputs_are_fine_over_them_refused(tmp_path):
+    from gprm._io import check_outputs, files_read_from
+
+    run = tmp_path / "run"
+    run.mkdir()
+    (run / "fit.json").write_text("{}")
+    (run / "report.html").write_text("old report")             # a rerun replaces it
+    check_outputs({run / "report.html": "--out"},
+                  inputs=files_read_from(run, suffixes={".json"}))
+    with pytest.raises(GprmInputError, match="would overwrite the input") as e:
+        check_outputs({run / "fit.json": "--out"},
+                      inputs=files_read_from(run, suffixes={".json"}))
+    assert e.value.field == "--out"
+    with pytest.raises(GprmInputError, match="also the output of --out"):
+        check_outputs([(tmp_path / "a.nc", "--out"), (tmp_path / "./a.nc", "--whatif")])
+    with pytest.raises(GprmInputError, match="holds|overwrite"):     # a folder over inputs
+        check_outputs({}, inputs=[run / "fit.json"], folders={run: "--checkpoint"})
+    assert sorted(p.name for p in run.iterdir()) == ["fit.json", "report.html"]

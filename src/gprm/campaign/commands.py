@@ -73,7 +73,9 @@ def register(app: typer.Typer, synth_app: typer.Typer) -> None:
         from gprm.campaign.data import load_campaign
         from gprm.campaign.preprocess import PreprocessConfig, preprocess
 
-        check_outputs({out: "--out"}, inputs=[campaign])
+        from gprm._io import files_read_from
+
+        check_outputs({out: "--out"}, inputs=[campaign, *files_read_from(campaign)])
         ds = load_campaign(campaign)
         ms = preprocess(ds, PreprocessConfig(align_time=align_time))
         write_netcdf_atomic(ms.to_dataset(), out)

@@ -24,7 +24,10 @@ def register(app: typer.Typer, synth_app: typer.Typer) -> None:
         if not run_dir.is_dir():
             raise GprmInputError("is not a folder (expected a run directory)",
                                  source=str(run_dir))
-        check_outputs({out: "--out"}, inputs=[run_dir])
+        from gprm._io import files_read_from
+
+        check_outputs({out: "--out"},
+                      inputs=files_read_from(run_dir, suffixes={".nc", ".json", ".toml"}))
 
         path = write_report(run_dir, out)
         typer.echo(f"wrote {path} ({path.stat().st_size / 1e6:.2f} MB)")

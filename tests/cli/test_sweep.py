@@ -88,6 +88,8 @@ CASES = [
      "--checkpoint", None),
     ("fit-params-folder", ["fit", "m.nc", "--out", "f.json", "--params", "folder"], "folder",
      None),
+    ("fit-workers-huge", ["fit", "m.nc", "--out", "f.json", "--workers", "1000000"],
+     "--workers", None),
     ("fit-sampling", ["fit", "m.nc", "--out", "f.json", "--sampling", "sobol"], "--sampling",
      None),
     ("preprocess-over-input", ["preprocess", "c.nc", "--out", "c.nc"], "--out", None),

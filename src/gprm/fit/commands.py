@@ -126,6 +126,10 @@ def register(app: typer.Typer, synth_app: typer.Typer) -> None:
             workers = 0 if scheduler else max(1, os.cpu_count() or 1)
         if workers < 0:
             raise GprmInputError(f"must be >= 0, got {workers}", field="--workers")
+        n_cpu = os.cpu_count() or 1
+        if not scheduler and workers > 4 * n_cpu:   # each is a process with its own memory
+            raise GprmInputError(f"{workers} local worker processes on {n_cpu} cores; the "
+                                 f"largest value accepted is {4 * n_cpu}", field="--workers")
         console = Console(stderr=True)
         with Progress(TextColumn("fit"), BarColumn(), TextColumn("{task.completed}/"
                       "{task.total} chunks"), TimeElapsedColumn(), console=console,

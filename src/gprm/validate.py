@@ -41,6 +41,7 @@ class Var:
     min_open: bool = False
     increasing: bool = False         # strictly increasing (1-D coordinates)
     min_size: int = 1                # of the last dimension
+    unique: bool = False             # labels (1-D): no repeats
 
 
 @dataclass(frozen=True)
@@ -84,6 +85,11 @@ def _check_var(ds, v: Var, src: str) -> xr.Variable:
         raise GprmInputError(f"needs at least {v.min_size} values along {v.dims[-1]}, got "
                              f"{da.shape[-1]}", source=src, field=v.name)
     if not v.numeric:
+        if v.unique:
+            labels = [str(x) for x in np.asarray(da.values).ravel()]
+            rep = sorted({x for x in labels if labels.count(x) > 1})
+            if rep:
+                raise GprmInputError(f"repeated label(s) {rep}", source=src, field=v.name)
         return da.variable
     if da.dtype.kind not in "iuf":      # bool, strings, objects, complex, dates: refused
         raise GprmInputError(f"must hold real numbers, got dtype {da.dtype}", source=src,
@@ -165,7 +171,7 @@ def check_dataset(ds, schema: Schema, source: str):
 #: the campaign NetCDF (docs/data-formats.md)
 CAMPAIGN = Schema("campaign NetCDF", (
     Var("time", ("time",), "s", increasing=True, min_size=8),
-    Var("position", ("position",), numeric=False),
+    Var("position", ("position",), numeric=False, unique=True),
     Var("displacement", ("position", "run", "time"), "m"),
     Var("noise", ("position", "noise_run", "time"), "m"),
     Var("voltage", ("vrun", "vtime"), "V", required=False),
@@ -175,7 +181,7 @@ CAMPAIGN = Schema("campaign NetCDF", (
 #: the mean-signals NetCDF of ``gprm preprocess`` (docs/data-formats.md)
 MEANS = Schema("mean-signals NetCDF", (
     Var("time", ("time",), "s", increasing=True, min_size=2),
-    Var("signal", ("signal",), numeric=False),
+    Var("signal", ("signal",), numeric=False, unique=True),
     Var("mean", ("signal", "time"), "m"),
     Var("std", ("signal", "time"), "m", required=False, min=0.0),
     Var("sem", ("signal", "time"), "m", required=False, min=0.0),

@@ -100,6 +100,11 @@ def test_text_and_wrong_dimensions_are_refused(n_sig, n_t, dt, t_unit, y_unit, s
     with pytest.raises(GprmInputError, match="missing") as e:
         check_dataset(ds.drop_vars("mean"), MEANS, "m.nc")
     assert e.value.field == "mean"
+    if n_sig > 1:
+        dup = ds.assign_coords(signal=["s0"] * n_sig)
+        with pytest.raises(GprmInputError, match="repeated") as e:
+            check_dataset(dup, MEANS, "m.nc")
+        assert e.value.field == "signal"
 
 
 @pytest.fixture(scope="module")

@@ -202,3 +202,15 @@ def test_outputs_beside_inputs_are_fine_over_them_refused(tmp_path):
     with pytest.raises(GprmInputError, match="holds|overwrite"):     # a folder over inputs
         check_outputs({}, inputs=[run / "fit.json"], folders={run: "--checkpoint"})
     assert sorted(p.name for p in run.iterdir()) == ["fit.json", "report.html"]
+
+
+def test_an_unreachable_scheduler_is_an_input_error(obj, monkeypatch):
+    import distributed
+
+    def refuse(address):
+        raise OSError(f"Timed out trying to connect to {address}")
+
+    monkeypatch.setattr(distributed, "Client", refuse)
+    with pytest.raises(GprmInputError, match="cannot connect to the Dask scheduler") as e:
+        run_multistart(obj, OPTS, scheduler="tcp://127.0.0.1:1")
+    assert e.value.field == "scheduler"

@@ -90,6 +90,8 @@ CASES = [
      None),
     ("fit-workers-huge", ["fit", "m.nc", "--out", "f.json", "--workers", "1000000"],
      "--workers", None),
+    ("fit-scheduler", ["fit", "m.nc", "--out", "f.json", "--scheduler", "not an address"],
+     "--scheduler", None),
     ("fit-sampling", ["fit", "m.nc", "--out", "f.json", "--sampling", "sobol"], "--sampling",
      None),
     ("preprocess-over-input", ["preprocess", "c.nc", "--out", "c.nc"], "--out", None),

@@ -78,6 +78,7 @@ def register(app: typer.Typer, synth_app: typer.Typer) -> None:
     ):
         """Multi-start Levenberg-Marquardt identification (Sec. 3.1)."""
         import os
+        import re
 
         from rich.console import Console
         from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
@@ -95,6 +96,11 @@ def register(app: typer.Typer, synth_app: typer.Typer) -> None:
                                          starts_memory)
         from gprm.resources import check_memory
 
+        if scheduler is not None and not re.fullmatch(
+                r"(tcp|tls|inproc|ucx|ws|wss)://\S+|[\w.\-]+:\d+|\[[0-9a-fA-F:]+\]:\d+",
+                scheduler):
+            raise GprmInputError(f"expected a scheduler address such as tcp://HOST:PORT or "
+                                 f"HOST:PORT, got {scheduler!r}", field="--scheduler")
         if sampling not in ("uniform", "lhs"):
             raise GprmInputError(f"must be uniform or lhs, got {sampling!r}", field="--sampling")
         ckpt = checkpoint if checkpoint is not None else Path(str(out) + ".ckpt")

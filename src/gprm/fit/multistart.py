@@ -543,7 +543,12 @@ def run_multistart(obj: Objective, opts: MultiStartOptions = MultiStartOptions()
 
         cluster = None
         if scheduler:
-            client = Client(scheduler)
+            try:
+                client = Client(scheduler)
+            except (OSError, TimeoutError, ValueError) as exc:
+                raise GprmInputError(f"cannot connect to the Dask scheduler {scheduler!r} "
+                                     f"({type(exc).__name__}: {exc})",
+                                     field="scheduler") from None
         else:
             with dask.config.set(local_worker_config()):
                 cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,

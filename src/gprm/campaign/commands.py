@@ -44,7 +44,9 @@ def register(app: typer.Typer, synth_app: typer.Typer) -> None:
 
         # 1.5 kB per recorded sample of each run and position (tracemalloc peak: 1.12 kB
         # between 4+2 and 16+8 runs of 301 samples; docs/README.md) plus a fixed 50 MB
-        per_run = 9 * (t_end * SynthConfig().rate + 1)
+        from gprm.campaign.data import POSITIONS
+
+        per_run = len(POSITIONS) * (t_end * SynthConfig().rate + 1)
         check_memory(runs * per_run, 1500.0, fixed=50e6 + 1500.0 * per_run * noise_runs,
                      field="--runs", what=f"{runs} + {noise_runs} runs", unit_scale=per_run,
                      integer=True)

@@ -23,8 +23,14 @@ def atomic_path(path: str | os.PathLike) -> Iterator[Path]:
     On an exception the temporary file is removed and ``path`` is left as it was.
     """
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".part", dir=path.parent)
+    if path.is_dir():
+        raise GprmInputError("is a folder; expected a file to write", source=str(path))
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".part", dir=path.parent)
+    except OSError as exc:
+        raise GprmInputError(f"cannot write here ({exc.strerror or exc})",
+                             source=str(path)) from None
     os.close(fd)
     tmp_path = Path(tmp)
     try:
@@ -63,9 +69,7 @@ def open_netcdf(path: str | os.PathLike, *, what: str = "NetCDF file"):
     """Load a NetCDF file fully into memory (the file is closed afterwards, never modified)."""
     import xarray as xr
 
-    path = Path(path)
-    if not path.exists():
-        raise GprmInputError(f"{what} does not exist", source=str(path))
+    path = check_input_file(path, what=what)
     try:
         with xr.open_dataset(path, engine="netcdf4") as ds:
             return ds.load()
@@ -77,10 +81,124 @@ def open_netcdf(path: str | os.PathLike, *, what: str = "NetCDF file"):
 
 
 def read_json(path: str | os.PathLike, *, what: str = "JSON file") -> Any:
-    path = Path(path)
-    if not path.exists():
-        raise GprmInputError(f"{what} does not exist", source=str(path))
+    path = check_input_file(path, what=what)
     try:
         return json.loads(path.read_text(encoding="utf-8"))
     except (json.JSONDecodeError, UnicodeDecodeError) as exc:
         raise GprmInputError(f"is not valid JSON ({exc})", source=str(path)) from None
+    except OSError as exc:
+        raise GprmInputError(f"cannot be read ({exc.strerror or exc})",
+                             source=str(path)) from None
+    except RecursionError:
+        raise GprmInputError("is not valid JSON (nested too deeply)", source=str(path)) from None
+
+
+# ----------------------------------------------------------------------------- paths
+
+def check_input_file(path: str | os.PathLike, *, what: str = "input file") -> Path:
+    """An existing, readable regular file (not a folder); returns it as a Path."""
+    path = Path(path)
+    if not path.exists():
+        raise GprmInputError(f"{what} does not exist", source=str(path))
+    if path.is_dir():
+        raise GprmInputError(f"is a folder; expected a {what}", source=str(path))
+    if not os.access(path, os.R_OK):
+        raise GprmInputError(f"{what} is not readable (permission denied)", source=str(path))
+    return path
+
+
+def _same(a: Path, b: Path) -> bool:
+    try:
+        if a.exists() and b.exists():
+            return os.path.samefile(a, b)
+    except OSError:
+        pass
+    return a.resolve() == b.resolve()
+
+
+def _probe_writable(folder: Path) -> str | None:
+    """None when a file can be created in ``folder`` (or its nearest existing ancestor, which
+    the write would create the folder in); else the reason. Tries for real (so read-only file
+    systems and permissions are both seen, also when running as root) and leaves nothing."""
+    f = folder
+    while not f.exists():
+        if f.parent == f:
+            return "no existing parent folder"
+        f = f.parent
+    if not f.is_dir():
+        return f"{f} is not a folder"
+    try:
+        fd, tmp = tempfile.mkstemp(prefix=".gprm-probe.", dir=f)
+    except OSError as exc:
+        return f"cannot create files in {f} ({exc.strerror or exc})"
+    os.close(fd)
+    os.unlink(tmp)
+    return None
+
+
+def check_outputs(outputs: dict, inputs=(), *, folders: dict | None = None) -> None:
+    """Refuse, before any work, outputs that cannot be written or would destroy data.
+
+    ``outputs`` maps each file to be written to the option it comes from (a sidecar names its
+    option too: ``{"fit.json": "--out", "fit.nc": "--out (sidecar)"}``; a list of
+    ``(path, option)`` pairs where two options may name the same file); ``folders`` the same
+    for output folders (a checkpoint folder). Refused: an output that is an existing folder
+    (or a folder output that is a file), an output in a folder where no file can be created,
+    an output that is one of ``inputs`` (for a folder output: one that holds an input), and
+    two outputs that are the same file. Inputs are never opened for writing. A command that
+    reads a folder lists the files it reads in it (:func:`files_read_from`).
+    """
+    folders = folders or {}
+    ins = [Path(p) for p in inputs if p is not None]
+    seen: list[tuple[Path, str]] = []
+    pairs = outputs.items() if isinstance(outputs, dict) else outputs
+    items = [*((Path(p), o, False) for p, o in pairs if p is not None),
+             *((Path(p), o, True) for p, o in folders.items() if p is not None)]
+    for path, opt, is_folder in items:
+        if is_folder:
+            if path.exists() and not path.is_dir():
+                raise GprmInputError("is a file; expected a folder", source=str(path),
+                                     field=opt)
+        elif path.is_dir():
+            raise GprmInputError("is a folder; expected a file to write", source=str(path),
+                                 field=opt)
+        for i in ins:
+            if _same(path, i) or (is_folder and _is_inside(i, path)):
+                raise GprmInputError(f"would overwrite the input {i}; choose another name",
+                                     source=str(path), field=opt)
+        for other, oopt in seen:
+            if _same(path, other):
+                raise GprmInputError(f"is also the output of {oopt}; choose another name",
+                                     source=str(path), field=opt)
+        seen.append((path, opt))
+        why = _probe_writable(path if is_folder else path.parent)
+        if why:
+            raise GprmInputError(f"cannot be written: {why}", source=str(path), field=opt)
+
+
+def files_read_from(folder: str | os.PathLike, *, suffixes=None) -> list[Path]:
+    """The files of an input folder a command may read: a CSV campaign folder's manifest and
+    the files it lists (as far as the manifest can be read; a bad one is refused later), or,
+    with ``suffixes``, every file with those endings (a run directory)."""
+    folder = Path(folder)
+    if not folder.is_dir():
+        return []
+    if suffixes is not None:
+        return [p for p in folder.iterdir() if p.is_file() and p.suffix in suffixes]
+    manifest = folder / "manifest.csv"
+    out = [manifest]
+    try:
+        from gprm.campaign.csvdir import read_manifest
+
+        out += [folder / row["file"] for row in read_manifest(manifest)]
+    except GprmInputError:
+        pass
+    return out
+
+
+def _is_inside(child: Path, folder: Path) -> bool:
+    try:
+        child.resolve().relative_to(folder.resolve())
+        return True
+    except ValueError:
+        return False

@@ -1,25 +1,130 @@
 """The ``gprm`` command: argument parsing and printing only; the work is in the library.
 
 Each stage contributes its commands from ``gprm/<stage>/commands.py`` through a
-``register(app, synth_app)`` function, so this file stays small. Every command turns a
-:class:`gprm.errors.GprmInputError` into a one-line message on stderr and exit code 2.
+``register(app, synth_app)`` function, so this file stays small.
+
+What reaches the console is always short:
+
+- bad input (:class:`gprm.errors.GprmInputError`) and bad options (click's usage errors): one
+  line ``gprm: error: ...`` on stderr, exit code 2;
+- any other exception: one line naming a log file that holds the traceback, exit code 1
+  (``gprm --debug CMD ...`` or ``GPRM_DEBUG=1`` prints the traceback instead);
+- Ctrl-C: one line, exit code 130.
 """
 
 from __future__ import annotations
 
+import datetime
 import functools
 import importlib
+import os
 import sys
+import tempfile
+import traceback
+from pathlib import Path
 
+from typer import _click as click  # typer ships its own click; its errors are these
 import typer
+from typer._click.exceptions import NoArgsIsHelpError
+from typer.core import TyperGroup
+from typer.exceptions import Abort
 
 from gprm.errors import GprmInputError
 
-app = typer.Typer(add_completion=False, no_args_is_help=True,
+
+def _debug_requested(args) -> bool:
+    if os.environ.get("GPRM_DEBUG", "") not in ("", "0"):
+        return True
+    args = list(sys.argv[1:] if args is None else args)
+    head = []
+    for a in args:              # only the options before the subcommand are gprm's own
+        if not a.startswith("-"):
+            break
+        head.append(a)
+    return "--debug" in head
+
+
+def log_dir() -> Path:
+    """Where tracebacks of unexpected errors go: $GPRM_LOG_DIR, else the user's state folder
+    (``$XDG_STATE_HOME/gprm/logs``, default ``~/.local/state/gprm/logs``)."""
+    if os.environ.get("GPRM_LOG_DIR"):
+        return Path(os.environ["GPRM_LOG_DIR"])
+    state = os.environ.get("XDG_STATE_HOME") or str(Path.home() / ".local" / "state")
+    return Path(state) / "gprm" / "logs"
+
+
+def write_crash_log(exc: BaseException, args) -> Path:
+    """Write the traceback of ``exc`` (with the command line) to a new log file; its path."""
+    text = ("gprm " + " ".join(str(a) for a in (sys.argv[1:] if args is None else args))
+            + "\n\n" + "".join(traceback.format_exception(exc)))
+    stamp = datetime.datetime.now(datetime.timezone.utc).strftime("%Y%m%dT%H%M%SZ")
+    name = f"gprm-error-{stamp}-{os.getpid()}.log"
+    for folder in (log_dir(), Path(tempfile.gettempdir())):
+        try:
+            folder.mkdir(parents=True, exist_ok=True)
+            path = folder / name
+            path.write_text(text, encoding="utf-8")
+            return path
+        except OSError:
+            continue
+    raise OSError("no writable folder for the error log")
+
+
+def _one_line(text: str) -> str:
+    return " ".join(str(text).split())
+
+
+class _GprmGroup(TyperGroup):
+    """The root group: every error leaves as one line with a meaningful exit code."""
+
+    def main(self, args=None, prog_name=None, complete_var=None, standalone_mode=True,
+             **extra):
+        code = 0
+        try:
+            rv = super().main(args, prog_name, complete_var, standalone_mode=False, **extra)
+            code = rv if isinstance(rv, int) else 0
+        except GprmInputError as exc:
+            click.echo(f"gprm: error: {_one_line(exc)}", err=True)
+            code = 2
+        except NoArgsIsHelpError as exc:          # `gprm`, `gprm synth`: the help
+            click.echo(exc.ctx.get_help() if exc.ctx is not None else exc.format_message())
+            code = exc.exit_code
+        except click.ClickException as exc:       # usage errors: bad option or argument
+            msg = _one_line(exc.format_message()).replace(": Value error, ", ": ")
+            click.echo(f"gprm: error: {msg}", err=True)
+            code = exc.exit_code
+        except Abort:
+            click.echo("gprm: aborted", err=True)
+            code = 130
+        except Exception as exc:                   # a bug or an environment problem
+            if _debug_requested(args):
+                traceback.print_exception(exc, file=sys.stderr)
+                code = 1
+            else:
+                try:
+                    where = f"traceback in {write_crash_log(exc, args)}"
+                except OSError:
+                    where = "no log written; rerun with gprm --debug for the traceback"
+                click.echo(f"gprm: internal error ({type(exc).__name__}: "
+                           f"{_one_line(exc)[:200]}); {where}", err=True)
+                code = 1
+        if standalone_mode:
+            sys.exit(code)
+        return code
+
+
+app = typer.Typer(cls=_GprmGroup, add_completion=False, no_args_is_help=True,
+                  rich_markup_mode=None, pretty_exceptions_enable=False,
                   help="gprm: GPRM ground-test identification and flight analysis.")
-synth_app = typer.Typer(add_completion=False, no_args_is_help=True,
+synth_app = typer.Typer(add_completion=False, no_args_is_help=True, rich_markup_mode=None,
                         help="Synthetic data with known truth (campaigns, telemetry).")
 app.add_typer(synth_app, name="synth")
+
+
+@app.callback()
+def _root(debug: bool = typer.Option(False, "--debug", help="print the traceback of an "
+                                     "unexpected error instead of writing it to a log file")):
+    """gprm: GPRM ground-test identification and flight analysis."""
 
 
 def one_line_errors(fn):
@@ -30,7 +135,7 @@ def one_line_errors(fn):
         try:
             return fn(*args, **kwargs)
         except GprmInputError as exc:
-            typer.echo(f"gprm: error: {exc}", err=True)
+            typer.echo(f"gprm: error: {_one_line(exc)}", err=True)
             raise typer.Exit(code=2) from None
 
     return wrapper

@@ -1,7 +1,8 @@
 """The one error type for bad input.
 
 Every check of user input raises :class:`GprmInputError` with the file (or source), the field
-and the problem, so that the CLI can print it on one line and exit non-zero.
+and the problem, so that the CLI can print it on one line and exit non-zero. A field that is a
+command-line option (``--seed``) is shown as typed; a file's field as ``field 'name'``.
 """
 
 from __future__ import annotations
@@ -15,9 +16,12 @@ class GprmInputError(ValueError):
         self.source = None if source is None else str(source)
         self.field = field
         parts = []
-        if self.source:
-            parts.append(self.source)
-        if field:
-            parts.append(f"field '{field}'")
+        if field and field.startswith("-"):     # an option, named as typed: --out PATH
+            parts.append(f"{field} {self.source}" if self.source else field)
+        else:
+            if self.source:
+                parts.append(self.source)
+            if field:
+                parts.append(f"field '{field}'")
         prefix = ": ".join(parts)
         super().__init__(f"{prefix}: {problem}" if prefix else problem)

@@ -42,9 +42,11 @@ def test_gprm_fit_writes_json_and_sidecar(means_file, tmp_path):
 
 
 @pytest.mark.parametrize("args, text", [
-    (["--starts", "0"], "at least 1"),
+    (["--starts", "0"], "--starts': must be >= 1"),
     (["--sigma", "var"], "sem or std"),
-    (["--window", "0.5", "0.6"], "outside the data"),
+    (["--window", "0.5,0.6"], "outside the data"),
+    (["--window", "0.5 0.6"], "--window"),
+    (["--seed", "-1"], "'--seed': must be >= 0, got -1"),
     (["--stall-window", "-1"], "--stall-window"),
 ])
 def test_gprm_fit_bad_options(means_file, tmp_path, args, text):

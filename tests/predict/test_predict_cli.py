@@ -63,7 +63,7 @@ def test_predict_writes_documented_dataset(tmp_path):
 @pytest.mark.parametrize("args,needle", [
     (["--scale-eccentricity", "0"], "scale-eccentricity"),
     (["--scale-eccentricity", "-2"], "scale-eccentricity"),
-    (["--t-start", "-1e-3"], "before the simulation start"),
+    (["--t-start", "-1e-3"], "'--t-start': must be >= 0 s"),
     (["--t-start", "1.2e-3", "--t-end", "1.0e-3"], "must be after"),
     (["--t-end", "10", "--rate", "1e6"], "samples"),
     (["--set", "nope=3"], "unknown parameter"),

@@ -11,6 +11,7 @@ import typer
 
 def register(app: typer.Typer, synth_app: typer.Typer) -> None:
     from gprm.cli import one_line_errors
+    from gprm.options import Int, Quantity
 
     @synth_app.command("campaign")
     @one_line_errors
@@ -19,18 +20,36 @@ def register(app: typer.Typer, synth_app: typer.Typer) -> None:
         truth: Optional[Path] = typer.Option(None, "--truth",
                                              help="TOML parameter file of the true set "
                                                   "(default: drawn around the paper set)"),
-        seed: int = typer.Option(0, "--seed", help="random seed (same seed, same file)"),
-        runs: int = typer.Option(10, "--runs", help="actuated runs per position"),
-        noise_runs: int = typer.Option(5, "--noise-runs", help="noise runs per position"),
-        t_end: float = typer.Option(1.5e-3, "--t-end", help="record length, s"),
+        seed: int = typer.Option(0, "--seed", parser=Int(min=0),
+                                 help="random seed (same seed, same file)"),
+        runs: int = typer.Option(10, "--runs", parser=Int(min=2, max=10000),
+                                 help="actuated runs per position"),
+        noise_runs: int = typer.Option(5, "--noise-runs", parser=Int(min=1, max=10000),
+                                       help="noise runs per position"),
+        t_end: float = typer.Option(1.5e-3, "--t-end", parser=Quantity("s", 1.2e-3, 0.1,
+                                    min_open=True), metavar="TIME",
+                                    help="record length in (1.2 ms, 100 ms], e.g. 1.5ms "
+                                         "(bare: s)"),
         no_nonlinear: bool = typer.Option(False, "--no-nonlinear",
                                           help="skip the nonlinear correction (faster)"),
     ):
         """Synthetic ground-test campaign with known truth (richer model than the fit's)."""
         from gprm.campaign.data import write_campaign
         from gprm.campaign.synth import SynthConfig, synth_campaign
+        from gprm._io import check_outputs
         from gprm.params import load_params
 
+        check_outputs({out: "--out"}, inputs=[truth])
+        from gprm.resources import check_memory
+
+        # 1.5 kB per recorded sample of each run and position (tracemalloc peak: 1.12 kB
+        # between 4+2 and 16+8 runs of 301 samples; docs/README.md) plus a fixed 50 MB
+        from gprm.campaign.data import POSITIONS
+
+        per_run = len(POSITIONS) * (t_end * SynthConfig().rate + 1)
+        check_memory(runs * per_run, 1500.0, fixed=50e6 + 1500.0 * per_run * noise_runs,
+                     field="--runs", what=f"{runs} + {noise_runs} runs", unit_scale=per_run,
+                     integer=True)
         ps = load_params(truth) if truth is not None else None
         cfg = SynthConfig(n_runs=runs, n_noise=noise_runs, t_end=t_end,
                           nonlinear=not no_nonlinear)
@@ -46,14 +65,19 @@ def register(app: typer.Typer, synth_app: typer.Typer) -> None:
         campaign: Path = typer.Argument(..., help="campaign NetCDF file or CSV directory"),
         out: Path = typer.Option(..., "--out", help="output mean-signals NetCDF"),
         align_time: float = typer.Option(1.0e-3, "--align-time",
+                                         parser=Quantity("s", 0, min_open=True),
+                                         metavar="TIME",
                                          help="time at which each mean signal reaches the "
-                                              "threshold, s"),
+                                              "threshold, e.g. 1ms (bare: s)"),
     ):
         """Synchronise, average and align a campaign (Sec. 2); prints Table 1."""
-        from gprm._io import write_netcdf_atomic
+        from gprm._io import check_outputs, write_netcdf_atomic
         from gprm.campaign.data import load_campaign
         from gprm.campaign.preprocess import PreprocessConfig, preprocess
 
+        from gprm._io import files_read_from
+
+        check_outputs({out: "--out"}, inputs=[campaign, *files_read_from(campaign)])
         ds = load_campaign(campaign)
         ms = preprocess(ds, PreprocessConfig(align_time=align_time))
         write_netcdf_atomic(ms.to_dataset(), out)

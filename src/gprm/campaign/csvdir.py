@@ -21,6 +21,7 @@ CAMPAIGN_DIR/
 
 from __future__ import annotations
 
+import contextlib
 import csv
 import os
 import shutil
@@ -37,6 +38,22 @@ from gprm.errors import GprmInputError
 KINDS = ("actuated", "noise", "voltage")
 
 
+@contextlib.contextmanager
+def _text_errors(src: str, field: str):
+    """Turn undecodable, binary or unreadable CSV files into one-line input errors."""
+    try:
+        yield
+    except UnicodeDecodeError as exc:
+        raise GprmInputError(f"is not UTF-8 text (byte {exc.start}: {exc.reason}); save the "
+                             "CSV as UTF-8", source=src, field=field) from None
+    except csv.Error as exc:
+        raise GprmInputError(f"is not a readable CSV file ({exc})", source=src,
+                             field=field) from None
+    except OSError as exc:
+        raise GprmInputError(f"cannot be read ({exc.strerror or exc})", source=src,
+                             field=field) from None
+
+
 def _read_two_columns(path: Path) -> tuple[np.ndarray, np.ndarray]:
     src = str(path)
     if not path.is_file():
@@ -44,7 +61,7 @@ def _read_two_columns(path: Path) -> tuple[np.ndarray, np.ndarray]:
                              field="file")
     rows = []
     lines = []
-    with path.open(newline="", encoding="utf-8") as fh:
+    with _text_errors(src, "value"), path.open(newline="", encoding="utf-8") as fh:
         for lineno, row in enumerate(csv.reader(fh), start=1):
             if not row or not "".join(row).strip() or row[0].lstrip().startswith("#"):
                 continue
@@ -82,8 +99,11 @@ def read_manifest(path: Path) -> list[dict]:
     if not path.is_file():
         raise GprmInputError("campaign directory has no manifest.csv", source=src,
                              field="manifest")
-    with path.open(newline="", encoding="utf-8") as fh:
+    with _text_errors(src, "manifest"), path.open(newline="", encoding="utf-8") as fh:
         lines = [ln for ln in fh if ln.strip() and not ln.lstrip().startswith("#")]
+    if any("\0" in ln for ln in lines):
+        raise GprmInputError("is not a text CSV file (holds NUL bytes)", source=src,
+                             field="manifest")
     reader = csv.DictReader(lines)
     need = {"position", "kind", "run", "file"}
     if reader.fieldnames is None or not need <= {f.strip() for f in reader.fieldnames}:

@@ -206,7 +206,10 @@ def load_campaign(path: str | os.PathLike) -> xr.Dataset:
         return read_campaign_dir(path)
     if not path.exists():
         raise GprmInputError("campaign file does not exist", source=str(path))
+    from gprm.validate import CAMPAIGN, check_dataset
+
     ds = open_netcdf(path, what="campaign NetCDF")
+    ds = check_dataset(ds, CAMPAIGN, str(path))          # types, units, finiteness, order
     ds = validate_campaign(ds, source=str(path))
     ds.attrs["source"] = str(path)
     ds.attrs["campaign_sha256"] = sha256_files([path])

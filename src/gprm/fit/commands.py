@@ -10,44 +10,64 @@ import typer
 
 def register(app: typer.Typer, synth_app: typer.Typer) -> None:
     from gprm.cli import one_line_errors
+    from gprm.options import Int, Number, Window
 
     @app.command("fit")
     @one_line_errors
     def fit_cmd(
         means: Path = typer.Argument(..., help="mean-signals NetCDF (gprm preprocess)"),
         out: Path = typer.Option(..., "--out", help="fit result JSON (sidecar: same name .nc)"),
-        starts: int = typer.Option(1000, "--starts", help="number of random starts"),
-        seed: int = typer.Option(0, "--seed", help="random seed of the starts"),
-        spread: float = typer.Option(0.2, "--spread", help="starts within ±spread of the "
-                                     "paper's initial values"),
+        starts: int = typer.Option(1000, "--starts", parser=Int(min=1),
+                                   help="number of random starts"),
+        seed: int = typer.Option(0, "--seed", parser=Int(min=0),
+                                 help="random seed of the starts"),
+        spread: float = typer.Option(0.2, "--spread", parser=Number(min=0, max=1,
+                                     max_open=True), help="starts within ±spread of the "
+                                     "paper's initial values (0 <= spread < 1)"),
         sampling: str = typer.Option("uniform", "--sampling", help="uniform or lhs"),
         params: Optional[Path] = typer.Option(None, "--params", help="TOML parameter file "
                                               "(constants, fitted set, bounds)"),
-        piezo: int = typer.Option(2, "--piezo", help="driven piezo in the campaign"),
-        window: tuple[float, float] = typer.Option((0.97e-3, 1.2e-3), "--window",
-                                                   help="fit window start end, s"),
+        piezo: int = typer.Option(2, "--piezo", parser=Int(min=1, max=2),
+                                  help="driven piezo in the campaign: 1 or 2"),
+        window: str = typer.Option("0.97ms,1.2ms", "--window", parser=Window("s"),
+                                   help="fit window START,END (units: '0.97ms,1.2ms' or "
+                                        "'0.97,1.2 ms'; bare numbers are s)"),
         sigma: str = typer.Option("sem", "--sigma", help="weights: sem (standard error of "
                                   "the mean) or std (the paper's across-run std)"),
-        workers: Optional[int] = typer.Option(None, "--workers", help="local Dask worker "
+        workers: Optional[int] = typer.Option(None, "--workers", parser=Int(min=0),
+                                              help="local Dask worker "
                                               "processes (default: one per core; 0: run in "
                                               "this process; the result does not depend "
                                               "on it)"),
         scheduler: Optional[str] = typer.Option(None, "--scheduler",
                                                 help="address of an existing Dask scheduler"),
-        chunk: int = typer.Option(250, "--chunk", help="starts per lock-step chunk (part of "
+        dashboard: Optional[str] = typer.Option(None, "--dashboard", help="serve the Dask "
+                                                "dashboard of the local cluster at this "
+                                                "address, e.g. 127.0.0.1:8787 (default: none)"),
+        chunk: int = typer.Option(250, "--chunk", parser=Int(min=1),
+                                  help="starts per lock-step chunk (part of "
                                   "the result's definition, like the seed; smaller chunks "
                                   "spread over more workers)"),
-        max_iter: int = typer.Option(100, "--max-iter", help="LM iteration limit per start"),
-        stall_window: int = typer.Option(5, "--stall-window", help="stop a start once chi2 "
+        max_iter: int = typer.Option(100, "--max-iter", parser=Int(min=1),
+                                     help="LM iteration limit per start"),
+        stall_window: int = typer.Option(5, "--stall-window", parser=Int(min=0),
+                                         help="stop a start once chi2 "
                                          "fell by at most --stall-tol over this many "
                                          "iterations (0: off; docs/fitting.md)"),
-        stall_tol: float = typer.Option(0.05, "--stall-tol"),
-        prune_after: int = typer.Option(10, "--prune-after", help="stop starts whose chi2 is "
+        stall_tol: float = typer.Option(0.05, "--stall-tol", parser=Number(min=0),
+                                        help="relative chi2 decrease that counts as stalled "
+                                             "(with --stall-window)"),
+        prune_after: int = typer.Option(10, "--prune-after", parser=Int(min=0),
+                                        help="stop starts whose chi2 is "
                                         "over --prune-factor x the chunk's best after this "
                                         "many iterations, or that cannot reach it at their "
                                         "recent rate (0: never; docs/fitting.md)"),
-        prune_factor: float = typer.Option(100.0, "--prune-factor"),
-        band_samples: int = typer.Option(200, "--band-samples", help="covariance samples "
+        prune_factor: float = typer.Option(100.0, "--prune-factor",
+                                           parser=Number(min=1, min_open=True),
+                                           help="chi2 ratio to the chunk's best over which "
+                                                "--prune-after stops a start (> 1)"),
+        band_samples: int = typer.Option(200, "--band-samples", parser=Int(min=0),
+                                         help="covariance samples "
                                          "for the sampled uncertainty bands"),
         profile: bool = typer.Option(False, "--profile", help="also compute profile "
                                      "likelihoods of every fitted parameter"),
@@ -58,12 +78,11 @@ def register(app: typer.Typer, synth_app: typer.Typer) -> None:
     ):
         """Multi-start Levenberg-Marquardt identification (Sec. 3.1)."""
         import os
-        import shutil
+        import re
 
         from rich.console import Console
         from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 
-        from gprm._io import open_netcdf
         from gprm.errors import GprmInputError
         from gprm.fit.multistart import LMOptions, MultiStartOptions
         from gprm.fit.objective import fit_data_from_means
@@ -72,11 +91,32 @@ def register(app: typer.Typer, synth_app: typer.Typer) -> None:
 
         if sigma not in ("sem", "std"):
             raise GprmInputError(f"must be sem or std, got {sigma!r}", field="--sigma")
-        if starts < 1:
-            raise GprmInputError(f"must be at least 1, got {starts}", field="--starts")
-        ds = open_netcdf(means, what="mean-signals file")
+        from gprm._io import check_outputs
+        from gprm.fit.multistart import (check_checkpoint_folder, remove_checkpoints,
+                                         starts_memory)
+        from gprm.resources import check_memory
+
+        if scheduler is not None and not re.fullmatch(
+                r"(tcp|tls|inproc|ucx|ws|wss)://\S+|[\w.\-]+:\d+|\[[0-9a-fA-F:]+\]:\d+",
+                scheduler):
+            raise GprmInputError(f"expected a scheduler address such as tcp://HOST:PORT or "
+                                 f"HOST:PORT, got {scheduler!r}", field="--scheduler")
+        if sampling not in ("uniform", "lhs"):
+            raise GprmInputError(f"must be uniform or lhs, got {sampling!r}", field="--sampling")
+        ckpt = checkpoint if checkpoint is not None else Path(str(out) + ".ckpt")
+        check_outputs({out: "--out", out.with_suffix(".nc"): "--out (its .nc sidecar)"},
+                      inputs=[means, params], folders={ckpt: "--checkpoint"})
+        check_checkpoint_folder(ckpt, field="--checkpoint")
+        if out.suffix == ".nc":
+            raise GprmInputError("must not end in .nc (that name is the sidecar's)",
+                                 source=str(out), field="--out")
+        from gprm.validate import read_means
+
+        ds = read_means(means)
         data = fit_data_from_means(ds, window=window, sigma=sigma, source=str(means))
         base = load_params(params)
+        check_memory(starts, starts_memory(1, len(base.fitted)), field="--starts",
+                     what=f"{starts} starts")
         opts = MultiStartOptions(n_starts=starts, seed=seed, spread=spread, sampling=sampling,
                                  chunk_size=chunk,
                                  lm=LMOptions(max_iter=max_iter, stall_window=stall_window,
@@ -92,7 +132,10 @@ def register(app: typer.Typer, synth_app: typer.Typer) -> None:
             workers = 0 if scheduler else max(1, os.cpu_count() or 1)
         if workers < 0:
             raise GprmInputError(f"must be >= 0, got {workers}", field="--workers")
-        ckpt = checkpoint if checkpoint is not None else Path(str(out) + ".ckpt")
+        n_cpu = os.cpu_count() or 1
+        if not scheduler and workers > 4 * n_cpu:   # each is a process with its own memory
+            raise GprmInputError(f"{workers} local worker processes on {n_cpu} cores; the "
+                                 f"largest value accepted is {4 * n_cpu}", field="--workers")
         console = Console(stderr=True)
         with Progress(TextColumn("fit"), BarColumn(), TextColumn("{task.completed}/"
                       "{task.total} chunks"), TimeElapsedColumn(), console=console,
@@ -102,11 +145,23 @@ def register(app: typer.Typer, synth_app: typer.Typer) -> None:
             def progress(done, total):
                 bar.update(task, completed=done, total=total)
 
-            res = identify(data, base, opts, piezo=piezo, workers=workers,
-                           scheduler=scheduler, checkpoint_dir=ckpt, progress=progress,
-                           profile=profile, z_bk_absolute=z_bk_absolute,
-                           band_samples=band_samples)
+            try:
+                with dask_dashboard(dashboard):
+                    res = identify(data, base, opts, piezo=piezo, workers=workers,
+                                   scheduler=scheduler, checkpoint_dir=ckpt, progress=progress,
+                                   profile=profile, z_bk_absolute=z_bk_absolute,
+                                   band_samples=band_samples)
+            except Exception:
+                remove_checkpoints(ckpt, only_if_empty=True)   # refused: leave nothing behind
+                raise
         side = res.write(out)
-        shutil.rmtree(ckpt, ignore_errors=True)
+        remove_checkpoints(ckpt)          # only what gprm wrote there, never other files
         typer.echo(res.summary())
         typer.echo(f"wrote {out} and {side} ({res.timings['total']:.1f} s)")
+
+
+def dask_dashboard(address):
+    """Context: the Dask dashboard address of a local cluster (None: no dashboard)."""
+    import dask
+
+    return dask.config.set({"gprm.dashboard-address": address or None})

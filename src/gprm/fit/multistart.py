@@ -16,6 +16,7 @@ import ctypes
 import hashlib
 import json
 import os
+import re
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Callable, Sequence
@@ -335,18 +336,31 @@ def _fingerprint(obj: Objective, X0n: np.ndarray, opts: MultiStartOptions) -> st
     return h.hexdigest()
 
 
+#: file that marks a folder as a gprm checkpoint folder; gprm deletes only marked content
+CHECKPOINT_MARKER = ".gprm-checkpoint"
+_CHUNK_RE = re.compile(r"chunk_\d{5}\.npz")
+_CHUNK_KEYS = ("index", "start_ids", "x0", "x", "chi2_0", "chi2", "iterations", "converged",
+               "status", "resampled")
+
+
 class Checkpoints:
-    """A folder of finished chunks (``chunk_NNNNN.npz``) with a fingerprint of the inputs."""
+    """A folder of finished chunks (``chunk_NNNNN.npz``) with a fingerprint of the inputs.
+
+    gprm uses a folder only if it is new (created here), empty, or already marked as a gprm
+    checkpoint folder (``.gprm-checkpoint``, which records whether gprm created the folder);
+    any other folder is refused, so a checkpoint folder such as ``.`` never puts user files
+    at risk. :func:`remove_checkpoints` deletes only the files gprm writes here.
+    """
 
     def __init__(self, folder: str | os.PathLike | None, fingerprint: str):
         self.folder = None if folder is None else Path(folder)
         self.fingerprint = fingerprint
         if self.folder is None:
             return
-        self.folder.mkdir(parents=True, exist_ok=True)
+        prepare_checkpoint_folder(self.folder)
         meta = self.folder / "fingerprint.txt"
         if meta.exists():
-            if meta.read_text().strip() != fingerprint:
+            if meta.read_text(errors="replace").strip() != fingerprint:
                 raise GprmInputError(
                     "checkpoints belong to a run with other inputs or options; remove the "
                     "folder or choose another", source=str(self.folder), field="checkpoint")
@@ -356,11 +370,25 @@ class Checkpoints:
     def path(self, index: int) -> Path:
         return self.folder / f"chunk_{index:05d}.npz"
 
-    def load(self, index: int) -> dict | None:
+    def load(self, index: int, start_ids: np.ndarray | None = None) -> dict | None:
+        """A finished chunk, or None when absent or unreadable (a damaged chunk file is not
+        trusted: the chunk is run again and the file replaced)."""
         if self.folder is None or not self.path(index).exists():
             return None
-        with np.load(self.path(index), allow_pickle=False) as z:
-            return {k: z[k] for k in z.files}
+        try:
+            with np.load(self.path(index), allow_pickle=False) as z:
+                res = {k: z[k] for k in z.files}
+        except Exception:      # truncated, not a zip, pickled objects: run the chunk again
+            return None
+        if set(res) != set(_CHUNK_KEYS) or int(res["index"]) != index:
+            return None
+        n = np.atleast_1d(res["start_ids"]).size
+        if start_ids is not None and not np.array_equal(np.atleast_1d(res["start_ids"]),
+                                                        start_ids):
+            return None
+        if any(np.atleast_1d(res[k]).shape[0] != n for k in _CHUNK_KEYS if k != "index"):
+            return None
+        return res
 
     def save(self, res: dict) -> None:
         if self.folder is None:
@@ -368,6 +396,78 @@ class Checkpoints:
         with atomic_path(self.path(int(res["index"]))) as tmp:
             with open(tmp, "wb") as fh:
                 np.savez(fh, **res)
+
+
+def check_checkpoint_folder(folder: str | os.PathLike, field: str = "checkpoint") -> None:
+    """Refuse (without touching anything) a folder gprm may not use for checkpoints: a file,
+    or an existing folder with files that is not marked as a gprm checkpoint folder."""
+    folder = Path(folder)
+    if folder.exists() and not folder.is_dir():
+        raise GprmInputError("is a file; expected a checkpoint folder", source=str(folder),
+                             field=field)
+    if folder.is_dir() and not (folder / CHECKPOINT_MARKER).is_file() \
+            and any(folder.iterdir()):
+        raise GprmInputError("exists and is not a gprm checkpoint folder (no "
+                             f"{CHECKPOINT_MARKER}); choose a new or empty folder",
+                             source=str(folder), field=field)
+
+
+def prepare_checkpoint_folder(folder: str | os.PathLike) -> Path:
+    """Create or adopt ``folder`` as a checkpoint folder (see :class:`Checkpoints`)."""
+    folder = Path(folder)
+    marker = folder / CHECKPOINT_MARKER
+    check_checkpoint_folder(folder)
+    if folder.is_dir():
+        if marker.is_file():
+            return folder
+        created = False
+    else:
+        try:
+            folder.mkdir(parents=True)
+        except OSError as exc:
+            raise GprmInputError(f"cannot be created ({exc.strerror or exc})",
+                                 source=str(folder), field="checkpoint") from None
+        created = True
+    write_text_atomic(marker, json.dumps({"tool": "gprm", "created_folder": created}) + "\n")
+    return folder
+
+
+def remove_checkpoints(folder: str | os.PathLike | None, *, only_if_empty: bool = False) -> None:
+    """Delete what gprm wrote in a marked checkpoint folder, and the folder if gprm created it
+    and nothing else is left. An unmarked folder is left alone entirely. With
+    ``only_if_empty`` nothing is deleted once a chunk has been saved (a refused or failed run
+    leaves no folder of its own behind, an interrupted one keeps its work)."""
+    if folder is None:
+        return
+    folder = Path(folder)
+    marker = folder / CHECKPOINT_MARKER
+    if not marker.is_file():
+        return
+    names = [p.name for p in folder.iterdir()]
+    if only_if_empty and any(_CHUNK_RE.fullmatch(n) for n in names):
+        return
+    try:
+        created = bool(json.loads(marker.read_text(encoding="utf-8")).get("created_folder"))
+    except (OSError, ValueError, AttributeError):
+        created = False
+    for n in names:
+        ours = (n == "fingerprint.txt" or _CHUNK_RE.fullmatch(n)
+                or (n.startswith((".chunk_", ".fingerprint.txt.", f"{CHECKPOINT_MARKER}."))
+                    and n.endswith(".part")))
+        if ours:
+            with contextlib.suppress(FileNotFoundError):
+                (folder / n).unlink()
+    marker.unlink()
+    if created:
+        with contextlib.suppress(OSError):
+            folder.rmdir()            # only if empty: other files stay, with their folder
+
+
+def starts_memory(n_starts: int, n_params: int) -> float:
+    """Estimated peak bytes of the per-start arrays of a fit (the start matrix, each chunk's
+    results, their concatenation and ordering, the sidecar dataset: 4 copies of 3 vectors of
+    ``n_params`` and 6 scalars per start, plus the status strings)."""
+    return float(n_starts) * (4 * (3 * n_params + 6) * 8 + 4 * 64)
 
 
 # ----------------------------------------------------------------------------- driver
@@ -417,7 +517,7 @@ def run_multistart(obj: Objective, opts: MultiStartOptions = MultiStartOptions()
     chunks = _chunks(opts.n_starts, opts.chunk_size)
     results: dict[int, dict] = {}
     for i in range(len(chunks)):
-        r = ck.load(i)
+        r = ck.load(i, chunks[i])
         if r is not None:
             results[i] = r
     total = len(chunks)
@@ -443,11 +543,18 @@ def run_multistart(obj: Objective, opts: MultiStartOptions = MultiStartOptions()
 
         cluster = None
         if scheduler:
-            client = Client(scheduler)
+            try:
+                client = Client(scheduler)
+            except (OSError, TimeoutError, ValueError) as exc:
+                raise GprmInputError(f"cannot connect to the Dask scheduler {scheduler!r} "
+                                     f"({type(exc).__name__}: {exc})",
+                                     field="scheduler") from None
         else:
             with dask.config.set(local_worker_config()):
                 cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
-                                       dashboard_address=":0", silence_logs=40)
+                                       host="127.0.0.1", silence_logs=40,
+                                       dashboard_address=dask.config.get(
+                                           "gprm.dashboard-address", None))
             client = Client(cluster)
         try:
             futs = [client.submit(run_chunk, t, pure=False) for t in pending]

@@ -23,11 +23,11 @@ def _model(src: str, piezo: Optional[int]):
     return m
 
 
-def _window(window: Optional[str]):
+def _window(window):
     from gprm.errors import GprmInputError
 
-    if window is None:
-        return None
+    if window is None or isinstance(window, tuple):
+        return window          # parsed and checked by gprm.options.Window
     try:
         a, b = (float(x) for x in window.split(","))
     except ValueError:
@@ -39,19 +39,30 @@ def _window(window: Optional[str]):
 
 def register(app: typer.Typer, synth_app: typer.Typer) -> None:
     from gprm.cli import one_line_errors
+    from gprm.options import Int, Number, Quantity, Window
 
     @synth_app.command("telemetry")
     @one_line_errors
     def synth_telemetry_cmd(
         fit: str = typer.Argument(..., help="fit result JSON, or 'paper' (Table 3)"),
         out: Path = typer.Option(..., "--out", help="output telemetry NetCDF"),
-        releases: int = typer.Option(11, "--releases", help="number of releases"),
-        seed: int = typer.Option(0, "--seed", help="random seed"),
-        piezo: Optional[int] = typer.Option(None, "--piezo", help="driven piezo (default: fit's)"),
-        rate: float = typer.Option(10.0, "--rate", help="GRS sample rate, Hz"),
-        post: float = typer.Option(5.0, "--post", help="record after the release, s"),
-        pos_noise: float = typer.Option(2e-9, "--pos-noise", help="position noise std, m"),
-        att_noise: float = typer.Option(1e-6, "--att-noise", help="attitude noise std, rad"),
+        releases: int = typer.Option(11, "--releases", parser=Int(1, 10_000),
+                                     help="number of releases"),
+        seed: int = typer.Option(0, "--seed", parser=Int(min=0), help="random seed"),
+        piezo: Optional[int] = typer.Option(None, "--piezo", parser=Int(1, 2),
+                                            help="driven piezo: 1 or 2 (default: fit's)"),
+        rate: float = typer.Option(10.0, "--rate", parser=Quantity("Hz", 0, 1e6,
+                                   min_open=True), metavar="RATE",
+                                   help="GRS sample rate, e.g. 10Hz (bare: Hz)"),
+        post: float = typer.Option(5.0, "--post", parser=Quantity("s", 0, 1e5, min_open=True),
+                                   metavar="TIME",
+                                   help="record after the release, e.g. 5s (bare: s)"),
+        pos_noise: float = typer.Option(2e-9, "--pos-noise", parser=Quantity("m", 0,
+                                        min_open=True), metavar="LENGTH",
+                                        help="position noise std, e.g. 2nm (bare: m)"),
+        att_noise: float = typer.Option(1e-6, "--att-noise", parser=Quantity("rad", 0,
+                                        min_open=True), metavar="ANGLE",
+                                        help="attitude noise std, e.g. 1urad (bare: rad)"),
         no_spread: bool = typer.Option(False, "--no-spread",
                                        help="truth from the best fit and nominal geometry"),
         z_from: str = typer.Option("sum", "--z-from",
@@ -65,6 +76,20 @@ def register(app: typer.Typer, synth_app: typer.Typer) -> None:
         from gprm.errors import GprmInputError
         from gprm.flight.synth import SynthOptions, synth_telemetry
 
+        from gprm._io import check_outputs
+        from gprm.resources import check_memory
+
+        if truth_model not in ("3d", "planar"):
+            raise GprmInputError(f"must be 3d or planar, got {truth_model!r}",
+                                 field="--truth-model")
+        if z_from not in ("sum", "xz", "yz"):
+            raise GprmInputError(f"must be sum, xz or yz, got {z_from!r}", field="--z-from")
+        check_outputs({out: "--out"}, inputs=[None if fit == "paper" else fit])
+        # 150 B per record sample (tracemalloc peak: 96 B per sample between 2 x 1e4 and
+        # 2 x 4e4 samples; docs/README.md) plus a fixed 50 MB
+        check_memory(releases * (post * rate + 1), 150.0, fixed=50e6, field="--rate",
+                     unit="Hz", what=f"{releases} records of {post * rate + 1:.4g} samples",
+                     unit_scale=releases * post)
         if releases < 1:
             raise GprmInputError("must be >= 1", field="--releases")
         if rate <= 0 or post <= 0 or pos_noise <= 0 or att_noise <= 0:
@@ -88,16 +113,24 @@ def register(app: typer.Typer, synth_app: typer.Typer) -> None:
         fit: str = typer.Argument(..., help="fit result JSON, or 'paper' (Table 3)"),
         telemetry: Path = typer.Argument(..., help="telemetry NetCDF"),
         out: Path = typer.Option(..., "--out", help="output JSON (sidecar <name>.nc: curves)"),
-        alpha: float = typer.Option(0.01, "--alpha", help="Tukey test level"),
-        samples: int = typer.Option(200, "--samples", help="draws per uncertainty band"),
-        seed: int = typer.Option(0, "--seed", help="seed of the band draws"),
-        window: Optional[str] = typer.Option(None, "--window",
-                                             help="impact-time window 'START,END' s "
-                                                  "(default t_c .. t_c + 0.2 ms)"),
+        alpha: float = typer.Option(0.01, "--alpha", parser=Number(0, 1, min_open=True,
+                                    max_open=True), help="Tukey test level (0 < alpha < 1)"),
+        samples: int = typer.Option(200, "--samples", parser=Int(min=0, max=1_000_000),
+                                    help="draws per uncertainty band"),
+        seed: int = typer.Option(0, "--seed", parser=Int(min=0), help="seed of the band draws"),
+        window: Optional[str] = typer.Option(None, "--window", parser=Window("s"),
+                                             metavar="START,END",
+                                             help="impact-time window, e.g. '1.0ms,1.2ms' "
+                                                  "(bare numbers: s; default t_c .. t_c + "
+                                                  "0.2 ms)"),
         fit_window: Optional[float] = typer.Option(None, "--fit-window",
-                                                   help="line fit over this many s after "
-                                                        "the release (default: all)"),
-        piezo: Optional[int] = typer.Option(None, "--piezo", help="driven piezo (default: fit's)"),
+                                                   parser=Quantity("s", 0, min_open=True),
+                                                   metavar="TIME",
+                                                   help="line fit over this long after the "
+                                                        "release, e.g. 2s (bare: s; default: "
+                                                        "all)"),
+        piezo: Optional[int] = typer.Option(None, "--piezo", parser=Int(1, 2),
+                                            help="driven piezo: 1 or 2 (default: fit's)"),
         impact_model: str = typer.Option("3d", "--impact-model",
                                          help="3d (one contact, consistent with a 3D truth) "
                                               "or planar (the paper's two planes)"),
@@ -111,8 +144,19 @@ def register(app: typer.Typer, synth_app: typer.Typer) -> None:
         from gprm.flight.analysis import AnalysisOptions, analyze, curves_dataset
         from gprm.flight.telemetry import load_telemetry
 
+        from gprm._io import check_outputs
+
+        side = out.with_suffix(".nc")
+        if out.suffix == ".nc":
+            raise GprmInputError("must not end in .nc (that name is the sidecar's)",
+                                 source=str(out), field="--out")
+        check_outputs({out: "--out", side: "--out (its .nc sidecar)"},
+                      inputs=[None if fit == "paper" else fit, telemetry])
         if samples < 2:
             raise GprmInputError("must be >= 2", field="--samples")
+        if impact_model not in ("3d", "planar"):
+            raise GprmInputError(f"must be 3d or planar, got {impact_model!r}",
+                                 field="--impact-model")
         m = _model(fit, piezo)
         tel = load_telemetry(telemetry)
         opts = AnalysisOptions(alpha=alpha, n_samples=samples, seed=seed,

@@ -28,6 +28,9 @@ def register(app: typer.Typer, synth_app: typer.Typer) -> None:
         if set_name != "paper":
             raise GprmInputError(f"unknown parameter set {set_name!r} (known: paper)",
                                  field="--set")
+        from gprm._io import check_outputs
+
+        check_outputs({out: "--out"}, inputs=[params])
         ps = load_params(params)
         table = Table(title=f"Parameters ({ps.source})")
         for col in ("name", "value", "unit", "role", "paper ±", "description"):

@@ -68,12 +68,16 @@ def load_params(path: str | os.PathLike | None = None, *, base: ParameterSet | N
         return base
     path = Path(path)
     src = str(path)
-    if not path.exists():
-        raise GprmInputError("parameter file does not exist", source=src)
+    from gprm._io import check_input_file
+
+    check_input_file(path, what="parameter file")
     try:
         doc = tomllib.loads(path.read_text(encoding="utf-8"))
-    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
-        raise GprmInputError(f"invalid TOML ({exc})", source=src) from None
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError, RecursionError) as exc:
+        raise GprmInputError(f"invalid TOML ({type(exc).__name__}: {exc})",
+                             source=src) from None
+    except OSError as exc:
+        raise GprmInputError(f"cannot be read ({exc.strerror or exc})", source=src) from None
     table = doc.get("parameters")
     if not isinstance(table, dict):
         raise GprmInputError("missing [parameters] table", source=src)

@@ -45,30 +45,47 @@ def parse_length(text: str, field: str) -> float:
 
 def register(app: typer.Typer, synth_app: typer.Typer) -> None:
     from gprm.cli import one_line_errors
+    from gprm.options import Int, Number, Quantity
 
     @app.command("predict")
     @one_line_errors
     def predict_cmd(
         fit: str = typer.Argument(..., help="fit result JSON, or 'paper' for Table 3"),
         out: Path = typer.Option(..., "--out", help="output NetCDF file"),
-        piezo: int = typer.Option(2, "--piezo", help="driven piezo: 1 (nominal) or 2"),
+        piezo: int = typer.Option(2, "--piezo", parser=Int(1, 2),
+                                  help="driven piezo: 1 (nominal) or 2"),
         scale_eccentricity: float = typer.Option(1.0, "--scale-eccentricity",
+                                                 parser=Number(0, min_open=True),
                                                  help="factor on v2, g2, gamma, rho (> 0)"),
         set_: Optional[List[str]] = typer.Option(None, "--set",
                                                  help="override NAME=VALUE_WITH_UNIT"),
-        t_start: float = typer.Option(0.95e-3, "--t-start", help="span start, s"),
-        t_end: float = typer.Option(1.2e-3, "--t-end", help="span end, s"),
-        rate: float = typer.Option(1e6, "--rate", help="prediction sample rate, Hz"),
-        samples: int = typer.Option(200, "--samples", help="parameter sets drawn"),
-        seed: int = typer.Option(0, "--seed", help="random seed"),
+        t_start: float = typer.Option(0.95e-3, "--t-start", parser=Quantity("s", 0),
+                                      metavar="TIME", help="span start, e.g. 0.95ms (bare: s)"),
+        t_end: float = typer.Option(1.2e-3, "--t-end", parser=Quantity("s", 0, min_open=True),
+                                    metavar="TIME", help="span end, e.g. 1.2ms (bare: s)"),
+        rate: float = typer.Option(1e6, "--rate", parser=Quantity("Hz", 0, min_open=True),
+                                   metavar="RATE", help="prediction sample rate, e.g. 1MHz "
+                                                        "(bare: Hz)"),
+        samples: int = typer.Option(200, "--samples", parser=Int(min=0, max=1_000_000),
+                                    help="parameter sets drawn"),
+        seed: int = typer.Option(0, "--seed", parser=Int(min=0), help="random seed"),
         means: Optional[Path] = typer.Option(None, "--means", help="mean-signals NetCDF "
                                              "(measured kinetic energy, Fig. 8)"),
-        bins: int = typer.Option(20, "--bins", help="kinetic-energy bins"),
-        ke_start: float = typer.Option(0.97e-3, "--ke-start", help="energy window start, s"),
-        ke_end: float = typer.Option(1.2e-3, "--ke-end", help="energy window end, s"),
-        gap: Optional[str] = typer.Option(None, "--gap", help="available plunger-TM gap "
-                                          "along the indent normal, e.g. 2um"),
-        gap_std: str = typer.Option("0", "--gap-std", help="its standard deviation"),
+        bins: int = typer.Option(20, "--bins", parser=Int(1, 100_000),
+                                 help="kinetic-energy bins"),
+        ke_start: float = typer.Option(0.97e-3, "--ke-start", parser=Quantity("s", 0),
+                                       metavar="TIME", help="energy window start, e.g. 0.97ms "
+                                                            "(bare: s)"),
+        ke_end: float = typer.Option(1.2e-3, "--ke-end", parser=Quantity("s", 0,
+                                     min_open=True), metavar="TIME",
+                                     help="energy window end, e.g. 1.2ms (bare: s)"),
+        gap: Optional[float] = typer.Option(None, "--gap", parser=Quantity("m", 0,
+                                            min_open=True), metavar="LENGTH",
+                                            help="available plunger-TM gap along the indent "
+                                                 "normal, e.g. 2um (bare: m)"),
+        gap_std: float = typer.Option("0", "--gap-std", parser=Quantity("m", 0),
+                                      metavar="LENGTH",
+                                      help="its standard deviation, e.g. 0.2um (bare: m)"),
         voltage: Optional[Path] = typer.Option(None, "--voltage", help="measured drive trace "
                                                "CSV (time s, voltage V)"),
         whatif_out: Optional[Path] = typer.Option(None, "--whatif",
@@ -91,10 +108,31 @@ def register(app: typer.Typer, synth_app: typer.Typer) -> None:
                                  field="--scale-eccentricity")
         if samples < 0:
             raise GprmInputError(f"must be >= 0, got {samples}", field="--samples")
+        from gprm._io import check_outputs
+
+        if not t_start < t_end:
+            raise GprmInputError(f"must be after --t-start, got {t_end:g} s <= {t_start:g} s",
+                                 field="--t-end")
+        if not ke_start < ke_end:
+            raise GprmInputError(f"must be after --ke-start, got {ke_end:g} s <= "
+                                 f"{ke_start:g} s", field="--ke-end")
+        check_outputs([(out, "--out"), (whatif_out, "--whatif")],
+                      inputs=[None if fit == "paper" else fit, means, voltage])
+        from gprm.resources import check_memory
+
+        # about 1.95 kB per drawn set and time (measured with tracemalloc at 20 and 80 sets
+        # over the default 251 times; docs/README.md) plus a fixed 50 MB
+        n_times = (t_end - t_start) * rate + 1
+        check_memory(max(samples, 1) * n_times, 2500.0, fixed=50e6, field="--samples",
+                     what=f"{samples} sets x {n_times:.4g} times", unit_scale=n_times,
+                     integer=True)
+        if means is not None:
+            from gprm.validate import read_means
+
+            read_means(means)         # refuse a bad file before the prediction runs
         fm = load_model(fit)
         sc = Scenario("cli", piezo, scale_eccentricity, parse_overrides(set_))
-        g = parse_length(gap, "--gap") if gap is not None else None
-        gs = parse_length(gap_std, "--gap-std")
+        g, gs = gap, gap_std
         t = prediction_times(t_start, t_end, rate)
         trace = read_voltage_csv(voltage) if voltage is not None else None
         pred = predict(fm, scenario=sc, times=t, samples=samples, seed=seed, means=means,

@@ -10,17 +10,21 @@ import typer
 
 def register(app: typer.Typer, synth_app: typer.Typer) -> None:
     from gprm.cli import one_line_errors
+    from gprm.options import Int, Quantity
 
     @app.command("simulate")
     @one_line_errors
     def simulate_cmd(
         out: Path = typer.Option(..., "--out", help="output NetCDF file"),
         params: Optional[Path] = typer.Option(None, "--params", help="TOML parameter file"),
-        piezo: int = typer.Option(2, "--piezo", help="driven piezo: 1 (nominal) or 2"),
+        piezo: int = typer.Option(2, "--piezo", parser=Int(1, 2),
+                                  help="driven piezo: 1 (nominal) or 2"),
         voltage: Optional[Path] = typer.Option(None, "--voltage",
                                                help="measured trace CSV (time s, voltage V)"),
-        t_end: float = typer.Option(1.2e-3, "--t-end", help="record length, s"),
-        rate: float = typer.Option(200e3, "--rate", help="sample rate, Hz"),
+        t_end: float = typer.Option(1.2e-3, "--t-end", parser=Quantity("s", 0, min_open=True),
+                                    metavar="TIME", help="record length, e.g. 1.2ms (bare: s)"),
+        rate: float = typer.Option(200e3, "--rate", parser=Quantity("Hz", 0, min_open=True),
+                                   metavar="RATE", help="sample rate, e.g. 200kHz (bare: Hz)"),
         z_bk_absolute: bool = typer.Option(False, "--z-bk-absolute",
                                            help="z_bk as z_lr + z_A (laser on the plunger "
                                                 "back sees both) instead of Eq. 3's z_A"),
@@ -32,8 +36,16 @@ def register(app: typer.Typer, synth_app: typer.Typer) -> None:
         from gprm.simulate import read_voltage_csv, simulate
         from gprm.simulate.files import simulation_dataset
 
+        from gprm._io import check_outputs
+        from gprm.resources import check_memory
+
         if piezo not in (1, 2):
             raise GprmInputError(f"must be 1 or 2, got {piezo}", field="--piezo")
+        check_outputs({out: "--out"}, inputs=[params, voltage])
+        # about 1.6 kB per sample (the simulated states, their rates and outputs, the dataset;
+        # measured with tracemalloc, docs/README.md) plus a fixed 50 MB
+        check_memory(t_end * rate + 1, 2000.0, fixed=50e6, field="--rate", unit="Hz",
+                     what=f"{t_end * rate + 1:.4g} samples", unit_scale=t_end)
         ps = load_params(params)
         trace = read_voltage_csv(voltage) if voltage is not None else None
         res = simulate(ps, piezo=piezo, t_end=t_end, rate=rate, voltage=trace,

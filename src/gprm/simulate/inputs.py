@@ -82,8 +82,25 @@ def read_voltage_csv(path: str | os.PathLike) -> VoltageTrace:
     allowed (any non-numeric first row); blank lines and lines starting with '#' are ignored."""
     path = Path(path)
     src = str(path)
-    if not path.exists():
-        raise GprmInputError("voltage file does not exist", source=src)
+    from gprm._io import check_input_file
+
+    check_input_file(path, what="voltage file")
+    rows = []
+    try:
+        rows = _voltage_rows(path, src)
+    except UnicodeDecodeError as exc:
+        raise GprmInputError(f"is not UTF-8 text (byte {exc.start}: {exc.reason})",
+                             source=src, field="voltage") from None
+    except csv.Error as exc:
+        raise GprmInputError(f"is not a readable CSV file ({exc})", source=src,
+                             field="voltage") from None
+    if not rows:
+        raise GprmInputError("holds no samples (empty)", source=src, field="voltage")
+    arr = np.array(rows, dtype=float)
+    return VoltageTrace(arr[:, 0], arr[:, 1], source=src)
+
+
+def _voltage_rows(path: Path, src: str) -> list:
     rows = []
     with path.open(newline="", encoding="utf-8") as fh:
         for lineno, row in enumerate(csv.reader(fh), start=1):
@@ -99,7 +116,4 @@ def read_voltage_csv(path: str | os.PathLike) -> VoltageTrace:
                     raise GprmInputError(f"line {lineno}: not a number: {row[:2]}",
                                          source=src, field="voltage") from None
                 continue  # header
-    if not rows:
-        raise GprmInputError("holds no samples (empty)", source=src, field="voltage")
-    arr = np.array(rows, dtype=float)
-    return VoltageTrace(arr[:, 0], arr[:, 1], source=src)
+    return rows

@@ -1,0 +1,216 @@
+"""Never destroy user data, never show a traceback, refuse what would not fit in memory,
+keep the Dask cluster local (issue #13 items 4-7)."""
+
+from __future__ import annotations
+
+import re
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+from typer.testing import CliRunner
+
+from gprm.cli import app
+from gprm.errors import GprmInputError
+from gprm.fit.multistart import (CHECKPOINT_MARKER, LMOptions, MultiStartOptions, Checkpoints,
+                                 remove_checkpoints, run_multistart, starts_memory)
+
+sys.path.insert(0, str(Path(__file__).parents[1] / "fit"))
+from means_factory import make_means  # noqa: E402
+
+
+@pytest.fixture(scope="module")
+def obj():
+    from gprm.fit.objective import Objective, fit_data_from_means
+    from gprm.params import paper
+
+    return Objective.create(fit_data_from_means(make_means(paper(), seed=2)), paper())
+
+
+OPTS = MultiStartOptions(n_starts=4, seed=5, chunk_size=2, lm=LMOptions(max_iter=4))
+
+
+# ----------------------------------------------------------------------------- checkpoints
+
+def test_an_unmarked_folder_with_files_is_refused_and_untouched(tmp_path):
+    (tmp_path / "thesis.tex").write_text("years of work")
+    with pytest.raises(GprmInputError, match="not a gprm checkpoint folder"):
+        Checkpoints(tmp_path, "f")
+    assert [p.name for p in tmp_path.iterdir()] == ["thesis.tex"]
+    remove_checkpoints(tmp_path)                       # unmarked: nothing happens
+    assert (tmp_path / "thesis.tex").read_text() == "years of work"
+
+
+def test_removal_deletes_only_gprms_files(obj, tmp_path):
+    ck = tmp_path / "new" / "ckpt"
+    run_multistart(obj, OPTS, checkpoint_dir=ck)
+    assert (ck / CHECKPOINT_MARKER).is_file() and len(list(ck.glob("chunk_*.npz"))) == 2
+    (ck / "notes.txt").write_text("mine")              # a user file put there meanwhile
+    remove_checkpoints(ck)
+    assert [p.name for p in ck.iterdir()] == ["notes.txt"]   # folder kept: not empty
+    (ck / "notes.txt").unlink()
+    run_multistart(obj, OPTS, checkpoint_dir=ck)       # empty folder: adopted, not created
+    remove_checkpoints(ck)
+    assert ck.is_dir() and list(ck.iterdir()) == []    # a folder gprm did not create stays
+    ck2 = tmp_path / "fresh"
+    run_multistart(obj, OPTS, checkpoint_dir=ck2)
+    remove_checkpoints(ck2)
+    assert not ck2.exists()                            # gprm created it: removed
+
+
+def test_a_damaged_chunk_is_run_again_with_the_same_result(obj, tmp_path):
+    ck = tmp_path / "ck"
+    full = run_multistart(obj, OPTS, checkpoint_dir=ck)
+    chunk = sorted(ck.glob("chunk_*.npz"))[0]
+    chunk.write_bytes(chunk.read_bytes()[:100])        # truncated
+    again = run_multistart(obj, OPTS, checkpoint_dir=ck)
+    for f in ("x0", "x", "chi2", "iterations", "status"):
+        np.testing.assert_array_equal(getattr(full, f), getattr(again, f))
+    assert np.load(chunk, allow_pickle=False)["x"].shape[0] == 2   # replaced by a whole one
+
+
+def test_fit_cli_keeps_user_files_and_leaves_no_folder_on_refusal(tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    make_means(__import__("gprm.params", fromlist=["paper"]).paper(), seed=2).to_netcdf("m.nc")
+    args = ["fit", "m.nc", "--out", "f.json", "--starts", "2", "--chunk", "2", "--max-iter",
+            "3", "--band-samples", "0", "--workers", "0"]
+    # refused inside the fit (window outside the data): no checkpoint folder left behind
+    r = CliRunner().invoke(app, args + ["--window", "0.5,0.6"])
+    assert r.exit_code == 2 and not Path("f.json.ckpt").exists(), r.output
+    # a successful fit with --checkpoint . keeps every file of the folder
+    (tmp_path / "keep.txt").write_text("x")
+    r = CliRunner().invoke(app, args + ["--checkpoint", "."])
+    assert r.exit_code == 2 and "--checkpoint" in r.output  # '.' holds files: refused
+    r = CliRunner().invoke(app, args + ["--checkpoint", "ck"])
+    assert r.exit_code == 0, r.output
+    assert not Path("ck").exists() and Path("keep.txt").read_text() == "x"
+    assert Path("f.json").is_file() and Path("f.nc").is_file()
+
+
+# ----------------------------------------------------------------------------- Dask
+
+def test_local_cluster_binds_to_localhost_without_dashboard(obj, monkeypatch):
+    import distributed
+
+    seen = {}
+
+    class FakeCluster:
+        def __init__(self, **kw):
+            seen.update(kw)
+
+        def close(self):
+            pass
+
+    class FakeFuture:
+        def __init__(self, v):
+            self.v = v
+
+        def result(self):
+            return self.v
+
+    class FakeClient:
+        def __init__(self, cluster):
+            seen["client_of"] = cluster
+
+        def submit(self, fn, task, pure=False):
+            return FakeFuture(fn(task))
+
+        def close(self):
+            pass
+
+    monkeypatch.setattr(distributed, "LocalCluster", FakeCluster)
+    monkeypatch.setattr(distributed, "Client", FakeClient)
+    monkeypatch.setattr(distributed, "as_completed", lambda futs: futs)
+    ref = run_multistart(obj, OPTS)
+    out = run_multistart(obj, OPTS, workers=2)
+    assert seen["host"] == "127.0.0.1" and seen["dashboard_address"] is None
+    np.testing.assert_array_equal(ref.x, out.x)
+    from gprm.fit.commands import dask_dashboard
+
+    with dask_dashboard("127.0.0.1:8787"):
+        run_multistart(obj, OPTS, workers=2)
+    assert seen["dashboard_address"] == "127.0.0.1:8787"
+    seen.clear()
+    out = run_multistart(obj, OPTS, scheduler="tcp://10.1.2.3:8786")   # an existing cluster
+    assert seen == {"client_of": "tcp://10.1.2.3:8786"}                 # no local cluster
+    np.testing.assert_array_equal(ref.x, out.x)
+
+
+# ----------------------------------------------------------------------------- crashes
+
+def test_unexpected_error_is_one_line_and_a_log(tmp_path, monkeypatch):
+    import gprm.params
+
+    def boom(*a, **k):
+        raise RuntimeError("something broke")
+
+    monkeypatch.setattr(gprm.params, "load_params", boom)
+    monkeypatch.setenv("GPRM_LOG_DIR", str(tmp_path / "logs"))
+    monkeypatch.delenv("GPRM_DEBUG", raising=False)
+    r = CliRunner().invoke(app, ["params"])
+    lines = r.output.strip().splitlines()
+    assert r.exit_code == 1 and len(lines) == 1, r.output
+    assert "Traceback" not in r.output and "RuntimeError: something broke" in lines[0]
+    log = Path(re.search(r"traceback in (\S+)", lines[0]).group(1))
+    assert log.parent == tmp_path / "logs"
+    text = log.read_text()
+    assert "Traceback" in text and "something broke" in text and "gprm params" in text
+    r = CliRunner().invoke(app, ["--debug", "params"])
+    assert r.exit_code == 1 and "Traceback" in r.output and "something broke" in r.output
+
+
+# ----------------------------------------------------------------------------- memory
+
+def test_memory_guard_names_the_largest_value_that_fits(monkeypatch):
+    import gprm.resources as res
+    from gprm.resources import check_memory, largest_that_fits
+
+    avail = 8_000_000_000
+    per = starts_memory(1, 23)
+    n = largest_that_fits(per, available=avail)
+    check_memory(n, per, field="--starts", what="x", available=avail)        # fits
+    with pytest.raises(GprmInputError) as e:
+        check_memory(n + 1, per, field="--starts", what="x", available=avail)
+    assert e.value.field == "--starts" and f"fits is {n}" in str(e.value)
+    monkeypatch.setattr(res, "available_memory", lambda: avail)
+    r = CliRunner().invoke(app, ["simulate", "--out", "unused.nc", "--rate", "1e12"])
+    assert r.exit_code == 2, r.output
+    rate_max = float(re.search(r"fits is (\S+) Hz", r.output).group(1))
+    samples = rate_max * 1.2e-3 + 1
+    assert 50e6 + 2000 * samples <= 0.8 * avail * 1.0001
+    assert 50e6 + 2000 * samples * 1.01 > 0.8 * avail
+
+
+# ----------------------------------------------------------------------------- outputs
+
+def test_outputs_beside_inputs_are_fine_over_them_refused(tmp_path):
+    from gprm._io import check_outputs, files_read_from
+
+    run = tmp_path / "run"
+    run.mkdir()
+    (run / "fit.json").write_text("{}")
+    (run / "report.html").write_text("old report")             # a rerun replaces it
+    check_outputs({run / "report.html": "--out"},
+                  inputs=files_read_from(run, suffixes={".json"}))
+    with pytest.raises(GprmInputError, match="would overwrite the input") as e:
+        check_outputs({run / "fit.json": "--out"},
+                      inputs=files_read_from(run, suffixes={".json"}))
+    assert e.value.field == "--out"
+    with pytest.raises(GprmInputError, match="also the output of --out"):
+        check_outputs([(tmp_path / "a.nc", "--out"), (tmp_path / "./a.nc", "--whatif")])
+    with pytest.raises(GprmInputError, match="holds|overwrite"):     # a folder over inputs
+        check_outputs({}, inputs=[run / "fit.json"], folders={run: "--checkpoint"})
+    assert sorted(p.name for p in run.iterdir()) == ["fit.json", "report.html"]
+
+
+def test_an_unreachable_scheduler_is_an_input_error(obj, monkeypatch):
+    import distributed
+
+    def refuse(address):
+        raise OSError(f"Timed out trying to connect to {address}")
+
+    monkeypatch.setattr(distributed, "Client", refuse)
+    with pytest.raises(GprmInputError, match="cannot connect to the Dask scheduler") as e:
+        run_multistart(obj, OPTS, scheduler="tcp://127.0.0.1:1")
+    assert e.value.field == "scheduler"

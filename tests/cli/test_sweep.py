@@ -1,0 +1,218 @@
+"""A sweep of malformed inputs and options over every command (issue #13).
+
+Each case runs the command in-process and asserts what a user must see: exit code 2, exactly
+one line on the console naming the file or the option, no traceback, nothing written in the
+working folder, and every input byte-for-byte unchanged.
+"""
+
+from __future__ import annotations
+
+import os
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+from typer.testing import CliRunner
+
+from gprm.cli import app
+
+sys.path.insert(0, str(Path(__file__).parents[1] / "fit"))
+from means_factory import make_means  # noqa: E402
+
+
+@pytest.fixture(scope="module")
+def inputs(tmp_path_factory):
+    """Valid and broken input files, made once; each test copies them into its own folder."""
+    from gprm.campaign.csvdir import write_campaign_dir
+    from gprm.campaign.synth import SynthConfig, synth_campaign
+    from gprm.params import paper
+
+    d = tmp_path_factory.mktemp("sweep-inputs")
+    make_means(paper(), seed=1).to_netcdf(d / "m.nc")
+    camp = synth_campaign(seed=3, config=SynthConfig(n_runs=2, n_noise=1, nonlinear=False))
+    camp.to_netcdf(d / "c.nc")
+    camp.assign_attrs(sample_rate="fast").to_netcdf(d / "c_text_rate.nc")
+    camp.assign_coords(time=("time", camp["time"].values[::-1])).to_netcdf(d / "c_reversed.nc")
+    write_campaign_dir(camp, d / "csv")
+    (d / "binary.nc").write_bytes(bytes(range(256)) * 4)
+    (d / "latin1.csv").write_bytes("time,V\n0,1\n1e-3,2\n\xe9\n".encode("latin-1"))
+    (d / "p.toml").write_text("[parameters]\n")
+    (d / "bad.toml").write_bytes(b"\x00\x01[parameters")
+    (d / "ms.nc").write_bytes(b"")          # an empty file where a NetCDF belongs
+    (d / "folder").mkdir()
+    (d / "userdir").mkdir()
+    (d / "userdir" / "keep.txt").write_text("user data")
+    (d / "afile").write_text("not a folder")
+    return d
+
+
+def _snapshot(root: Path) -> dict:
+    return {str(p.relative_to(root)): (p.read_bytes() if p.is_file() else None)
+            for p in sorted(root.rglob("*"))}
+
+
+def _csv_broken_manifest(d: Path):
+    (d / "csv" / "manifest.csv").write_bytes(b"\xff\xfe\x00p\x00o\x00s")
+
+
+def _csv_binary_data(d: Path):
+    data = sorted((d / "csv" / "x_head").rglob("*.csv"))[0]
+    data.write_bytes(b"\x00\x01\x02" * 100)
+
+
+CASES = [
+    # (id, argv, text expected in the line, setup)
+    ("fit-seed", ["fit", "m.nc", "--out", "f.json", "--seed", "-1"], "--seed", None),
+    ("fit-max-iter", ["fit", "m.nc", "--out", "f.json", "--max-iter", "-1"], "--max-iter", None),
+    ("fit-band-samples", ["fit", "m.nc", "--out", "f.json", "--band-samples", "-1"],
+     "--band-samples", None),
+    ("fit-starts-huge", ["fit", "m.nc", "--out", "f.json", "--starts", "100000000"],
+     "largest value that fits", None),
+    ("fit-window", ["fit", "m.nc", "--out", "f.json", "--window", "1.2ms,0.9ms"], "--window",
+     None),
+    ("fit-spread", ["fit", "m.nc", "--out", "f.json", "--spread", "nan"], "--spread", None),
+    ("fit-sidecar-over-input", ["fit", "m.nc", "--out", "m.json"], "m.nc", None),
+    ("fit-out-is-input", ["fit", "m.nc", "--out", "m.nc"], "--out", None),
+    ("fit-folder-input", ["fit", "folder", "--out", "f.json"], "folder", None),
+    ("fit-folder-out", ["fit", "m.nc", "--out", "folder"], "--out folder", None),
+    ("fit-out-under-file", ["fit", "m.nc", "--out", "afile/f.json"], "--out", None),
+    ("fit-binary-means", ["fit", "binary.nc", "--out", "f.json"], "binary.nc", None),
+    ("fit-empty-means", ["fit", "ms.nc", "--out", "f.json"], "ms.nc", None),
+    ("fit-campaign-as-means", ["fit", "c.nc", "--out", "f.json"], "c.nc", None),
+    ("fit-user-checkpoint", ["fit", "m.nc", "--out", "f.json", "--checkpoint", "userdir"],
+     "--checkpoint userdir: exists and is not a gprm checkpoint folder", None),
+    ("fit-checkpoint-file", ["fit", "m.nc", "--out", "f.json", "--checkpoint", "afile"],
+     "--checkpoint afile: is a file", None),
+    ("fit-checkpoint-dot", ["fit", "m.nc", "--out", "f.json", "--checkpoint", "."],
+     "--checkpoint", None),
+    ("fit-params-folder", ["fit", "m.nc", "--out", "f.json", "--params", "folder"], "folder",
+     None),
+    ("fit-workers-huge", ["fit", "m.nc", "--out", "f.json", "--workers", "1000000"],
+     "--workers", None),
+    ("fit-scheduler", ["fit", "m.nc", "--out", "f.json", "--scheduler", "not an address"],
+     "--scheduler", None),
+    ("fit-sampling", ["fit", "m.nc", "--out", "f.json", "--sampling", "sobol"], "--sampling",
+     None),
+    ("preprocess-over-input", ["preprocess", "c.nc", "--out", "c.nc"], "--out", None),
+    ("preprocess-text-rate", ["preprocess", "c_text_rate.nc", "--out", "x.nc"], "sample_rate",
+     None),
+    ("preprocess-reversed", ["preprocess", "c_reversed.nc", "--out", "x.nc"], "time", None),
+    ("preprocess-binary", ["preprocess", "binary.nc", "--out", "x.nc"], "binary.nc", None),
+    ("preprocess-manifest-utf16", ["preprocess", "csv", "--out", "x.nc"], "manifest",
+     _csv_broken_manifest),
+    ("preprocess-binary-csv", ["preprocess", "csv", "--out", "x.nc"], "csv", _csv_binary_data),
+    ("preprocess-over-csv-file", ["preprocess", "csv", "--out", "csv/manifest.csv"],
+     "would overwrite the input", None),
+    ("preprocess-over-csv-data", ["preprocess", "csv", "--out", "csv/x_head/actuated_00.csv"],
+     "would overwrite the input", None),
+    ("preprocess-align", ["preprocess", "c.nc", "--out", "x.nc", "--align-time", "-1ms"],
+     "--align-time", None),
+    ("predict-samples-huge", ["predict", "paper", "--out", "p.nc", "--samples", "1000000",
+                              "--rate", "100MHz"], "largest value that fits", None),
+    ("simulate-rate-huge", ["simulate", "--out", "s.nc", "--rate", "1e12"],
+     "largest value that fits", None),
+    ("simulate-rate-unit", ["simulate", "--out", "s.nc", "--rate", "2 m"], "--rate", None),
+    ("simulate-piezo", ["simulate", "--out", "s.nc", "--piezo", "7"], "--piezo", None),
+    ("simulate-voltage-latin1", ["simulate", "--out", "s.nc", "--voltage", "latin1.csv"],
+     "latin1.csv", None),
+    ("simulate-voltage-folder", ["simulate", "--out", "s.nc", "--voltage", "folder"], "folder",
+     None),
+    ("simulate-params-binary", ["simulate", "--out", "s.nc", "--params", "bad.toml"],
+     "bad.toml", None),
+    ("simulate-out-folder", ["simulate", "--out", "folder"], "--out", None),
+    ("predict-seed", ["predict", "paper", "--out", "p.nc", "--seed", "-1"], "--seed", None),
+    ("predict-bins", ["predict", "paper", "--out", "p.nc", "--bins", "0"], "--bins", None),
+    ("predict-means-binary", ["predict", "paper", "--out", "p.nc", "--means", "binary.nc"],
+     "binary.nc", None),
+    ("predict-means-campaign", ["predict", "paper", "--out", "p.nc", "--means", "c.nc"], "c.nc",
+     None),
+    ("predict-same-outputs", ["predict", "paper", "--out", "p.json", "--whatif", "p.json"],
+     "--whatif", None),
+    ("predict-over-means", ["predict", "paper", "--out", "m.nc", "--means", "m.nc"], "--out",
+     None),
+    ("predict-fit-folder", ["predict", "folder", "--out", "p.nc"], "folder", None),
+    ("telemetry-seed", ["synth", "telemetry", "paper", "--out", "t.nc", "--seed", "-1"],
+     "--seed", None),
+    ("telemetry-rate", ["synth", "telemetry", "paper", "--out", "t.nc", "--rate", "0"],
+     "--rate", None),
+    ("telemetry-z-from", ["synth", "telemetry", "paper", "--out", "t.nc", "--z-from", "q"],
+     "--z-from", None),
+    ("impact-alpha0", ["impact", "paper", "m.nc", "--out", "i.json", "--alpha", "0"], "--alpha",
+     None),
+    ("impact-alpha2", ["impact", "paper", "m.nc", "--out", "i.json", "--alpha", "2"], "--alpha",
+     None),
+    ("impact-sidecar-over-input", ["impact", "paper", "m.nc", "--out", "m.json"], "m.nc", None),
+    ("impact-window", ["impact", "paper", "m.nc", "--out", "i.json", "--window", "1,0.5"],
+     "--window", None),
+    ("impact-seed", ["impact", "paper", "m.nc", "--out", "i.json", "--seed", "-1"], "--seed",
+     None),
+    ("campaign-seed", ["synth", "campaign", "--out", "x.nc", "--seed", "-1"], "--seed", None),
+    ("campaign-runs", ["synth", "campaign", "--out", "x.nc", "--runs", "1"], "--runs", None),
+    ("campaign-runs-huge", ["synth", "campaign", "--out", "x.nc", "--runs", "10000",
+                            "--noise-runs", "10000", "--t-end", "100ms"],
+     "largest value that fits", None),
+    ("campaign-t-end", ["synth", "campaign", "--out", "x.nc", "--t-end", "1ms"], "--t-end",
+     None),
+    ("campaign-truth-folder", ["synth", "campaign", "--out", "x.nc", "--truth", "folder"],
+     "folder", None),
+    ("campaign-over-input", ["synth", "campaign", "--out", "p.toml", "--truth", "p.toml"],
+     "--out", None),
+    ("params-folder", ["params", "--params", "folder"], "folder", None),
+    ("params-binary", ["params", "--params", "bad.toml"], "bad.toml", None),
+    ("params-over-input", ["params", "--params", "p.toml", "--out", "p.toml"], "--out", None),
+    ("report-not-a-run", ["report", "afile", "--out", "r.html"], "afile", None),
+    ("report-out-folder", ["report", "folder", "--out", "folder"], "--out", None),
+    ("report-over-run-file", ["report", ".", "--out", "m.nc"], "would overwrite the input",
+     None),
+    ("unknown-option", ["fit", "m.nc", "--out", "f.json", "--bogus"], "--bogus", None),
+    ("missing-option", ["simulate"], "--out", None),
+]
+
+
+@pytest.mark.parametrize("argv, text, setup", [c[1:] for c in CASES], ids=[c[0] for c in CASES])
+def test_bad_input_is_one_line_exit_2_nothing_written(inputs, tmp_path, monkeypatch, argv,
+                                                      text, setup):
+    import shutil
+
+    work = tmp_path / "work"
+    shutil.copytree(inputs, work)
+    if setup is not None:
+        setup(work)
+    monkeypatch.chdir(work)
+    monkeypatch.setenv("GPRM_LOG_DIR", str(tmp_path / "logs"))
+    before = _snapshot(work)
+    r = CliRunner().invoke(app, argv)
+    lines = r.output.strip().splitlines()
+    assert r.exit_code == 2, r.output
+    assert len(lines) == 1, r.output
+    assert lines[0].startswith("gprm: error: ") and text in lines[0], lines[0]
+    assert "Traceback" not in r.output
+    assert _snapshot(work) == before          # nothing written, inputs unchanged
+    assert not (tmp_path / "logs").exists()   # an input error is not an internal error
+
+
+def test_read_only_location_is_refused_before_any_work(tmp_path, monkeypatch):
+    """An --out where no file can be created (here /proc, read-only even for root)."""
+    if not Path("/proc/self").exists():
+        pytest.skip("needs /proc")
+    monkeypatch.chdir(tmp_path)
+    r = CliRunner().invoke(app, ["simulate", "--out", "/proc/gprm-test.nc"])
+    assert r.exit_code == 2 and len(r.output.strip().splitlines()) == 1, r.output
+    assert "--out /proc/gprm-test.nc: cannot be written" in r.output
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_sweep_covers_every_command():
+    """Every registered command (but demo, which has its own tests) appears in the sweep."""
+    from typer.main import get_command
+
+    root = get_command(app)
+    names = set()
+    for name, cmd in root.commands.items():
+        if hasattr(cmd, "commands"):
+            names |= {f"{name} {sub}" for sub in cmd.commands}
+        else:
+            names.add(name)
+    swept = {" ".join(a[:2]) if a[0] == "synth" else a[0] for _, a, _, _ in CASES}
+    assert names - {"demo", "run"} <= swept, names - swept

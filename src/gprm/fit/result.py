@@ -43,18 +43,24 @@ class Bands:
 
 @dataclass(frozen=True)
 class Profile:
-    """Profile likelihood of one parameter: grid (physical), chi-square minimised over the
-    others, and the 68 % interval where Delta chi2 <= 1 (NaN where not reached)."""
+    """Profile likelihood of one parameter: grid (physical, ascending), the profile statistic
+    D = (Phi - Phi_min) / s2 with Phi the minimised objective (chi-square plus the weighted
+    prior) re-minimised over the other parameters, and the intervals where D <= 1 (68 %) and
+    D <= 3.84 (95 %). An end is NaN where the profile does not rise to the threshold before
+    the physical bound or the search limit: the data do not bound the parameter on that side.
+    ``chi2`` holds D (kept under its old name in the files)."""
 
     name: str
     grid: np.ndarray
     chi2: np.ndarray
     lower: float
     upper: float
+    lower95: float = float("nan")
+    upper95: float = float("nan")
 
     @property
     def identifiable(self) -> bool:
-        return bool(np.isfinite(self.lower) and np.isfinite(self.upper))
+        return bool(np.isfinite(self.lower95) and np.isfinite(self.upper95))
 
 
 @dataclass(frozen=True)
@@ -201,6 +207,8 @@ class FitResult:
             "profiles": [{"name": p.name, "grid": p.grid.tolist(),
                           "chi2": [_num(c) for c in p.chi2],
                           "lower": _num(p.lower), "upper": _num(p.upper),
+                          "lower95": _num(p.lower95), "upper95": _num(p.upper95),
+                          "statistic": "(Phi - Phi_min) / s2",
                           "identifiable": p.identifiable} for p in self.profiles],
             "data": {"source": self.data.source, "n_obs": self.data.n_obs,
                      "sha256": _data_hash(self.data)},
@@ -341,47 +349,85 @@ class _FixedOne:
         return self.obj.residuals(X)
 
 
-def profile_likelihood(obj: Objective, x_best: np.ndarray, stderr: np.ndarray, name: str, *,
-                       n_points: int = 13, width: float = 3.0,
-                       lm: LMOptions = LMOptions()) -> Profile:
-    """Profile likelihood of ``name``: chi-square minimised over the other parameters with
-    ``name`` fixed on a grid of ``n_points`` over best +/- width*stderr (+/-10 % where no
-    stderr). All grid points run in lock-step, each started from the best fit. The interval
-    is where Delta chi2 <= 1 relative to the best fit (68 % for one parameter)."""
+def profile_likelihood(obj: Objective, x_best: np.ndarray, name: str, *, s2: float = 1.0,
+                       sd_u: float | None = None, lm: LMOptions = LMOptions(),
+                       max_extend: int = 3) -> Profile:
+    """Profile likelihood of ``name`` at the best fit ``x_best`` (physical).
+
+    The grid lives in the posterior's coordinate u of the parameter (ln x for a positive
+    parameter under the prior, so the physical bound 0 is never crossed; else x), at
+    -3 .. +3 posterior standard deviations ``sd_u`` (10 % of the value where not given). A
+    side whose outer point has not risen to D = 3.84 is extended by doubling its reach, up to
+    ``max_extend`` times (adaptive steps); points outside the physical bounds are not
+    evaluated. Each grid point is a fit of the other parameters with this one fixed, started
+    from the best fit, all in lock-step. The statistic is scaled by the data's variance scale
+    ``s2`` (the same scale as the Laplace covariance), so its thresholds 1 and 3.84 match the
+    68 % and 95 % intervals of that covariance where the problem is linear.
+    """
     k = obj.names.index(name)
-    s = stderr[k] if np.isfinite(stderr[k]) and stderr[k] > 0 else 0.1 * abs(x_best[k])
-    grid = x_best[k] + np.linspace(-width, width, n_points) * s
+    prior = obj.prior
+    log = bool(prior is not None and prior.log[k])
+    to_u = (lambda v: np.log(v)) if log else (lambda v: v)
+    from_u = (lambda v: np.exp(v)) if log else (lambda v: v)
+    u0 = float(to_u(x_best[k]))
+    h = float(sd_u) if sd_u is not None and np.isfinite(sd_u) and sd_u > 0 else \
+        (0.1 if log else 0.1 * max(abs(x_best[k]), 1e-30))
+    lo_b, hi_b = obj.bounds()
     xn = obj.to_normalised(x_best)
-    X0 = np.repeat(xn[None], n_points, axis=0)
-    X0[:, k] = grid / obj.scale[k]
-    lo, hi = obj.bounds_normalised()
-    inside = (X0[:, k] > lo[k]) & (X0[:, k] < hi[k])
-    chi = np.full(n_points, np.nan)
-    if inside.any():
-        f = _FixedOne(obj, k)
-        kw = lm.as_kwargs()
-        kw.update(ftol_abs=min(kw["ftol_abs"], 1e-4), stall_window=0)
-        res = levenberg_marquardt_batch(f, X0[inside], residuals=f.residuals, lower=lo,
-                                        upper=hi, **kw)
-        chi[inside] = np.where(np.isfinite(res.chi2), res.chi2, np.nan)
-    c0 = float(np.sum(obj.residuals(xn[None]) ** 2))
-    dchi = chi - min(c0, np.nanmin(np.append(chi, np.inf)))
-    lower, upper = _crossings(grid, np.where(np.isfinite(dchi), dchi, np.inf), x_best[k])
-    return Profile(name, grid, chi, lower, upper)
+    f = _FixedOne(obj, k)
+    kw = lm.as_kwargs()
+    kw.update(ftol_abs=min(kw["ftol_abs"], 1e-4), stall_window=0)
+    lo_n, hi_n = obj.bounds_normalised()
+    phi0 = float(obj.chi2(xn[None])[0])
+    pts: dict[float, float] = {}
+
+    def run(offsets):
+        us = [u0 + o * h for o in offsets]
+        xs = np.array([from_u(u) for u in us])
+        ok = (xs > lo_b[k]) & (xs < hi_b[k]) & np.isfinite(xs)
+        if not ok.any():
+            return
+        X0 = np.repeat(xn[None], int(ok.sum()), axis=0)
+        X0[:, k] = xs[ok] / obj.scale[k]
+        res = levenberg_marquardt_batch(f, X0, residuals=f.residuals, lower=lo_n, upper=hi_n,
+                                        **kw)
+        for x, c in zip(xs[ok], res.chi2):
+            pts[float(x)] = float(c) if np.isfinite(c) else np.nan
+
+    offsets = [-3.0, -2.0, -1.0, -0.5, 0.5, 1.0, 2.0, 3.0]
+    run(offsets)
+    for side in (-1.0, 1.0):
+        reach = 3.0
+        for _ in range(max_extend):
+            xs = sorted(pts)
+            phi_min = min([phi0] + [v for v in pts.values() if np.isfinite(v)])
+            edge = xs[0] if side < 0 else xs[-1]
+            if np.isfinite(pts[edge]) and (pts[edge] - phi_min) / s2 >= 3.84:
+                break
+            reach *= 2.0
+            run([side * reach * 0.75, side * reach])
+    pts[float(x_best[k])] = phi0
+    grid = np.array(sorted(pts))
+    phi = np.array([pts[g] for g in grid])
+    dchi = (phi - np.nanmin(phi)) / s2
+    d = np.where(np.isfinite(dchi), dchi, np.inf)
+    lower, upper = _crossings(grid, d, x_best[k], 1.0)
+    lower95, upper95 = _crossings(grid, d, x_best[k], 3.84)
+    return Profile(name, grid, dchi, lower, upper, lower95, upper95)
 
 
-def _crossings(grid, dchi, centre):
+def _crossings(grid, dchi, centre, level=1.0):
     lower = upper = np.nan
-    left = np.nonzero((grid < centre) & (dchi >= 1))[0]
+    left = np.nonzero((grid < centre) & (dchi >= level))[0]
     if left.size:
         i = left[-1]
         j = i + 1
-        lower = np.interp(1.0, [dchi[j], dchi[i]], [grid[j], grid[i]])
-    right = np.nonzero((grid > centre) & (dchi >= 1))[0]
+        lower = np.interp(level, [min(dchi[j], level), dchi[i]], [grid[j], grid[i]])
+    right = np.nonzero((grid > centre) & (dchi >= level))[0]
     if right.size:
         j = right[0]
         i = j - 1
-        upper = np.interp(1.0, [dchi[i], dchi[j]], [grid[i], grid[j]])
+        upper = np.interp(level, [min(dchi[i], level), dchi[j]], [grid[i], grid[j]])
     return lower, upper
 
 
@@ -440,8 +486,11 @@ def identify(data: FitData, base: ParameterSet, opts: MultiStartOptions = MultiS
                           draws=unc.draws)
     profiles = ()
     if profile:
-        se = unc.stderr
-        profiles = tuple(profile_likelihood(obj, x, se, n, lm=opts.lm) for n in obj.names)
+        s2p = unc.s2 if np.isfinite(unc.s2) else 1.0
+        sdu = (unc.contraction * prior.sd if prior is not None and unc.method == "laplace-prior"
+               else unc.stderr)
+        profiles = tuple(profile_likelihood(obj, x, n, s2=s2p, sd_u=sdu[i], lm=opts.lm)
+                         for i, n in enumerate(obj.names))
     timings = {"multistart": round(t_ms, 3), "uncertainty": round(time.perf_counter() - t_b, 3),
                "total": round(time.perf_counter() - t_start, 3)}
     return FitResult(obj.names, params, chi2, obj.dof, cov, msg, at_b, starts, opts, data,

@@ -36,9 +36,15 @@ def test_gprm_fit_writes_json_and_sidecar(means_file, tmp_path):
     assert d["starts"]["stall_window"] == 5 and d["starts"]["stall_tol"] == 0.05
     assert out.with_suffix(".nc").exists()
     assert not Path(str(out) + ".ckpt").exists()        # checkpoints removed after success
-    fm = load_fit(out) if d["correlation"]["matrix"] is not None else None
-    if fm is not None:
-        assert len(fm.names) == 23
+    # every fit loads, with its identified set, intervals and posterior draws
+    fm = load_fit(out)
+    assert len(fm.names) == 23 and fm.has_uncertainty and fm.draws.shape == (400, 23)
+    assert d["uncertainty"]["method"] == "laplace-prior"
+    assert set(d["identified"]) | set(d["not_determined"]) == set(fm.names)
+    for name in fm.names:
+        e = d["parameters"][name]
+        assert e["interval"]["lower"] < e["value"] < e["interval"]["upper"], name
+        assert e["identified"] == (name in d["identified"])
 
 
 @pytest.mark.parametrize("args, text", [
@@ -46,6 +52,9 @@ def test_gprm_fit_writes_json_and_sidecar(means_file, tmp_path):
     (["--sigma", "var"], "sem or std"),
     (["--window", "0.5", "0.6"], "outside the data"),
     (["--stall-window", "-1"], "--stall-window"),
+    (["--uncertainty", "bootstrap"], "--uncertainty"),
+    (["--prior-width", "-1"], "--prior-width"),
+    (["--prior-width", "0"], "--prior-width"),
 ])
 def test_gprm_fit_bad_options(means_file, tmp_path, args, text):
     r = CliRunner().invoke(app, ["fit", str(means_file), "--out", str(tmp_path / "f.json"),

@@ -11,10 +11,11 @@ method the fraction of 95 % and 68 % intervals that contain the truth:
   (CoM, M_xz, M_yz, tip edge) on three axes in the three scenarios of Sec. 4.2, for the
   point-axes that move (truth overshoot above 1 % of the scenario's largest).
 
-Methods: ``eq7`` and ``eq7-corr`` on the paper's unregularised fit; ``laplace-prior`` (the
-default) on the prior-regularised fit (gprm.fit.uncertainty).
+Methods: ``eq7`` and ``eq7-corr`` on the paper's unregularised fit; ``laplace-prior``,
+``parametric-bootstrap``, ``bootstrap-runs`` and ``mcmc`` on the prior-regularised fit
+(gprm.fit.uncertainty, gprm.fit.bootstrap).
 
-    .venv/bin/python benchmarks/bench_coverage.py [--campaigns 20] [--starts 200] [--seed 1000]
+    .venv/bin/python benchmarks/bench_coverage.py [--campaigns 20] [--starts 200] [--seed 1000] [--boot 30]
 
 Prints the table docs/fitting.md quotes; --json F also writes every campaign's numbers.
 """
@@ -31,10 +32,12 @@ import numpy as np
 
 from gprm.campaign.preprocess import PreprocessConfig, preprocess
 from gprm.campaign.synth import synth_campaign
+from gprm.fit.bootstrap import bootstrap_uncertainty
 from gprm.fit.files import FittedModel
 from gprm.fit.multistart import MultiStartOptions
 from gprm.fit.objective import fit_data_from_means
 from gprm.fit.result import identify
+from gprm.fit.uncertainty import from_mcmc
 from gprm.params import ALIGNMENT_OFFSETS, batch, paper
 from gprm.predict.scenarios import Scenario, apply_scenario, standard_scenarios
 from gprm.predict.trajectories import TRAJECTORY_POINTS, default_times, sampled_points
@@ -75,7 +78,7 @@ def prediction_cover(fm: FittedModel, truth, times, n: int, seed: int) -> dict:
     return res
 
 
-def one_campaign(seed: int, starts: int, samples: int) -> dict:
+def one_campaign(seed: int, starts: int, samples: int, n_boot: int, methods) -> dict:
     truth = draw_truth(seed)
     camp = synth_campaign(truth, seed=seed)
     means = preprocess(camp, PreprocessConfig(align_time=ALIGN_TIME)).to_dataset()
@@ -90,9 +93,25 @@ def one_campaign(seed: int, starts: int, samples: int) -> dict:
                          prior_width=None)
     prior_fit = identify(data, base, ms, band_samples=0)
     out["fit_s"] = round(time.perf_counter() - t, 2)
-    for method, res, u in (("eq7", paper_fit, paper_fit.eq7),
-                           ("eq7-corr", paper_fit, paper_fit.uncertainty),
-                           ("laplace-prior", prior_fit, prior_fit.uncertainty)):
+    cands = [("eq7", paper_fit, paper_fit.eq7), ("eq7-corr", paper_fit, paper_fit.uncertainty),
+             ("laplace-prior", prior_fit, prior_fit.uncertainty)]
+    for method in ("parametric-bootstrap", "bootstrap-runs"):
+        if method in methods:
+            t = time.perf_counter()
+            u = bootstrap_uncertainty(prior_fit.objective(), prior_fit.x, prior_fit.uncertainty,
+                                      prior_fit.prior, method, n_boot=n_boot, seed=seed,
+                                      campaign=camp)
+            out[f"{method}_s"] = round(time.perf_counter() - t, 2)
+            cands.append((method, prior_fit, u))
+    if "mcmc" in methods:
+        t = time.perf_counter()
+        u = from_mcmc(prior_fit.objective(), prior_fit.x, prior_fit.uncertainty, prior_fit.prior,
+                      seed=seed)
+        out["mcmc_s"] = round(time.perf_counter() - t, 2)
+        cands.append(("mcmc", prior_fit, u))
+    for method, res, u in cands:
+        if method not in methods:
+            continue
         rows = {}
         for n in PHYSICAL:
             k = res.names.index(n)
@@ -145,6 +164,9 @@ def main(argv=None) -> None:
     ap.add_argument("--seed", type=int, default=1000)
     ap.add_argument("--samples", type=int, default=200, help="parameter sets per prediction")
     ap.add_argument("--json", help="write every campaign's numbers here")
+    ap.add_argument("--boot", type=int, default=30, help="refits per bootstrap")
+    ap.add_argument("--methods", default="eq7,eq7-corr,laplace-prior,parametric-bootstrap,"
+                    "bootstrap-runs,mcmc", help="comma-separated methods")
     a = ap.parse_args(argv)
     sys.path.insert(0, "benchmarks")
     from _machine import machine
@@ -152,7 +174,8 @@ def main(argv=None) -> None:
     t0 = time.perf_counter()
     results = []
     for c in range(a.campaigns):
-        results.append(one_campaign(a.seed + c, a.starts, a.samples))
+        results.append(one_campaign(a.seed + c, a.starts, a.samples, a.boot,
+                                    a.methods.split(",")))
         print(f"campaign {c + 1}/{a.campaigns} (seed {a.seed + c}) done, "
               f"{time.perf_counter() - t0:.0f} s", file=sys.stderr, flush=True)
     if a.json:

@@ -364,7 +364,11 @@ def preprocess(campaign: xr.Dataset, config: PreprocessConfig | None = None) -> 
         "gprm_version": gprm.__version__,
         "preprocess_json": json.dumps(cfg.__dict__),
         "no_crossing_json": json.dumps(no_cross),
+        # the record's length (the parametric bootstrap synthesises campaigns like this one)
+        "record_duration": float(time[-1] - time[0] + dt),
     }
+    if "generator_json" in campaign.attrs:
+        attrs["generator_json"] = campaign.attrs["generator_json"]
     truth_shift = truth_mean = None
     if "truth_json" in campaign.attrs:
         attrs["truth_json"] = campaign.attrs["truth_json"]

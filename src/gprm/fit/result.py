@@ -24,7 +24,8 @@ from gprm.fit.multistart import (LMOptions, MultiStartOptions, StartsOutcome, ru
                                  starts_to_dataset)
 from gprm.fit.objective import FitData, Objective
 from gprm.fit.prior import DEFAULT_WIDTH, Prior, default_prior
-from gprm.fit.uncertainty import DEFAULT_METHOD, Uncertainty, estimate, time_correlation_factor
+from gprm.fit.uncertainty import (DEFAULT_METHOD, Uncertainty, estimate, from_mcmc,
+                                  time_correlation_factor)
 from gprm.params import REGISTRY, ParameterSet
 
 
@@ -85,6 +86,15 @@ class FitResult:
     uncertainty: Uncertainty | None = None
     eq7: Uncertainty | None = None
     prior: Prior | None = None
+
+    def objective(self) -> Objective:
+        """The objective the best fit minimises (its prior weighed by the data's variance
+        scale), e.g. to refit bootstrap campaigns or profile a parameter."""
+        prior = self.prior
+        if prior is not None and self.uncertainty is not None and np.isfinite(self.uncertainty.s2):
+            prior = prior.with_weight(np.sqrt(self.uncertainty.s2))
+        return Objective.create(self.data, self.params, self.names, piezo=self.piezo,
+                                z_bk_absolute=self.z_bk_absolute, prior=prior)
 
     @property
     def identified(self) -> tuple[str, ...]:
@@ -438,7 +448,7 @@ def identify(data: FitData, base: ParameterSet, opts: MultiStartOptions = MultiS
              checkpoint_dir=None, progress=None, profile: bool = False, band_samples: int = 200,
              z_bk_absolute: bool = False, stop_after: int | None = None,
              uncertainty: str = DEFAULT_METHOD, prior_width: float | None = DEFAULT_WIDTH,
-             n_draws: int = 400) -> FitResult:
+             n_draws: int = 400, n_boot: int = 40) -> FitResult:
     """Multi-start identification of ``names`` (default: the set's fitted parameters).
 
     With ``prior_width`` (default) every start minimises chi-square plus the weak prior of
@@ -450,7 +460,7 @@ def identify(data: FitData, base: ParameterSet, opts: MultiStartOptions = MultiS
     t_start = time.perf_counter()
     fit_names = tuple(base.fitted if names is None else names)
     prior = None if prior_width is None else default_prior(base, fit_names, prior_width)
-    if prior is None and uncertainty == "laplace-prior":
+    if prior is None and uncertainty in ("laplace-prior", "parametric-bootstrap", "mcmc"):
         raise GprmInputError("the laplace-prior uncertainty needs a prior (a prior width)",
                              field="--uncertainty")
     obj = Objective.create(data, base, fit_names, piezo=piezo, z_bk_absolute=z_bk_absolute,
@@ -471,9 +481,19 @@ def identify(data: FitData, base: ParameterSet, opts: MultiStartOptions = MultiS
         r, J = _data_jacobian(obj, x)
     chi2 = float(r @ r)
     eq7 = estimate("eq7", x, J, r, obj.dof, len(data.signals), prior, obj.names)
+    base_method = ("laplace-prior" if uncertainty in ("parametric-bootstrap", "mcmc")
+                   else uncertainty)
     unc = eq7 if uncertainty == "eq7" else estimate(
-        uncertainty, x, J, r, obj.dof, len(data.signals), prior, obj.names,
+        base_method, x, J, r, obj.dof, len(data.signals), prior, obj.names,
         n_draws=n_draws, seed=opts.seed)
+    t_b = time.perf_counter()
+    if uncertainty == "parametric-bootstrap":
+        from gprm.fit.bootstrap import bootstrap_uncertainty
+
+        unc = bootstrap_uncertainty(obj, x, unc, prior, uncertainty, n_boot=n_boot,
+                                    seed=opts.seed, lm=opts.lm, n_draws=n_draws)
+    elif uncertainty == "mcmc":
+        unc = from_mcmc(obj, x, unc, prior, seed=opts.seed, n_draws=n_draws)
     cov, msg = unc.covariance, unc.message
     lo, hi = obj.bounds_normalised()
     at_b = tuple(np.asarray(obj.names)[parameters_at_bounds(obj.to_normalised(x), lo, hi)]
@@ -481,7 +501,6 @@ def identify(data: FitData, base: ParameterSet, opts: MultiStartOptions = MultiS
     if at_b and cov is not None:
         msg = f"ok (parameters at a bound: {', '.join(at_b)}; their errors are not reliable)"
     params = base.with_values(**dict(zip(obj.names, map(float, x))))
-    t_b = time.perf_counter()
     bands = compute_bands(obj, x, cov, n_samples=band_samples, seed=opts.seed,
                           draws=unc.draws)
     profiles = ()

@@ -37,7 +37,7 @@ from scipy.stats import norm
 from gprm.fit.covariance import CovarianceError, covariance
 from gprm.fit.prior import Prior
 
-METHODS = ("eq7", "eq7-corr", "laplace-prior")
+METHODS = ("eq7", "eq7-corr", "laplace-prior", "parametric-bootstrap", "mcmc")
 DEFAULT_METHOD = "laplace-prior"
 #: posterior sd / prior sd below which a parameter counts as identified
 CONTRACTION = 0.3
@@ -163,3 +163,106 @@ def estimate(method: str, x: np.ndarray, J: np.ndarray, r: np.ndarray, dof: int,
     draws = prior.from_u(u[None] + Z) if n_draws > 0 else None
     return Uncertainty(method, names, 0.5 * (cov_x + cov_x.T), lo95, hi95, lo68, hi68,
                        identified, contraction, draws, s2, tau)
+
+
+def from_bootstrap(method: str, x: np.ndarray, refits: np.ndarray, laplace: Uncertainty,
+                   prior: Prior, *, n_draws: int = 400, seed: int = 0) -> Uncertainty:
+    """Bootstrap-corrected posterior (methods ``parametric-bootstrap``, ``bootstrap-runs``).
+
+    In the prior's coordinates u, with u^ the best fit and u_b the refits (B, P): the bias
+    b = mean(u_b) - u^ and the refits' standard deviations sd_b. The Laplace posterior
+    N(u^, C) is moved and rescaled to N(u^ - b, S C S), S = diag(sd_b / sd_laplace) on the
+    identified parameters (1 elsewhere): the basic bootstrap's centre and spread for what the
+    data determine, the posterior's correlations, and the posterior alone for what they do
+    not determine (the refits of a prior-dominated parameter barely move, so their spread
+    says nothing about it). Identified as in the Laplace posterior.
+    """
+    refits = np.asarray(refits, float)
+    ok = np.all(np.isfinite(refits), axis=1)
+    U = prior.to_u(refits[ok])
+    u = prior.to_u(np.asarray(x, float))
+    names = laplace.names
+    if U.shape[0] < 5:
+        return replace_method(laplace, method, f"only {U.shape[0]} usable refits; the "
+                              "Laplace posterior stands in")
+    bias = U.mean(axis=0) - u
+    sd_b = U.std(axis=0, ddof=1)
+    cov_u = laplace.covariance / np.outer(prior.dx_du(x), prior.dx_du(x))
+    sd_l = np.sqrt(np.clip(np.diag(cov_u), 1e-300, None))
+    s = np.where(laplace.identified, sd_b / sd_l, 1.0)
+    centre = u - bias
+    Cu = cov_u * np.outer(s, s)
+    sd = np.sqrt(np.diag(Cu))
+    z95, z68 = norm.ppf(0.975), norm.ppf(0.84)
+    D = prior.dx_du(prior.from_u(centre))
+    rng = np.random.default_rng([seed, 15])
+    w, V = np.linalg.eigh(0.5 * (Cu + Cu.T))
+    Z = rng.standard_normal((int(n_draws), len(names))) @ (V * np.sqrt(np.clip(w, 0, None))).T
+    cov_x = Cu * np.outer(D, D)
+    return Uncertainty(method, names, 0.5 * (cov_x + cov_x.T),
+                       prior.from_u(centre - z95 * sd), prior.from_u(centre + z95 * sd),
+                       prior.from_u(centre - z68 * sd), prior.from_u(centre + z68 * sd),
+                       laplace.identified, laplace.contraction,
+                       prior.from_u(centre[None] + Z) if n_draws > 0 else None,
+                       laplace.s2, laplace.tau)
+
+
+def replace_method(u: Uncertainty, method: str, message: str) -> Uncertainty:
+    from dataclasses import replace
+
+    return replace(u, method=method, message=message)
+
+
+def mcmc_chain(log_post, u0: np.ndarray, cov_u: np.ndarray, *, n_steps: int = 600,
+               burn: int = 200, n_walkers: int | None = None, seed: int = 0) -> np.ndarray:
+    """Posterior sample (n, P) in u by emcee's affine-invariant ensemble sampler.
+
+    ``log_post(U)`` takes walkers (W, P) and returns (W,) log densities (-inf outside the
+    support). The walkers start drawn from N(u0, cov_u) (the Laplace approximation), so that
+    they span the posterior's undetermined directions from the first step; the first ``burn``
+    steps are discarded."""
+    import emcee
+
+    P = u0.size
+    W = int(n_walkers) if n_walkers else 2 * P + 2
+    rng = np.random.default_rng([seed, 16])
+    w, V = np.linalg.eigh(0.5 * (cov_u + cov_u.T))
+    L = V * np.sqrt(np.clip(w, 0, None))
+    p0 = u0[None] + rng.standard_normal((W, P)) @ L.T
+    sampler = emcee.EnsembleSampler(W, P, log_post, vectorize=True)
+    sampler._random = np.random.RandomState(int(rng.integers(2 ** 31)))
+    sampler.run_mcmc(p0, int(n_steps), progress=False)
+    return sampler.get_chain(discard=int(burn), flat=True)
+
+
+def from_mcmc(obj, x: np.ndarray, laplace: Uncertainty, prior: Prior, *, n_steps: int = 600,
+              burn: int = 200, seed: int = 0, n_draws: int = 400) -> Uncertainty:
+    """The ``mcmc`` uncertainty: a posterior sample of the prior-regularised fit, the physical
+    bounds as the prior's support, the likelihood scaled by the data's variance scale s2
+    (as the Laplace posterior). Intervals are the sample's quantiles; identified as in the
+    Laplace posterior. ``obj``: the fit's objective (prior rows weighted by sqrt(s2))."""
+    s2 = laplace.s2
+    lo, hi = obj.bounds()
+    u = prior.to_u(np.asarray(x, float))
+    D = prior.dx_du(x)
+    cov_u = laplace.covariance / np.outer(D, D)
+
+    def log_post(U):
+        X = prior.from_u(U)
+        inside = np.all((X > lo) & (X < hi) & np.isfinite(X), axis=1)
+        out = np.full(U.shape[0], -np.inf)
+        if inside.any():
+            r = obj.residuals(obj.to_normalised(X[inside]))
+            c = np.sum(r * r, axis=1)
+            out[inside] = np.where(np.isfinite(c), -0.5 * c / s2, -np.inf)
+        return out
+
+    chain = mcmc_chain(log_post, u, cov_u, n_steps=n_steps, burn=burn, seed=seed)
+    X = prior.from_u(chain)
+    q = np.percentile(X, [2.5, 97.5, 16, 84], axis=0)
+    rng = np.random.default_rng([seed, 17])
+    draws = X[rng.integers(0, len(X), int(n_draws))] if n_draws > 0 else None
+    cov = np.cov(X.T)
+    return Uncertainty("mcmc", laplace.names, cov, q[0], q[1], q[2], q[3], laplace.identified,
+                       laplace.contraction, draws, s2, laplace.tau,
+                       f"ok ({len(chain)} samples after {burn} burn-in steps)")

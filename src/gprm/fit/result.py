@@ -87,6 +87,15 @@ class FitResult:
     eq7: Uncertainty | None = None
     prior: Prior | None = None
 
+    def combinations(self) -> list[dict]:
+        """What the data determine among the not-identified parameters
+        (:func:`gprm.fit.uncertainty.identifiable_combinations`)."""
+        if self.uncertainty is None or self.prior is None:
+            return []
+        from gprm.fit.uncertainty import identifiable_combinations
+
+        return identifiable_combinations(self.uncertainty, self.prior, self.x)
+
     def objective(self) -> Objective:
         """The objective the best fit minimises (its prior weighed by the data's variance
         scale), e.g. to refit bootstrap campaigns or profile a parameter."""
@@ -197,6 +206,7 @@ class FitResult:
             "uncertainty": self._uncertainty_json(),
             "identified": list(self.identified),
             "not_determined": [n for n in self.names if n not in self.identified],
+            "identifiable_combinations": self.combinations(),
             "parameters_at_bounds": list(self.at_bounds),
             "correlation": {"names": list(self.names),
                             "matrix": None if corr is None else corr.tolist()},

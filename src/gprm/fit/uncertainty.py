@@ -266,3 +266,51 @@ def from_mcmc(obj, x: np.ndarray, laplace: Uncertainty, prior: Prior, *, n_steps
     return Uncertainty("mcmc", laplace.names, cov, q[0], q[1], q[2], q[3], laplace.identified,
                        laplace.contraction, draws, s2, laplace.tau,
                        f"ok ({len(chain)} samples after {burn} burn-in steps)")
+
+
+def identifiable_combinations(unc: Uncertainty, prior: Prior, x: np.ndarray, *,
+                              max_terms: int = 4, min_weight: float = 0.05) -> list[dict]:
+    """Combinations of the parameters that are *not* identified one by one but that the data
+    do determine (e.g. the y-plane springs' total stiffness).
+
+    In the prior's coordinates u, restricted to the not-identified parameters, the
+    generalised eigenproblem C v = lambda Pr v (C the posterior covariance, Pr the prior's)
+    gives directions whose posterior spread is sqrt(lambda) of the prior's; those below
+    :data:`CONTRACTION` are determined. Each is reported as the product prod x_k^{v_k}
+    (largest |v_k| = 1, terms below ``min_weight`` dropped) with its best value and 95 %
+    interval (the posterior's, along v). Empty where all parameters are identified or the
+    method has no covariance."""
+    if unc.covariance is None:
+        return []
+    idx = np.nonzero(~np.asarray(unc.identified))[0]
+    if idx.size == 0:
+        return []
+    x = np.asarray(x, float)
+    D = prior.dx_du(x)
+    Cu = (unc.covariance / np.outer(D, D))[np.ix_(idx, idx)]
+    sp = prior.sd[idx]
+    A = Cu / np.outer(sp, sp)                      # covariance relative to the prior's
+    w, V = np.linalg.eigh(0.5 * (A + A.T))
+    u = prior.to_u(x)[idx]
+    names = [unc.names[k] for k in idx]
+    out = []
+    for lam, v in zip(w, V.T):
+        if not lam < CONTRACTION ** 2:
+            continue
+        v = v / sp                                  # direction in u
+        v = v / v[np.argmax(np.abs(v))]
+        keep = np.abs(v) >= min_weight
+        sd = float(np.sqrt(v @ Cu @ v))
+        c = float(v @ u)
+        log = bool(np.all(prior.log[idx][keep]))
+        terms = {names[k]: round(float(v[k]), 3) for k in np.nonzero(keep)[0]}
+        if len(terms) > max_terms:
+            top = np.argsort(-np.abs(v))[:max_terms]
+            terms = {names[k]: round(float(v[k]), 3) for k in top}
+        f = np.exp if log else (lambda t: t)
+        z = norm.ppf(0.975)
+        out.append({"terms": terms, "form": "product of powers" if log else "linear",
+                    "value": float(f(c)), "lower": float(f(c - z * sd)),
+                    "upper": float(f(c + z * sd)),
+                    "spread_vs_prior": float(np.sqrt(max(lam, 0.0)))})
+    return out

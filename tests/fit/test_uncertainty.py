@@ -59,12 +59,15 @@ def test_bootstrap_correction_moves_identified_and_keeps_undetermined():
     # refits biased +2 % in m2 (spread 0.5 %), k_Cy barely moving (prior-dominated)
     refits = np.column_stack([x[0] * np.exp(0.02 + 0.005 * rng.standard_normal(400)),
                               x[1] * np.exp(0.001 * rng.standard_normal(400))])
-    u = from_bootstrap("parametric-bootstrap", x, refits, lap, prior, n_draws=0)
-    centre = np.sqrt(u.lower95 * u.upper95)                  # log-symmetric intervals
-    assert centre[0] == pytest.approx(x[0] * np.exp(-0.02), rel=1e-3)
-    assert np.log(u.upper95[0] / u.lower95[0]) == pytest.approx(2 * 1.96 * 0.005, rel=0.1)
-    # the undetermined one keeps the posterior's width, not the refits' tiny spread
-    assert np.log(u.upper95[1] / u.lower95[1]) == pytest.approx(2 * 1.96 * 1.2, rel=0.01)
+    for method, width0 in (("bootstrap-runs", 0.005), ("parametric-bootstrap", 0.01)):
+        u = from_bootstrap(method, x, refits, lap, prior, n_draws=0)
+        centre = np.sqrt(u.lower95 * u.upper95)                  # log-symmetric intervals
+        assert centre[0] == pytest.approx(x[0] * np.exp(-0.02), rel=1e-3)
+        # runs: the refits' spread; parametric: the posterior's
+        assert np.log(u.upper95[0] / u.lower95[0]) == pytest.approx(2 * 1.96 * width0,
+                                                                     rel=0.1)
+        # the undetermined one keeps the posterior's width, not the refits' tiny spread
+        assert np.log(u.upper95[1] / u.lower95[1]) == pytest.approx(2 * 1.96 * 1.2, rel=0.01)
 
 
 def test_prior_coordinates_round_trip_and_interval():

@@ -321,3 +321,7 @@ def identifiable_combinations(unc: Uncertainty, prior: Prior, x: np.ndarray, *,
                     "upper": float(f(c + z * sd)),
                     "spread_vs_prior": float(np.sqrt(max(lam, 0.0)))})
     return out
+
+
+#: the coverage study's headline for the report (benchmarks/bench_coverage.py; docs/fitting.md)
+COVERAGE_HEADLINE = "Coverage of the default method not yet measured"

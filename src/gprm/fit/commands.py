@@ -52,10 +52,12 @@ def register(app: typer.Typer, synth_app: typer.Typer) -> None:
         profile: bool = typer.Option(False, "--profile", help="also compute profile "
                                      "likelihoods of every fitted parameter"),
         uncertainty: str = typer.Option("laplace-prior", "--uncertainty", help="uncertainty "
-                                        "method: laplace-prior (default; posterior of the "
-                                        "prior-regularised fit), eq7-corr (Eq. 7 with the "
-                                        "residuals' time correlation) or eq7 (the paper's); "
-                                        "docs/fitting.md compares their coverage"),
+                                        "method: parametric-bootstrap, laplace-prior "
+                                        "(posterior of the prior-regularised fit), mcmc, "
+                                        "eq7-corr (Eq. 7 with the residuals' time "
+                                        "correlation) or eq7 (the paper's); docs/fitting.md "
+                                        "compares their coverage"),
+        boot: int = typer.Option(30, "--boot", help="campaigns of the parametric bootstrap"),
         prior_width: float = typer.Option(1.25, "--prior-width", help="width of the weak "
                                           "prior around the initial values (log units for "
                                           "positive parameters; 0: none, the paper's "
@@ -88,9 +90,11 @@ def register(app: typer.Typer, synth_app: typer.Typer) -> None:
                                  field="--uncertainty")
         if not (prior_width >= 0 and np.isfinite(prior_width)):
             raise GprmInputError(f"must be >= 0, got {prior_width}", field="--prior-width")
-        if prior_width == 0 and uncertainty == "laplace-prior":
+        if prior_width == 0 and uncertainty not in ("eq7", "eq7-corr"):
             raise GprmInputError("--prior-width 0 (no prior) needs --uncertainty eq7 or "
                                  "eq7-corr", field="--prior-width")
+        if boot < 5:
+            raise GprmInputError(f"must be at least 5, got {boot}", field="--boot")
         if sigma not in ("sem", "std"):
             raise GprmInputError(f"must be sem or std, got {sigma!r}", field="--sigma")
         if starts < 1:
@@ -127,7 +131,7 @@ def register(app: typer.Typer, synth_app: typer.Typer) -> None:
                            scheduler=scheduler, checkpoint_dir=ckpt, progress=progress,
                            profile=profile, z_bk_absolute=z_bk_absolute,
                            band_samples=band_samples, uncertainty=uncertainty,
-                           prior_width=prior_width or None)
+                           prior_width=prior_width or None, n_boot=boot)
         side = res.write(out)
         shutil.rmtree(ckpt, ignore_errors=True)
         typer.echo(res.summary())

@@ -20,7 +20,7 @@ def test_against_effective_mass_impulse():
     pb = batch([ps])
     m = body_motion(pb, T)
     e = 0.7
-    out = tm_velocity_vs_time(m, ImpactGeometry(restitution=e))
+    out = tm_velocity_vs_time(m, ImpactGeometry(restitution=e, impact_model="planar"))
     pts = named_points(pb)
     a = ps["indent_angle"]
     M = ps["m2"] + ps["m3"] + ps["m4"]
@@ -61,8 +61,75 @@ def _symmetric_set():
     return ps.with_values(v2=0.0, g2=0.0, gamma=0.0, rho=0.0, dist_y=ps["dist_x"])
 
 
-def test_axisymmetric_mechanism_gives_identical_planes():
-    out = tm_velocity_vs_time(body_motion(batch([_symmetric_set()]), T))
+def test_3d_against_effective_mass_impulse():
+    """One-contact 3D model, frictionless: the corner M = G + (dist_x, dist_y, dist_z) strikes
+    the face with normal n ∝ (tan a, tan a, 1); P = (1 + e) m_eff u_n with
+    1/m_eff = 1/M + |rho_A x n|²/J2 + 1/m + |rho_B x n|²/I (isotropic inertias), the TM moves
+    with P n / m and spins with rho_B x P n / I. Both v_z axes are the one v_z."""
+    ps = paper()
+    pb = batch([ps])
+    m = body_motion(pb, T)
+    e = 0.8
+    out = tm_velocity_vs_time(m, ImpactGeometry(restitution=e, friction=0.0))
+    pts = named_points(pb)
+    a = ps["indent_angle"]
+    M = ps["m2"] + ps["m3"] + ps["m4"]
+    mt, s = ps["m_tm"], ps["s_tm"]
+    It = mt * s ** 2 / 6
+    H = s / 2 - 3e-3
+    n = np.array([np.tan(a), np.tan(a), 1.0])
+    n /= np.linalg.norm(n)
+    corner = pts["com"].r[0] + np.array([ps["dist_x"], ps["dist_y"], ps["dist_z"]])
+    P, vP = point_motion(m, corner)
+    G, _ = point_motion(m, pts["assembly_com"])
+    P, vP, G = P[0], vP[0], G[0]
+    C = np.array([ps["v2"], ps["g2"], ps["h2"] + ps["dist_z"] + H])
+    un = n @ vP
+    cA = np.cross((P - G).T, n)
+    cB = np.cross((P - C[:, None]).T, n)
+    inv = 1 / M + np.sum(cA ** 2, 1) / ps["J2"] + 1 / mt + np.sum(cB ** 2, 1) / It
+    Pimp = (1 + e) * un / inv
+    ok = un > 0
+    assert ok.sum() > 20
+    np.testing.assert_array_equal(out["approaching_xz"][0], ok)
+    for k, ax in ((0, "vx"), (1, "vy"), (2, "vz_xz"), (2, "vz_yz")):
+        np.testing.assert_allclose(out[ax][0][ok], (Pimp / mt * n[k])[ok], rtol=1e-9)
+    for k, ax in ((0, "wx"), (1, "wy"), (2, "wz")):
+        np.testing.assert_allclose(out[ax][0][ok], (Pimp * cB[:, k] / It)[ok], rtol=1e-9,
+                                   atol=1e-15)
+    assert np.all(np.isnan(out["vx"][0][~ok]))
+
+
+def test_3d_friction_changes_the_impulse_direction_not_momentum_balance():
+    """With Coulomb friction the impulse leaves the normal (v no longer along n); the TM still
+    takes one impulse J at the contact: m v = J and I w = rho_B x J, i.e. I w = rho_B x m v."""
+    ps = paper()
+    pb = batch([ps])
+    m = body_motion(pb, T)
+    f0 = tm_velocity_vs_time(m, ImpactGeometry(friction=0.0))
+    f1 = tm_velocity_vs_time(m, ImpactGeometry(friction=0.3))
+    ok = f0["approaching_xz"][0] & f1["approaching_xz"][0]
+    assert ok.sum() > 20
+    r0 = f0["vz_xz"][0][ok] / f0["vx"][0][ok]
+    r1 = f1["vz_xz"][0][ok] / f1["vx"][0][ok]
+    a = ps["indent_angle"]
+    np.testing.assert_allclose(r0, 1 / np.tan(a), rtol=1e-9)     # frictionless: along n
+    assert np.max(np.abs(r1 - r0)) > 0.05                          # friction: it is not
+    pts = named_points(pb)
+    corner = pts["com"].r[0] + np.array([ps["dist_x"], ps["dist_y"], ps["dist_z"]])
+    P, _ = point_motion(m, corner)
+    C = np.array([ps["v2"], ps["g2"], ps["h2"] + ps["dist_z"] + ps["s_tm"] / 2 - 3e-3])
+    rho = (P[0] - C[:, None]).T[ok]
+    v = np.stack([f1["vx"][0], f1["vy"][0], f1["vz_xz"][0]], 1)[ok]
+    w = np.stack([f1["wx"][0], f1["wy"][0], f1["wz"][0]], 1)[ok]
+    It = ps["m_tm"] * ps["s_tm"] ** 2 / 6
+    np.testing.assert_allclose(It * w, np.cross(rho, ps["m_tm"] * v), rtol=1e-9, atol=1e-18)
+
+
+@pytest.mark.parametrize("model", ["3d", "planar"])
+def test_axisymmetric_mechanism_gives_identical_planes(model):
+    out = tm_velocity_vs_time(body_motion(batch([_symmetric_set()]), T),
+                              ImpactGeometry(impact_model=model))
     ok = out["approaching_xz"][0]
     assert ok.sum() > 20
     np.testing.assert_array_equal(ok, out["approaching_yz"][0])
@@ -71,13 +138,15 @@ def test_axisymmetric_mechanism_gives_identical_planes():
     np.testing.assert_allclose(out["wy"][0][ok], -out["wx"][0][ok], rtol=1e-9)
 
 
-def test_mirror_x_flips_x_plane():
+@pytest.mark.parametrize("model", ["3d", "planar"])
+def test_mirror_x_flips_x_plane(model):
     """x -> -x (v2, gamma, dist_x change sign): vx and wy flip sign, vz and the y-z plane
     stay."""
     ps = paper()
     mir = ps.with_values(v2=-ps["v2"], gamma=-ps["gamma"], dist_x=-ps["dist_x"])
-    a = tm_velocity_vs_time(body_motion(batch([ps]), T))
-    b = tm_velocity_vs_time(body_motion(batch([mir]), T))
+    g = ImpactGeometry(impact_model=model)
+    a = tm_velocity_vs_time(body_motion(batch([ps]), T), g)
+    b = tm_velocity_vs_time(body_motion(batch([mir]), T), g)
     for k in ("approaching_xz", "approaching_yz"):
         np.testing.assert_array_equal(a[k], b[k])
     ok = a["approaching_xz"][0]
@@ -112,3 +181,7 @@ def test_bad_geometry_option():
     m = body_motion(batch([paper()]), T[:5])
     with pytest.raises(GprmInputError):
         tm_velocity_vs_time(m, ImpactGeometry(plunger_velocity="nonsense"))
+    with pytest.raises(GprmInputError, match="3d"):
+        tm_velocity_vs_time(m, ImpactGeometry(impact_model="2d"))
+    with pytest.raises(GprmInputError):
+        tm_velocity_vs_time(m, ImpactGeometry(friction=-0.1))

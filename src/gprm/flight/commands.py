@@ -54,7 +54,11 @@ def register(app: typer.Typer, synth_app: typer.Typer) -> None:
         att_noise: float = typer.Option(1e-6, "--att-noise", help="attitude noise std, rad"),
         no_spread: bool = typer.Option(False, "--no-spread",
                                        help="truth from the best fit and nominal geometry"),
-        z_from: str = typer.Option("sum", "--z-from", help="TM v_z: sum, xz or yz"),
+        z_from: str = typer.Option("sum", "--z-from",
+                                   help="TM v_z with --truth-model planar: sum, xz or yz"),
+        truth_model: str = typer.Option("3d", "--truth-model",
+                                        help="impact of the truth: 3d (one contact, "
+                                             "restitution and friction) or planar (paper)"),
     ):
         """Synthetic in-flight releases with known impact times (telemetry NetCDF)."""
         from gprm._io import write_netcdf_atomic
@@ -69,11 +73,14 @@ def register(app: typer.Typer, synth_app: typer.Typer) -> None:
         ds = synth_telemetry(m, SynthOptions(n_releases=releases, seed=seed, rate=rate,
                                              post=post, pos_noise=pos_noise,
                                              att_noise=att_noise, truth_spread=not no_spread,
-                                             z_from=z_from))
+                                             z_from=z_from, truth_model=truth_model))
         write_netcdf_atomic(ds, out)
         tt = ds["truth_impact_time"].values * 1e3
+        note = ("" if getattr(m, "has_uncertainty", True) or no_spread else
+                "; the fit has no usable covariance: truth parameters are the best fit "
+                "(geometry still drawn)")
         typer.echo(f"wrote {out}: {releases} releases, impact times {tt.min():.4f}-"
-                   f"{tt.max():.4f} ms")
+                   f"{tt.max():.4f} ms ({truth_model} impact truth){note}")
 
     @app.command("impact")
     @one_line_errors
@@ -91,6 +98,9 @@ def register(app: typer.Typer, synth_app: typer.Typer) -> None:
                                                    help="line fit over this many s after "
                                                         "the release (default: all)"),
         piezo: Optional[int] = typer.Option(None, "--piezo", help="driven piezo (default: fit's)"),
+        impact_model: str = typer.Option("3d", "--impact-model",
+                                         help="3d (one contact, consistent with a 3D truth) "
+                                              "or planar (the paper's two planes)"),
         multi: bool = typer.Option(False, "--multi",
                                    help="also integrate plunger and TM with contact detection "
                                         "at each estimated impact (second impacts)"),
@@ -106,7 +116,8 @@ def register(app: typer.Typer, synth_app: typer.Typer) -> None:
         m = _model(fit, piezo)
         tel = load_telemetry(telemetry)
         opts = AnalysisOptions(alpha=alpha, n_samples=samples, seed=seed,
-                               window=_window(window), fit_window=fit_window)
+                               window=_window(window), fit_window=fit_window,
+                               impact_model=impact_model)
         doc, curves = analyze(m, tel, opts)
         if multi:
             from gprm.flight.multi import multi_impact_report
@@ -121,6 +132,18 @@ def register(app: typer.Typer, synth_app: typer.Typer) -> None:
         verdict = ("no Tukey test" if tk.get("q_critical") is None else
                    "all pairs compatible" if tk.get("all_compatible")
                    else f"{sum(p['reject'] for p in tk['pairs'])} pair(s) rejected")
+        js = doc["joint"]
+        jv = ("joint chi2: no test" if js["all_consistent"] is None else
+              "joint chi2: all consistent" if js["all_consistent"]
+              else f"joint chi2 rejects {', '.join(js['rejected'])}")
         typer.echo(f"wrote {out} (+ {side.name}): {len(doc['releases'])} releases, "
-                   f"{n_ok} impact times, {len(doc['missing'])} missing; {verdict} at "
-                   f"alpha={alpha}")
+                   f"{n_ok} impact times, {len(doc['missing'])} missing; Tukey: {verdict}; "
+                   f"{jv} (alpha={alpha}; {doc['impact_model']} impact model)")
+        if not getattr(m, "has_uncertainty", True):
+            typer.echo("note: the fit has no usable covariance: best fit only; error bars "
+                       "carry the impact geometry's uncertainty and the telemetry's only")
+        if "truth" in doc:
+            s = doc["truth"]["summary"]
+            typer.echo(f"truth (synthetic): {s['found']}/{s['impact_times']} found, "
+                       f"{s['within_2sigma']} within 2 sigma; joint 95 % interval contains "
+                       f"the truth in {s['joint_truth_in_ci95']}/{s['joint_releases']}")

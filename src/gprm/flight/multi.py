@@ -286,14 +286,17 @@ def simulate_contacts(model, t1: float, *, t_end: float | None = None,
 
 def multi_impact_report(model, doc: dict, *, geometry=None) -> dict:
     """For each release of an impact JSON document: simulate from the release's estimated
-    impact time (mean over its axes with a crossing) and report the contacts found."""
+    impact time (its joint estimate, else the mean over its axes with a crossing) and report
+    the contacts found."""
     out = []
     for r in doc["releases"]:
         ts = [v["value"] for v in r["impact_time"].values() if v["value"] is not None]
-        if not ts:
+        tj = (r.get("joint") or {}).get("value")
+        if tj is None and not ts:
             out.append({"id": r["id"], "t1": None, "reason": "no estimated impact time"})
             continue
-        res = simulate_contacts(model, float(np.mean(ts)), geometry=geometry)
+        res = simulate_contacts(model, float(tj if tj is not None else np.mean(ts)),
+                                geometry=geometry)
         res["id"] = r["id"]
         out.append(res)
     return {"model": "plunger (linear model, two-way impulse coupling) + free TM, contact "

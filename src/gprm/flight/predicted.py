@@ -5,6 +5,9 @@ For every time t of a window, the plunger assembly's state at t (from the model'
 of the contact line (M_xz or M_yz) on an indent face; the planar impact of Appendix B
 (:func:`gprm.flight.impact.planar_impact`) gives the TM velocity after the impact. The x–z plane
 gives v_x, v_z, ω_y, the y–z plane v_y, v_z, ω_x: the six axes ``vx, vz_xz, wy, vy, vz_yz, wx``.
+Since issue 14 the default is the one-contact 3D impact instead (:class:`ImpactGeometry`
+``impact_model``; docs/flight.md §2), whose six axes are the TM's own components (both v_z
+axes the one v_z).
 
 Bodies (MODEL.md):
 
@@ -40,7 +43,13 @@ PLANE_AXES = {"xz": ("vx", "vz_xz", "wy"), "yz": ("vy", "vz_yz", "wx")}
 @dataclass(frozen=True)
 class ImpactGeometry:
     """Impact geometry and model options (SI). ``None`` values come from the parameters
-    (``indent_angle`` registry value, ``tm_com_height`` = s_tm/2 − ``indent_depth``)."""
+    (``indent_angle`` registry value, ``tm_com_height`` = s_tm/2 − ``indent_depth``).
+
+    ``impact_model``: ``"3d"`` (default) one contact of the plunger tip corner on the indent
+    face, one impulse, restitution and Coulomb friction ``friction`` (nominal 0.1, an
+    assumption; :func:`_tm_velocity_3d`); ``"planar"`` the paper's two independent planar
+    impacts (Appendix B) at M_xz and M_yz (frictionless). ``contact_offset_3d`` moves the 3D
+    contact point, ``contact_offset_xz``/``_yz`` the planar ones."""
 
     indent_angle: float | None = None
     indent_depth: float = 3.0e-3
@@ -50,6 +59,9 @@ class ImpactGeometry:
     restitution: float = 1.0
     plunger_inertia: str = "J2"
     plunger_velocity: str = "plunger"
+    impact_model: str = "3d"
+    friction: float = 0.1
+    contact_offset_3d: tuple[float, float, float] = (0.0, 0.0, 0.0)
 
     def resolved(self, pb) -> "ImpactGeometry":
         ang = float(np.asarray(pb["indent_angle"]).ravel()[0]) if self.indent_angle is None \
@@ -63,12 +75,14 @@ class ImpactGeometry:
 class GeometryUncertainty:
     """Standard deviations of the impact geometry (defaults: our assumptions, docs/flight.md):
     indent angle 2°, each contact-point offset component 0.5 mm, TM CoM height 0.5 mm,
-    restitution 0 (fixed at its value)."""
+    restitution 0 (fixed at its value), friction coefficient 0.05 about the nominal 0.1 of
+    :class:`ImpactGeometry` (clipped at 0; 3D model only)."""
 
     indent_angle: float = np.deg2rad(2.0)
     contact_offset: float = 0.5e-3
     tm_com_height: float = 0.5e-3
     restitution: float = 0.0
+    friction: float = 0.05
 
 
 def tm_velocity_vs_time(motion, geometry: ImpactGeometry | list | None = None) -> dict:
@@ -87,6 +101,11 @@ def tm_velocity_vs_time(motion, geometry: ImpactGeometry | list | None = None) -
     geoms = geometry if isinstance(geometry, (list, tuple)) else [geometry or ImpactGeometry()] * B
     if len(geoms) != B:
         raise GprmInputError(f"{len(geoms)} geometries for {B} parameter sets", field="geometry")
+    kinds = {g.impact_model for g in geoms}
+    if len(kinds) != 1 or not kinds <= {"3d", "planar"}:
+        raise GprmInputError("must be one of '3d', 'planar' for all sets", field="impact_model")
+    if kinds == {"3d"}:
+        return _tm_velocity_3d(motion, geoms)
     geoms = [g.resolved({k: v[i:i + 1] for k, v in pb.items()}) for i, g in enumerate(geoms)]
     alpha = np.array([g.indent_angle for g in geoms])
     H = np.array([g.tm_com_height for g in geoms])
@@ -166,10 +185,94 @@ def tm_velocity_vs_time(motion, geometry: ImpactGeometry | list | None = None) -
     return out
 
 
+def _tm_velocity_3d(motion, geoms) -> dict:
+    """The one-contact 3D impact (:class:`ImpactGeometry` ``impact_model="3d"``).
+
+    Contact point: the plunger tip corner M = C_p + (dist_x, dist_y, dist_z) +
+    ``contact_offset_3d``, C_p the plunger CoM (its projections on the x–z and y–z planes are
+    M_xz and M_yz). Normal (impulse direction on the TM), fixed with the TM: n ∝ (sgn(dist_x) tan α, sgn(dist_y) tan α, 1), the face whose
+    traces in the two planes are the planar indent lines. Plunger: m2 + m3 + m4 with the
+    isotropic inertia J2·1 about the assembly CoM (``plunger_inertia="assembly"`` adds the spacer
+    and tip point masses' parallel-axis tensor), velocity field of the plunger body. TM: the cube
+    at rest. :func:`gprm.flight.impact.impact_3d` with restitution e and Coulomb friction μ.
+
+    With one impulse J at ρ from the TM's CoM, v = J/m and ω = ρ × J / I (the cube's inertia is
+    isotropic), so the in-plane quantities of each plane are the 3D components: both planes' v_z
+    axes carry the one v_z, ω_y (x–z) and ω_x (y–z) are the 3D components (docs/flight.md §2).
+    """
+    from gprm.flight.impact import impact_3d
+    from gprm.predict.kinematics import named_points, point_motion
+
+    pb = motion.params
+    B, T = motion.size, motion.time.size
+    geoms = [g.resolved({k: v[i:i + 1] for k, v in pb.items()}) for i, g in enumerate(geoms)]
+    if any(g.plunger_inertia not in ("J2", "assembly") for g in geoms):
+        raise GprmInputError("must be 'J2' or 'assembly'", field="plunger_inertia")
+    if any(g.plunger_velocity not in ("plunger", "assembly") for g in geoms):
+        raise GprmInputError("must be one of 'plunger', 'assembly' for all sets",
+                             field="plunger_velocity")
+    alpha = np.array([g.indent_angle for g in geoms])
+    H = np.array([g.tm_com_height for g in geoms])
+    e = np.array([g.restitution for g in geoms])
+    mu = np.array([g.friction for g in geoms])
+    if np.any(mu < 0) or np.any((e < 0) | (e > 1)):
+        raise GprmInputError("friction must be >= 0 and restitution in [0, 1]",
+                             field="friction")
+    off = np.array([g.contact_offset_3d for g in geoms])
+    pts = named_points(pb)
+    asm = pts["assembly_com"]
+    G, vG = point_motion(motion, asm)                       # (B, 3, T)
+    w = np.moveaxis(motion.omega, 1, -1)                     # (B, T, 3)
+    Mp = pb["m2"] + pb["m3"] + pb["m4"]
+    eye = np.eye(3)
+    IA = np.broadcast_to(pb["J2"], (B,)).astype(float)[:, None, None] * eye   # (B, 3, 3)
+    use = np.array([g.plunger_inertia == "assembly" for g in geoms])
+    if use.any():
+        from gprm.predict.kinematics import static_position
+        gA = static_position(motion, asm)
+        for m, nm in ((pb["m2"], "com"), (pb["m3"], "spacer"), (pb["m4"], "tip_edge")):
+            d = static_position(motion, pts[nm]) - gA       # (B, 3)
+            par = m[:, None, None] * (np.sum(d * d, -1)[:, None, None] * eye
+                                      - d[:, :, None] * d[:, None, :])
+            IA = np.where(use[:, None, None], IA + par, IA)
+    m_tm, s_tm = pb["m_tm"], pb["s_tm"]
+    I_tm = (m_tm * s_tm ** 2 / 6.0)[:, None, None] * eye
+    com0 = pts["com"].r
+    dist = np.stack([np.broadcast_to(pb[k], (B,)) for k in ("dist_x", "dist_y", "dist_z")], -1)
+    r_c = com0 + dist + off                                  # body coordinates of the corner
+    P, vP = point_motion(motion, r_c)                        # (B, 3, T)
+    C_tm = np.stack([com0[:, 0], com0[:, 1], pts["M_xz"].r[:, 2] + H], -1)
+    sx = np.sign(dist[:, 0])
+    sy = np.sign(dist[:, 1])
+    sx, sy = np.where(sx == 0, 1.0, sx), np.where(sy == 0, 1.0, sy)
+    n = np.stack([sx * np.tan(alpha), sy * np.tan(alpha), np.ones(B)], -1)
+    n = n / np.linalg.norm(n, axis=-1, keepdims=True)
+    rhoA = np.moveaxis(P - G, 1, -1)                         # (B, T, 3)
+    if geoms[0].plunger_velocity == "plunger":
+        vA = np.moveaxis(vP, 1, -1) - np.cross(w, rhoA)
+    else:
+        vA = np.moveaxis(vG, 1, -1)
+    rhoB = np.moveaxis(P, 1, -1) - C_tm[:, None, :]
+    zero3 = np.zeros((B, T, 3))
+    res = impact_3d(Mp[:, None], IA[:, None], rhoA, vA, w, m_tm[:, None], I_tm[:, None],
+                    rhoB, zero3, zero3, n[:, None, :], e[:, None], mu[:, None])
+    un = np.sum(res.u_before * n[:, None, :], axis=-1)
+    ok = (un < 0) & (res.Jn > 0) & motion.ok[:, None]
+    vB = np.where(ok[..., None], res.vB, np.nan)
+    wB = np.where(ok[..., None], res.wB, np.nan)
+    out = {"vx": vB[..., 0], "vy": vB[..., 1], "vz_xz": vB[..., 2], "vz_yz": vB[..., 2].copy(),
+           "wx": wB[..., 0], "wy": wB[..., 1], "wz": wB[..., 2],
+           "approaching_xz": ok, "approaching_yz": ok.copy(),
+           "impulse_xz": np.where(ok, res.Jn, np.nan), "impulse_yz": np.where(ok, res.Jn, np.nan),
+           "mode": np.where(ok, res.mode, -1)}
+    return out
+
+
 def sample_geometries(geometry: ImpactGeometry, unc: GeometryUncertainty, n: int, seed: int,
                       pb) -> list[ImpactGeometry]:
     """``n`` geometries drawn from independent normals about ``geometry`` (resolved with ``pb``).
-    The indent angle is kept in (0, 90°) and the restitution in [0, 1] by clipping."""
+    The indent angle is kept in (0, 90°), the restitution in [0, 1] and the friction
+    coefficient >= 0 by clipping."""
     g0 = geometry.resolved(pb)
     rng = np.random.default_rng(seed)
     out = []
@@ -180,8 +283,10 @@ def sample_geometries(geometry: ImpactGeometry, unc: GeometryUncertainty, n: int
         oyz = tuple(np.asarray(g0.contact_offset_yz) + unc.contact_offset * rng.standard_normal(3))
         h = g0.tm_com_height + unc.tm_com_height * rng.standard_normal()
         e = float(np.clip(g0.restitution + unc.restitution * rng.standard_normal(), 0.0, 1.0))
+        o3 = tuple(np.asarray(g0.contact_offset_3d) + unc.contact_offset * rng.standard_normal(3))
+        mu = float(max(g0.friction + unc.friction * rng.standard_normal(), 0.0))
         out.append(replace(g0, indent_angle=a, contact_offset_xz=oxz, contact_offset_yz=oyz,
-                           tm_com_height=h, restitution=e))
+                           tm_com_height=h, restitution=e, contact_offset_3d=o3, friction=mu))
     return out
 
 
@@ -193,7 +298,9 @@ class VelocityCurves:
     best-fit parameters and nominal geometry; ``sigma_fit``, ``sigma_geometry`` (T,) standard
     deviations over the parameter samples (fit covariance) and the geometry samples;
     ``sigma`` their quadrature sum; ``lo``, ``hi`` the 2.5 and 97.5 % points of the joint
-    samples (both sources drawn together). NaN where no impact is possible.
+    samples (both sources drawn together), ``samples`` those joint draws themselves (axis ->
+    (n_samples, T)), from which the impact times' spread and covariance are taken.
+    NaN where no impact is possible.
     """
 
     time: np.ndarray
@@ -208,6 +315,7 @@ class VelocityCurves:
     n_samples: int
     seed: int
     meta: dict = field(default_factory=dict)
+    samples: dict | None = None  # axis -> (n_samples, T) joint draws (impact-time spread)
 
 
 def _nanstd(a):
@@ -286,4 +394,7 @@ def velocity_curves(model, *, window=None, n_times: int = 401, n_samples: int = 
         approaching={p: nom[f"approaching_{p}"][0] for p in PLANES}, plausible=plaus,
         n_samples=int(n_samples), seed=int(seed),
         meta={"geometry": geometry.resolved(pb0), "uncertainty": uncertainty,
-              "piezo": model.piezo, "source": model.source})
+              "piezo": model.piezo, "source": model.source,
+              "impact_model": geometry.impact_model,
+              "has_uncertainty": bool(getattr(model, "has_uncertainty", True))},
+        samples={a: joint[a] for a in AXES})

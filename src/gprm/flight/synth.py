@@ -8,9 +8,13 @@ Per release (docs/flight.md):
    best-fit contact points approach the indent faces in both planes); a draw whose own contact
    points do not approach at its time is rejected and redrawn. ``truth_spread=False`` uses
    the best fit and nominal geometry instead (measurement noise only);
-2. the TM velocity after the impact from the planar model in both planes, superposed
-   (``z_from="sum"``: both contact lines strike, the TM's v_z is vz_xz + vz_yz; ``"xz"`` or
-   ``"yz"`` keep one plane's v_z);
+2. the TM velocity after the impact: by default (``truth_model="3d"``) from the one-contact
+   3D impact of the plunger tip corner on the indent face with restitution and Coulomb
+   friction (:func:`gprm.flight.predicted.tm_velocity_vs_time`, ``impact_model="3d"``; the
+   friction coefficient is drawn with the geometry), a truth richer than the two-plane
+   analysis of the paper; ``truth_model="planar"`` keeps the planar model in both planes,
+   superposed (``z_from="sum"``: both contact lines strike, the TM's v_z is vz_xz + vz_yz;
+   ``"xz"`` or ``"yz"`` keep one plane's v_z);
 3. the TM displacement and attitude sampled by the GRS: ``rate`` (10 Hz) from ``pre`` s
    before to ``post`` s after the release, with a random sampling phase, at rest (a random
    µm-level offset) before the release and moving with the post-impact velocity after it,
@@ -44,6 +48,7 @@ class SynthOptions:
     z_from: str = "sum"
     grid_step: float = 1e-7
     window_mode: str = "identifiable"
+    truth_model: str = "3d"
 
 
 def plausible_window(model, *, window=None, step: float = 1e-7, geometry=None,
@@ -85,10 +90,15 @@ def synth_telemetry(model, opts: SynthOptions = SynthOptions(), *, geometry=None
     from gprm.params import batch
     from gprm.predict.kinematics import body_motion
 
-    geometry = geometry or ImpactGeometry()
+    from dataclasses import replace
+
+    from gprm.errors import GprmInputError
+
+    if opts.truth_model not in ("3d", "planar"):
+        raise GprmInputError("must be 3d or planar", field="truth_model")
+    geometry = replace(geometry or ImpactGeometry(), impact_model=opts.truth_model)
     uncertainty = uncertainty or GeometryUncertainty()
     if opts.z_from not in ("sum", "xz", "yz"):
-        from gprm.errors import GprmInputError
         raise GprmInputError("must be sum, xz or yz", field="z_from")
     rng = np.random.default_rng(opts.seed)
     R = int(opts.n_releases)
@@ -115,17 +125,22 @@ def synth_telemetry(model, opts: SynthOptions = SynthOptions(), *, geometry=None
                 break
             if vel["approaching_xz"][j, k[j]] and vel["approaching_yz"][j, k[j]]:
                 chosen_t.append(grid[k[j]])
-                chosen_v.append([vel[a][j, k[j]] for a in AXES])
+                chosen_v.append([vel[a][j, k[j]] for a in AXES]
+                                + [vel["wz"][j, k[j]] if "wz" in vel else 0.0])
                 chosen_idx.append(attempt)
         attempt += 1
     if len(chosen_t) < R:
-        from gprm.errors import GprmInputError
         raise GprmInputError("could not draw plausible impacts (too few parameter draws "
                              "approach the indent faces)", source=str(model.source))
-    tv = np.array(chosen_v)                       # (R, 6) planar values in AXES order
+    tv = np.array(chosen_v)[:, :6]                # (R, 6) values in AXES order
+    wz = np.array(chosen_v)[:, 6]
     a = {ax: tv[:, i] for i, ax in enumerate(AXES)}
-    vz = {"sum": a["vz_xz"] + a["vz_yz"], "xz": a["vz_xz"], "yz": a["vz_yz"]}[opts.z_from]
-    tm = np.stack([a["vx"], a["vy"], vz, a["wx"], a["wy"], np.zeros(R)], 1)
+    if opts.truth_model == "3d":    # one contact, one impulse: the TM's own six components
+        vz, z_from = a["vz_xz"], None
+    else:
+        vz = {"sum": a["vz_xz"] + a["vz_yz"], "xz": a["vz_xz"], "yz": a["vz_yz"]}[opts.z_from]
+        z_from = opts.z_from
+    tm = np.stack([a["vx"], a["vy"], vz, a["wx"], a["wy"], wz], 1)
     # sampling
     n_pre = int(round(opts.pre * opts.rate))
     n_post = int(round(opts.post * opts.rate))
@@ -144,7 +159,8 @@ def synth_telemetry(model, opts: SynthOptions = SynthOptions(), *, geometry=None
         data[c] = off[:, None] + v[:, None] * dt + rng.normal(0, sig, (R, S))
     truth = {"impact_time": list(map(float, chosen_t)), "window": list(win),
              "tm_velocity": {c: tm[:, i].tolist() for i, c in enumerate(TM_COMPONENTS)},
-             "z_from": opts.z_from, "truth_spread": opts.truth_spread}
+             "z_from": z_from, "truth_model": opts.truth_model,
+             "truth_spread": opts.truth_spread}
     attrs = {"source": f"synthetic from {model.source}", "seed": int(opts.seed),
              "sample_rate": float(opts.rate), "piezo": int(model.piezo),
              "truth_json": json.dumps(truth),

@@ -106,17 +106,172 @@ def fit_release_velocity(t, y, sigma=None, *, t_release: float = 0.0) -> LineFit
                    weighted)
 
 
+# --------------------------------------------------------------------------------------------
+# units at the edge (the project's pint registry, as for campaigns and parameter files)
+# --------------------------------------------------------------------------------------------
+KIND_SI = {"length": "m", "angle": "rad", "time": "s"}
+CHANNEL_KIND = {"x": "length", "y": "length", "z": "length", "theta": "angle",
+                "eta": "angle", "phi": "angle"}
+
+
+def unit_factor(unit, kind: str, *, source: str, field: str) -> float:
+    """Factor converting ``unit`` (pint syntax: ``mm``, ``um``, ``µrad``, ``deg``, ``ms``, …;
+    None or empty: SI) of a ``kind`` (length, angle, time) to SI. A unit that is not of that
+    kind, or not a unit: a GprmInputError naming the field."""
+    import pint
+
+    from gprm.params.files import ureg
+
+    if unit is None or str(unit).strip() == "":
+        return 1.0
+    u = str(unit).strip()
+    art = "an" if kind[0] in "aeiou" else "a"
+    try:
+        return float(ureg().Quantity(1.0, u).to(KIND_SI[kind]).magnitude)
+    except (pint.errors.PintError, AttributeError, ValueError, TypeError, KeyError):
+        raise GprmInputError(f"unit {u!r} is not {art} {kind} unit (convertible to "
+                             f"{KIND_SI[kind]})", source=source, field=field) from None
+
+
 def load_telemetry(path: str | os.PathLike) -> Telemetry:
-    """Read and check a telemetry NetCDF file (synthetic or real: the same reader)."""
+    """Read and check telemetry (synthetic or real: the same reader and checks): a NetCDF file
+    of the ``gprm-telemetry`` format, or a CSV file (:func:`telemetry_csv_dataset`)."""
+    from pathlib import Path
+
     from gprm._io import open_netcdf
 
     src = str(path)
+    if Path(path).suffix.lower() in (".csv", ".txt"):
+        return telemetry_from_dataset(telemetry_csv_dataset(path), source=src)
     ds = open_netcdf(path, what="telemetry NetCDF")
     return telemetry_from_dataset(ds, source=src)
 
 
-def telemetry_from_dataset(ds, *, source: str = "telemetry") -> Telemetry:
-    """Check a telemetry :class:`xarray.Dataset` and split it into releases."""
+def _csv_header(col: str):
+    """``name [unit]`` or ``name (unit)`` or ``name`` -> (name, unit or None)."""
+    import re
+
+    m = re.fullmatch(r"\s*([A-Za-z_][A-Za-z0-9_]*)\s*(?:[\[(]\s*([^\])]*?)\s*[\])])?\s*", col)
+    if not m:
+        return col.strip(), None
+    return m.group(1), m.group(2)
+
+
+def telemetry_csv_dataset(path: str | os.PathLike):
+    """Read measured telemetry from a CSV file (one row per sample) into the NetCDF layout.
+
+    Columns (header names, units in brackets or parentheses, e.g. ``x [mm]``,
+    ``theta (µrad)``; no unit: SI): ``release`` (id), ``time``, ``release_time`` (the release
+    instant, the same on every row of a release), ``x, y, z`` (length), ``theta, eta``
+    (angle), optional ``phi`` and ``<channel>_std`` (per-sample std, the channel's kinds of
+    unit). Rows of a release must be in time order; releases may have different lengths;
+    blank lines and lines starting with ``#`` are skipped. Every problem is a GprmInputError
+    naming the file, the column and the line.
+    """
+    from pathlib import Path
+
+    import csv
+
+    src = str(path)
+    if not Path(path).exists():
+        raise GprmInputError("telemetry CSV does not exist", source=src)
+    try:
+        with open(path, newline="", encoding="utf-8-sig") as fh:
+            lines = [(i + 1, ln) for i, ln in enumerate(fh)
+                     if ln.strip() and not ln.lstrip().startswith("#")]
+        rows = list(csv.reader([ln for _, ln in lines], skipinitialspace=True))
+    except (UnicodeDecodeError, csv.Error, OSError) as exc:
+        raise GprmInputError(f"cannot be read as CSV ({type(exc).__name__}: {exc})",
+                             source=src) from None
+    if len(rows) < 2:
+        raise GprmInputError("cannot be read as CSV (no header and data rows)", source=src)
+    header, body, lineno = rows[0], rows[1:], [n for n, _ in lines[1:]]
+    for k, r in enumerate(body):
+        if len(r) != len(header):
+            raise GprmInputError(f"line {lineno[k]}: {len(r)} fields, the header has "
+                                 f"{len(header)}", source=src)
+    cols = {}
+    for j, c in enumerate(header):
+        name, unit = _csv_header(str(c))
+        if name in cols:
+            raise GprmInputError("column given twice", source=src, field=name)
+        cols[name] = (j, unit)
+    for need in ("release", "time", "release_time") + REQUIRED:
+        if need not in cols:
+            raise GprmInputError(f"missing column (have: {', '.join(cols)})", source=src,
+                                 field=need)
+    rel = np.array([r[cols["release"][0]].strip() for r in body], dtype=object)
+    ids = list(dict.fromkeys(rel))
+    num = {}
+    for name, (c, unit) in cols.items():
+        if name == "release":
+            continue
+        base = name[:-4] if name.endswith("_std") else name
+        kind = ("time" if name in ("time", "release_time") else CHANNEL_KIND.get(base))
+        if kind is None:
+            continue                               # unknown extra column: ignored
+        vals = np.empty(len(body))
+        for k, r in enumerate(body):
+            try:
+                vals[k] = float(r[c])
+            except ValueError:
+                vals[k] = np.nan
+            if not np.isfinite(vals[k]):
+                raise GprmInputError(f"line {lineno[k]}: not a finite number ({r[c]!r})",
+                                     source=src, field=name)
+        num[name] = vals * unit_factor(unit, kind, source=src, field=name)
+    R = len(ids)
+    idx = [np.flatnonzero(rel == r) for r in ids]
+    S = max(i.size for i in idx)
+    arr = {n: np.full((R, S), np.nan) for n in num if n != "release_time"}
+    trel = np.empty(R)
+    for k, (r, ii) in enumerate(zip(ids, idx)):
+        if ii.size > 1 and np.any(np.diff(ii) != 1):
+            raise GprmInputError(f"release {r}: its rows are not contiguous (line "
+                                 f"{lineno[int(ii[np.argmax(np.diff(ii) != 1) + 1])]})",
+                                 source=src, field="release")
+        tr = num["release_time"][ii]
+        if np.ptp(tr) != 0:
+            raise GprmInputError(f"release {r}: release_time differs between its rows",
+                                 source=src, field="release_time")
+        trel[k] = tr[0]
+        for n in arr:
+            arr[n][k, :ii.size] = num[n][ii]
+    import xarray as xr
+
+    dv = {n: (("release", "sample"), a, {"units": "s" if n == "time" else
+                                         CHANNEL_UNIT[n[:-4] if n.endswith("_std") else n]})
+          for n, a in arr.items()}
+    dv["release_time"] = (("release",), trel, {"units": "s"})
+    return xr.Dataset(dv, coords={"release": ids},
+                      attrs={"format": FORMAT, "format_version": FORMAT_VERSION,
+                             "source": src})
+
+
+def _si_values(ds, name: str, kind: str, source: str) -> np.ndarray:
+    """A variable's values as float SI: numeric type checked, ``units`` converted (a
+    timedelta decoded by xarray counts as seconds)."""
+    da = ds[name]
+    vals = da.values
+    if np.issubdtype(vals.dtype, np.timedelta64):
+        return vals / np.timedelta64(1, "s")
+    if not (np.issubdtype(vals.dtype, np.number) and not np.iscomplexobj(vals)):
+        raise GprmInputError(f"values of type {vals.dtype} (expected real numbers)",
+                             source=source, field=name)
+    unit = da.attrs.get("units", da.encoding.get("units"))
+    return np.asarray(vals, float) * unit_factor(unit, kind, source=source, field=name)
+
+
+def telemetry_from_dataset(ds, *, source: str = "telemetry", min_releases: int = 2
+                           ) -> Telemetry:
+    """Check a telemetry :class:`xarray.Dataset` and split it into releases.
+
+    Checks (each a GprmInputError naming the source, the variable and the problem): format,
+    required variables and dimensions, real numeric types, units (``units`` attribute
+    converted to SI: :func:`unit_factor`; none: SI), unique release ids, at least
+    ``min_releases`` releases, strictly increasing time with NaN padding only at the end,
+    finite release times and data, positive standard deviations, and no channel constant over
+    a release (a stuck or filled channel)."""
     fmt = ds.attrs.get("format", FORMAT)
     if fmt != FORMAT:
         raise GprmInputError(f"format {fmt!r}, expected {FORMAT!r}", source=source,
@@ -133,16 +288,24 @@ def telemetry_from_dataset(ds, *, source: str = "telemetry") -> Telemetry:
            else [f"R{i + 1:02d}" for i in range(ds.sizes["release"])])
     if len(set(ids)) != len(ids):
         raise GprmInputError("release ids are not unique", source=source, field="release")
-    T = np.atleast_2d(np.asarray(ds["time"].transpose("release", ...).values, float))
-    trel = np.asarray(ds["release_time"].values, float).ravel()
+    if len(ids) < min_releases:
+        raise GprmInputError(f"{len(ids)} release(s); the analysis needs >= {min_releases} "
+                             "(the paper has 11)", source=source, field="release")
+    for v in ("time",) + tuple(c for c in CHANNELS if c in ds.variables) + tuple(
+            f"{c}_std" for c in CHANNELS if f"{c}_std" in ds.variables):
+        if set(ds[v].dims) != {"release", "sample"}:
+            raise GprmInputError(f"dims {ds[v].dims}, expected ('release', 'sample')",
+                                 source=source, field=v)
+    if ds["release_time"].dims != ("release",):
+        raise GprmInputError(f"dims {ds['release_time'].dims}, expected ('release',)",
+                             source=source, field="release_time")
+    ds = ds.transpose("release", "sample", ...)
+    T = np.atleast_2d(_si_values(ds, "time", "time", source))
+    trel = _si_values(ds, "release_time", "time", source).ravel()
     chans = [c for c in CHANNELS if c in ds.variables]
-    arrs = {}
-    for c in chans:
-        da = ds[c]
-        if set(da.dims) != {"release", "sample"}:
-            raise GprmInputError(f"dims {da.dims}, expected ('release', 'sample')",
-                                 source=source, field=c)
-        arrs[c] = np.asarray(da.transpose("release", "sample").values, float)
+    arrs = {c: _si_values(ds, c, CHANNEL_KIND[c], source) for c in chans}
+    stds = {c: _si_values(ds, f"{c}_std", CHANNEL_KIND[c], source) for c in chans
+            if f"{c}_std" in ds.variables}
     releases = []
     for i, rid in enumerate(ids):
         t = T[i]
@@ -166,13 +329,17 @@ def telemetry_from_dataset(ds, *, source: str = "telemetry") -> Telemetry:
                 k = int(np.argmax(~np.isfinite(y)))
                 raise GprmInputError(f"release {rid}: non-finite value at t = {t[k]:g} s",
                                      source=source, field=c)
+            if c in REQUIRED and nv > 1 and np.ptp(y) == 0:
+                raise GprmInputError(f"release {rid}: constant over the whole record (a stuck "
+                                     "or filled channel)", source=source, field=c)
             data[c] = y
             s = None
-            if f"{c}_std" in ds.variables:
-                s = np.asarray(ds[f"{c}_std"].transpose("release", "sample").values,
-                               float)[i, :nv]
+            if c in stds:
+                s = stds[c][i, :nv]
             elif "noise_std" in ds[c].attrs:
-                s = np.full(nv, float(ds[c].attrs["noise_std"]))
+                s = np.full(nv, float(ds[c].attrs["noise_std"]) * unit_factor(
+                    ds[c].attrs.get("units", ds[c].encoding.get("units")), CHANNEL_KIND[c],
+                    source=source, field=c))
             if s is not None and not np.all(np.isfinite(s) & (s > 0)):
                 raise GprmInputError(f"release {rid}: standard deviations must be finite and "
                                      "> 0", source=source, field=f"{c}_std")

@@ -372,9 +372,23 @@ def flight_section(run: Path) -> Section:
     n_ok = impact_times_found(imp)
     s.blocks.append(paragraph(
         f"{n} releases: the release velocity per axis from the telemetry, and the impact time "
-        "at which the impact model (Appendix B) applied to the predicted plunger state gives "
-        f"that velocity (first crossing): {n_ok} of {6 * n} impact times found. Tukey's range "
-        "test asks whether the six axes' impact times share one mean (Eq. 9)."))
+        "at which the impact model ("
+        + ("one contact of the plunger tip on the indent face in 3D, with restitution and "
+           "friction" if imp.get("impact_model") == "3d" else "the planar impacts of "
+           "Appendix B")
+        + ") applied to the predicted plunger state gives that velocity (crossing on the "
+        f"rising branch of the curve): {n_ok} of {6 * n} impact times found; each error bar "
+        "combines the telemetry's error and the model band (parameter and geometry draws). "
+        "Tukey's range test asks whether the six axes' impact times share one mean (Eq. 9); "
+        "the joint estimate combines the axes into one impact time per release (weighted "
+        "least squares with the model's covariance between the axes), and its χ² is a second "
+        "consistency check."
+        + ("" if not imp.get("missing") else
+           " Missing impact times, each with its reason: " + "; ".join(
+               f"{m.get('release')} {m.get('axis')}: {m.get('reason')}"
+               for m in imp["missing"][:12])
+           + (f"; … ({len(imp['missing'])} in all, listed in impact.json)"
+              if len(imp["missing"]) > 12 else "") + ".")))
     tele = _load_nc(run, "telemetry.nc", "telemetry file")
     fig = F.fig_release_fit(tele, imp)
     if fig is not None:
@@ -385,15 +399,18 @@ def flight_section(run: Path) -> Section:
     if fig is not None:
         s.blocks.append(fig_to_img(fig, "Release velocity against the impact time, first "
                                    "release: velocity the impact model gives as a function of "
-                                   "the impact time with its band, the measured velocity and "
-                                   "the estimated impact time (cf. Fig. 11)",
+                                   "the impact time with its band, the measured velocity, "
+                                   "each axis' impact time (±1σ), the joint estimate with its "
+                                   "95 % interval (grey) and, for synthetic telemetry, the "
+                                   "true impact time (dotted) (cf. Fig. 11)",
                                    "fig-velocity-impact"))
     else:
         s.blocks.append(not_run("Velocity vs impact time", "impact.nc (the curves) is "
                                 "missing."))
     s.blocks.append(fig_to_img(F.fig_impact_times(imp), "All estimated impact times per "
-                               "release and axis with 1σ errors; black bars: the true impact "
-                               "times of the synthetic releases (cf. Fig. 12)",
+                               "release and axis with 1σ errors; open diamonds: the joint "
+                               "estimate per release with its 95 % interval; black bars: the "
+                               "true impact times of the synthetic releases (cf. Fig. 12)",
                                "fig-impact-times"))
     tk = imp.get("tukey")
     if tk and tk.get("pairs"):

@@ -269,17 +269,31 @@ def _vt(rel: dict, axis: str, what: str):
     return (np.nan if v is None else float(v)), (np.nan if e is None else float(e))
 
 
+_PANEL = {"vx": "v_x (x–z plane)", "vz_xz": "v_z (x–z plane)", "wy": "ω_y (x–z plane)",
+          "vy": "v_y (y–z plane)", "vz_yz": "v_z (y–z plane)", "wx": "ω_x (y–z plane)"}
+
+
+def _joint(rel: dict):
+    j = rel.get("joint") or {}
+    v, ci = j.get("value"), j.get("ci95")
+    if v is None or not ci:
+        return None
+    return float(v), float(ci[0]), float(ci[1]), j.get("chi2"), j.get("df"), j.get("p")
+
+
 def fig_velocity_impact(imp: dict, curves=None, release: int = 0):
     """Fig. 11: the TM velocity the impact model predicts as a function of the impact time
     (line, band from the parameter and geometry uncertainties), the measured release velocity
-    (red line) and the estimated impact time (first crossing, black, with its error) of one
-    release, for each of the six axes."""
+    (red line), the estimated impact time of each axis (black, with its error bar), the joint
+    estimate of the release (grey band: its 95 % interval) and, for synthetic telemetry, the
+    true impact time, for each of the six axes of one release."""
     releases = imp.get("releases") or []
     if not releases or curves is None:
         return None
     rel = releases[release]
     truth = (imp.get("truth") or {}).get("impact_time")
-    fig, axes = plt.subplots(2, 3, figsize=(10.0, 5.4), sharex=True)
+    joint = _joint(rel)
+    fig, axes = plt.subplots(2, 3, figsize=(10.0, 5.6), sharex=True)
     t = curves["time"].values * MS
     for ax, axis in zip(axes.ravel(), AXES):
         c = COLORS[axis]
@@ -291,30 +305,47 @@ def fig_velocity_impact(imp: dict, curves=None, release: int = 0):
         ax.plot(t, nom, color=c, lw=1.3, label="model: velocity vs impact time")
         v, ev = _vt(rel, axis, "velocity")
         ax.axhline(v * sc, color="#c62828", lw=1.0, label="measured release velocity")
+        if joint is not None:
+            ax.axvspan(joint[1] * MS, joint[2] * MS, color="#777777", alpha=0.18, lw=0,
+                       label="joint estimate, 95 % interval")
+            ax.axvline(joint[0] * MS, color="#555555", lw=1.0, label="joint estimate")
         ti, ei = _vt(rel, axis, "impact_time")
         if np.isfinite(ti):
             ax.errorbar([ti * MS], [v * sc], xerr=[0 if not np.isfinite(ei) else ei * MS],
-                        fmt="o", color="k", ms=4, capsize=3, label="estimated impact time")
+                        fmt="o", color="k", ms=4, capsize=3,
+                        label="impact time of the axis (±1σ)")
+        else:
+            ax.text(0.03, 0.92, "no impact time (see impact.json)", transform=ax.transAxes,
+                    fontsize=7, color="#c62828")
         if truth is not None:
             ax.axvline(truth[release] * MS, color="k", ls=":", lw=0.9,
                        label="true impact time (synthetic)")
-        ax.set_title(axis)
+        ax.set_title(_PANEL[axis])
         ax.set_ylabel(AXIS_LABEL[axis])
     for ax in axes[-1]:
         ax.set_xlabel("impact time [ms]")
     handles, labels = axes[0, 0].get_legend_handles_labels()
-    fig.legend(handles, labels, loc="lower center", ncol=3, bbox_to_anchor=(0.5, -0.06))
-    fig.suptitle(f"Release {rel.get('id', release + 1)}: velocity vs impact time (cf. Fig. 11)")
-    fig.tight_layout(rect=(0, 0.06, 1, 1))
+    fig.legend(handles, labels, loc="lower center", ncol=4, bbox_to_anchor=(0.5, -0.07))
+    model = {"3d": "one-contact 3D impact", "planar": "planar impacts (Appendix B)"}.get(
+        imp.get("impact_model", "planar"), "impact model")
+    head = f"Release {rel.get('id', release + 1)}: velocity vs impact time, {model}"
+    if joint is not None:
+        head += (f"; joint estimate {joint[0] * MS:.4f} ms "
+                 f"[{joint[1] * MS:.4f}, {joint[2] * MS:.4f}]")
+        if joint[5] is not None:
+            head += f", χ² = {joint[3]:.2f} (df {joint[4]}, p = {joint[5]:.2g})"
+    fig.suptitle(head, fontsize=9)
+    fig.tight_layout(rect=(0, 0.07, 1, 1))
     return fig
 
 
 def fig_impact_times(imp: dict):
-    """Fig. 12: every estimated impact time (release x axis) with its 1-sigma error, and the
-    true impact time of synthetic releases."""
+    """Fig. 12: every estimated impact time (release x axis) with its 1-sigma error, the joint
+    estimate of each release with its 95 % interval, and the true impact time of synthetic
+    releases; the title gives Tukey's verdict and the joint χ² check."""
     releases = imp.get("releases") or []
     truth = (imp.get("truth") or {}).get("impact_time")
-    fig, ax = plt.subplots(figsize=(10.0, 3.6))
+    fig, ax = plt.subplots(figsize=(10.0, 3.9))
     n = len(releases)
     width = 0.7
     count = 0
@@ -323,15 +354,33 @@ def fig_impact_times(imp: dict):
         ts = np.array([_vt(r, axis, "impact_time") for r in releases]).reshape(-1, 2)
         count += int(np.sum(np.isfinite(ts[:, 0])))
         ax.errorbar(np.arange(n) + off, ts[:, 0] * MS, yerr=ts[:, 1] * MS, fmt="o", ms=3.5,
-                    color=COLORS[axis], capsize=2, label=axis)
+                    color=COLORS[axis], capsize=2, label=_PANEL[axis])
+    js = [_joint(r) for r in releases]
+    xs = [i + width / 2 + 0.08 for i, j in enumerate(js) if j is not None]
+    if xs:
+        jv = np.array([j for j in js if j is not None])
+        ax.errorbar(xs, jv[:, 0] * MS, yerr=[(jv[:, 0] - jv[:, 1]) * MS,
+                                             (jv[:, 2] - jv[:, 0]) * MS],
+                    fmt="D", ms=4.5, color="#444444", mfc="white", capsize=3,
+                    label="joint estimate (95 %)")
     if truth is not None:
-        ax.plot(np.arange(n), np.asarray(truth, float) * MS, "_", color="k", ms=22, mew=1.5,
-                label="truth (synthetic)")
+        ax.plot(np.arange(n) + 0.04, np.asarray(truth, float) * MS, "_", color="k", ms=26,
+                mew=1.5, label="truth (synthetic)")
     ax.set_xticks(range(n), [str(r.get("id", i + 1)) for i, r in enumerate(releases)])
     ax.set_xlabel("release")
     ax.set_ylabel("impact time [ms]")
-    ax.legend(ncol=7, loc="upper center", bbox_to_anchor=(0.5, -0.2))
-    ax.set_title(f"All {count} estimated impact times of {n} releases × 6 axes (cf. Fig. 12)")
+    ax.legend(ncol=4, loc="upper center", bbox_to_anchor=(0.5, -0.2))
+    tk = imp.get("tukey") or {}
+    verdict = ("" if tk.get("q_critical") is None else
+               f"; Tukey (α = {tk.get('alpha')}, df = {tk.get('df')}): "
+               + ("all compatible" if tk.get("all_compatible") else
+                  f"{sum(p['reject'] for p in tk.get('pairs', []))} pair(s) rejected"))
+    jc = imp.get("joint") or {}
+    if jc.get("all_consistent") is not None:
+        verdict += ("; joint χ²: all consistent" if jc["all_consistent"] else
+                    f"; joint χ² rejects {len(jc.get('rejected', []))}")
+    ax.set_title(f"{count} of {6 * n} impact times, {n} releases × 6 axes{verdict} "
+                 "(cf. Fig. 12)", fontsize=9)
     fig.tight_layout()
     return fig
 

@@ -64,7 +64,7 @@ def test_objective_jacobian_matches_finite_differences(case):
 def best(case):
     truth, ds, data = case
     return identify(data, paper(), MultiStartOptions(n_starts=8, seed=3, chunk_size=8),
-                    band_samples=0)
+                    band_samples=0, uncertainty="laplace-prior")
 
 
 def test_reduced_chi2_near_one_and_truth_recovered(case, best):
@@ -199,7 +199,7 @@ def test_fit_files_follow_the_contract(case, tmp_path):
     # well-defined and the sampled band can be compared with the linear one
     base = truth.with_fitted(WELL_DETERMINED)
     res = identify(data, base, MultiStartOptions(n_starts=6, seed=2, chunk_size=6),
-                   band_samples=60)
+                   band_samples=60, uncertainty="laplace-prior")
     out = tmp_path / "fit.json"
     res.write(out)
     d = json.loads(out.read_text())
@@ -297,7 +297,7 @@ def test_profiles_in_the_fit_result(case, tmp_path):
     truth, ds, data = case
     base = truth.with_fitted(("k_lr", "m2", "t1"))
     res = identify(data, base, MultiStartOptions(n_starts=2, seed=1, chunk_size=2),
-                   band_samples=0, profile=True)
+                   band_samples=0, profile=True, uncertainty="laplace-prior")
     assert [p.name for p in res.profiles] == list(res.names)
     for p, x, se in zip(res.profiles, res.x, res.stderr):
         assert p.identifiable

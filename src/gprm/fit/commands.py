@@ -51,8 +51,9 @@ def register(app: typer.Typer, synth_app: typer.Typer) -> None:
                                          "for the sampled uncertainty bands"),
         profile: bool = typer.Option(False, "--profile", help="also compute profile "
                                      "likelihoods of every fitted parameter"),
-        uncertainty: str = typer.Option("laplace-prior", "--uncertainty", help="uncertainty "
-                                        "method: parametric-bootstrap, laplace-prior "
+        uncertainty: str = typer.Option("parametric-bootstrap", "--uncertainty",
+                                        help="uncertainty method: parametric-bootstrap "
+                                        "(default), laplace-prior "
                                         "(posterior of the prior-regularised fit), mcmc, "
                                         "eq7-corr (Eq. 7 with the residuals' time "
                                         "correlation) or eq7 (the paper's); docs/fitting.md "

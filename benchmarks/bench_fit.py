@@ -360,6 +360,9 @@ def main(argv=None) -> None:
                     "mismatch, 26 parameters) instead of the matched synthetic signals")
     ap.add_argument("--means", default=None, help="mean-signals NetCDF to fit instead of the "
                     "synthetic one (e.g. from gprm synth campaign + gprm preprocess)")
+    ap.add_argument("--uncertainty", default=None, help="comma-separated uncertainty methods "
+                    "to time with the starts on the demo's campaign, next to the Eq. 7-only "
+                    "fit (e.g. laplace-prior,parametric-bootstrap)")
     a = ap.parse_args(argv)
     cmd = "benchmarks/bench_fit.py " + " ".join(sys.argv[1:] if argv is None else argv)
     print("## Identification (gprm fit)\n")
@@ -374,9 +377,45 @@ def main(argv=None) -> None:
         print(variants(a.workers))
         return
     n = a.starts or (100 if a.quick else 1000)
+    if a.uncertainty:
+        print("### Starts plus uncertainty\n")
+        print(uncertainty_speed(n, a.workers, tuple(a.uncertainty.split(","))))
+        return
     print("### Multi-start speed\n")
     print(speed(n, a.workers, a.chunk, not a.no_prune, a.full_baseline, a.check_prune,
                 a.means, a.demo))
+
+
+
+# ----------------------------------------------------------------------------- uncertainty
+
+def uncertainty_speed(n_starts: int, workers: int, methods: tuple[str, ...]) -> str:
+    """1000 starts plus each uncertainty method on the demo's campaign (seed 0, the CLI's
+    defaults: alignment offsets fitted, align time 1.01 ms), side by side with the paper's
+    Eq. 7-only fit (no prior), in one run (issue 12's speed target: <= 60 s on 2 cores)."""
+    from gprm.campaign.preprocess import PreprocessConfig, preprocess
+    from gprm.campaign.synth import synth_campaign
+    from gprm.fit.multistart import MultiStartOptions
+    from gprm.fit.objective import fit_data_from_means
+    from gprm.fit.result import identify
+    from gprm.params import ALIGNMENT_OFFSETS, paper
+
+    means = preprocess(synth_campaign(seed=0), PreprocessConfig(align_time=1.01e-3)).to_dataset()
+    data = fit_data_from_means(means, source="demo campaign (synthetic, seed 0)")
+    base = paper()
+    base = base.with_fitted(tuple(base.fitted) + tuple(ALIGNMENT_OFFSETS.values()))
+    opts = MultiStartOptions(n_starts=n_starts, seed=0)
+    lines = ["| fit | uncertainty | wall s | of which multi-start s | uncertainty + bands s | "
+             "identified (of 26) |", "|---|---|---|---|---|---|"]
+    runs = [("paper (no prior)", "eq7", None)] + [("prior", m, 1.25) for m in methods]
+    for label, method, width in runs:
+        t = time.perf_counter()
+        res = identify(data, base, opts, workers=workers, band_samples=200,
+                       uncertainty=method, prior_width=width)
+        wall = time.perf_counter() - t
+        lines.append(f"| {label} | {method} | **{wall:.1f}** | {res.timings['multistart']:.1f} "
+                     f"| {res.timings['uncertainty']:.1f} | {len(res.identified)} |")
+    return "\n".join(lines)
 
 
 if __name__ == "__main__":

@@ -204,3 +204,23 @@ def test_alignment_shift_of_a_sampled_signal():
     # the spline of the samples of a cubic onset is exact away from the kink; allow 0.05 sample
     assert sh == pytest.approx(1e-3 - (ts + (thr / a) ** (1 / 3)), abs=0.05 * 5e-6)
     assert alignment_shift(t, y, 1.0) is None
+
+
+@pytest.mark.parametrize("position, accepted", [("y_fl", True), ("y_base", False)])
+def test_a_still_position_fails_only_if_the_model_fits_it(small_campaign, position, accepted):
+    """A flange that barely moves (seen on a campaign drawn within +-10 % of Table 3, seed 1008
+    of benchmarks/bench_coverage.py) is averaged with the fitted positions' onset; a fitted
+    position without motion cannot be aligned and stays an input error."""
+    from gprm.campaign.preprocess import preprocess
+    from gprm.errors import GprmInputError
+
+    ds = small_campaign.copy(deep=True)
+    i = list(ds["position"].values).index(position)
+    ds["displacement"].values[i] = ds["noise"].values[i, :1].repeat(ds.sizes["run"], axis=0)[
+        :, :ds.sizes["time"]]
+    if accepted:
+        means = preprocess(ds)
+        assert np.all(np.isfinite(means.to_dataset()["mean"].values))
+    else:
+        with pytest.raises(GprmInputError, match=position):
+            preprocess(ds)

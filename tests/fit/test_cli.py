@@ -28,7 +28,7 @@ def test_gprm_fit_writes_json_and_sidecar(means_file, tmp_path):
     out = tmp_path / "fit.json"
     r = CliRunner().invoke(app, ["fit", str(means_file), "--out", str(out), "--starts", "3",
                                  "--chunk", "3", "--max-iter", "8", "--band-samples", "0",
-                                 "--seed", "2", "--workers", "0"])
+                                 "--seed", "2", "--workers", "0", "--boot", "5"])
     assert r.exit_code == 0, r.output
     d = json.loads(out.read_text())
     assert d["starts"]["requested"] == 3 and d["seed"] == 2
@@ -36,9 +36,17 @@ def test_gprm_fit_writes_json_and_sidecar(means_file, tmp_path):
     assert d["starts"]["stall_window"] == 5 and d["starts"]["stall_tol"] == 0.05
     assert out.with_suffix(".nc").exists()
     assert not Path(str(out) + ".ckpt").exists()        # checkpoints removed after success
-    fm = load_fit(out) if d["correlation"]["matrix"] is not None else None
-    if fm is not None:
-        assert len(fm.names) == 23
+    # every fit loads, with its identified set, intervals and posterior draws
+    fm = load_fit(out)
+    assert len(fm.names) == 23 and fm.has_uncertainty and fm.draws.shape == (400, 23)
+    assert d["uncertainty"]["method"] == "parametric-bootstrap"
+    assert set(d["identified"]) | set(d["not_determined"]) == set(fm.names)
+    for name in fm.names:
+        e = d["parameters"][name]
+        # (the bootstrap re-centres the interval by its bias estimate: it need not hold the
+        # best fit)
+        assert 0 < e["interval"]["upper"] - e["interval"]["lower"], name
+        assert e["identified"] == (name in d["identified"])
 
 
 @pytest.mark.parametrize("args, text", [
@@ -48,6 +56,10 @@ def test_gprm_fit_writes_json_and_sidecar(means_file, tmp_path):
     (["--window", "0.5 0.6"], "--window"),
     (["--seed", "-1"], "'--seed': must be >= 0, got -1"),
     (["--stall-window", "-1"], "--stall-window"),
+    (["--uncertainty", "bootstrap"], "--uncertainty"),
+    (["--prior-width", "-1"], "--prior-width"),
+    (["--prior-width", "0"], "--prior-width"),
+    (["--boot", "2"], "--boot"),
 ])
 def test_gprm_fit_bad_options(means_file, tmp_path, args, text):
     r = CliRunner().invoke(app, ["fit", str(means_file), "--out", str(tmp_path / "f.json"),

@@ -64,7 +64,7 @@ def test_objective_jacobian_matches_finite_differences(case):
 def best(case):
     truth, ds, data = case
     return identify(data, paper(), MultiStartOptions(n_starts=8, seed=3, chunk_size=8),
-                    band_samples=0)
+                    band_samples=0, uncertainty="laplace-prior")
 
 
 def test_reduced_chi2_near_one_and_truth_recovered(case, best):
@@ -77,9 +77,16 @@ def test_reduced_chi2_near_one_and_truth_recovered(case, best):
     obj = Objective.create(data, paper())
     chi_truth = float(obj.chi2(obj.to_normalised(truth.vector(obj.names))[None])[0])
     assert res.chi2 <= chi_truth + 1e-6
-    z = (res.x - truth.vector(res.names)) / res.stderr
+    # in the coordinates of the posterior (ln x for positive parameters) the truth lies
+    # within 4.5 posterior standard deviations of the best fit for every parameter
+    u, prior = res.uncertainty, res.prior
+    sd_u = u.contraction * prior.sd
+    z = (prior.to_u(res.x) - prior.to_u(truth.vector(res.names))) / sd_u
     assert np.all(np.isfinite(z))
     assert np.max(np.abs(z)) < 4.5, dict(zip(res.names, np.round(z, 2)))
+    # and a parameter reported with a small error is one the data determine
+    small = res.stderr < 0.1 * np.abs(res.x)
+    assert np.all(u.identified[small])
 
 
 def test_coverage_over_several_campaigns():
@@ -192,7 +199,7 @@ def test_fit_files_follow_the_contract(case, tmp_path):
     # well-defined and the sampled band can be compared with the linear one
     base = truth.with_fitted(WELL_DETERMINED)
     res = identify(data, base, MultiStartOptions(n_starts=6, seed=2, chunk_size=6),
-                   band_samples=60)
+                   band_samples=60, uncertainty="laplace-prior")
     out = tmp_path / "fit.json"
     res.write(out)
     d = json.loads(out.read_text())
@@ -234,20 +241,33 @@ def test_fit_files_follow_the_contract(case, tmp_path):
 
 
 def test_profile_likelihood_brackets_the_best_fit(case, best):
-    """For a well-determined parameter the profile interval (dchi2 <= 1) agrees with the
-    linearised +-1 stderr, and the profile's minimum is at the best fit."""
+    """For a well-determined parameter the profile's 68 % and 95 % intervals (D <= 1, 3.84
+    on the posterior's scale) agree with the Laplace posterior's, the profile's minimum is at
+    the best fit, and a parameter the data do not determine is not bounded by its profile
+    on at least one side (its interval comes from the prior alone)."""
     truth, ds, data = case
+    from gprm.fit.prior import default_prior
     from gprm.fit.result import profile_likelihood
 
-    obj = Objective.create(data, paper())
+    u = best.uncertainty
+    prior = default_prior(paper(), best.names).with_weight(np.sqrt(u.s2))
+    obj = Objective.create(data, paper(), prior=prior)
     k = obj.names.index("m2")
-    prof = profile_likelihood(obj, best.x, best.stderr, "m2", n_points=7, width=2.0)
+    sd_u = u.contraction * prior.sd
+    prof = profile_likelihood(obj, best.x, "m2", s2=u.s2, sd_u=sd_u[k])
     assert prof.identifiable
-    half = 0.5 * (prof.upper - prof.lower)
-    # Eq. 7 rescales by the reduced chi-square; the profile uses dchi2 = 1 on the raw scale
-    assert 0.7 < half / (best.stderr[k] / np.sqrt(best.reduced_chi2)) < 1.4
-    assert np.argmin(prof.chi2) == 3
-    assert prof.chi2[3] == pytest.approx(best.chi2, abs=1e-3)
+    assert np.all(np.diff(prof.grid) > 0) and np.nanmin(prof.chi2) == 0.0
+    assert prof.grid[np.nanargmin(prof.chi2)] == pytest.approx(best.x[k], rel=1e-6)
+    for lo, hi, plo, phi in ((u.lower68[k], u.upper68[k], prof.lower, prof.upper),
+                             (u.lower95[k], u.upper95[k], prof.lower95, prof.upper95)):
+        assert (phi - plo) / (hi - lo) == pytest.approx(1.0, rel=0.3)
+    # the least determined parameter: its profile (bounded by the prior, which is part of
+    # the posterior) is as wide as the posterior says, far wider than an identified one's
+    j = int(np.argmax(u.contraction))
+    assert not u.identified[j]
+    pj = profile_likelihood(obj, best.x, obj.names[j], s2=u.s2, sd_u=sd_u[j])
+    width_u = np.log(pj.upper95 / pj.lower95) if prior.log[j] else pj.upper95 - pj.lower95
+    assert width_u > 2 * 1.96 * 0.3 * prior.sd[j]
 
 
 @pytest.mark.parametrize("mutate, field", [
@@ -277,7 +297,7 @@ def test_profiles_in_the_fit_result(case, tmp_path):
     truth, ds, data = case
     base = truth.with_fitted(("k_lr", "m2", "t1"))
     res = identify(data, base, MultiStartOptions(n_starts=2, seed=1, chunk_size=2),
-                   band_samples=0, profile=True)
+                   band_samples=0, profile=True, uncertainty="laplace-prior")
     assert [p.name for p in res.profiles] == list(res.names)
     for p, x, se in zip(res.profiles, res.x, res.stderr):
         assert p.identifiable

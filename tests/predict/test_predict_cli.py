@@ -107,3 +107,40 @@ def test_span_beyond_voltage_trace(tmp_path):
     r = run("paper", "--out", tmp_path / "x.nc", "--samples", 5, "--voltage", csv,
             "--t-end", 1.14e-3, "--t-start", 0.9e-3, "--ke-end", 1.14e-3)
     assert r.exit_code == 0, r.output
+
+
+def test_fit_without_covariance_predicts_with_its_best_fit(tmp_path):
+    """A fit `gprm fit` wrote without a covariance (matrix null) still predicts: best fit
+    only, no bands, and the file says so (issue 12: propagation never breaks)."""
+    path = fit_json(tmp_path / "f.json")
+    doc = json.loads(path.read_text())
+    doc["correlation"]["matrix"] = None
+    for e in doc["parameters"].values():
+        e["stderr"] = None
+    path.write_text(json.dumps(doc))
+    out = tmp_path / "p.nc"
+    r = run(path, "--out", out, "--samples", "5")
+    assert r.exit_code == 0, r.output
+    with xr.open_dataset(out) as ds:
+        assert "best fit only" in ds.attrs["uncertainty"]
+        assert np.all(np.isfinite(ds["pos"].values))
+
+
+def test_singular_correlation_draws_are_simulable(tmp_path):
+    """A fit with a rank-one correlation block and huge errors on the y springs (the
+    situation that raised LinAlgError 'Singular matrix' before) predicts with bands."""
+    path = fit_json(tmp_path / "f.json")
+    doc = json.loads(path.read_text())
+    names = doc["correlation"]["names"]
+    R = np.eye(len(names))
+    i, j = names.index("k_Cy"), names.index("k_Dy")
+    R[i, j] = R[j, i] = -1.0
+    doc["correlation"]["matrix"] = R.tolist()
+    doc["parameters"]["k_Cy"]["stderr"] = 3 * doc["parameters"]["k_Cy"]["value"]
+    doc["parameters"]["k_Dy"]["stderr"] = 3 * doc["parameters"]["k_Dy"]["value"]
+    path.write_text(json.dumps(doc))
+    out = tmp_path / "p.nc"
+    r = run(path, "--out", out, "--samples", "8")
+    assert r.exit_code == 0, r.output
+    with xr.open_dataset(out) as ds:
+        assert int(ds.attrs["samples_ok"]) == 8

@@ -55,6 +55,11 @@ def make_fit(run: Path, *, starts: int = 40, seed: int = 0) -> None:
         v = float(x[names.index(n)]) if fitted else float(ps.values[n])
         params[n] = {"value": v, "stderr": float(se[names.index(n)]) if fitted else None,
                      "unit": "SI", "fitted": fitted, "display_unit": REGISTRY[n].unit}
+        if fitted:
+            e = float(se[names.index(n)])
+            params[n].update(identified=bool(e < 0.2 * abs(v)),
+                             interval={"level": 0.95, "lower": v - 1.96 * e,
+                                       "upper": v + 1.96 * e, "method": "laplace-prior"})
     best = observe(batch([ps.with_values(**{n: params[n]["value"] for n in names})]),
                    data.time, OUTPUTS, piezo=2).y[0]
     chi2 = float(np.sum(((best - data.values) / data.sigma) ** 2))
@@ -62,6 +67,7 @@ def make_fit(run: Path, *, starts: int = 40, seed: int = 0) -> None:
     fit = {"model": "gprm-3d", "format_version": 1, "piezo": 2, "seed": seed,
            "window": list(data.window), "parameters": params, "chi2": chi2, "dof": dof,
            "reduced_chi2": chi2 / dof, "sigma": "sem",
+           "uncertainty": {"method": "laplace-prior", "note": "test factory"},
            "correlation": {"names": list(names), "matrix": np.eye(len(names)).tolist()},
            "starts": {"requested": starts, "converged": starts - 3, "best_index": 0,
                       "n_at_best": starts // 3, "spread": 0.2}}

@@ -91,23 +91,30 @@ def test_table3_has_units_errors_truth_and_paper(partial_run, report_html):
     assert m, "Table 3 missing"
     rows = re.findall(r"<tr>(.*?)</tr>", m.group(1), re.S)
     head = re.findall(r"<th>(.*?)</th>", rows[0])
-    assert head[:3] == ["parameter", "unit", "fit ± 1σ"]
+    assert head[:5] == ["parameter", "unit", "best fit", "95 % interval", "identified"]
     assert "synthetic truth" in head and "paper ± 1σ" in head
     body = {re.findall(r"<td>(.*?)</td>", r)[0]: re.findall(r"<td>(.*?)</td>", r)
             for r in rows[1:]}
     assert set(body) == set(paper().fitted)
     fit = json.loads((run / "fit.json").read_text())
-    # m2 in grams, with its error, and the paper's 12.4 ± 0.9 g
+    # m2 in grams, with its interval, and the paper's 12.4 ± 0.9 g
     m2 = body["m2"]
     assert m2[1] == "g"
-    v, e = fit["parameters"]["m2"]["value"] * 1e3, fit["parameters"]["m2"]["stderr"] * 1e3
-    val, err = (float(x) for x in m2[2].split(" ± "))
-    assert abs(val - v) <= 0.01 * abs(v) and abs(err - e) <= 0.05 * e
+    p = fit["parameters"]["m2"]
+    assert float(m2[2]) == pytest.approx(p["value"] * 1e3, rel=1e-3)
+    lo, hi = (float(x) for x in m2[3].strip("[]").split(", "))
+    assert lo == pytest.approx(p["interval"]["lower"] * 1e3, rel=1e-3)
+    assert hi == pytest.approx(p["interval"]["upper"] * 1e3, rel=1e-3)
+    assert m2[4] == ("yes" if p["identified"] else "not determined")
     assert m2[head.index("paper ± 1σ")] == "12.40 ± 0.90"
     assert float(m2[head.index("synthetic truth")]) == pytest.approx(truth["m2"] * 1e3)
-    z = float(m2[head.index("(fit − truth)/σ")])
-    assert z == pytest.approx((fit["parameters"]["m2"]["value"] - truth["m2"])
-                              / fit["parameters"]["m2"]["stderr"], abs=0.01)
+    inside = p["interval"]["lower"] <= truth["m2"] <= p["interval"]["upper"]
+    assert m2[head.index("in interval")] == ("yes" if inside else "no")
+    # every not-determined parameter says so, and none shows a small relative error
+    for name, row in body.items():
+        if row[4] == "not determined":
+            e = fit["parameters"][name]
+            assert e["identified"] is False
     assert REGISTRY["k_Ax"].unit in body["k_Ax"][1]
 
 
@@ -173,3 +180,25 @@ def test_run_time_card_leaves_out_the_report_stage(tmp_path):
     cards = {c.label: c for c in summary_cards(tmp_path, None, prov)}
     assert cards["run time"].value == "43 s"
     assert cards["stages"].value == "2 / 2 done"
+
+
+def test_identification_extras_render():
+    """Profiles, identifiable combinations and strong correlations from a fit.json."""
+    from gprm.report import figures as F
+    from gprm.report.build import combination_rows, strong_correlations
+
+    fit = {"parameters": {"m2": {"identified": True}, "k_Cy": {"identified": False}},
+           "profiles": [{"name": "m2", "grid": [0.011, 0.012, 0.013], "chi2": [4.0, 0.0, 5.0]},
+                        {"name": "k_Cy", "grid": [1e6, 7e6, 4e7], "chi2": [0.5, 0.0, None]}],
+           "identifiable_combinations": [{"terms": {"k_Cy": 1.0, "k_Dy": 0.94},
+                                          "form": "product of powers", "value": 1e13,
+                                          "lower": 9e12, "upper": 1.1e13,
+                                          "spread_vs_prior": 0.01}],
+           "correlation": {"names": ["m2", "k_Cy", "k_Dy"],
+                           "matrix": [[1, 0.2, 0.1], [0.2, 1, -0.995], [0.1, -0.995, 1]]}}
+    fig = F.fig_profiles(fit)
+    assert fig is not None and len(fig.axes) == 2
+    assert F.fig_profiles({"profiles": []}) is None
+    rows = combination_rows(fit)
+    assert rows[0][0] == "k_Cy · k_Dy^0.94" and rows[0][2].startswith("[")
+    assert strong_correlations(fit) == [["k_Cy", "k_Dy", "-0.99500"]]

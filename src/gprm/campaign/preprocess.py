@@ -231,15 +231,20 @@ def synchronise(Y: np.ndarray, ref: int, win: np.ndarray, max_lag: int):
     return shifts, splines
 
 
-def _position(Y, N, time, cfg: PreprocessConfig, name: str, src: str):
+def _position(Y, N, time, cfg: PreprocessConfig, name: str, src: str,
+              onset: int | None = None):
     """Steps 0-2 for one position: returns dict with noise std, baseline-corrected runs,
-    reference, shifts (samples), splines, coarse onset index."""
+    reference, shifts (samples), splines, coarse onset index. ``onset``: the onset index to
+    use where this position shows no motion above the noise (a position the model does not
+    fit, e.g. a flange that barely moves); without it such a position is an input error."""
     T = time.size
     sn = noise_std(N, time)
     first = Y[:, : max(T // 5, 4)]
     y0 = Y - np.median(first, axis=1, keepdims=True)
     med0 = np.median(y0, axis=0)
     above = np.abs(med0) > cfg.onset_factor * sn
+    if not above.any() and onset is not None:
+        above = np.arange(T) >= onset
     if not above.any():
         raise GprmInputError(f"position {name}: no motion above {cfg.onset_factor:g} x the "
                              f"noise std ({sn:.3g} m) in the actuated runs", source=src,
@@ -276,8 +281,16 @@ def preprocess(campaign: xr.Dataset, config: PreprocessConfig | None = None) -> 
     per = {}
     shift = np.zeros(len(POSITIONS))
     no_cross = []
-    for i, name in enumerate(POSITIONS):
-        d = _position(disp[i], noise[i], time, cfg, name, src)
+    # the fitted positions first: a position outside the model that shows no motion above
+    # its noise (a flange that barely moves) then takes their median onset
+    order = sorted(range(len(POSITIONS)), key=lambda i: POSITIONS[i] not in MODEL_POSITIONS)
+    onsets = []
+    for i in order:
+        name = POSITIONS[i]
+        fallback = int(np.median(onsets)) if name not in MODEL_POSITIONS and onsets else None
+        d = _position(disp[i], noise[i], time, cfg, name, src, onset=fallback)
+        if name in MODEL_POSITIONS:
+            onsets.append(d["onset"])
         # the synchronised mean as a continuous function of the reference run's sample
         # index; its first crossing (scanned at 1/UPSAMPLE sample) gives the alignment
         lo = max(0.0, -d["shifts"].min())
@@ -351,7 +364,11 @@ def preprocess(campaign: xr.Dataset, config: PreprocessConfig | None = None) -> 
         "gprm_version": gprm.__version__,
         "preprocess_json": json.dumps(cfg.__dict__),
         "no_crossing_json": json.dumps(no_cross),
+        # the record's length (the parametric bootstrap synthesises campaigns like this one)
+        "record_duration": float(time[-1] - time[0] + dt),
     }
+    if "generator_json" in campaign.attrs:
+        attrs["generator_json"] = campaign.attrs["generator_json"]
     truth_shift = truth_mean = None
     if "truth_json" in campaign.attrs:
         attrs["truth_json"] = campaign.attrs["truth_json"]

@@ -218,9 +218,13 @@ def _noise_and_drift(rng, shape, times, cfg):
 
 
 def synth_campaign(truth: ParameterSet | None = None, *, seed: int = 0,
-                   config: SynthConfig | None = None) -> xr.Dataset:
+                   config: SynthConfig | None = None, correction: dict | None = None
+                   ) -> xr.Dataset:
     """Generate a synthetic campaign Dataset (see the module docstring). ``truth``: the true
-    parameter set (default: drawn around the paper set with ``seed``)."""
+    parameter set (default: drawn around the paper set with ``seed``). ``correction``: the
+    nonlinear correction of this truth on the record's times, if already computed
+    (:func:`nonlinear_correction`; it depends on the truth only, so a parametric bootstrap
+    computes it once for all its campaigns)."""
     cfg = SynthConfig() if config is None else config
     cfg.validate()
     rng = np.random.default_rng(seed)
@@ -239,7 +243,10 @@ def synth_campaign(truth: ParameterSet | None = None, *, seed: int = 0,
     tb = batch([truth])
     nominal = mechanism_signals(tb, _observe_states(tb, fine, src), cfg,
                                 rate=cfg.rate * TRUTH_OVERSAMPLE)
-    corr = nonlinear_correction(truth, times) if cfg.nonlinear else {}
+    if not cfg.nonlinear:
+        corr = {}
+    else:
+        corr = nonlinear_correction(truth, times) if correction is None else correction
     for k, c in corr.items():
         nominal[k] = nominal[k] + CubicSpline(times, c)(fine)[None]
     peak = {k: float(np.max(np.abs(nominal[k]))) for k in POSITIONS}

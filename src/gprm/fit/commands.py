@@ -71,6 +71,20 @@ def register(app: typer.Typer, synth_app: typer.Typer) -> None:
                                          "for the sampled uncertainty bands"),
         profile: bool = typer.Option(False, "--profile", help="also compute profile "
                                      "likelihoods of every fitted parameter"),
+        uncertainty: str = typer.Option("parametric-bootstrap", "--uncertainty",
+                                        help="uncertainty method: parametric-bootstrap "
+                                        "(default), laplace-prior "
+                                        "(posterior of the prior-regularised fit), mcmc, "
+                                        "eq7-corr (Eq. 7 with the residuals' time "
+                                        "correlation) or eq7 (the paper's); docs/fitting.md "
+                                        "compares their coverage"),
+        boot: int = typer.Option(30, "--boot", parser=Int(min=5),
+                                 help="campaigns of the parametric bootstrap (>= 5)"),
+        prior_width: float = typer.Option(1.25, "--prior-width", parser=Number(min=0),
+                                          help="width of the weak "
+                                          "prior around the initial values (log units for "
+                                          "positive parameters; 0: none, the paper's "
+                                          "unregularised fit; docs/fitting.md)"),
         checkpoint: Optional[Path] = typer.Option(None, "--checkpoint", help="checkpoint "
                                                   "folder (default: OUT.ckpt); rerun resumes"),
         z_bk_absolute: bool = typer.Option(False, "--z-bk-absolute",
@@ -79,6 +93,8 @@ def register(app: typer.Typer, synth_app: typer.Typer) -> None:
         """Multi-start Levenberg-Marquardt identification (Sec. 3.1)."""
         import os
         import re
+
+        import numpy as np
 
         from rich.console import Console
         from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
@@ -89,6 +105,18 @@ def register(app: typer.Typer, synth_app: typer.Typer) -> None:
         from gprm.fit.result import identify
         from gprm.params import load_params
 
+        from gprm.fit.uncertainty import METHODS
+
+        if uncertainty not in METHODS:
+            raise GprmInputError(f"must be one of {', '.join(METHODS)}, got {uncertainty!r}",
+                                 field="--uncertainty")
+        if not (prior_width >= 0 and np.isfinite(prior_width)):
+            raise GprmInputError(f"must be >= 0, got {prior_width}", field="--prior-width")
+        if prior_width == 0 and uncertainty not in ("eq7", "eq7-corr"):
+            raise GprmInputError("--prior-width 0 (no prior) needs --uncertainty eq7 or "
+                                 "eq7-corr", field="--prior-width")
+        if boot < 5:
+            raise GprmInputError(f"must be at least 5, got {boot}", field="--boot")
         if sigma not in ("sem", "std"):
             raise GprmInputError(f"must be sem or std, got {sigma!r}", field="--sigma")
         from gprm._io import check_outputs
@@ -150,7 +178,8 @@ def register(app: typer.Typer, synth_app: typer.Typer) -> None:
                     res = identify(data, base, opts, piezo=piezo, workers=workers,
                                    scheduler=scheduler, checkpoint_dir=ckpt, progress=progress,
                                    profile=profile, z_bk_absolute=z_bk_absolute,
-                                   band_samples=band_samples)
+                                   band_samples=band_samples, uncertainty=uncertainty,
+                                   prior_width=prior_width or None, n_boot=boot)
             except Exception:
                 remove_checkpoints(ckpt, only_if_empty=True)   # refused: leave nothing behind
                 raise

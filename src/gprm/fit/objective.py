@@ -16,6 +16,7 @@ import numpy as np
 import xarray as xr
 
 from gprm.errors import GprmInputError
+from gprm.fit.prior import Prior
 from gprm.params import REGISTRY, ParameterSet, batch_from_vectors
 from gprm.simulate import OUTPUTS, observe
 
@@ -91,6 +92,8 @@ class Objective:
     scale: np.ndarray
     piezo: int = 2
     z_bk_absolute: bool = False
+    #: the weak prior's rows appended to the residuals (gprm.fit.prior), or None
+    prior: Prior | None = None
     # the parameter rows and prepared simulation of the last ``residuals`` call (see __call__)
     _last: dict = field(default_factory=dict, init=False, repr=False, compare=False)
 
@@ -100,7 +103,7 @@ class Objective:
 
     @classmethod
     def create(cls, data: FitData, base: ParameterSet, names=None, *, piezo: int = 2,
-               z_bk_absolute: bool = False) -> "Objective":
+               z_bk_absolute: bool = False, prior: Prior | None = None) -> "Objective":
         names = tuple(base.fitted if names is None else names)
         if not names:
             raise GprmInputError("no parameters to fit", field="fit")
@@ -112,7 +115,14 @@ class Objective:
         cur = base.vector(names)
         scale = np.where(np.abs(init) > 0, np.abs(init), np.abs(cur))
         scale = np.where(scale > 0, scale, 1.0)
-        return cls(data, base, names, scale, piezo, z_bk_absolute)
+        if prior is not None and tuple(prior.names) != names:
+            raise ValueError("prior names differ from the fitted names")
+        return cls(data, base, names, scale, piezo, z_bk_absolute, prior)
+
+    def with_prior(self, prior: Prior | None) -> "Objective":
+        """The same objective with another prior (or none)."""
+        return Objective(self.data, self.base, self.names, self.scale, self.piezo,
+                         self.z_bk_absolute, prior)
 
     @property
     def n_params(self) -> int:
@@ -175,14 +185,24 @@ class Objective:
         w = self._weights                                              # (S, T)
         r = ((self.data.values[None] - obs.y) * w[None]).reshape(Xn.shape[0], -1)
         J = (-obs.dy * w[None, :, :, None] * self.scale).reshape(Xn.shape[0], -1, Xn.shape[1])
-        return r, J
+        if self.prior is None:
+            return r, J
+        X = self.to_physical(Xn)
+        Jp = np.zeros((Xn.shape[0], Xn.shape[1], Xn.shape[1]))
+        idx = np.arange(Xn.shape[1])
+        Jp[:, idx, idx] = self.prior.jacobian(X) * self.scale
+        return (np.concatenate([r, self.prior.residuals(X)], axis=1),
+                np.concatenate([J, Jp], axis=1))
 
     def residuals(self, Xn: np.ndarray) -> np.ndarray:
         """Residuals only (no sensitivities), for any batch of normalised rows."""
         Xn = np.atleast_2d(np.asarray(Xn, float))
         obs = self.model(self.to_physical(Xn))
         self._last["entry"] = ({x.tobytes(): i for i, x in enumerate(Xn)}, obs.prepared)
-        return ((self.data.values[None] - obs.y) * self._weights[None]).reshape(Xn.shape[0], -1)
+        r = ((self.data.values[None] - obs.y) * self._weights[None]).reshape(Xn.shape[0], -1)
+        if self.prior is None:
+            return r
+        return np.concatenate([r, self.prior.residuals(self.to_physical(Xn))], axis=1)
 
     @cached_property
     def _weights(self) -> np.ndarray:
@@ -190,5 +210,11 @@ class Objective:
         return 1.0 / self.data.sigma
 
     def chi2(self, Xn: np.ndarray) -> np.ndarray:
+        """The minimised sum of squares (data chi-square plus the prior's rows, if any)."""
         r = self.residuals(Xn)
+        return np.sum(r * r, axis=1)
+
+    def data_chi2(self, Xn: np.ndarray) -> np.ndarray:
+        """Chi-square of the data alone (Eq. 6), without the prior's rows."""
+        r = self.residuals(Xn)[:, :self.data.n_obs]
         return np.sum(r * r, axis=1)

@@ -17,13 +17,15 @@ import xarray as xr
 import gprm
 from gprm._io import write_json_atomic, write_netcdf_atomic
 from gprm.errors import GprmInputError
-from gprm.fit.covariance import (CovarianceError, covariance, parameters_at_bounds,
-                                 sample_normal)
+from gprm.fit.covariance import parameters_at_bounds, sample_normal
 from gprm.fit.files import FORMAT_VERSION, MODEL_NAME
 from gprm.fit.lm import levenberg_marquardt_batch
 from gprm.fit.multistart import (LMOptions, MultiStartOptions, StartsOutcome, run_multistart,
                                  starts_to_dataset)
 from gprm.fit.objective import FitData, Objective
+from gprm.fit.prior import DEFAULT_WIDTH, Prior, default_prior
+from gprm.fit.uncertainty import (DEFAULT_METHOD, Uncertainty, estimate, from_mcmc,
+                                  time_correlation_factor)
 from gprm.params import REGISTRY, ParameterSet
 
 
@@ -42,18 +44,24 @@ class Bands:
 
 @dataclass(frozen=True)
 class Profile:
-    """Profile likelihood of one parameter: grid (physical), chi-square minimised over the
-    others, and the 68 % interval where Delta chi2 <= 1 (NaN where not reached)."""
+    """Profile likelihood of one parameter: grid (physical, ascending), the profile statistic
+    D = (Phi - Phi_min) / s2 with Phi the minimised objective (chi-square plus the weighted
+    prior) re-minimised over the other parameters, and the intervals where D <= 1 (68 %) and
+    D <= 3.84 (95 %). An end is NaN where the profile does not rise to the threshold before
+    the physical bound or the search limit: the data do not bound the parameter on that side.
+    ``chi2`` holds D (kept under its old name in the files)."""
 
     name: str
     grid: np.ndarray
     chi2: np.ndarray
     lower: float
     upper: float
+    lower95: float = float("nan")
+    upper95: float = float("nan")
 
     @property
     def identifiable(self) -> bool:
-        return bool(np.isfinite(self.lower) and np.isfinite(self.upper))
+        return bool(np.isfinite(self.lower95) and np.isfinite(self.upper95))
 
 
 @dataclass(frozen=True)
@@ -74,6 +82,34 @@ class FitResult:
     timings: dict = field(default_factory=dict)
     z_bk_absolute: bool = False
     polish: dict = field(default_factory=dict)
+    #: the chosen method's uncertainty (intervals, identified, draws) and the paper's Eq. 7
+    uncertainty: Uncertainty | None = None
+    eq7: Uncertainty | None = None
+    prior: Prior | None = None
+
+    def combinations(self) -> list[dict]:
+        """What the data determine among the not-identified parameters
+        (:func:`gprm.fit.uncertainty.identifiable_combinations`)."""
+        if self.uncertainty is None or self.prior is None:
+            return []
+        from gprm.fit.uncertainty import identifiable_combinations
+
+        return identifiable_combinations(self.uncertainty, self.prior, self.x)
+
+    def objective(self) -> Objective:
+        """The objective the best fit minimises (its prior weighed by the data's variance
+        scale), e.g. to refit bootstrap campaigns or profile a parameter."""
+        prior = self.prior
+        if prior is not None and self.uncertainty is not None and np.isfinite(self.uncertainty.s2):
+            prior = prior.with_weight(np.sqrt(self.uncertainty.s2))
+        return Objective.create(self.data, self.params, self.names, piezo=self.piezo,
+                                z_bk_absolute=self.z_bk_absolute, prior=prior)
+
+    @property
+    def identified(self) -> tuple[str, ...]:
+        if self.uncertainty is None:
+            return ()
+        return tuple(n for n, k in zip(self.names, self.uncertainty.identified) if k)
 
     @property
     def x(self) -> np.ndarray:
@@ -108,10 +144,16 @@ class FitResult:
                  f"    chi-square {self.chi2:.6g}, dof {self.dof}, reduced "
                  f"{self.reduced_chi2:.4g}",
                  "[[Parameters]]"]
-        for name, v, e in zip(self.names, self.x, self.stderr):
+        u = self.uncertainty
+        for k, (name, v, e) in enumerate(zip(self.names, self.x, self.stderr)):
             unit = REGISTRY[name].unit
             ev = from_si(e, name) if np.isfinite(e) else float("nan")
-            lines.append(f"    {name:>6} = {from_si(v, name):12.6g} +/- {ev:.3g} {unit}")
+            line = f"    {name:>9} = {from_si(v, name):12.6g} +/- {ev:.3g} {unit}"
+            if u is not None and np.isfinite(u.lower95[k]):
+                line += (f"   95%: [{from_si(u.lower95[k], name):.4g}, "
+                         f"{from_si(u.upper95[k], name):.4g}]")
+                line += "" if u.identified[k] else "   (not determined)"
+            lines.append(line)
         if self.covariance is None:
             lines.append(f"    (no covariance: {self.covariance_message})")
         if self.at_bounds:
@@ -122,17 +164,34 @@ class FitResult:
         from gprm.params import from_si
 
         corr = self.correlation
+        u = self.uncertainty
         params = {}
         for name in REGISTRY:
             fitted = name in self.names
             err = None
+            entry = {}
             if fitted:
-                e = self.stderr[self.names.index(name)]
+                k = self.names.index(name)
+                e = self.stderr[k]
                 err = float(e) if np.isfinite(e) else None
+                spec = self.params.bounds.get(name, (REGISTRY[name].lower, REGISTRY[name].upper))
+                entry["initial"] = float(self.params.initial_vector((name,))[0])
+                entry["at_bound"] = (("lower" if np.isclose(self.params[name], spec[0],
+                                                            rtol=0, atol=1e-12 * max(1, abs(spec[0])))
+                                      else "upper") if name in self.at_bounds else None)
+                if u is not None:
+                    entry["identified"] = bool(u.identified[k])
+                    entry["interval"] = {"level": 0.95, "lower": _num(u.lower95[k]),
+                                         "upper": _num(u.upper95[k]), "method": u.method}
+                    entry["interval68"] = {"level": 0.68, "lower": _num(u.lower68[k]),
+                                           "upper": _num(u.upper68[k])}
+                    entry["contraction"] = _num(u.contraction[k])
+                if self.eq7 is not None:
+                    entry["stderr_eq7"] = _num(self.eq7.stderr[k])
             params[name] = {"value": float(self.params[name]), "stderr": err,
                             "unit": _si_unit(name), "fitted": fitted,
                             "display_unit": REGISTRY[name].unit,
-                            "display_value": float(from_si(self.params[name], name))}
+                            "display_value": float(from_si(self.params[name], name)), **entry}
         best = self.starts.best_index
         d = {
             "model": MODEL_NAME, "format_version": FORMAT_VERSION, "piezo": self.piezo,
@@ -144,6 +203,10 @@ class FitResult:
             "chi2": float(self.chi2), "dof": int(self.dof),
             "reduced_chi2": float(self.reduced_chi2),
             "covariance_message": self.covariance_message,
+            "uncertainty": self._uncertainty_json(),
+            "identified": list(self.identified),
+            "not_determined": [n for n in self.names if n not in self.identified],
+            "identifiable_combinations": self.combinations(),
             "parameters_at_bounds": list(self.at_bounds),
             "correlation": {"names": list(self.names),
                             "matrix": None if corr is None else corr.tolist()},
@@ -164,6 +227,8 @@ class FitResult:
             "profiles": [{"name": p.name, "grid": p.grid.tolist(),
                           "chi2": [_num(c) for c in p.chi2],
                           "lower": _num(p.lower), "upper": _num(p.upper),
+                          "lower95": _num(p.lower95), "upper95": _num(p.upper95),
+                          "statistic": "(Phi - Phi_min) / s2",
                           "identifiable": p.identifiable} for p in self.profiles],
             "data": {"source": self.data.source, "n_obs": self.data.n_obs,
                      "sha256": _data_hash(self.data)},
@@ -173,6 +238,26 @@ class FitResult:
         }
         if "truth_json" in self.data.attrs:
             d["data"]["truth_available"] = True
+        return d
+
+    def _uncertainty_json(self) -> dict:
+        u = self.uncertainty
+        if u is None:
+            return {"method": "eq7", "note": self.covariance_message}
+        from gprm.fit.uncertainty import CONTRACTION
+
+        d = {"method": u.method, "note": u.message if u.message != "ok" else
+             ("posterior of the prior-regularised fit (Laplace); identified = posterior sd "
+              f"below {CONTRACTION} of the prior's" if u.method == "laplace-prior" else
+              "linearised covariance"),
+             "s2": _num(u.s2), "tau": _num(u.tau), "identified_threshold": CONTRACTION,
+             "draws": 0 if u.draws is None else int(len(u.draws))}
+        if self.prior is not None:
+            d["prior"] = {"width": float(self.prior.sd[self.prior.log][0])
+                          if self.prior.log.any() else None,
+                          "centre": "initial values (Table 3)", "docs": "docs/fitting.md"}
+        if self.eq7 is not None:
+            d["eq7_message"] = self.eq7.message
         return d
 
     def sidecar_dataset(self) -> xr.Dataset:
@@ -191,6 +276,10 @@ class FitResult:
         if self.covariance is not None:
             ds["covariance"] = (("param", "param2"), self.covariance)
             ds = ds.assign_coords(param2=list(self.names))
+        if self.uncertainty is not None and self.uncertainty.draws is not None:
+            ds["posterior_draws"] = (("draw", "param"), self.uncertainty.draws, {
+                "long_name": f"parameter sets from the uncertainty method "
+                f"({self.uncertainty.method}), SI; later stages propagate these"})
         for v in ("data_mean", "data_sigma", "model_best", "band_linear_std",
                   "band_sample_std", "band_sample_lo", "band_sample_hi"):
             if v in ds:
@@ -231,8 +320,10 @@ def _data_hash(data: FitData) -> str:
 # ----------------------------------------------------------------------------- uncertainty
 
 def compute_bands(obj: Objective, x: np.ndarray, cov: np.ndarray | None, *, n_samples=200,
-                  seed: int = 0) -> Bands:
-    """Bands on the fitted signals: linear propagation and sampling of the covariance."""
+                  seed: int = 0, draws: np.ndarray | None = None) -> Bands:
+    """Bands on the fitted signals: linear propagation of the covariance, and the spread of
+    model signals over ``n_samples`` parameter sets: the uncertainty method's ``draws`` where
+    given, else draws from N(x, cov)."""
     o = obj.model(x[None], jacobian=cov is not None)
     best = o.y[0]
     nanb = np.full_like(best, np.nan)
@@ -243,7 +334,10 @@ def compute_bands(obj: Objective, x: np.ndarray, cov: np.ndarray | None, *, n_sa
     if n_samples <= 0:
         return Bands(obj.data.time, best, lin, nanb, nanb, nanb, 0)
     rng = np.random.default_rng([seed, 3])
-    X = sample_normal(x, cov, n_samples, rng)
+    if draws is not None and len(draws) >= 2:
+        X = np.asarray(draws, float)[rng.integers(0, len(draws), n_samples)]
+    else:
+        X = sample_normal(x, cov, n_samples, rng)
     lo, hi = obj.bounds()
     X = X[np.all((X > lo) & (X < hi), axis=1)]           # physical sets only
     if X.shape[0] < 2:          # (almost) every draw non-physical: no sampled band
@@ -275,47 +369,85 @@ class _FixedOne:
         return self.obj.residuals(X)
 
 
-def profile_likelihood(obj: Objective, x_best: np.ndarray, stderr: np.ndarray, name: str, *,
-                       n_points: int = 13, width: float = 3.0,
-                       lm: LMOptions = LMOptions()) -> Profile:
-    """Profile likelihood of ``name``: chi-square minimised over the other parameters with
-    ``name`` fixed on a grid of ``n_points`` over best +/- width*stderr (+/-10 % where no
-    stderr). All grid points run in lock-step, each started from the best fit. The interval
-    is where Delta chi2 <= 1 relative to the best fit (68 % for one parameter)."""
+def profile_likelihood(obj: Objective, x_best: np.ndarray, name: str, *, s2: float = 1.0,
+                       sd_u: float | None = None, lm: LMOptions = LMOptions(),
+                       max_extend: int = 3) -> Profile:
+    """Profile likelihood of ``name`` at the best fit ``x_best`` (physical).
+
+    The grid lives in the posterior's coordinate u of the parameter (ln x for a positive
+    parameter under the prior, so the physical bound 0 is never crossed; else x), at
+    -3 .. +3 posterior standard deviations ``sd_u`` (10 % of the value where not given). A
+    side whose outer point has not risen to D = 3.84 is extended by doubling its reach, up to
+    ``max_extend`` times (adaptive steps); points outside the physical bounds are not
+    evaluated. Each grid point is a fit of the other parameters with this one fixed, started
+    from the best fit, all in lock-step. The statistic is scaled by the data's variance scale
+    ``s2`` (the same scale as the Laplace covariance), so its thresholds 1 and 3.84 match the
+    68 % and 95 % intervals of that covariance where the problem is linear.
+    """
     k = obj.names.index(name)
-    s = stderr[k] if np.isfinite(stderr[k]) and stderr[k] > 0 else 0.1 * abs(x_best[k])
-    grid = x_best[k] + np.linspace(-width, width, n_points) * s
+    prior = obj.prior
+    log = bool(prior is not None and prior.log[k])
+    to_u = (lambda v: np.log(v)) if log else (lambda v: v)
+    from_u = (lambda v: np.exp(v)) if log else (lambda v: v)
+    u0 = float(to_u(x_best[k]))
+    h = float(sd_u) if sd_u is not None and np.isfinite(sd_u) and sd_u > 0 else \
+        (0.1 if log else 0.1 * max(abs(x_best[k]), 1e-30))
+    lo_b, hi_b = obj.bounds()
     xn = obj.to_normalised(x_best)
-    X0 = np.repeat(xn[None], n_points, axis=0)
-    X0[:, k] = grid / obj.scale[k]
-    lo, hi = obj.bounds_normalised()
-    inside = (X0[:, k] > lo[k]) & (X0[:, k] < hi[k])
-    chi = np.full(n_points, np.nan)
-    if inside.any():
-        f = _FixedOne(obj, k)
-        kw = lm.as_kwargs()
-        kw.update(ftol_abs=min(kw["ftol_abs"], 1e-4), stall_window=0)
-        res = levenberg_marquardt_batch(f, X0[inside], residuals=f.residuals, lower=lo,
-                                        upper=hi, **kw)
-        chi[inside] = np.where(np.isfinite(res.chi2), res.chi2, np.nan)
-    c0 = float(np.sum(obj.residuals(xn[None]) ** 2))
-    dchi = chi - min(c0, np.nanmin(np.append(chi, np.inf)))
-    lower, upper = _crossings(grid, np.where(np.isfinite(dchi), dchi, np.inf), x_best[k])
-    return Profile(name, grid, chi, lower, upper)
+    f = _FixedOne(obj, k)
+    kw = lm.as_kwargs()
+    kw.update(ftol_abs=min(kw["ftol_abs"], 1e-4), stall_window=0)
+    lo_n, hi_n = obj.bounds_normalised()
+    phi0 = float(obj.chi2(xn[None])[0])
+    pts: dict[float, float] = {}
+
+    def run(offsets):
+        us = [u0 + o * h for o in offsets]
+        xs = np.array([from_u(u) for u in us])
+        ok = (xs > lo_b[k]) & (xs < hi_b[k]) & np.isfinite(xs)
+        if not ok.any():
+            return
+        X0 = np.repeat(xn[None], int(ok.sum()), axis=0)
+        X0[:, k] = xs[ok] / obj.scale[k]
+        res = levenberg_marquardt_batch(f, X0, residuals=f.residuals, lower=lo_n, upper=hi_n,
+                                        **kw)
+        for x, c in zip(xs[ok], res.chi2):
+            pts[float(x)] = float(c) if np.isfinite(c) else np.nan
+
+    offsets = [-3.0, -2.0, -1.0, -0.5, 0.5, 1.0, 2.0, 3.0]
+    run(offsets)
+    for side in (-1.0, 1.0):
+        reach = 3.0
+        for _ in range(max_extend):
+            xs = sorted(pts)
+            phi_min = min([phi0] + [v for v in pts.values() if np.isfinite(v)])
+            edge = xs[0] if side < 0 else xs[-1]
+            if np.isfinite(pts[edge]) and (pts[edge] - phi_min) / s2 >= 3.84:
+                break
+            reach *= 2.0
+            run([side * reach * 0.75, side * reach])
+    pts[float(x_best[k])] = phi0
+    grid = np.array(sorted(pts))
+    phi = np.array([pts[g] for g in grid])
+    dchi = (phi - np.nanmin(phi)) / s2
+    d = np.where(np.isfinite(dchi), dchi, np.inf)
+    lower, upper = _crossings(grid, d, x_best[k], 1.0)
+    lower95, upper95 = _crossings(grid, d, x_best[k], 3.84)
+    return Profile(name, grid, dchi, lower, upper, lower95, upper95)
 
 
-def _crossings(grid, dchi, centre):
+def _crossings(grid, dchi, centre, level=1.0):
     lower = upper = np.nan
-    left = np.nonzero((grid < centre) & (dchi >= 1))[0]
+    left = np.nonzero((grid < centre) & (dchi >= level))[0]
     if left.size:
         i = left[-1]
         j = i + 1
-        lower = np.interp(1.0, [dchi[j], dchi[i]], [grid[j], grid[i]])
-    right = np.nonzero((grid > centre) & (dchi >= 1))[0]
+        lower = np.interp(level, [min(dchi[j], level), dchi[i]], [grid[j], grid[i]])
+    right = np.nonzero((grid > centre) & (dchi >= level))[0]
     if right.size:
         j = right[0]
         i = j - 1
-        upper = np.interp(1.0, [dchi[i], dchi[j]], [grid[i], grid[j]])
+        upper = np.interp(level, [min(dchi[i], level), dchi[j]], [grid[i], grid[j]])
     return lower, upper
 
 
@@ -324,40 +456,82 @@ def _crossings(grid, dchi, centre):
 def identify(data: FitData, base: ParameterSet, opts: MultiStartOptions = MultiStartOptions(),
              *, piezo: int = 2, names=None, workers: int = 0, scheduler: str | None = None,
              checkpoint_dir=None, progress=None, profile: bool = False, band_samples: int = 200,
-             z_bk_absolute: bool = False, stop_after: int | None = None) -> FitResult:
-    """Multi-start identification of ``names`` (default: the set's fitted parameters)."""
+             z_bk_absolute: bool = False, stop_after: int | None = None,
+             uncertainty: str = DEFAULT_METHOD, prior_width: float | None = DEFAULT_WIDTH,
+             n_draws: int = 400, n_boot: int = 40) -> FitResult:
+    """Multi-start identification of ``names`` (default: the set's fitted parameters).
+
+    With ``prior_width`` (default) every start minimises chi-square plus the weak prior of
+    :mod:`gprm.fit.prior`; the best start is then polished with the prior weighed against
+    the data's variance scale s2 (negative log posterior chi2 / s2 + prior), and the
+    uncertainty comes from ``uncertainty`` (:mod:`gprm.fit.uncertainty`). ``prior_width=None``
+    is the paper's unregularised fit (its uncertainty then is Eq. 7 or eq7-corr).
+    """
     t_start = time.perf_counter()
-    obj = Objective.create(data, base, names, piezo=piezo, z_bk_absolute=z_bk_absolute)
+    fit_names = tuple(base.fitted if names is None else names)
+    prior = None if prior_width is None else default_prior(base, fit_names, prior_width)
+    if prior is None and uncertainty in ("laplace-prior", "parametric-bootstrap", "mcmc"):
+        raise GprmInputError("the laplace-prior uncertainty needs a prior (a prior width)",
+                             field="--uncertainty")
+    obj = Objective.create(data, base, fit_names, piezo=piezo, z_bk_absolute=z_bk_absolute,
+                           prior=prior)
     starts = run_multistart(obj, opts, workers=workers, scheduler=scheduler,
                             checkpoint_dir=checkpoint_dir, progress=progress,
                             stop_after=stop_after)
     t_ms = time.perf_counter() - t_start
     best = starts.best_index
     x, polish = polish_best(obj, starts.x[best], opts.lm)
-    xn = obj.to_normalised(x)
-    r, Jn = obj(xn[None])
-    chi2 = float(np.sum(r[0] ** 2))
-    J = Jn[0] / obj.scale                                          # d r / d x (physical)
-    cov, msg = None, "ok"
-    try:
-        cov = covariance(J, r[0], dof=obj.dof, names=obj.names)
-    except CovarianceError as exc:
-        msg = str(exc)
+    r, J = _data_jacobian(obj, x)
+    if prior is not None:
+        # weigh the prior against the data's variance scale, then polish again
+        s2 = time_correlation_factor(r, len(data.signals)) * float(r @ r) / obj.dof
+        obj = obj.with_prior(prior.with_weight(np.sqrt(max(s2, 1e-300))))
+        x, polish2 = polish_best(obj, x, opts.lm)
+        polish = {**polish, "posterior": polish2, "s2": s2}
+        r, J = _data_jacobian(obj, x)
+    chi2 = float(r @ r)
+    eq7 = estimate("eq7", x, J, r, obj.dof, len(data.signals), prior, obj.names)
+    base_method = ("laplace-prior" if uncertainty in ("parametric-bootstrap", "mcmc")
+                   else uncertainty)
+    unc = eq7 if uncertainty == "eq7" else estimate(
+        base_method, x, J, r, obj.dof, len(data.signals), prior, obj.names,
+        n_draws=n_draws, seed=opts.seed)
+    t_b = time.perf_counter()
+    if uncertainty == "parametric-bootstrap":
+        from gprm.fit.bootstrap import bootstrap_uncertainty
+
+        unc = bootstrap_uncertainty(obj, x, unc, prior, uncertainty, n_boot=n_boot,
+                                    seed=opts.seed, lm=opts.lm, n_draws=n_draws)
+    elif uncertainty == "mcmc":
+        unc = from_mcmc(obj, x, unc, prior, seed=opts.seed, n_draws=n_draws)
+    cov, msg = unc.covariance, unc.message
     lo, hi = obj.bounds_normalised()
-    at_b = tuple(np.asarray(obj.names)[parameters_at_bounds(xn, lo, hi)].tolist())
+    at_b = tuple(np.asarray(obj.names)[parameters_at_bounds(obj.to_normalised(x), lo, hi)]
+                 .tolist())
     if at_b and cov is not None:
         msg = f"ok (parameters at a bound: {', '.join(at_b)}; their errors are not reliable)"
     params = base.with_values(**dict(zip(obj.names, map(float, x))))
-    t_b = time.perf_counter()
-    bands = compute_bands(obj, x, cov, n_samples=band_samples, seed=opts.seed)
+    bands = compute_bands(obj, x, cov, n_samples=band_samples, seed=opts.seed,
+                          draws=unc.draws)
     profiles = ()
     if profile:
-        se = np.full(len(obj.names), np.nan) if cov is None else np.sqrt(np.diag(cov))
-        profiles = tuple(profile_likelihood(obj, x, se, n, lm=opts.lm) for n in obj.names)
+        s2p = unc.s2 if np.isfinite(unc.s2) else 1.0
+        sdu = (unc.contraction * prior.sd if prior is not None and unc.method == "laplace-prior"
+               else unc.stderr)
+        profiles = tuple(profile_likelihood(obj, x, n, s2=s2p, sd_u=sdu[i], lm=opts.lm)
+                         for i, n in enumerate(obj.names))
     timings = {"multistart": round(t_ms, 3), "uncertainty": round(time.perf_counter() - t_b, 3),
                "total": round(time.perf_counter() - t_start, 3)}
     return FitResult(obj.names, params, chi2, obj.dof, cov, msg, at_b, starts, opts, data,
-                     piezo, bands, profiles, timings, z_bk_absolute, polish)
+                     piezo, bands, profiles, timings, z_bk_absolute, polish, unc, eq7, prior)
+
+
+def _data_jacobian(obj: Objective, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Weighted data residuals r (N,) and their Jacobian d r / d x (N, P), physical x; the
+    prior's rows left out."""
+    r, Jn = obj(obj.to_normalised(x)[None])
+    n = obj.data.n_obs
+    return r[0, :n], Jn[0, :n] / obj.scale
 
 
 def polish_best(obj: Objective, x: np.ndarray, lm: LMOptions, *, max_iter: int = 200,

@@ -140,3 +140,18 @@ def coordinate_derivatives(pb: dict, piezo: int, names) -> SparseDerivatives:
                                  np.zeros(Bn + (0,)), len(names))
     return SparseDerivatives(np.concatenate(e), np.concatenate(a), np.concatenate(p),
                              np.concatenate(vals, axis=-1), len(names))
+
+
+def admissible(pb: dict, piezo: int, *, rtol: float = 1e-9) -> np.ndarray:
+    """Boolean mask (B,) of parameter sets the exact solver can simulate: the mechanical mass
+    and stiffness blocks M_ss and K_ss (8 x 8, symmetric) positive definite, smallest
+    eigenvalue above ``rtol`` times the largest. A stiffness drawn at zero (a spring removed)
+    makes K_ss singular and the static equilibrium undefined; such sets are never simulated
+    (issue 12: propagation never breaks)."""
+    M, _, K = generated(piezo).linear_matrices(pb)
+    ok = np.ones(np.shape(M)[:-2], bool)
+    for A in (M[..., :8, :8], K[..., :8, :8]):
+        with np.errstate(all="ignore"):
+            w = np.linalg.eigvalsh(0.5 * (A + np.swapaxes(A, -1, -2)))
+        ok &= np.all(np.isfinite(w), axis=-1) & (w[..., 0] > rtol * np.abs(w[..., -1]))
+    return ok

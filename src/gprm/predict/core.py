@@ -57,14 +57,20 @@ def predict(fm: FittedModel, *, scenario: Scenario | None = None, times=None,
             samples: int = 200, seed: int = 0, means: str | os.PathLike | None = None,
             energy_window: tuple[float, float] = ENERGY_WINDOW, n_bins: int = 20,
             gap: float | None = None, gap_std: float = 0.0, voltage=None) -> Prediction:
-    """Run the whole prediction for ``scenario`` (default: Piezo 2, as fitted)."""
+    """Run the whole prediction for ``scenario`` (default: Piezo 2, as fitted).
+
+    A model without usable parameter uncertainty (``fm.has_uncertainty`` False) predicts
+    with its best fit alone: no sampled or linear bands, which the files and the report
+    say (``fm.uncertainty_note``)."""
     if samples < 0:
         raise GprmInputError(f"must be >= 0, got {samples}", field="samples")
     sc = scenario or Scenario("piezo2", 2)
     fs = apply_scenario(fm, sc)
+    if not fs.has_uncertainty:
+        samples = 0
     t = default_times() if times is None else np.asarray(times, float)
     traj = predict_trajectories(fs, t, piezo=sc.piezo, samples=samples, seed=seed,
-                                voltage=voltage)
+                                voltage=voltage, linear=fs.covariance is not None)
     m = read_means(means) if means is not None else None
     try:
         en = energy_check(fs, piezo=sc.piezo, means=m, window=energy_window, n_bins=n_bins,

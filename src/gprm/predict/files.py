@@ -99,7 +99,9 @@ def prediction_dataset(pred: Prediction) -> xr.Dataset:
         "scale_eccentricity": float(sc.scale_eccentricity),
         "seed": int(pred.seed), "samples": int(tr.n_samples), "samples_ok": int(tr.n_ok),
         "energy_samples_ok": int(en.n_ok),
-        "band": "2.5 % and 97.5 % quantiles over parameter sets drawn from the fit covariance",
+        "band": "2.5 % and 97.5 % quantiles over parameter sets drawn from the fit's "
+                "uncertainty method (FittedModel.sample)",
+        "uncertainty": pred.fm.uncertainty_note,
         "convention": "positions in the ground frame, origin at point A at rest; pos is the "
                       "change from the initial equilibrium position pos_initial",
         "overshoot_definition": DEFINITION,

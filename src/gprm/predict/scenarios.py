@@ -72,5 +72,11 @@ def apply_scenario(fm: FittedModel, sc: Scenario) -> FittedModel:
             d[i] = f
         if n in sc.overrides:
             d[i] = 0.0
-    cov = fm.covariance * np.outer(d, d)
-    return replace(fm, params=ps, covariance=cov)
+    cov = None if fm.covariance is None else fm.covariance * np.outer(d, d)
+    draws = fm.draws
+    if draws is not None:
+        draws = np.asarray(draws, float) * d[None, :]
+        for i, n in enumerate(fm.names):
+            if n in sc.overrides:
+                draws[:, i] = float(sc.overrides[n])
+    return replace(fm, params=ps, covariance=cov, draws=draws)

@@ -28,6 +28,7 @@ from gprm._io import open_netcdf, read_json, write_text_atomic
 from gprm.demo.summary import (impact_times_found, json_attr, summarise, truth_for_fit,
                                truth_from_means)
 from gprm.errors import GprmInputError
+from gprm.fit.uncertainty import COVERAGE_HEADLINE
 from gprm.report import figures as F
 from gprm.report.html import (Card, Section, fig_to_img, not_run, num, paragraph, pm, render,
                               table)
@@ -141,8 +142,9 @@ def truth_of(run: Path, fit: dict) -> dict | None:
 
 
 def table3_rows(fit: dict, truth: dict | None) -> list:
-    """Table 3: fitted value ± stderr, the synthetic truth, the paper's value ± its error,
-    all in the paper's display units."""
+    """Table 3: best fit, its 95 % interval from the fit's uncertainty method and whether the
+    data determine it, the synthetic truth (and whether the interval holds it), the paper's
+    value ± its error, the initial value and the CAD nominal, in the paper's display units."""
     from gprm.params import REGISTRY, from_si
 
     rows = []
@@ -151,17 +153,53 @@ def table3_rows(fit: dict, truth: dict | None) -> list:
             continue
         spec = REGISTRY[name]
         unit_scale = from_si(1.0, name)
-        err = p.get("stderr")
-        row = [name, spec.unit.replace("us", "µs"), pm(p["value"], err, unit_scale)]
+        iv = p.get("interval") or {}
+        lo, hi = iv.get("lower"), iv.get("upper")
+        ident = p.get("identified")
+        row = [name, spec.unit.replace("us", "µs"), num(p["value"] * unit_scale),
+               "—" if lo is None or hi is None else
+               f"[{num(lo * unit_scale)}, {num(hi * unit_scale)}]",
+               "—" if ident is None else ("yes" if ident else "not determined")]
         if truth is not None:
             t = truth.get(name)
             row.append("—" if t is None else num(t * unit_scale))
-            row.append("—" if (t is None or not err) else f"{(p['value'] - t) / err:+.2f}")
+            row.append("—" if (t is None or lo is None or hi is None)
+                       else ("yes" if lo <= t <= hi else "no"))
         row.append(pm(spec.default, spec.paper_stderr, unit_scale)
                    if spec.group == "fitted" else "— (not in the paper)")
         row.append("—" if spec.initial is None else num(spec.initial * unit_scale))
         row.append("—" if spec.nominal is None else num(spec.nominal * unit_scale))
         rows.append(row)
+    return rows
+
+
+def strong_correlations(fit: dict, threshold: float = 0.99) -> list:
+    """Pairs of fitted parameters with |correlation| above ``threshold``, strongest first."""
+    corr = fit.get("correlation") or {}
+    names, R = corr.get("names") or [], corr.get("matrix")
+    if R is None:
+        return []
+    R = np.asarray(R, float)
+    out = [(names[i], names[j], R[i, j]) for i in range(len(names))
+           for j in range(i + 1, len(names)) if abs(R[i, j]) > threshold]
+    return [[a, b, f"{r:+.5f}"] for a, b, r in sorted(out, key=lambda t: -abs(t[2]))]
+
+
+def combination_rows(fit: dict) -> list:
+    from gprm.params import REGISTRY
+
+    rows = []
+    for c in fit.get("identifiable_combinations") or []:
+        terms = c["terms"]
+        if c.get("form") == "product of powers":
+            expr = " · ".join(f"{k}^{v:g}" if v != 1 else k for k, v in terms.items())
+            unit = " · ".join(f"({REGISTRY[k].unit})^{v:g}" for k, v in terms.items()
+                              if k in REGISTRY)
+        else:
+            expr = " + ".join(f"{v:g} {k}" for k, v in terms.items())
+            unit = "SI"
+        rows.append([expr, num(c["value"]), f"[{num(c['lower'])}, {num(c['upper'])}]",
+                     f"{c['spread_vs_prior']:.2f}", f"SI ({unit})"])
     return rows
 
 
@@ -179,6 +217,17 @@ def fit_section(run: Path) -> tuple[Section, dict | None]:
         f"χ² within Δχ² ≤ 1. χ² = {fit['chi2']:.5g} for {fit['dof']} degrees of freedom "
         f"(reduced χ² = {fit['reduced_chi2']:.4g}; weights: {fit.get('sigma', 'sem')}). "
         f"Covariance (Eq. 7): {fit.get('covariance_message', 'ok')}."))
+    unc = fit.get("uncertainty") or {}
+    phys = [n for n, p in fit["parameters"].items() if p.get("fitted") and n not in
+            ("t0", "t1") and not n.startswith("dt_")]
+    ident = [n for n in phys if fit["parameters"][n].get("identified")]
+    if unc:
+        s.blocks.append(paragraph(
+            f"Uncertainty: {unc.get('method')} — {unc.get('note', '')}. The data determine "
+            f"{len(ident)} of the {len(phys)} physical parameters ({', '.join(ident)}); the "
+            "others are reported as not determined, with the interval the posterior gives "
+            "(close to the weak prior's), never with a small error. "
+            f"{COVERAGE_HEADLINE} (docs/fitting.md, benchmarks/bench_coverage.py)."))
     if side is not None:
         s.blocks.append(fig_to_img(F.fig_fit(side), "Best fit over the mean signals with "
                                    "±σ and the 95 % model band from the parameter covariance "
@@ -194,17 +243,39 @@ def fit_section(run: Path) -> tuple[Section, dict | None]:
     else:
         s.blocks.append(not_run("Fit figures", "fit.nc (the sidecar) is missing."))
     truth = truth_of(run, fit)
-    head = ["parameter", "unit", "fit ± 1σ"]
+    head = ["parameter", "unit", "best fit", "95 % interval", "identified"]
     if truth is not None:
-        head += ["synthetic truth", "(fit − truth)/σ"]
+        head += ["synthetic truth", "in interval"]
     head += ["paper ± 1σ", "initial", "nominal (CAD)"]
     s.blocks.append(table(head, table3_rows(fit, truth), "Table 3: best-fit parameters",
-                          "table-3", note="Errors are 1σ from Eq. 7. The paper column is the "
-                          "published Table 3; the initial values are the centre of the "
-                          "random starts. For synthetic data the truth of the lags t0, t1 "
-                          "and of the alignment offsets dt_* is the one expected in the "
-                          "aligned time base of the means (docs/data-formats.md, "
-                          "docs/model.md)."))
+                          "table-3", note="Intervals come from the fit's uncertainty method "
+                          f"({unc.get('method', 'Eq. 7')}); 'not determined' means the data "
+                          "shrink the weak prior by less than the identification threshold "
+                          "(docs/fitting.md). The paper column is the published Table 3; the "
+                          "initial values are the centre of the random starts and of the "
+                          "prior. For synthetic data the truth of the lags t0, t1 and of the "
+                          "alignment offsets dt_* is the one expected in the aligned time "
+                          "base of the means (docs/data-formats.md, docs/model.md)."))
+    combos = combination_rows(fit)
+    if combos:
+        s.blocks.append(table(["combination", "best fit", "95 % interval",
+                               "spread / prior's", "unit"], combos,
+                              "What the data determine among the undetermined parameters",
+                              "table-combinations", note="Directions of the posterior, "
+                              "restricted to the not-determined parameters, along which the "
+                              "data shrink the prior at least as much as for an identified "
+                              "parameter (e.g. the y springs' stiffness moments)."))
+    strong = strong_correlations(fit)
+    s.blocks.append(table(["parameter", "parameter", "correlation"], strong,
+                          "Correlations above 0.99", "table-correlations",
+                          note="From the fit's covariance." if strong else
+                          "None above 0.99."))
+    fig = F.fig_profiles(fit)
+    if fig is not None:
+        s.blocks.append(fig_to_img(fig, "Profile likelihoods of the fitted parameters "
+                                   "(gprm fit --profile): a profile that stays below the "
+                                   "dashed line on one side leaves the parameter unbounded "
+                                   "there", "fig-profiles"))
     s.blocks.append(fig_to_img(F.fig_masses(fit, truth), "Masses: fitted value ± 1σ against "
                                "the CAD nominal, the initial value and the paper's 3D fit "
                                "(cf. Fig. 7)", "fig-masses"))

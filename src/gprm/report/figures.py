@@ -439,3 +439,35 @@ def fig_residuals(side, signals=("x_base", "x_head", "y_base", "y_head", "z_bk")
     ax.set_title("Normalised residuals of the best fit")
     fig.tight_layout()
     return fig
+
+
+def fig_profiles(fit: dict):
+    """Profile likelihoods (``gprm fit --profile``): the statistic D against each parameter,
+    with the 68 % and 95 % thresholds; None where the fit has no profiles."""
+    from gprm.params import REGISTRY, from_si
+
+    profs = [p for p in fit.get("profiles") or [] if p.get("grid")]
+    if not profs:
+        return None
+    n = len(profs)
+    cols = min(6, n)
+    rows = int(np.ceil(n / cols))
+    fig, axes = plt.subplots(rows, cols, figsize=(1.9 * cols, 1.7 * rows), squeeze=False)
+    for ax, p in zip(axes.flat, profs):
+        name = p["name"]
+        g = np.array([from_si(v, name) for v in p["grid"]])
+        d = np.array([np.nan if v is None else v for v in p["chi2"]], float)
+        ident = fit["parameters"].get(name, {}).get("identified")
+        ax.plot(g, d, "o-", ms=2.5, lw=1, color=COLORS["model"] if ident else "#999999")
+        for lev, ls in ((1.0, ":"), (3.84, "--")):
+            ax.axhline(lev, color="k", lw=0.6, ls=ls)
+        ax.set_ylim(0, 8)
+        ax.set_title(f"{name} [{REGISTRY[name].unit}]" + ("" if ident else " (n.d.)"),
+                     fontsize=7)
+        ax.tick_params(labelsize=6)
+    for ax in list(axes.flat)[n:]:
+        ax.axis("off")
+    fig.suptitle("Profile likelihoods: D = (Φ − Φ_min)/s² (dotted 68 %, dashed 95 %); grey: "
+                 "not determined", fontsize=8)
+    fig.tight_layout()
+    return fig

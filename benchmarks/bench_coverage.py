@@ -1,0 +1,190 @@
+"""Coverage of the identification's uncertainty methods over synthetic campaigns (issue 12).
+
+For each campaign: a truth drawn within +-10 % of Table 3 (the 21 physical parameters, as
+../shared/tools/chain-check draws them), a synthetic campaign with every mismatch ingredient of
+`gprm synth campaign` on, preprocessing and fit with the CLI's defaults, and then for each
+method the fraction of 95 % and 68 % intervals that contain the truth:
+
+- parameters: the 21 physical parameters of Table 3 (all, and those the method reports as
+  identified);
+- predictions: the overshoot (largest |displacement| over 0.95-1.2 ms) of the four points
+  (CoM, M_xz, M_yz, tip edge) on three axes in the three scenarios of Sec. 4.2, for the
+  point-axes that move (truth overshoot above 1 % of the scenario's largest).
+
+Methods: ``eq7`` and ``eq7-corr`` on the paper's unregularised fit; ``laplace-prior``,
+``parametric-bootstrap``, ``bootstrap-runs`` and ``mcmc`` on the prior-regularised fit
+(gprm.fit.uncertainty, gprm.fit.bootstrap).
+
+    .venv/bin/python benchmarks/bench_coverage.py [--campaigns 20] [--starts 200] [--seed 1000] [--boot 30]
+
+Prints the table docs/fitting.md quotes; --json F also writes every campaign's numbers.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from dataclasses import replace
+
+import numpy as np
+
+from gprm.campaign.preprocess import PreprocessConfig, preprocess
+from gprm.campaign.synth import synth_campaign
+from gprm.fit.bootstrap import bootstrap_uncertainty
+from gprm.fit.files import FittedModel
+from gprm.fit.multistart import MultiStartOptions
+from gprm.fit.objective import fit_data_from_means
+from gprm.fit.result import identify
+from gprm.fit.uncertainty import from_mcmc
+from gprm.params import ALIGNMENT_OFFSETS, batch, paper
+from gprm.predict.scenarios import Scenario, apply_scenario, standard_scenarios
+from gprm.predict.trajectories import TRAJECTORY_POINTS, default_times, sampled_points
+from gprm.predict.whatif import transform_batch
+
+PHYSICAL = ("v2", "g2", "gamma", "rho", "k_lr", "k_Ax", "k_Bx", "c_Ax", "c_Bx", "k_Cy", "k_Dy",
+            "c_Cy", "c_Dy", "m1", "m2", "m3", "m4", "d1", "d2", "b1", "b2")
+ALIGN_TIME = 1.01e-3
+
+
+def draw_truth(seed: int):
+    rng = np.random.default_rng([seed, 77])
+    base = paper()
+    return base.with_values(**{n: base[n] * rng.uniform(0.9, 1.1) for n in PHYSICAL})
+
+
+def overshoots(pb: dict, sc: Scenario, times) -> tuple[np.ndarray, np.ndarray]:
+    """(B, point*axis) largest |displacement| and ok (B,)."""
+    pos, _, ok = sampled_points(transform_batch(pb, sc), times, TRAJECTORY_POINTS,
+                                piezo=sc.piezo)
+    return np.max(np.abs(pos), axis=-1).reshape(pos.shape[0], -1), ok
+
+
+def prediction_cover(fm: FittedModel, truth, times, n: int, seed: int) -> dict:
+    res = {"in95": 0, "in68": 0, "n": 0}
+    for sc in standard_scenarios():
+        t_os, _ = overshoots(batch([truth]), sc, times)
+        t_os = t_os[0]
+        moving = t_os > 0.01 * t_os.max()
+        m = apply_scenario(fm, sc)
+        os_, ok = overshoots(m.sample(n, seed), sc, times)
+        os_ = os_[ok]
+        lo95, hi95 = np.percentile(os_, [2.5, 97.5], axis=0)
+        lo68, hi68 = np.percentile(os_, [16, 84], axis=0)
+        res["in95"] += int(np.sum(moving & (lo95 <= t_os) & (t_os <= hi95)))
+        res["in68"] += int(np.sum(moving & (lo68 <= t_os) & (t_os <= hi68)))
+        res["n"] += int(moving.sum())
+    return res
+
+
+def one_campaign(seed: int, starts: int, samples: int, n_boot: int, methods) -> dict:
+    truth = draw_truth(seed)
+    camp = synth_campaign(truth, seed=seed)
+    means = preprocess(camp, PreprocessConfig(align_time=ALIGN_TIME)).to_dataset()
+    data = fit_data_from_means(means)
+    base = paper()
+    base = base.with_fitted(tuple(base.fitted) + tuple(ALIGNMENT_OFFSETS.values()))
+    ms = MultiStartOptions(n_starts=starts, seed=seed)
+    times = default_times()
+    out = {"seed": seed, "methods": {}}
+    t = time.perf_counter()
+    paper_fit = identify(data, base, ms, band_samples=0, uncertainty="eq7-corr",
+                         prior_width=None)
+    prior_fit = identify(data, base, ms, band_samples=0)
+    out["fit_s"] = round(time.perf_counter() - t, 2)
+    cands = [("eq7", paper_fit, paper_fit.eq7), ("eq7-corr", paper_fit, paper_fit.uncertainty),
+             ("laplace-prior", prior_fit, prior_fit.uncertainty)]
+    for method in ("parametric-bootstrap", "bootstrap-runs"):
+        if method in methods:
+            t = time.perf_counter()
+            u = bootstrap_uncertainty(prior_fit.objective(), prior_fit.x, prior_fit.uncertainty,
+                                      prior_fit.prior, method, n_boot=n_boot, seed=seed,
+                                      campaign=camp)
+            out[f"{method}_s"] = round(time.perf_counter() - t, 2)
+            cands.append((method, prior_fit, u))
+    if "mcmc" in methods:
+        t = time.perf_counter()
+        u = from_mcmc(prior_fit.objective(), prior_fit.x, prior_fit.uncertainty, prior_fit.prior,
+                      seed=seed)
+        out["mcmc_s"] = round(time.perf_counter() - t, 2)
+        cands.append(("mcmc", prior_fit, u))
+    for method, res, u in cands:
+        if method not in methods:
+            continue
+        rows = {}
+        for n in PHYSICAL:
+            k = res.names.index(n)
+            tv = truth[n]
+            rows[n] = {"in95": bool(u.lower95[k] <= tv <= u.upper95[k]),
+                       "in68": bool(u.lower68[k] <= tv <= u.upper68[k]),
+                       "identified": bool(u.identified[k])}
+        fm = FittedModel(res.params, u.covariance, piezo=2, draws=u.draws,
+                         uncertainty=method)
+        pred = prediction_cover(fm, truth, times, samples, seed) if fm.has_uncertainty else \
+            {"in95": 0, "in68": 0, "n": 0, "undefined": True}
+        out["methods"][method] = {"params": rows, "pred": pred, "message": u.message}
+    return out
+
+
+def table(results: list[dict]) -> str:
+    lines = ["| method | params 95 % (all 21) | params 68 % | identified / campaign | "
+             "identified 95 % | identified 68 % | overshoots 95 % | overshoots 68 % | "
+             "undefined |",
+             "|---|---|---|---|---|---|---|---|---|"]
+    for m in results[0]["methods"]:
+        a95 = a68 = an = i95 = i68 = ni = p95 = p68 = pn = undef = 0
+        for r in results:
+            mm = r["methods"][m]
+            undef += not mm["message"].startswith("ok")
+            for row in mm["params"].values():
+                an += 1
+                a95 += row["in95"]
+                a68 += row["in68"]
+                if row["identified"]:
+                    ni += 1
+                    i95 += row["in95"]
+                    i68 += row["in68"]
+            p95 += mm["pred"]["in95"]
+            p68 += mm["pred"]["in68"]
+            pn += mm["pred"]["n"]
+
+        def f(a, b):
+            return f"{a / b:.1%} ({a}/{b})" if b else "-"
+        lines.append(f"| {m} | {f(a95, an)} | {f(a68, an)} | {ni / len(results):.1f} | "
+                     f"{f(i95, ni)} | {f(i68, ni)} | {f(p95, pn)} | {f(p68, pn)} | "
+                     f"{undef}/{len(results)} |")
+    return "\n".join(lines)
+
+
+def main(argv=None) -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--campaigns", type=int, default=20)
+    ap.add_argument("--starts", type=int, default=200)
+    ap.add_argument("--seed", type=int, default=1000)
+    ap.add_argument("--samples", type=int, default=200, help="parameter sets per prediction")
+    ap.add_argument("--json", help="write every campaign's numbers here")
+    ap.add_argument("--boot", type=int, default=30, help="refits per bootstrap")
+    ap.add_argument("--methods", default="eq7,eq7-corr,laplace-prior,parametric-bootstrap,"
+                    "bootstrap-runs,mcmc", help="comma-separated methods")
+    a = ap.parse_args(argv)
+    sys.path.insert(0, "benchmarks")
+    from _machine import machine
+
+    t0 = time.perf_counter()
+    results = []
+    for c in range(a.campaigns):
+        results.append(one_campaign(a.seed + c, a.starts, a.samples, a.boot,
+                                    a.methods.split(",")))
+        print(f"campaign {c + 1}/{a.campaigns} (seed {a.seed + c}) done, "
+              f"{time.perf_counter() - t0:.0f} s", file=sys.stderr, flush=True)
+    if a.json:
+        with open(a.json, "w") as fh:
+            json.dump(results, fh, indent=1)
+    print(f"{a.campaigns} campaigns, {a.starts} starts, seeds {a.seed}..{a.seed + a.campaigns - 1}"
+          f" ({time.perf_counter() - t0:.0f} s; {machine()})")
+    print(table(results))
+
+
+if __name__ == "__main__":
+    main()

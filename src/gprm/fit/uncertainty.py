@@ -1,0 +1,333 @@
+"""Uncertainty of the identified parameters: the methods compared in docs/fitting.md
+("Calibrated uncertainty") and the identifiability verdict of every fit (issue 12).
+
+Methods (``METHODS``), all evaluated at the best fit x^ of the (prior-regularised) objective,
+with J the Jacobian of the weighted data residuals r (N rows, P parameters):
+
+``eq7``
+    The paper's Eq. 7, kept as it is: C = (r^T r / (N - P)) (J^T J)^-1 (gprm.fit.covariance).
+    Undefined where J^T J is singular.
+``eq7-corr``
+    Eq. 7 with the residuals' time correlation: the factor r^T r / (N - P) assumes N
+    independent residuals, but model mismatch makes neighbouring samples move together. It
+    is multiplied by tau = 1 + 2 sum_l (1 - l/(L+1)) rho_l, the integrated autocorrelation of
+    the residuals (Bartlett window, L = T/4 lags, rho averaged over the signals weighted by
+    their residual energy): N / tau residuals are effectively independent.
+``laplace-prior``
+    The Laplace approximation of the posterior with the weak prior of gprm.fit.prior, in the
+    coordinates u of the prior (ln x for positive parameters): precision
+    H = J_u^T J_u / s2 + diag(1 / sd_prior^2), s2 = tau r^T r / (N - P) (the eq7-corr
+    scale). Always defined. Intervals are u^ +/- z sqrt(diag H^-1) mapped back to x (so a
+    positive parameter's interval stays positive), and draws from N(u^, H^-1) mapped back are
+    what later stages propagate.
+
+``parametric-bootstrap`` (the default), ``bootstrap-runs``, ``mcmc``
+    See :func:`from_bootstrap` (gprm.fit.bootstrap) and :func:`from_mcmc`.
+
+Identified: a parameter whose posterior standard deviation in u is below ``CONTRACTION`` (0.3)
+of the prior's, i.e. the data shrank the prior's variance at least ~11-fold. Every other
+parameter is reported as not determined, with the interval the posterior gives (close to the
+prior's), never a small standard error.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.stats import norm
+
+from gprm.fit.covariance import CovarianceError, covariance
+from gprm.fit.prior import Prior
+
+METHODS = ("eq7", "eq7-corr", "laplace-prior", "parametric-bootstrap", "mcmc")
+DEFAULT_METHOD = "parametric-bootstrap"
+#: posterior sd / prior sd below which a parameter counts as identified
+CONTRACTION = 0.3
+
+
+def time_correlation_factor(r: np.ndarray, n_signals: int, *, max_lag: int | None = None
+                            ) -> float:
+    """tau >= 1 of the module docstring for weighted residuals ``r`` (n_signals * T,), laid
+    out signal after signal."""
+    R = np.asarray(r, float).reshape(n_signals, -1)
+    T = R.shape[1]
+    L = max(1, T // 4) if max_lag is None else int(max_lag)
+    R = R - R.mean(axis=1, keepdims=True)
+    energy = np.sum(R * R, axis=1)
+    if not np.any(energy > 0):
+        return 1.0
+    tau = 1.0
+    for lag in range(1, min(L, T - 1) + 1):
+        c = np.sum(R[:, :-lag] * R[:, lag:], axis=1)               # per-signal lag-l sums
+        rho = float(np.sum(c) / np.sum(energy))
+        tau += 2.0 * (1.0 - lag / (L + 1)) * rho
+    return float(max(tau, 1.0))
+
+
+@dataclass(frozen=True)
+class Uncertainty:
+    """The uncertainty of one fit by one method (SI; arrays over the fitted names).
+
+    covariance: (P, P) linearised covariance in x (None where the method is undefined).
+    lower95, upper95, lower68, upper68: central intervals (NaN where undefined).
+    identified: (P,) bool; contraction: (P,) posterior/prior sd (NaN without a prior).
+    draws: (n, P) parameter sets from the method, or None.  s2: the data's variance scale.
+    tau: the time-correlation factor.  message: why a method is undefined, else "ok".
+    """
+
+    method: str
+    names: tuple[str, ...]
+    covariance: np.ndarray | None
+    lower95: np.ndarray
+    upper95: np.ndarray
+    lower68: np.ndarray
+    upper68: np.ndarray
+    identified: np.ndarray
+    contraction: np.ndarray
+    draws: np.ndarray | None
+    s2: float
+    tau: float
+    message: str = "ok"
+
+    @property
+    def stderr(self) -> np.ndarray:
+        if self.covariance is None:
+            return np.full(len(self.names), np.nan)
+        return np.sqrt(np.clip(np.diag(self.covariance), 0.0, None))
+
+    def interval(self, level: float) -> tuple[np.ndarray, np.ndarray]:
+        if np.isclose(level, 0.95):
+            return self.lower95, self.upper95
+        if np.isclose(level, 0.68):
+            return self.lower68, self.upper68
+        raise ValueError("levels 0.95 and 0.68 are stored")
+
+
+def _gaussian(method, names, x, cov, s2, tau, message="ok", identified=None) -> Uncertainty:
+    P = len(names)
+    nan = np.full(P, np.nan)
+    if cov is None:
+        return Uncertainty(method, names, None, nan, nan, nan, nan,
+                           np.zeros(P, bool) if identified is None else identified, nan,
+                           None, s2, tau, message)
+    se = np.sqrt(np.clip(np.diag(cov), 0, None))
+    z95, z68 = norm.ppf(0.975), norm.ppf(0.84)
+    ident = (se < 0.5 * np.abs(x)) if identified is None else identified
+    return Uncertainty(method, names, cov, x - z95 * se, x + z95 * se, x - z68 * se,
+                       x + z68 * se, ident, nan, None, s2, tau, message)
+
+
+def estimate(method: str, x: np.ndarray, J: np.ndarray, r: np.ndarray, dof: int,
+             n_signals: int, prior: Prior | None, names, *, n_draws: int = 400,
+             seed: int = 0) -> Uncertainty:
+    """The uncertainty of the fit at ``x`` (physical, (P,)) by ``method``.
+
+    J: (N, P) Jacobian of the weighted data residuals ``r`` (N,) in physical units; the
+    prior's rows are not part of them.
+    """
+    names = tuple(names)
+    if method not in METHODS:
+        raise ValueError(f"unknown uncertainty method {method!r} (one of {', '.join(METHODS)})")
+    x = np.asarray(x, float)
+    tau = time_correlation_factor(r, n_signals)
+    s2_eq7 = float(r @ r) / dof if dof > 0 else np.nan
+    if method in ("eq7", "eq7-corr"):
+        factor = 1.0 if method == "eq7" else tau
+        try:
+            cov = covariance(J, r, dof, names=names) * factor
+            return _gaussian(method, names, x, cov, s2_eq7 * factor, tau)
+        except CovarianceError as exc:
+            return _gaussian(method, names, x, None, s2_eq7 * factor, tau, str(exc))
+    if prior is None:
+        raise ValueError("laplace-prior needs a prior")
+    s2 = s2_eq7 * tau
+    D = prior.dx_du(x)                                      # dx/du
+    Ju = J * D[None, :]
+    prec_prior = 1.0 / prior.sd ** 2
+    H = Ju.T @ Ju / s2 + np.diag(prec_prior)
+    # H is positive definite (the prior part is); solve in the prior-standardised frame
+    Sd = prior.sd
+    Hs = H * np.outer(Sd, Sd)
+    w, V = np.linalg.eigh(0.5 * (Hs + Hs.T))
+    w = np.maximum(w, 1e-12 * w[-1])
+    Cu = (V / w) @ V.T * np.outer(Sd, Sd)
+    sd_u = np.sqrt(np.diag(Cu))
+    u = prior.to_u(x)
+    z95, z68 = norm.ppf(0.975), norm.ppf(0.84)
+    lo95, hi95 = prior.from_u(u - z95 * sd_u), prior.from_u(u + z95 * sd_u)
+    lo68, hi68 = prior.from_u(u - z68 * sd_u), prior.from_u(u + z68 * sd_u)
+    contraction = sd_u / prior.sd
+    identified = contraction < CONTRACTION
+    cov_x = Cu * np.outer(D, D)
+    rng = np.random.default_rng([seed, 12])
+    L = V * np.sqrt(1.0 / w)
+    Z = rng.standard_normal((int(n_draws), len(names))) @ L.T * Sd[None, :]
+    draws = prior.from_u(u[None] + Z) if n_draws > 0 else None
+    return Uncertainty(method, names, 0.5 * (cov_x + cov_x.T), lo95, hi95, lo68, hi68,
+                       identified, contraction, draws, s2, tau)
+
+
+def from_bootstrap(method: str, x: np.ndarray, refits: np.ndarray, laplace: Uncertainty,
+                   prior: Prior, *, n_draws: int = 400, seed: int = 0) -> Uncertainty:
+    """Bootstrap-corrected posterior (methods ``parametric-bootstrap``, ``bootstrap-runs``).
+
+    In the prior's coordinates u, with u^ the best fit and u_b the refits (B, P): the bias
+    b = mean(u_b) - u^ and the refits' standard deviations sd_b.
+
+    - ``parametric-bootstrap``: the Laplace posterior N(u^, C) re-centred at u^ - b. The
+      refits of campaigns synthesised from the best fit are offset from it the way the
+      estimate is offset from the truth by the model mismatch the generator contains; the
+      posterior's spread (scaled by s2, which already carries the misfit) is kept. Measured
+      in docs/fitting.md: the re-centring is what brings the intervals to their nominal
+      coverage; the refits' own spread (about 0.7 of the posterior's) is too narrow.
+    - ``bootstrap-runs``: the basic bootstrap, N(u^ - b, S C S) with S = diag(sd_b / sd_C)
+      on the identified parameters (1 elsewhere: the refits of a prior-dominated parameter
+      barely move, so their spread says nothing about it).
+
+    Correlations are the posterior's; identified as in the Laplace posterior.
+    """
+    refits = np.asarray(refits, float)
+    ok = np.all(np.isfinite(refits), axis=1)
+    U = prior.to_u(refits[ok])
+    u = prior.to_u(np.asarray(x, float))
+    names = laplace.names
+    if U.shape[0] < 5:
+        return replace_method(laplace, method, f"only {U.shape[0]} usable refits; the "
+                              "Laplace posterior stands in")
+    bias = U.mean(axis=0) - u
+    sd_b = U.std(axis=0, ddof=1)
+    cov_u = laplace.covariance / np.outer(prior.dx_du(x), prior.dx_du(x))
+    sd_l = np.sqrt(np.clip(np.diag(cov_u), 1e-300, None))
+    s = np.where(laplace.identified & (method == "bootstrap-runs"), sd_b / sd_l, 1.0)
+    centre = u - bias
+    Cu = cov_u * np.outer(s, s)
+    sd = np.sqrt(np.diag(Cu))
+    z95, z68 = norm.ppf(0.975), norm.ppf(0.84)
+    D = prior.dx_du(prior.from_u(centre))
+    rng = np.random.default_rng([seed, 15])
+    w, V = np.linalg.eigh(0.5 * (Cu + Cu.T))
+    Z = rng.standard_normal((int(n_draws), len(names))) @ (V * np.sqrt(np.clip(w, 0, None))).T
+    cov_x = Cu * np.outer(D, D)
+    return Uncertainty(method, names, 0.5 * (cov_x + cov_x.T),
+                       prior.from_u(centre - z95 * sd), prior.from_u(centre + z95 * sd),
+                       prior.from_u(centre - z68 * sd), prior.from_u(centre + z68 * sd),
+                       laplace.identified, laplace.contraction,
+                       prior.from_u(centre[None] + Z) if n_draws > 0 else None,
+                       laplace.s2, laplace.tau)
+
+
+def replace_method(u: Uncertainty, method: str, message: str) -> Uncertainty:
+    from dataclasses import replace
+
+    return replace(u, method=method, message=message)
+
+
+def mcmc_chain(log_post, u0: np.ndarray, cov_u: np.ndarray, *, n_steps: int = 600,
+               burn: int = 200, n_walkers: int | None = None, seed: int = 0) -> np.ndarray:
+    """Posterior sample (n, P) in u by emcee's affine-invariant ensemble sampler.
+
+    ``log_post(U)`` takes walkers (W, P) and returns (W,) log densities (-inf outside the
+    support). The walkers start drawn from N(u0, cov_u) (the Laplace approximation), so that
+    they span the posterior's undetermined directions from the first step; the first ``burn``
+    steps are discarded."""
+    import emcee
+
+    P = u0.size
+    W = int(n_walkers) if n_walkers else 2 * P + 2
+    rng = np.random.default_rng([seed, 16])
+    w, V = np.linalg.eigh(0.5 * (cov_u + cov_u.T))
+    L = V * np.sqrt(np.clip(w, 0, None))
+    p0 = u0[None] + rng.standard_normal((W, P)) @ L.T
+    sampler = emcee.EnsembleSampler(W, P, log_post, vectorize=True)
+    sampler._random = np.random.RandomState(int(rng.integers(2 ** 31)))
+    sampler.run_mcmc(p0, int(n_steps), progress=False)
+    return sampler.get_chain(discard=int(burn), flat=True)
+
+
+def from_mcmc(obj, x: np.ndarray, laplace: Uncertainty, prior: Prior, *, n_steps: int = 600,
+              burn: int = 200, seed: int = 0, n_draws: int = 400) -> Uncertainty:
+    """The ``mcmc`` uncertainty: a posterior sample of the prior-regularised fit, the physical
+    bounds as the prior's support, the likelihood scaled by the data's variance scale s2
+    (as the Laplace posterior). Intervals are the sample's quantiles; identified as in the
+    Laplace posterior. ``obj``: the fit's objective (prior rows weighted by sqrt(s2))."""
+    s2 = laplace.s2
+    lo, hi = obj.bounds()
+    u = prior.to_u(np.asarray(x, float))
+    D = prior.dx_du(x)
+    cov_u = laplace.covariance / np.outer(D, D)
+
+    def log_post(U):
+        X = prior.from_u(U)
+        inside = np.all((X > lo) & (X < hi) & np.isfinite(X), axis=1)
+        out = np.full(U.shape[0], -np.inf)
+        if inside.any():
+            r = obj.residuals(obj.to_normalised(X[inside]))
+            c = np.sum(r * r, axis=1)
+            out[inside] = np.where(np.isfinite(c), -0.5 * c / s2, -np.inf)
+        return out
+
+    chain = mcmc_chain(log_post, u, cov_u, n_steps=n_steps, burn=burn, seed=seed)
+    X = prior.from_u(chain)
+    q = np.percentile(X, [2.5, 97.5, 16, 84], axis=0)
+    rng = np.random.default_rng([seed, 17])
+    draws = X[rng.integers(0, len(X), int(n_draws))] if n_draws > 0 else None
+    cov = np.cov(X.T)
+    return Uncertainty("mcmc", laplace.names, cov, q[0], q[1], q[2], q[3], laplace.identified,
+                       laplace.contraction, draws, s2, laplace.tau,
+                       f"ok ({len(chain)} samples after {burn} burn-in steps)")
+
+
+def identifiable_combinations(unc: Uncertainty, prior: Prior, x: np.ndarray, *,
+                              max_terms: int = 4, min_weight: float = 0.05) -> list[dict]:
+    """Combinations of the parameters that are *not* identified one by one but that the data
+    do determine (e.g. the y-plane springs' total stiffness).
+
+    In the prior's coordinates u, restricted to the not-identified parameters, the
+    generalised eigenproblem C v = lambda Pr v (C the posterior covariance, Pr the prior's)
+    gives directions whose posterior spread is sqrt(lambda) of the prior's; those below
+    :data:`CONTRACTION` are determined. Each is reported as the product prod x_k^{v_k}
+    (largest |v_k| = 1, terms below ``min_weight`` dropped) with its best value and 95 %
+    interval (the posterior's, along v). Empty where all parameters are identified or the
+    method has no covariance."""
+    if unc.covariance is None:
+        return []
+    idx = np.nonzero(~np.asarray(unc.identified))[0]
+    if idx.size == 0:
+        return []
+    x = np.asarray(x, float)
+    D = prior.dx_du(x)
+    Cu = (unc.covariance / np.outer(D, D))[np.ix_(idx, idx)]
+    sp = prior.sd[idx]
+    A = Cu / np.outer(sp, sp)                      # covariance relative to the prior's
+    w, V = np.linalg.eigh(0.5 * (A + A.T))
+    u = prior.to_u(x)[idx]
+    names = [unc.names[k] for k in idx]
+    out = []
+    for lam, v in zip(w, V.T):
+        if not lam < CONTRACTION ** 2:
+            continue
+        v = v / sp                                  # direction in u
+        v = v / v[np.argmax(np.abs(v))]
+        keep = np.abs(v) >= min_weight
+        sd = float(np.sqrt(v @ Cu @ v))
+        c = float(v @ u)
+        log = bool(np.all(prior.log[idx][keep]))
+        terms = {names[k]: round(float(v[k]), 3) for k in np.nonzero(keep)[0]}
+        if len(terms) > max_terms:
+            top = np.argsort(-np.abs(v))[:max_terms]
+            terms = {names[k]: round(float(v[k]), 3) for k in top}
+        f = np.exp if log else (lambda t: t)
+        z = norm.ppf(0.975)
+        out.append({"terms": terms, "form": "product of powers" if log else "linear",
+                    "value": float(f(c)), "lower": float(f(c - z * sd)),
+                    "upper": float(f(c + z * sd)),
+                    "spread_vs_prior": float(np.sqrt(max(lam, 0.0)))})
+    return out
+
+
+#: the coverage study's headline for the report (benchmarks/bench_coverage.py; docs/fitting.md)
+COVERAGE_HEADLINE = ("Over 20 synthetic campaigns with truths within ±10 % of Table 3 the "
+                     "default method's 95 % intervals contained the truth for 92.8 % of the "
+                     "identified parameters and 91.6 % of the moving overshoots (68 %: 71.9 % "
+                     "and 64.7 %)")

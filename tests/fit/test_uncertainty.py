@@ -1,0 +1,82 @@
+"""The uncertainty methods' building blocks against independent references: the time-correlation
+factor against statsmodels' autocorrelation, the MCMC sampler against an analytic Gaussian,
+the bootstrap correction's centre and spread, and the prior's coordinates."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from gprm.fit.prior import default_prior
+from gprm.fit.uncertainty import (Uncertainty, from_bootstrap, mcmc_chain,
+                                  time_correlation_factor)
+from gprm.params import paper
+
+
+def test_time_correlation_factor_matches_statsmodels_acf():
+    from statsmodels.tsa.stattools import acf
+
+    rng = np.random.default_rng(0)
+    e = rng.standard_normal(4000)
+    x = np.convolve(e, np.ones(4) / 2, mode="same")        # MA(3): rho_1..3 = 3/4, 1/2, 1/4
+    L = 10
+    rho = acf(x, nlags=L, fft=False)
+    expect = 1 + 2 * sum((1 - k / (L + 1)) * rho[k] for k in range(1, L + 1))
+    got = time_correlation_factor(x, 1, max_lag=L)
+    assert got == pytest.approx(expect, rel=2e-3)
+    # independent residuals: tau ~ 1; two signals are summed, not concatenated
+    assert time_correlation_factor(rng.standard_normal(2000), 2) == pytest.approx(1.0, abs=0.15)
+
+
+def test_mcmc_chain_samples_a_known_gaussian():
+    C = np.array([[1.0, 0.8, 0.0], [0.8, 2.0, -0.3], [0.0, -0.3, 0.5]])
+    m = np.array([1.0, -2.0, 0.5])
+    Ci = np.linalg.inv(C)
+
+    def lp(U):
+        d = U - m
+        return -0.5 * np.einsum("ij,jk,ik->i", d, Ci, d)
+
+    ch = mcmc_chain(lp, m + 0.3, C, n_steps=4000, burn=500, seed=3)
+    # effective sample size of the stretch move is ~ size / 50 here: 4 MC standard errors
+    se = np.sqrt(np.diag(C) / (len(ch) / 50))
+    assert np.all(np.abs(ch.mean(axis=0) - m) < 4 * se)
+    np.testing.assert_allclose(np.cov(ch.T), C, atol=0.2 * np.max(np.diag(C)))
+
+
+def test_bootstrap_correction_moves_identified_and_keeps_undetermined():
+    p = paper()
+    names = ("m2", "k_Cy")
+    prior = default_prior(p, names)
+    x = np.array([0.0125, 7e6])
+    # Laplace: m2 identified (sd_u 0.01), k_Cy not (sd_u ~ the prior's)
+    sd_u = np.array([0.01, 1.2])
+    D = prior.dx_du(x)
+    cov = np.diag((sd_u * D) ** 2)
+    lap = Uncertainty("laplace-prior", names, cov, *(np.full(2, np.nan),) * 4,
+                      np.array([True, False]), sd_u / prior.sd, None, 10.0, 1.2)
+    rng = np.random.default_rng(1)
+    # refits biased +2 % in m2 (spread 0.5 %), k_Cy barely moving (prior-dominated)
+    refits = np.column_stack([x[0] * np.exp(0.02 + 0.005 * rng.standard_normal(400)),
+                              x[1] * np.exp(0.001 * rng.standard_normal(400))])
+    for method, width0 in (("bootstrap-runs", 0.005), ("parametric-bootstrap", 0.01)):
+        u = from_bootstrap(method, x, refits, lap, prior, n_draws=0)
+        centre = np.sqrt(u.lower95 * u.upper95)                  # log-symmetric intervals
+        assert centre[0] == pytest.approx(x[0] * np.exp(-0.02), rel=1e-3)
+        # runs: the refits' spread; parametric: the posterior's
+        assert np.log(u.upper95[0] / u.lower95[0]) == pytest.approx(2 * 1.96 * width0,
+                                                                     rel=0.1)
+        # the undetermined one keeps the posterior's width, not the refits' tiny spread
+        assert np.log(u.upper95[1] / u.lower95[1]) == pytest.approx(2 * 1.96 * 1.2, rel=0.01)
+
+
+def test_prior_coordinates_round_trip_and_interval():
+    p = paper()
+    names = ("m2", "gamma", "dt_y_base")
+    prior = default_prior(p.with_fitted(p.fitted + ("dt_y_base",)), names)
+    assert prior.log.tolist() == [True, False, False]
+    x = np.array([[0.012, -0.007, 2e-6]])
+    np.testing.assert_allclose(prior.from_u(prior.to_u(x)), x, rtol=1e-14)
+    lo, hi = prior.interval(0.95)
+    assert lo[0] > 0 and lo[0] < prior.centre[0] < hi[0]
+    assert hi[1] - prior.centre[1] == pytest.approx(1.959964 * 1.25 * 0.02, rel=1e-6)

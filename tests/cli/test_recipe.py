@@ -40,9 +40,6 @@ def test_the_recipe_is_found_and_covers_the_chain():
 
 
 @pytest.mark.slow
-@pytest.mark.xfail(reason="predict/impact refuse fits without a covariance until the degrade "
-                          "path of issue #13 item 1 (the lead's, with #12) lands; remove this "
-                          "mark then", strict=False)
 def test_the_docs_recipe_runs_end_to_end(tmp_path, monkeypatch):
     monkeypatch.chdir(tmp_path)
     monkeypatch.setenv("GPRM_LOG_DIR", str(tmp_path / "logs"))

@@ -212,6 +212,11 @@ def test_bounds_are_respected():
     res = levenberg_marquardt(p.residuals, [150.0, 5e-4], p.jacobian, upper=hi)
     assert res.x[0] < 200.0
     assert res.x[0] > 199.0
+    # the trust-region step control keeps the same box (frozen parameter, projected trials)
+    tr = levenberg_marquardt(p.residuals, [150.0, 5e-4], p.jacobian, upper=hi,
+                             step_bound=100.0, geodesic=False)
+    assert tr.converged and 199.0 < tr.x[0] < 200.0
+    assert tr.chi2 == pytest.approx(res.chi2, rel=1e-6)
     with pytest.raises(ValueError):
         levenberg_marquardt_batch(lambda X: (X, X), np.zeros(3))
 

@@ -14,7 +14,12 @@ from typing import Callable
 
 import numpy as np
 
-DATA_DIR = Path("/work/shared/data/nist_strd")
+# The 19 lower/average-difficulty problems live in the project's shared data folder, beside the
+# repository clone (``<clone>/../shared``); the 8 higher-difficulty ones ship with the tests.
+ROOT = Path(__file__).resolve().parents[2]
+DATA_DIR = ROOT.parent / "shared" / "data" / "nist_strd"
+EXTRA_DIR = Path(__file__).resolve().parent / "nist_strd_extra"
+HIGHER = ("MGH09", "Thurber", "BoxBOD", "Rat42", "MGH10", "Eckerle4", "Rat43", "Bennett5")
 
 _NUM = r"[-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?"
 
@@ -213,8 +218,76 @@ def _roszman_j(b, x):
     return np.stack([np.ones_like(x), -x, -u / den, -b[2] / den], axis=1)
 
 
+def _mgh09(b, x):
+    return b[0] * (x ** 2 + x * b[1]) / (x ** 2 + x * b[2] + b[3])
+
+
+def _mgh09_j(b, x):
+    num = x ** 2 + x * b[1]
+    den = x ** 2 + x * b[2] + b[3]
+    return np.stack([num / den, b[0] * x / den, -b[0] * num * x / den ** 2,
+                     -b[0] * num / den ** 2], axis=1)
+
+
+def _boxbod(b, x):                      # the same model as Misra1a
+    return _misra1a(b, x)
+
+
+def _rat42(b, x):
+    return b[0] / (1 + np.exp(b[1] - b[2] * x))
+
+
+def _rat42_j(b, x):
+    e = np.exp(b[1] - b[2] * x)
+    u = 1 + e
+    return np.stack([1 / u, -b[0] * e / u ** 2, b[0] * x * e / u ** 2], axis=1)
+
+
+def _mgh10(b, x):
+    return b[0] * np.exp(b[1] / (x + b[2]))
+
+
+def _mgh10_j(b, x):
+    u = x + b[2]
+    e = np.exp(b[1] / u)
+    return np.stack([e, b[0] * e / u, -b[0] * b[1] * e / u ** 2], axis=1)
+
+
+def _eckerle4(b, x):
+    return b[0] / b[1] * np.exp(-0.5 * ((x - b[2]) / b[1]) ** 2)
+
+
+def _eckerle4_j(b, x):
+    z = (x - b[2]) / b[1]
+    f = b[0] / b[1] * np.exp(-0.5 * z ** 2)
+    return np.stack([f / b[0], f * (z ** 2 - 1) / b[1], f * z / b[1]], axis=1)
+
+
+def _rat43(b, x):
+    return b[0] / (1 + np.exp(b[1] - b[2] * x)) ** (1 / b[3])
+
+
+def _rat43_j(b, x):
+    e = np.exp(b[1] - b[2] * x)
+    u = 1 + e
+    f = b[0] * u ** (-1 / b[3])
+    dfu = -f / (b[3] * u)                                    # d f / d u
+    return np.stack([f / b[0], dfu * e, -dfu * e * x, f * np.log(u) / b[3] ** 2], axis=1)
+
+
+def _bennett5(b, x):
+    return b[0] * (b[1] + x) ** (-1 / b[2])
+
+
+def _bennett5_j(b, x):
+    u = b[1] + x
+    f = b[0] * u ** (-1 / b[2])
+    return np.stack([f / b[0], -f / (b[2] * u), f * np.log(u) / b[2] ** 2], axis=1)
+
+
 _hahn = _rational(4)
 _kirby = _rational(3)
+_thurber = _rational(4)
 
 MODELS: dict[str, tuple[Callable, Callable]] = {
     "Chwirut1": (_chwirut, _chwirut_j), "Chwirut2": (_chwirut, _chwirut_j),
@@ -226,18 +299,28 @@ MODELS: dict[str, tuple[Callable, Callable]] = {
     "Misra1a": (_misra1a, _misra1a_j), "Misra1b": (_misra1b, _misra1b_j),
     "Misra1c": (_misra1c, _misra1c_j), "Misra1d": (_misra1d, _misra1d_j),
     "Nelson": (_nelson, _nelson_j), "Roszman1": (_roszman, _roszman_j),
+    # higher difficulty
+    "MGH09": (_mgh09, _mgh09_j), "Thurber": _thurber, "BoxBOD": (_boxbod, _misra1a_j),
+    "Rat42": (_rat42, _rat42_j), "MGH10": (_mgh10, _mgh10_j),
+    "Eckerle4": (_eckerle4, _eckerle4_j), "Rat43": (_rat43, _rat43_j),
+    "Bennett5": (_bennett5, _bennett5_j),
 }
 
 
+def path(name: str) -> Path:
+    return (EXTRA_DIR if name in HIGHER else DATA_DIR) / f"{name}.dat"
+
+
 def load(name: str) -> Problem:
-    d = read(DATA_DIR / f"{name}.dat")
+    d = read(path(name))
     f, j = MODELS[name]
     return Problem(name, d["x"], d["y"], (d["start1"], d["start2"]), d["certified"], d["sd"],
                    d["rss"], f, j)
 
 
 def names() -> list[str]:
-    return sorted(p.stem for p in DATA_DIR.glob("*.dat"))
+    """The 19 shared problems and the 8 higher-difficulty ones shipped with the tests."""
+    return sorted({p.stem for p in DATA_DIR.glob("*.dat")} | set(HIGHER))
 
 
 def digits(b: np.ndarray, certified: np.ndarray) -> float:

@@ -61,6 +61,24 @@ parameter held at a bound, or whose point ``x + h v`` leaves the box, take the p
 It shortens the crawl along narrow curved valleys (MGH17 from start 1: ~500 iterations
 with ``damping="max"`` instead of ~2500).
 
+Trust-region step control (``step_bound`` set; not used by the multi-start fit): instead of
+Algorithm 1's lambda / 10 and x 10, lambda is chosen each iteration so that the step's scaled
+length ``|D dx|`` (D^2 the damping diagonal, MINPACK's column scaling with ``damping="max"``)
+is at most a bound delta -- lambda = 0 (the Gauss-Newton step) when that step is within it.
+The SVD factors give ``|D dx| = |s g / (s^2 + lambda)|`` for any lambda, so the lambda of a
+given bound is a scalar root (Newton's method on ``1/|D dx| - 1/delta``, as in More 1978).
+delta starts at ``step_bound |D x0|`` and follows the ratio of the actual to the predicted
+(linear-model) decrease of chi-square: halved (or cut further, down to 1/10) below 1/4,
+doubled above 3/4. A step is accepted when chi-square decreases by at least 1e-4 of the
+prediction. ``ftol`` then asks both decreases to be small, and a row stops (``xtol``) when
+delta falls to ``xtol |D x|``. The bound keeps the first steps from a far start short: from
+MGH10's first start the unbounded Gauss-Newton-like steps of Algorithm 1 throw the point into
+a valley at b1 -> 0, b2, b3 -> infinity, where it crawls for thousands of iterations.
+
+The standalone :func:`levenberg_marquardt` runs Algorithm 1 (MINPACK damping, geodesic
+acceleration) and, only if that ends at the iteration limit, once more from the start with the
+trust-region step control (``fallback``), returning the run with the smaller chi-square.
+
 An iteration is one trial step (accepted or rejected), as ``i`` in Algorithm 1.
 """
 
@@ -72,10 +90,12 @@ from typing import Callable
 import numpy as np
 
 LAMBDA_MIN = 1e-15
+#: initial step bound (MINPACK's ``factor``) of the standalone optimizer's fallback run
+FALLBACK_STEP_BOUND = 100.0
 BOUND_MARGIN = 1e-9
 
 #: statuses that count as converged
-CONVERGED = ("ftol", "chi2_tol", "lambda_max", "stalled")
+CONVERGED = ("ftol", "chi2_tol", "lambda_max", "stalled", "xtol")
 
 MESSAGES = {
     "ftol": "chi-square changed by less than the tolerance on an accepted step",
@@ -83,6 +103,7 @@ MESSAGES = {
     "lambda_max": "no smaller chi-square found with the damping at its limit (a minimum to "
                   "machine precision, or against a bound)",
     "stalled": "chi-square fell by less than the tolerance over the last iterations (window)",
+    "xtol": "the step bound (trust region) fell below xtol times the scaled size of x",
     "max_iter": "iteration limit reached",
     "failed": "residuals or Jacobian not finite at the starting point",
 }
@@ -215,6 +236,45 @@ def svd_steps(W: np.ndarray, sv: np.ndarray, g: np.ndarray, lam: np.ndarray) -> 
     return -np.einsum("bpm,bm->bp", W, sv * g / (sv * sv + lam[:, None]))
 
 
+def _scaled_norms(sv: np.ndarray, g: np.ndarray, lam: np.ndarray) -> np.ndarray:
+    """``|D dx|`` of the damped steps of :func:`svd_steps` (D = sqrt of the damping diagonal):
+    D W has orthonormal columns, so it is ``|s g / (s^2 + lam)|``; singular values 0 give 0
+    (their direction is not in the range of J)."""
+    with np.errstate(divide="ignore", invalid="ignore"):
+        c = np.where(sv > 0, sv * g / (sv * sv + lam[:, None]), 0.0)
+    return np.sqrt(np.sum(c * c, axis=1))
+
+
+def trust_region_lambda(sv: np.ndarray, g: np.ndarray, delta: np.ndarray,
+                        n_iter: int = 40) -> np.ndarray:
+    """The damping lambda whose step has scaled length ``|D dx| = delta`` (rows (B,)), or 0
+    where the Gauss-Newton step (lambda = 0) is already within 1.1 delta: the step-bound
+    (trust-region) form of Levenberg-Marquardt (More 1978, as MINPACK's ``lmpar``).
+
+    ``phi(lambda) = |s g / (s^2 + lambda)|`` decreases from phi(0) to 0; Newton's method on
+    ``1/phi(lambda) - 1/delta`` (concave in lambda) from lambda = 0 increases monotonically
+    to the root; it stops within 10 percent of delta, as MINPACK does."""
+    lam = np.zeros(delta.shape)
+    phi = _scaled_norms(sv, g, lam)
+    todo = phi > 1.1 * delta
+    for _ in range(n_iter):
+        if not todo.any():
+            break
+        i = np.nonzero(todo)[0]
+        s2 = sv[i] * sv[i]
+        with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+            c = np.where(sv[i] > 0, sv[i] * g[i] / (s2 + lam[i, None]), 0.0)
+            ph = np.sqrt(np.sum(c * c, axis=1))
+            dph = -np.sum(c * c / (s2 + lam[i, None]), axis=1) / ph      # d phi / d lambda
+            # Newton on 1/phi - 1/delta: lambda += (phi - delta) phi / (delta |phi'|)
+            step = (ph - delta[i]) * ph / (delta[i] * -dph)
+        step = np.where(np.isfinite(step) & (step > 0), step, 0.0)
+        lam[i] = lam[i] + step
+        phi[i] = _scaled_norms(sv[i], g[i], lam[i])
+        todo[i] = (np.abs(phi[i] - delta[i]) > 0.1 * delta[i]) & (step > 0)
+    return lam
+
+
 def _chi2(r: np.ndarray) -> np.ndarray:
     with np.errstate(over="ignore", invalid="ignore"):
         c = np.sum(r * r, axis=1)
@@ -248,6 +308,39 @@ def _geodesic_correction(fun, residuals, X, v, r, J, W, sv, lam, dd, free, lo_in
     return v + 0.5 * a, bad
 
 
+def _trust_region_update(better, chi_t, chi2, dx, R1, qtr, dd, lam, delta, idx, ftol):
+    """Trust-region bookkeeping for the rows ``idx`` of one iteration: the ratio of the actual
+    to the predicted decrease of chi-square (predicted by the linear model, ``|Q1^T r|^2 -
+    |Q1^T r + R1 dx|^2``), acceptance (chi-square decreases by at least 1e-4 of the
+    prediction) and the update of the step bound ``delta`` (in place), after More (1978):
+    shrink it when the ratio is below 1/4 (by 1/2, or by the factor a quadratic along the
+    step suggests, never below 1/10), double it when the ratio is above 3/4 or the step was
+    a Gauss-Newton step. Returns the accepted rows and, per row, whether both the actual
+    and the predicted decrease are within ``ftol`` of chi-square (MINPACK's ftol test)."""
+    pnorm = np.sqrt(np.sum(dd * dx * dx, axis=1))
+    with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
+        lin = qtr + np.einsum("bkp,bp->bk", R1, dx)
+        pred = np.sum(qtr * qtr, axis=1) - np.sum(lin * lin, axis=1)
+        act = chi2 - chi_t                                   # -inf for rejected trials
+        ratio = np.where(pred > 0, act / pred, -np.inf)
+        # directional derivative of chi2 along dx at 0: 2 r^T J dx = -2 (|J dx|^2 + lam|D dx|^2)
+        jdx = np.sum((lin - qtr) ** 2, axis=1)
+        dirder = -(jdx + lam * pnorm * pnorm)
+        # step length that minimises the quadratic through chi2, dirder and chi_t, relative
+        shrink = np.where(np.isfinite(act) & (act < 0), 0.5 * dirder / (dirder + 0.5 * act), 0.5)
+    shrink = np.where(np.isfinite(shrink), shrink, 0.1)
+    shrink = np.where((chi_t >= 100.0 * chi2) | (shrink < 0.1), 0.1, np.minimum(shrink, 0.5))
+    d = delta[idx]
+    low = ~(ratio >= 0.25)
+    grow = ~low & ((lam == 0) | (ratio >= 0.75))
+    d = np.where(low, shrink * np.minimum(d, 10.0 * pnorm), d)
+    d = np.where(grow, 2.0 * pnorm, d)
+    delta[idx] = np.where(np.isfinite(d) & (d > 0), d, delta[idx] * 0.1)
+    accepted = better & (ratio >= 1e-4)
+    small_pred = (np.abs(act) <= ftol * chi2) & (pred <= ftol * chi2) & (ratio <= 2.0)
+    return accepted, small_pred
+
+
 def levenberg_marquardt_batch(fun: Callable, X0: np.ndarray, *, residuals: Callable | None = None,
                               max_iter: int = 100, lambda0: float = 1e-2, ftol: float = 1e-8,
                               ftol_abs: float = 0.0, chi2_tol: float = 0.0,
@@ -255,7 +348,9 @@ def levenberg_marquardt_batch(fun: Callable, X0: np.ndarray, *, residuals: Calla
                               keep_jacobian: bool = False, damping: str = "current",
                               prune: Callable | None = None, stall_window: int = 0,
                               stall_tol: float = 0.0, geodesic: bool = False,
-                              geo_h: float = 0.1, geo_alpha: float = 0.75) -> LMBatchResult:
+                              geo_h: float = 0.1, geo_alpha: float = 0.75,
+                              step_bound: float | None = None,
+                              xtol: float = 1e-15) -> LMBatchResult:
     """Algorithm 1 for B starting points in lock-step (see the module docstring).
 
     fun: ``fun(X (b, P)) -> (r (b, N), J (b, N, P))`` for any number b of rows.
@@ -273,6 +368,15 @@ def levenberg_marquardt_batch(fun: Callable, X0: np.ndarray, *, residuals: Calla
     geodesic, geo_h, geo_alpha: geodesic acceleration (module docstring), its finite-
         difference step h (in units of the step) and its acceptance ratio alpha. Costs one
         more residual evaluation per trial (with ``residuals`` if given, else ``fun``).
+    step_bound: None -- Algorithm 1's damping update (lambda / 10 on an accepted step,
+        x 10 on a rejected one). A number -- trust-region step control instead (module
+        docstring): lambda is chosen each iteration so that the step's scaled length
+        ``|D dx|`` (D^2 = the damping diagonal) is at most the bound delta, which starts at
+        ``step_bound * |D x0|`` (``step_bound`` if that is 0, MINPACK's ``factor``) and is
+        updated from the ratio of the actual to the predicted decrease of chi-square; a step
+        is accepted if chi-square decreases by at least 1e-4 of the predicted decrease; ``ftol``
+        then needs both decreases small, and a row stops with status ``xtol`` once delta
+        falls to ``xtol * |D x|``. Not used by the multi-start fit.
     prune: optional ``prune(chi2 (B,), active (B,)) -> (B,) bool`` called each iteration;
         rows it marks stop with status ``pruned`` (used by the multi-start driver, which
         documents its rule).
@@ -315,6 +419,11 @@ def levenberg_marquardt_batch(fun: Callable, X0: np.ndarray, *, residuals: Calla
     SS = np.zeros((B, kq))
     SG = np.zeros((B, kq))
     fresh = np.zeros(B, bool)
+    tr = step_bound is not None
+    if tr:
+        dd0 = _damping_diagonal(np.einsum("bnp,bnp->bp", J, J), dmax)[0]
+        delta = float(step_bound) * np.sqrt(np.sum(dd0 * X * X, axis=1))
+        delta = np.where(np.isfinite(delta) & (delta > 0), delta, float(step_bound))
     stall_window = int(stall_window)
     if stall_window > 0:
         ring = np.empty((stall_window + 1, B))     # chi2 after the last iterations
@@ -348,7 +457,14 @@ def levenberg_marquardt_batch(fun: Callable, X0: np.ndarray, *, residuals: Calla
             SW[new], SS[new], SG[new] = scaled_svd(R1[new], QTr[new], DJ[new],
                                                    None if dmax is None else dmax[new])
             fresh[new] = True
-        dx = svd_steps(SW[idx], SS[idx], SG[idx], lam[idx])
+        if tr:
+            lam[idx] = trust_region_lambda(SS[idx], SG[idx], delta[idx])
+            with np.errstate(divide="ignore", invalid="ignore"):   # lambda 0: pseudo-inverse
+                c = np.where(SS[idx] > 0, SS[idx] * SG[idx] / (SS[idx] ** 2 + lam[idx, None]),
+                             0.0)
+            dx = -np.einsum("bpm,bm->bp", SW[idx], c)
+        else:
+            dx = svd_steps(SW[idx], SS[idx], SG[idx], lam[idx])
         # parameters held at a bound by a step pointing out of the box are frozen and the
         # step of the others recomputed without them (active set)
         Xa = X[idx]
@@ -381,6 +497,10 @@ def levenberg_marquardt_batch(fun: Callable, X0: np.ndarray, *, residuals: Calla
             nfev[idx[ev]] += 1
         iters[idx] += 1
         better = chi_t < chi2[idx]
+        if tr:
+            better, small_pred = _trust_region_update(
+                better, chi_t, chi2[idx], dx, R1[idx], QTr[idx],
+                _damping_diagonal(DJ[idx], dfl)[0], lam[idx], delta, idx, ftol)
         if Jt is not None:
             better[ev] &= np.all(np.isfinite(Jt), axis=(1, 2))
         acc_local = np.nonzero(better)[0]
@@ -401,17 +521,27 @@ def levenberg_marquardt_batch(fun: Callable, X0: np.ndarray, *, residuals: Calla
                     dmax[acc] = np.maximum(dmax[acc], np.einsum("bnp,bnp->bp", Ja, Ja))
             else:
                 stale[acc] = True
-            lam[acc] = np.maximum(lam[acc] / 10.0, LAMBDA_MIN)
-        lam[rej] *= 10.0
+            if not tr:
+                lam[acc] = np.maximum(lam[acc] / 10.0, LAMBDA_MIN)
+        if not tr:
+            lam[rej] *= 10.0
         # stopping rules
         small = (old - chi2[acc]) <= ftol * chi2[acc] + ftol_abs
+        if tr:
+            small &= small_pred[acc_local]
         low = chi2[acc] <= chi2_tol
         status[acc[low]] = "chi2_tol"
         status[acc[small & ~low]] = "ftol"
         active[acc[small | low]] = False
-        stuck = rej[lam[rej] > lambda_max]
-        status[stuck] = "lambda_max"
-        active[stuck] = False
+        if tr:
+            xn = np.sqrt(np.sum(_damping_diagonal(DJ[idx], dfl)[0] * X[idx] ** 2, axis=1))
+            tiny = idx[active[idx] & (delta[idx] <= xtol * xn)]
+            status[tiny] = "xtol"
+            active[tiny] = False
+        else:
+            stuck = rej[lam[rej] > lambda_max]
+            status[stuck] = "lambda_max"
+            active[stuck] = False
         if stall_window > 0:
             ring[(it + 1) % (stall_window + 1)] = chi2
             if it + 1 >= stall_window:
@@ -477,7 +607,9 @@ def levenberg_marquardt(residuals: Callable, x0, jacobian: Callable | None = Non
                         lambda_max: float = 1e16, lower=None, upper=None,
                         fd_method: str = "central", damping: str = "max",
                         stall_window: int = 0, stall_tol: float = 0.0, geodesic: bool = True,
-                        geo_h: float = 0.1, geo_alpha: float = 0.75) -> LMResult:
+                        geo_h: float = 0.1, geo_alpha: float = 0.75,
+                        step_bound: float | None = None, xtol: float = 1e-15,
+                        fallback: bool = True) -> LMResult:
     """Minimise ``sum(residuals(x)**2)`` by Algorithm 1 (Levenberg-Marquardt).
 
     residuals: ``residuals(x, *args) -> (N,)``.
@@ -486,10 +618,17 @@ def levenberg_marquardt(residuals: Callable, x0, jacobian: Callable | None = Non
     max_iter, lambda0, ftol, ftol_abs, chi2_tol, lambda_max, lower, upper, damping,
         stall_window, stall_tol, geodesic, geo_h, geo_alpha: see
         :func:`levenberg_marquardt_batch` (this is the batch of one). Defaults here: the
-        MINPACK damping (``max``) and geodesic acceleration, with which all 19 NIST StRD
-        problems reach their certified values from both starts (plain Algorithm 1,
+        MINPACK damping (``max``) and geodesic acceleration (plain Algorithm 1,
         ``damping="current", geodesic=False``, loses MGH17 from start 1 to parameter
         evaporation).
+    step_bound, xtol: trust-region step control instead of Algorithm 1's lambda updates
+        (``levenberg_marquardt_batch``); None (default): Algorithm 1.
+    fallback: when the run (Algorithm 1) stops at ``max_iter``, run once more from ``x0``
+        with trust-region step control (step bound ``FALLBACK_STEP_BOUND`` = 100, MINPACK's
+        ``factor``; no geodesic acceleration; the other options unchanged) and return the run
+        with the smaller chi-square; ``iterations``, ``nfev`` and ``njev`` then count both
+        runs. With these defaults all 27 NIST StRD problems reach their certified values to
+        at least 4 digits from both starts (MGH10 from start 1 through the fallback).
 
     Returns an :class:`LMResult` with ``x``, ``chi2`` (sum of squared residuals),
     ``converged``, ``iterations``, ``status``, ``message``, ``nfev``, ``njev``.
@@ -519,14 +658,25 @@ def levenberg_marquardt(residuals: Callable, x0, jacobian: Callable | None = Non
     def resb(X):
         return np.stack([res1(x) for x in X])
 
-    b = levenberg_marquardt_batch(fun, x0[None], residuals=resb, max_iter=max_iter,
-                                  lambda0=lambda0, ftol=ftol, ftol_abs=ftol_abs,
-                                  chi2_tol=chi2_tol, lambda_max=lambda_max, lower=lower,
-                                  upper=upper, keep_jacobian=True, damping=damping,
-                                  stall_window=stall_window, stall_tol=stall_tol,
-                                  geodesic=geodesic, geo_h=geo_h, geo_alpha=geo_alpha)
+    opts = dict(residuals=resb, max_iter=max_iter, lambda0=lambda0, ftol=ftol,
+                ftol_abs=ftol_abs, chi2_tol=chi2_tol, lambda_max=lambda_max, lower=lower,
+                upper=upper, keep_jacobian=True, damping=damping, stall_window=stall_window,
+                stall_tol=stall_tol, geo_h=geo_h, geo_alpha=geo_alpha, xtol=xtol)
+    b = levenberg_marquardt_batch(fun, x0[None], geodesic=geodesic, step_bound=step_bound,
+                                  **opts)
+    iterations, njev = int(b.iterations[0]), int(b.njev[0])
+    if fallback and step_bound is None and b.status[0] == "max_iter":
+        # Restart from x0 with MINPACK's step control: the bound on |D dx| keeps the first
+        # steps from throwing the point into a far valley it then crawls along (MGH10 from
+        # its first start); the better of the two runs is returned.
+        b2 = levenberg_marquardt_batch(fun, x0[None], geodesic=False,
+                                       step_bound=FALLBACK_STEP_BOUND, **opts)
+        iterations += int(b2.iterations[0])
+        njev += int(b2.njev[0])
+        if b2.chi2[0] < b.chi2[0] or (b2.converged[0] and b2.chi2[0] <= b.chi2[0]):
+            b = b2
     st = str(b.status[0])
-    return LMResult(b.x[0], float(b.chi2[0]), float(b.chi2_0[0]), int(b.iterations[0]),
+    return LMResult(b.x[0], float(b.chi2[0]), float(b.chi2_0[0]), iterations,
                     bool(b.converged[0]), st, MESSAGES.get(st, st), float(b.lam[0]),
-                    counter["nfev"], int(b.njev[0]),
+                    counter["nfev"], njev,
                     b.fun[0], None if b.jac is None else b.jac[0])

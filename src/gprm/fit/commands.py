@@ -55,6 +55,9 @@ def register(app: typer.Typer, synth_app: typer.Typer) -> None:
                                                   "folder (default: OUT.ckpt); rerun resumes"),
         z_bk_absolute: bool = typer.Option(False, "--z-bk-absolute",
                                            help="fit z_bk as z_lr + z_A"),
+        no_fit_offsets: bool = typer.Option(False, "--no-fit-offsets", help="do not fit the "
+                                            "per-signal alignment offsets dt_x_head, "
+                                            "dt_y_base, dt_y_head (fitted by default)"),
     ):
         """Multi-start Levenberg-Marquardt identification (Sec. 3.1)."""
         import os
@@ -63,31 +66,16 @@ def register(app: typer.Typer, synth_app: typer.Typer) -> None:
         from rich.console import Console
         from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 
-        from gprm._io import open_netcdf
         from gprm.errors import GprmInputError
-        from gprm.fit.multistart import LMOptions, MultiStartOptions
-        from gprm.fit.objective import fit_data_from_means
-        from gprm.fit.result import identify
-        from gprm.params import load_params
+        from gprm.fit.api import FitOptions, run_fit
 
-        if sigma not in ("sem", "std"):
-            raise GprmInputError(f"must be sem or std, got {sigma!r}", field="--sigma")
-        if starts < 1:
-            raise GprmInputError(f"must be at least 1, got {starts}", field="--starts")
-        ds = open_netcdf(means, what="mean-signals file")
-        data = fit_data_from_means(ds, window=window, sigma=sigma, source=str(means))
-        base = load_params(params)
-        opts = MultiStartOptions(n_starts=starts, seed=seed, spread=spread, sampling=sampling,
-                                 chunk_size=chunk,
-                                 lm=LMOptions(max_iter=max_iter, stall_window=stall_window,
-                                              stall_tol=stall_tol),
-                                 prune_after=prune_after, prune_factor=prune_factor)
-        if chunk < 1:
-            raise GprmInputError(f"must be at least 1, got {chunk}", field="--chunk")
-        if stall_window < 0:
-            raise GprmInputError(f"must be >= 0, got {stall_window}", field="--stall-window")
-        if not stall_tol >= 0:
-            raise GprmInputError(f"must be >= 0, got {stall_tol}", field="--stall-tol")
+        opts = _options(FitOptions, starts=starts, seed=seed, spread=spread, sampling=sampling,
+                        window=window, sigma=sigma, fit_offsets=not no_fit_offsets,
+                        piezo=piezo, chunk=chunk, max_iter=max_iter,
+                        stall_window=stall_window, stall_tol=stall_tol,
+                        prune_after=prune_after, prune_factor=prune_factor,
+                        band_samples=band_samples, profile=profile,
+                        z_bk_absolute=z_bk_absolute)
         if workers is None:
             workers = 0 if scheduler else max(1, os.cpu_count() or 1)
         if workers < 0:
@@ -102,11 +90,20 @@ def register(app: typer.Typer, synth_app: typer.Typer) -> None:
             def progress(done, total):
                 bar.update(task, completed=done, total=total)
 
-            res = identify(data, base, opts, piezo=piezo, workers=workers,
-                           scheduler=scheduler, checkpoint_dir=ckpt, progress=progress,
-                           profile=profile, z_bk_absolute=z_bk_absolute,
-                           band_samples=band_samples)
+            res = run_fit(means, opts, params=params, workers=workers, scheduler=scheduler,
+                          checkpoint_dir=ckpt, progress=progress)
         side = res.write(out)
         shutil.rmtree(ckpt, ignore_errors=True)
         typer.echo(res.summary())
         typer.echo(f"wrote {out} and {side} ({res.timings['total']:.1f} s)")
+
+
+def _options(cls, **values):
+    """``cls(**values)``; an invalid option is named as its command-line flag."""
+    from gprm.errors import GprmInputError
+
+    try:
+        return cls(**values)
+    except GprmInputError as exc:
+        flag = None if exc.field is None else "--" + exc.field.replace("_", "-")
+        raise GprmInputError(exc.problem, source=exc.source, field=flag) from None

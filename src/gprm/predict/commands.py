@@ -43,6 +43,13 @@ def parse_length(text: str, field: str) -> float:
     return float(q.to("m").magnitude)
 
 
+#: PredictOptions field -> the flag that sets it (for error messages)
+_FLAGS = {"piezo": "--piezo", "scale_eccentricity": "--scale-eccentricity",
+          "overrides": "--set", "t_start": "--t-start", "t_end": "--t-end", "rate": "--rate",
+          "samples": "--samples", "seed": "--seed", "bins": "--bins",
+          "ke_window": "--ke-start/--ke-end", "gap": "--gap", "gap_std": "--gap-std"}
+
+
 def register(app: typer.Typer, synth_app: typer.Typer) -> None:
     from gprm.cli import one_line_errors
 
@@ -78,32 +85,28 @@ def register(app: typer.Typer, synth_app: typer.Typer) -> None:
         """Predict trajectories, kinetic energy, masses, overshoot and impact risk."""
         from gprm._io import write_json_atomic, write_netcdf_atomic
         from gprm.errors import GprmInputError
-        from gprm.predict.core import load_model, predict, prediction_times
+        from gprm.predict.api import PredictOptions, run_predict, run_whatif
+        from gprm.predict.core import load_model
         from gprm.predict.files import prediction_dataset
-        from gprm.predict.scenarios import Scenario
-        from gprm.predict.whatif import whatif
-        from gprm.simulate import read_voltage_csv
 
-        if piezo not in (1, 2):
-            raise GprmInputError(f"must be 1 or 2, got {piezo}", field="--piezo")
-        if not (scale_eccentricity > 0):
-            raise GprmInputError(f"must be > 0, got {scale_eccentricity:g}",
-                                 field="--scale-eccentricity")
-        if samples < 0:
-            raise GprmInputError(f"must be >= 0, got {samples}", field="--samples")
-        fm = load_model(fit)
-        sc = Scenario("cli", piezo, scale_eccentricity, parse_overrides(set_))
         g = parse_length(gap, "--gap") if gap is not None else None
         gs = parse_length(gap_std, "--gap-std")
-        t = prediction_times(t_start, t_end, rate)
-        trace = read_voltage_csv(voltage) if voltage is not None else None
-        pred = predict(fm, scenario=sc, times=t, samples=samples, seed=seed, means=means,
-                       n_bins=bins, gap=g, gap_std=gs, voltage=trace,
-                       energy_window=(ke_start, ke_end))
+        try:
+            opts = PredictOptions(piezo=piezo, scale_eccentricity=scale_eccentricity,
+                                  overrides=parse_overrides(set_), name="cli", t_start=t_start,
+                                  t_end=t_end, rate=rate, samples=samples, seed=seed,
+                                  means=means, bins=bins, ke_window=(ke_start, ke_end), gap=g,
+                                  gap_std=gs, voltage=voltage)
+        except GprmInputError as exc:
+            raise GprmInputError(exc.problem, source=exc.source,
+                                 field=_FLAGS.get(exc.field, exc.field)) from None
+        fm = load_model(fit)
+        pred = run_predict(fm, opts)
         write_netcdf_atomic(prediction_dataset(pred), out)
-        os_ = pred.overshoot
-        pts = list(pred.trajectories.points)
-        msg = (f"wrote {out}: {t.size} times, {pred.trajectories.n_ok}/{samples} samples, "
+        os_, tr = pred.overshoot, pred.trajectories
+        pts = list(tr.points)
+        tr = pred.trajectories
+        msg = (f"wrote {out}: {tr.time.size} times, {tr.n_ok}/{samples} samples, "
                f"piezo {piezo}; overshoot M_xz x {os_[pts.index('M_xz'), 0] * 1e6:.3f} um, "
                f"M_yz y {os_[pts.index('M_yz'), 1] * 1e6:.3f} um, "
                f"M_xz z {os_[pts.index('M_xz'), 2] * 1e6:.3f} um")
@@ -112,6 +115,5 @@ def register(app: typer.Typer, synth_app: typer.Typer) -> None:
                                              zip(pred.risk.planes, pred.risk.p_cross))
         typer.echo(msg)
         if whatif_out is not None:
-            write_json_atomic(whatif_out, whatif(fm, samples=min(samples, 100), seed=seed,
-                                                 voltage=trace))
+            write_json_atomic(whatif_out, run_whatif(fm, opts))
             typer.echo(f"wrote {whatif_out}")

@@ -59,7 +59,7 @@ fit.write(OUT / "fit.json")                        # + fit.nc (every start, band
 print(fit.summary().splitlines()[2])
 
 # %% 5. Prediction: trajectories of the contact points, kinetic energy, what-ifs (Sec. 4.2)
-from gprm.demo.stages import load_model
+from gprm.run import load_model
 from gprm.fit.files import with_covariance_fallbacks
 from gprm.predict.core import predict, prediction_times
 from gprm.predict.files import prediction_dataset

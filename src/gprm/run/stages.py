@@ -135,7 +135,12 @@ def _campaign(run: Path, opts: RunOptions, step) -> dict:
         src = Path(opts.campaign)
         ds = load_campaign(src)                 # validates; NetCDF file or CSV folder
         info = {"source": str(src), "sha256": ds.attrs.get("campaign_sha256", "")}
-        if not _same_file(src, dest):
+        if _same_file(src, dest):
+            pass
+        elif not src.is_dir():                  # a valid NetCDF campaign: taken as it is
+            with atomic_path(dest) as tmp:
+                shutil.copyfile(src, tmp)
+        else:                                   # a CSV folder: its dataset, saying whence
             ds = ds.copy()
             ds.attrs["imported_from"] = str(src)
             ds.attrs["imported_sha256"] = str(ds.attrs.pop("campaign_sha256", ""))

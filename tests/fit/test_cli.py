@@ -36,9 +36,12 @@ def test_gprm_fit_writes_json_and_sidecar(means_file, tmp_path):
     assert d["starts"]["stall_window"] == 5 and d["starts"]["stall_tol"] == 0.05
     assert out.with_suffix(".nc").exists()
     assert not Path(str(out) + ".ckpt").exists()        # checkpoints removed after success
+    # by default the 23 parameters of Table 3 and the three alignment offsets are fitted
+    assert sum(p["fitted"] for p in d["parameters"].values()) == 26
+    assert all(d["parameters"][n]["fitted"] for n in ("dt_x_head", "dt_y_base", "dt_y_head"))
     fm = load_fit(out) if d["correlation"]["matrix"] is not None else None
     if fm is not None:
-        assert len(fm.names) == 23
+        assert len(fm.names) == 26
 
 
 @pytest.mark.parametrize("args, text", [

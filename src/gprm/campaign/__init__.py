@@ -10,7 +10,8 @@ from gprm.campaign.preprocess import (MeanSignals, PreprocessConfig, alignment_s
                                       preprocess)
 from gprm.campaign.synth import SynthConfig, synth_campaign
 
-__all__ = ["MODEL_POSITIONS", "POSITIONS", "MeanSignals", "PreprocessConfig", "SynthConfig",
-           "PreprocessOptions", "alignment_shift", "campaign_dataset", "load_campaign",
-           "preprocess", "preprocess_campaign", "read_campaign_dir", "run_preprocess", "synth_campaign", "validate_campaign", "write_campaign",
+__all__ = ["MODEL_POSITIONS", "POSITIONS", "MeanSignals", "PreprocessConfig",
+           "PreprocessOptions", "SynthConfig", "alignment_shift", "campaign_dataset",
+           "load_campaign", "preprocess", "preprocess_campaign", "read_campaign_dir",
+           "run_preprocess", "synth_campaign", "validate_campaign", "write_campaign",
            "write_campaign_dir"]

@@ -22,8 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
-from gprm._io import (atomic_path, open_netcdf, read_json, write_json_atomic,
-                      write_netcdf_atomic)
+from gprm._io import atomic_path, read_json, write_json_atomic, write_netcdf_atomic
 from gprm.campaign.api import run_preprocess
 from gprm.campaign.data import load_campaign, write_campaign
 from gprm.campaign.synth import synth_campaign

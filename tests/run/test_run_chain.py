@@ -61,14 +61,15 @@ def _json(path: Path):
     return _strip(json.loads(path.read_text()), path.parent)
 
 
-def _same_netcdf(a: Path, b: Path) -> None:
+def _same_netcdf(a: Path, b: Path, roots: tuple[Path, Path] | None = None) -> None:
     """Same variables, coordinates and values; attributes equal except the run directory's
-    path, timings and where an import came from."""
+    path (``roots``, default the files' folders), timings and where an import came from."""
+    ra, rb = roots or (a.parent, b.parent)
     with xr.open_dataset(a) as da, xr.open_dataset(b) as db:
         xr.testing.assert_equal(da, db)
         for name in list(da.variables) + [None]:
-            aa = _strip(dict(da.attrs if name is None else da[name].attrs), a.parent)
-            ab = _strip(dict(db.attrs if name is None else db[name].attrs), b.parent)
+            aa = _strip(dict(da.attrs if name is None else da[name].attrs), ra)
+            ab = _strip(dict(db.attrs if name is None else db[name].attrs), rb)
             assert set(aa) == set(ab), (a.name, name)
             for k in aa:
                 va, vb = aa[k], ab[k]
@@ -211,3 +212,16 @@ def test_a_campaign_that_fails_to_load_is_a_failed_stage(runs, tmp_path):
     assert "stage(s) failed: campaign: " + str(bad) in res.output
     st = _statuses(tmp_path / "r")
     assert st["campaign"] == "failed" and st["preprocess"] == "blocked"
+
+
+def test_the_commands_defaults_reproduce_the_demo(runs, tmp_path):
+    """One configuration: gprm preprocess and gprm fit with their defaults (only the run's
+    starts, seed and band samples given) reproduce the demo's means and fit."""
+    _, a, _, _ = runs
+    c = tmp_path / "cli"
+    c.mkdir()
+    _ok(["preprocess", str(a / "campaign.nc"), "--out", str(c / "means.nc")])
+    _same_netcdf(a / "means.nc", c / "means.nc", roots=(a, a))   # both read a/campaign.nc
+    _ok(["fit", str(c / "means.nc"), "--out", str(c / "fit.json"), "--starts", "6",
+         "--seed", "0", "--band-samples", "40", "--workers", "0"])
+    assert _json(c / "fit.json") == _json(a / "fit.json")

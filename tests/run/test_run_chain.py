@@ -99,7 +99,9 @@ def test_run_writes_every_stage_and_the_report(runs):
     assert rec["options"]["campaign"].endswith("campaign.nc")
     assert rec["options"]["fit"]["starts"] == 6 and rec["options"]["fit"]["fit_offsets"]
     assert "gprm run →" in output and "best χ²" in output and "Tukey" in output
-    assert 'id="fig-trajectories"' in (b / "report.html").read_text()
+    html = (b / "report.html").read_text()
+    assert 'id="fig-trajectories"' in html
+    assert "option fit.starts" in html and "option preprocess.align_time" in html
 
 
 def test_demo_is_run_on_a_generated_campaign(runs):

@@ -357,7 +357,10 @@ def provenance_section(run: Path, prov: dict) -> Section:
         if key in prov:
             rows.append((key, prov[key]))
     for k, v in (prov.get("options") or {}).items():
-        rows.append((f"option {k}", v))
+        if isinstance(v, dict):          # a stage's options (gprm run: preprocess, fit)
+            rows.extend((f"option {k}.{k2}", v2) for k2, v2 in v.items())
+        else:
+            rows.append((f"option {k}", v))
     for k, v in (prov.get("versions") or {}).items():
         rows.append((f"version {k}", v))
     files = sorted(f.name for f in run.iterdir() if f.is_file() and not f.name.startswith("."))

@@ -136,3 +136,42 @@ def test_no_import_cycle_among_run_demo_report_modules():
     # a package's __init__ re-exporting its own modules is not a cycle of the design
     cycles = [m for m in graph if m in reach(m) and not m.endswith(("run", "demo", "report"))]
     assert not cycles
+
+
+def test_a_model_without_uncertainty_is_noted(monkeypatch, tmp_path):
+    """FittedModel.has_uncertainty False (the library's flag for 'best fit repeated') gives
+    the note 'best fit only, no uncertainty' that run.json and the report show; a model with
+    uncertainty (or an older FittedModel without the flag) gives none."""
+    from types import SimpleNamespace
+
+    import gprm.run.stages as st
+
+    monkeypatch.setattr(st, "load_fit", lambda p: SimpleNamespace(has_uncertainty=False))
+    assert st.load_model(tmp_path)[1] == [st.NO_UNCERTAINTY] == ["best fit only, no uncertainty"]
+    monkeypatch.setattr(st, "load_fit", lambda p: SimpleNamespace(has_uncertainty=True))
+    assert st.load_model(tmp_path)[1] == []
+    monkeypatch.setattr(st, "load_fit", lambda p: SimpleNamespace())
+    assert st.load_model(tmp_path)[1] == []
+
+
+def test_a_fit_without_covariance_runs_on_its_best_fit(tmp_path):
+    """A fit JSON whose correlation matrix is null (singular J'J): the best-fit values, a zero
+    covariance, and the note."""
+    import json
+
+    import numpy as np
+
+    import gprm.run.stages as st
+
+    ps = paper()
+    doc = {"model": "gprm-3d", "format_version": 1, "piezo": 2,
+           "covariance_message": "singular J'J",
+           "parameters": {n: {"value": ps.values[n] * 1.01, "fitted": n in ps.fitted}
+                          for n in ps.values},
+           "correlation": {"names": list(ps.fitted), "matrix": None}}
+    (tmp_path / "fit.json").write_text(json.dumps(doc))
+    fm, notes = st.load_model(tmp_path)
+    assert fm.names == ps.fitted and not np.any(fm.covariance)
+    assert fm.params.values["m2"] == pytest.approx(ps.values["m2"] * 1.01)
+    assert len(notes) == 1 and notes[0].startswith(st.NO_UNCERTAINTY)
+    assert "singular J'J" in notes[0]

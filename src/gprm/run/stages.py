@@ -206,7 +206,9 @@ def _telemetry(run: Path, opts: RunOptions, step) -> dict:
     if opts.telemetry is not None:
         src = Path(opts.telemetry)
         tel = load_telemetry(src)             # checks it before it enters the run directory
-        if not _same_file(src, dest):
+        if src.suffix.lower() in (".csv", ".txt"):
+            write_netcdf_atomic(_telemetry_csv_dataset(src), dest)
+        elif not _same_file(src, dest):       # a NetCDF file: taken as it is
             with atomic_path(dest) as tmp:
                 shutil.copyfile(src, tmp)
         return {"source": str(src), "releases": len(tel.releases)}
@@ -216,6 +218,19 @@ def _telemetry(run: Path, opts: RunOptions, step) -> dict:
                fm, notes, "the releases' true parameters")
     write_netcdf_atomic(ds, dest)
     return _with_notes({"source": "synthetic", "releases": opts.releases}, notes)
+
+
+def _telemetry_csv_dataset(path: Path):
+    """The telemetry dataset of a CSV file, where this gprm's flight library reads CSV
+    telemetry (``gprm.flight.telemetry.telemetry_csv_dataset``, being added by the flight
+    work; make this a plain import once it is in)."""
+    from gprm.flight import telemetry as ft
+
+    reader = getattr(ft, "telemetry_csv_dataset", None)
+    if reader is None:
+        raise GprmInputError("telemetry must be a NetCDF file (gprm-telemetry format)",
+                             source=str(path))
+    return reader(path)
 
 
 def _impact(run: Path, opts: RunOptions, step) -> dict:

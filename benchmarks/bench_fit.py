@@ -178,17 +178,14 @@ def demo_fit_input():
     """The demo's fit: its synthetic campaign (seed 0: nonlinear terms, an unmodelled mode,
     coloured noise, run-to-run variability), preprocessed as the demo does, and the paper's
     fitted set plus the three alignment offsets (26 parameters)."""
-    from gprm.campaign.preprocess import PreprocessConfig, preprocess
+    from gprm.campaign.api import PreprocessOptions, run_preprocess
     from gprm.campaign.synth import synth_campaign
-    from gprm.demo.pipeline import DemoOptions
+    from gprm.fit.api import FitOptions
     from gprm.fit.objective import fit_data_from_means
-    from gprm.params import ALIGNMENT_OFFSETS, paper
+    from gprm.params import paper
 
-    d = DemoOptions()
-    means = preprocess(synth_campaign(seed=d.seed),
-                       PreprocessConfig(align_time=d.align_time)).to_dataset()
-    base = paper()
-    base = base.with_fitted(tuple(base.fitted) + tuple(ALIGNMENT_OFFSETS.values()))
+    means = run_preprocess(synth_campaign(seed=0), PreprocessOptions())
+    base = FitOptions().parameters(paper())
     return fit_data_from_means(means, source="demo campaign (synthetic, seed 0)"), base
 
 

@@ -32,54 +32,44 @@ sim = simulate(ps, piezo=2, t_end=1.2e-3, rate=200e3)
 print("peak x_head: %.3f um" % (1e6 * np.abs(sim.outputs["x_head"]).max()))
 
 # %% 3. A synthetic ground-test campaign with known truth, and its mean signals (Sec. 2)
+from gprm.campaign import PreprocessOptions, run_preprocess
 from gprm.campaign.data import write_campaign
-from gprm.campaign.preprocess import PreprocessConfig, preprocess
 from gprm.campaign.synth import SynthConfig, synth_campaign
 
 campaign = synth_campaign(seed=1, config=SynthConfig(nonlinear=False))   # faster variant
 write_campaign(campaign, OUT / "campaign.nc")
-# 2-sigma crossing at 1.01 ms: the lag t0 then stays positive, as in the paper (docs/README.md)
-means = preprocess(campaign, PreprocessConfig(align_time=1.01e-3)).to_dataset()
+# the stage's entry point with its default options: the 2-sigma crossing at 1.01 ms, so the
+# lag t0 stays positive, as in the paper (docs/README.md, "One configuration")
+means = run_preprocess(campaign, PreprocessOptions())
 write_netcdf_atomic(means, OUT / "means.nc")
 print("Table 1 (this campaign):", means.attrs["table1_json"][:120], "...")
 
-# %% 4. Identification: multi-start Levenberg-Marquardt (Algorithm 1), covariance (Eq. 7)
-from gprm.fit.multistart import MultiStartOptions
-from gprm.fit.objective import fit_data_from_means
-from gprm.fit.result import identify
+# %% 4. Identification: multi-start Levenberg-Marquardt (Algorithm 1), uncertainty
+from gprm.fit import FitOptions, run_fit
 
-from gprm.params import ALIGNMENT_OFFSETS
-
-data = fit_data_from_means(means, source="worked example")
-# the 23 parameters of Table 3 plus the per-signal alignment offsets (docs/model.md)
-base = paper().with_fitted(paper().fitted + tuple(ALIGNMENT_OFFSETS.values()))
-fit = identify(data, base, MultiStartOptions(n_starts=12, seed=1, chunk_size=12),
-               band_samples=20)
+# the 23 parameters of Table 3 plus the per-signal alignment offsets (docs/model.md) are the
+# default; a bad option (say starts=0) raises GprmInputError naming it. The uncertainty is the
+# parametric bootstrap by default (docs/fitting.md: 30 campaigns; 5 here to keep it short)
+fit = run_fit(means, FitOptions(starts=12, seed=1, chunk=12, band_samples=20, boot=5),
+              source="worked example")
 fit.write(OUT / "fit.json")                        # + fit.nc (every start, bands)
 print(fit.summary().splitlines()[2])
 
 # %% 5. Prediction: trajectories of the contact points, kinetic energy, what-ifs (Sec. 4.2)
-from gprm.demo.stages import load_model
-from gprm.fit.files import with_covariance_fallbacks
-from gprm.predict.core import predict, prediction_times
+from gprm.predict import PredictOptions, run_predict, run_whatif
 from gprm.predict.files import prediction_dataset
-from gprm.predict.scenarios import Scenario
-from gprm.predict.whatif import whatif
+from gprm.run import load_model
 
-# what later stages read: a FittedModel (gprm.fit.files.load_fit; load_model also accepts a
-# fit whose covariance is singular, keeping its best-fit values)
+# what later stages read: a FittedModel (gprm.fit.files.load_fit). It reads every fit, also
+# one without uncertainty (then fm.has_uncertainty is False: best fit only, said in `notes`)
 fm, notes = load_model(OUT)
-t = prediction_times(0.95e-3, 1.2e-3, 1e6)
-# Bands come from 20 parameter sets drawn from the fit covariance. A degenerate draw (e.g. a
-# stiffness at its bound) makes numpy raise LinAlgError; with_covariance_fallbacks then
-# retries with the well-determined parameters' covariance only, then without one, and says
-# so in `notes` -- exactly what `gprm demo` does.
-pred = with_covariance_fallbacks(
-    lambda m: predict(m, scenario=Scenario("piezo2", 2), times=t, samples=20, seed=1,
-                      means=OUT / "means.nc"), fm, notes, "the predictions' bands")
+print(fm.uncertainty_note, "; identified:", ", ".join(fm.identified or ()))
+popts = PredictOptions(piezo=2, name="piezo2", samples=20, seed=1, means=str(OUT / "means.nc"))
+# Bands come from 20 parameter sets of the fit's uncertainty method (FittedModel.sample:
+# the posterior draws stored with the fit; never a set that cannot be simulated)
+pred = run_predict(fm, popts)
 write_netcdf_atomic(prediction_dataset(pred), OUT / "predict.nc")
-wi = with_covariance_fallbacks(lambda m: whatif(m, samples=20, seed=1), fm, notes,
-                               "the what-if ranges")
+wi = run_whatif(fm, popts)
 write_json_atomic(OUT / "whatif.json", wi)
 for r in wi["ratios"][1:]:
     print(f"overshoot Piezo 2 / {r['name']}:",
@@ -90,13 +80,9 @@ from gprm.flight.analysis import AnalysisOptions, analyze, curves_dataset
 from gprm.flight.synth import SynthOptions, synth_telemetry
 from gprm.flight.telemetry import telemetry_from_dataset
 
-tele = with_covariance_fallbacks(
-    lambda m: synth_telemetry(m, SynthOptions(n_releases=11, seed=1)), fm, notes,
-    "the releases' true parameters")
+tele = synth_telemetry(fm, SynthOptions(n_releases=11, seed=1))
 write_netcdf_atomic(tele, OUT / "telemetry.nc")
-doc, curves = with_covariance_fallbacks(
-    lambda m: analyze(m, telemetry_from_dataset(tele), AnalysisOptions(n_samples=20, seed=1)),
-    fm, notes, "the velocity-curve bands")
+doc, curves = analyze(fm, telemetry_from_dataset(tele), AnalysisOptions(n_samples=20, seed=1))
 print(*notes, sep="\n")
 write_json_atomic(OUT / "impact.json", doc)
 write_netcdf_atomic(curves_dataset(curves, doc), OUT / "impact.nc")

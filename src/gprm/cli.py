@@ -141,7 +141,7 @@ def one_line_errors(fn):
     return wrapper
 
 
-_STAGES = ("params", "simulate", "campaign", "fit", "predict", "flight", "report", "demo")
+_STAGES = ("params", "simulate", "campaign", "fit", "predict", "flight", "report", "run", "demo")
 
 
 def _register_all() -> None:

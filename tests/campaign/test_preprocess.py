@@ -98,11 +98,16 @@ def test_aligned_means_match_truth_within_sigma(request, which):
 
 
 def test_alignment_rule_at_align_time(full_means):
-    """At 1 ms each mean signal's magnitude equals 2x its noise std, and before that it never
-    stays above it for two consecutive samples (the first sustained crossing)."""
+    """At the default align time (1.01 ms) each mean signal's magnitude equals 2x its noise
+    std, and before that it never stays above it for two consecutive samples (the first
+    sustained crossing)."""
+    from gprm.campaign.preprocess import PreprocessConfig
+
+    ta = PreprocessConfig().align_time
+    assert ta == 1.01e-3
     t = full_means.time
-    k = int(np.argmin(np.abs(t - 1e-3)))
-    assert t[k] == pytest.approx(1e-3, abs=1e-12)
+    k = int(np.argmin(np.abs(t - ta)))
+    assert t[k] == pytest.approx(ta, abs=1e-12)
     thr = 2 * full_means.noise_std
     np.testing.assert_allclose(np.abs(full_means.mean[:, k]), thr, rtol=1e-6)
     above = np.abs(full_means.mean[:, :k]) >= thr[:, None]

@@ -49,7 +49,10 @@ def test_every_stage_ran_and_wrote_its_files(demo_run):
         "campaign": "ran", "preprocess": "ran", "fit": "ran", "predict": "ran",
         "telemetry": "ran", "impact": "ran", "report": "ran"}
     assert rec["seed"] == 0 and rec["options"]["quick"] is True
-    assert rec["options"]["starts"] == 50
+    assert rec["options"]["fit"]["starts"] == 50 and rec["options"]["campaign"] is None
+    # the one configuration: the library's defaults, alignment offsets fitted
+    assert rec["options"]["preprocess"]["align_time"] == 1.01e-3
+    assert rec["options"]["fit"]["fit_offsets"] is True and rec["options"]["fit"]["sigma"] == "sem"
     assert rec["versions"]["gprm"] and rec["versions"]["numpy"]
     assert all(rec["timings_s"][s] > 0 for s in ("campaign", "fit", "predict", "impact"))
     # the summary table at the end of the command
@@ -137,12 +140,12 @@ def test_report_holds_every_figure(demo_run):
 
 
 def test_rerun_skips_every_stage(demo_run):
-    from gprm.demo.pipeline import DemoOptions, run_demo
+    from gprm.run import RunOptions, run_demo
 
     out, _ = demo_run
     before = {n: (out / n).read_bytes() for n in EXPECTED_FILES if n not in ("run.json",
                                                                            "report.html")}
-    res = run_demo(out, DemoOptions.make(quick=True), report_html=False)
+    res = run_demo(out, RunOptions.make(quick=True), report_html=False)
     assert [r.status for r in res.records] == ["skipped"] * 6
     rec = json.loads((out / "run.json").read_text())
     assert all(v["status"] == "skipped" for v in rec["stages"].values())

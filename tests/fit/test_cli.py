@@ -36,9 +36,12 @@ def test_gprm_fit_writes_json_and_sidecar(means_file, tmp_path):
     assert d["starts"]["stall_window"] == 5 and d["starts"]["stall_tol"] == 0.05
     assert out.with_suffix(".nc").exists()
     assert not Path(str(out) + ".ckpt").exists()        # checkpoints removed after success
+    # by default the 23 parameters of Table 3 and the three alignment offsets are fitted
+    assert sum(p["fitted"] for p in d["parameters"].values()) == 26
+    assert all(d["parameters"][n]["fitted"] for n in ("dt_x_head", "dt_y_base", "dt_y_head"))
     # every fit loads, with its identified set, intervals and posterior draws
     fm = load_fit(out)
-    assert len(fm.names) == 23 and fm.has_uncertainty and fm.draws.shape == (400, 23)
+    assert len(fm.names) == 26 and fm.has_uncertainty and fm.draws.shape == (400, 26)
     assert d["uncertainty"]["method"] == "parametric-bootstrap"
     assert set(d["identified"]) | set(d["not_determined"]) == set(fm.names)
     for name in fm.names:

@@ -64,22 +64,18 @@ def register(app: typer.Typer, synth_app: typer.Typer) -> None:
     def preprocess_cmd(
         campaign: Path = typer.Argument(..., help="campaign NetCDF file or CSV directory"),
         out: Path = typer.Option(..., "--out", help="output mean-signals NetCDF"),
-        align_time: float = typer.Option(1.0e-3, "--align-time",
+        align_time: float = typer.Option(1.01e-3, "--align-time",
                                          parser=Quantity("s", 0, min_open=True),
                                          metavar="TIME",
                                          help="time at which each mean signal reaches the "
                                               "threshold, e.g. 1ms (bare: s)"),
     ):
         """Synchronise, average and align a campaign (Sec. 2); prints Table 1."""
-        from gprm._io import check_outputs, write_netcdf_atomic
-        from gprm.campaign.data import load_campaign
-        from gprm.campaign.preprocess import PreprocessConfig, preprocess
-
-        from gprm._io import files_read_from
+        from gprm._io import check_outputs, files_read_from, write_netcdf_atomic
+        from gprm.campaign.api import PreprocessOptions, preprocess_campaign
 
         check_outputs({out: "--out"}, inputs=[campaign, *files_read_from(campaign)])
-        ds = load_campaign(campaign)
-        ms = preprocess(ds, PreprocessConfig(align_time=align_time))
+        ms = preprocess_campaign(campaign, PreprocessOptions(align_time=align_time))
         write_netcdf_atomic(ms.to_dataset(), out)
         typer.echo(f"wrote {out}: {len(ms.signals)} mean signals x {ms.time.size} samples "
                    f"({ms.time[0] * 1e3:.3f}..{ms.time[-1] * 1e3:.3f} ms)")

@@ -1,2 +1,2 @@
-"""demo stage: the whole chain in one command (``gprm demo``), resumable; see
-:mod:`gprm.demo.pipeline`."""
+"""demo stage: ``gprm demo``, the whole chain on a generated campaign: exactly ``gprm run``
+(:mod:`gprm.run`) with a synthetic campaign and synthetic telemetry."""

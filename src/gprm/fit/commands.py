@@ -89,48 +89,40 @@ def register(app: typer.Typer, synth_app: typer.Typer) -> None:
                                                   "folder (default: OUT.ckpt); rerun resumes"),
         z_bk_absolute: bool = typer.Option(False, "--z-bk-absolute",
                                            help="fit z_bk as z_lr + z_A"),
+        no_fit_offsets: bool = typer.Option(False, "--no-fit-offsets", help="do not fit the "
+                                            "per-signal alignment offsets dt_x_head, "
+                                            "dt_y_base, dt_y_head (fitted by default)"),
     ):
         """Multi-start Levenberg-Marquardt identification (Sec. 3.1)."""
         import os
         import re
 
-        import numpy as np
-
         from rich.console import Console
         from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 
         from gprm.errors import GprmInputError
-        from gprm.fit.multistart import LMOptions, MultiStartOptions
-        from gprm.fit.objective import fit_data_from_means
-        from gprm.fit.result import identify
-        from gprm.params import load_params
+        from gprm.fit.api import FitOptions, run_fit
 
-        from gprm.fit.uncertainty import METHODS
-
-        if uncertainty not in METHODS:
-            raise GprmInputError(f"must be one of {', '.join(METHODS)}, got {uncertainty!r}",
-                                 field="--uncertainty")
-        if not (prior_width >= 0 and np.isfinite(prior_width)):
-            raise GprmInputError(f"must be >= 0, got {prior_width}", field="--prior-width")
-        if prior_width == 0 and uncertainty not in ("eq7", "eq7-corr"):
-            raise GprmInputError("--prior-width 0 (no prior) needs --uncertainty eq7 or "
-                                 "eq7-corr", field="--prior-width")
-        if boot < 5:
-            raise GprmInputError(f"must be at least 5, got {boot}", field="--boot")
-        if sigma not in ("sem", "std"):
-            raise GprmInputError(f"must be sem or std, got {sigma!r}", field="--sigma")
         from gprm._io import check_outputs
         from gprm.fit.multistart import (check_checkpoint_folder, remove_checkpoints,
                                          starts_memory)
+        from gprm.params import load_params
         from gprm.resources import check_memory
+        from gprm.validate import read_means
 
         if scheduler is not None and not re.fullmatch(
                 r"(tcp|tls|inproc|ucx|ws|wss)://\S+|[\w.\-]+:\d+|\[[0-9a-fA-F:]+\]:\d+",
                 scheduler):
             raise GprmInputError(f"expected a scheduler address such as tcp://HOST:PORT or "
                                  f"HOST:PORT, got {scheduler!r}", field="--scheduler")
-        if sampling not in ("uniform", "lhs"):
-            raise GprmInputError(f"must be uniform or lhs, got {sampling!r}", field="--sampling")
+        opts = _options(FitOptions, starts=starts, seed=seed, spread=spread, sampling=sampling,
+                        window=window, sigma=sigma, fit_offsets=not no_fit_offsets,
+                        piezo=piezo, chunk=chunk, max_iter=max_iter,
+                        stall_window=stall_window, stall_tol=stall_tol,
+                        prune_after=prune_after, prune_factor=prune_factor,
+                        band_samples=band_samples, profile=profile,
+                        z_bk_absolute=z_bk_absolute, uncertainty=uncertainty,
+                        prior_width=prior_width, boot=boot)
         ckpt = checkpoint if checkpoint is not None else Path(str(out) + ".ckpt")
         check_outputs({out: "--out", out.with_suffix(".nc"): "--out (its .nc sidecar)"},
                       inputs=[means, params], folders={ckpt: "--checkpoint"})
@@ -138,24 +130,10 @@ def register(app: typer.Typer, synth_app: typer.Typer) -> None:
         if out.suffix == ".nc":
             raise GprmInputError("must not end in .nc (that name is the sidecar's)",
                                  source=str(out), field="--out")
-        from gprm.validate import read_means
-
         ds = read_means(means)
-        data = fit_data_from_means(ds, window=window, sigma=sigma, source=str(means))
         base = load_params(params)
-        check_memory(starts, starts_memory(1, len(base.fitted)), field="--starts",
-                     what=f"{starts} starts")
-        opts = MultiStartOptions(n_starts=starts, seed=seed, spread=spread, sampling=sampling,
-                                 chunk_size=chunk,
-                                 lm=LMOptions(max_iter=max_iter, stall_window=stall_window,
-                                              stall_tol=stall_tol),
-                                 prune_after=prune_after, prune_factor=prune_factor)
-        if chunk < 1:
-            raise GprmInputError(f"must be at least 1, got {chunk}", field="--chunk")
-        if stall_window < 0:
-            raise GprmInputError(f"must be >= 0, got {stall_window}", field="--stall-window")
-        if not stall_tol >= 0:
-            raise GprmInputError(f"must be >= 0, got {stall_tol}", field="--stall-tol")
+        check_memory(starts, starts_memory(1, len(opts.parameters(base).fitted)),
+                     field="--starts", what=f"{starts} starts")
         if workers is None:
             workers = 0 if scheduler else max(1, os.cpu_count() or 1)
         if workers < 0:
@@ -175,11 +153,9 @@ def register(app: typer.Typer, synth_app: typer.Typer) -> None:
 
             try:
                 with dask_dashboard(dashboard):
-                    res = identify(data, base, opts, piezo=piezo, workers=workers,
-                                   scheduler=scheduler, checkpoint_dir=ckpt, progress=progress,
-                                   profile=profile, z_bk_absolute=z_bk_absolute,
-                                   band_samples=band_samples, uncertainty=uncertainty,
-                                   prior_width=prior_width or None, n_boot=boot)
+                    res = run_fit(ds, opts, params=base, workers=workers,
+                                  scheduler=scheduler, checkpoint_dir=ckpt,
+                                  progress=progress, source=str(means))
             except Exception:
                 remove_checkpoints(ckpt, only_if_empty=True)   # refused: leave nothing behind
                 raise
@@ -194,3 +170,14 @@ def dask_dashboard(address):
     import dask
 
     return dask.config.set({"gprm.dashboard-address": address or None})
+
+
+def _options(cls, **values):
+    """``cls(**values)``; an invalid option is named as its command-line flag."""
+    from gprm.errors import GprmInputError
+
+    try:
+        return cls(**values)
+    except GprmInputError as exc:
+        flag = None if exc.field is None else "--" + exc.field.replace("_", "-")
+        raise GprmInputError(exc.problem, source=exc.source, field=flag) from None

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import os
 from pathlib import Path
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -264,41 +264,3 @@ def _read_draws(side: Path, names: tuple[str, ...]) -> np.ndarray | None:
     except Exception:  # noqa: BLE001 - optional extra; see the docstring
         return None
     return X if X.ndim == 2 and len(X) >= 2 and np.all(np.isfinite(X)) else None
-
-
-def well_determined(fm: FittedModel, max_rel: float = 0.5) -> tuple[FittedModel, list]:
-    """``fm`` with the covariance restricted to its well-determined parameters: a parameter
-    whose standard error exceeds ``max_rel`` of its value (a direction the data barely
-    constrain) is held at its best fit (its rows and columns set to zero). Returns the model
-    and the names held."""
-    se = np.sqrt(np.clip(np.diag(fm.covariance), 0.0, None))
-    x = np.array([fm.params.values[n] for n in fm.names])
-    keep = np.isfinite(se) & (se < max_rel * np.abs(x))
-    held = [n for n, k in zip(fm.names, keep) if not k]
-    cov = np.where(np.outer(keep, keep), fm.covariance, 0.0)
-    return replace(fm, covariance=cov), held
-
-
-def with_covariance_fallbacks(call, fm: FittedModel, notes: list, what: str):
-    """``call(fm)``; if drawing parameter sets from the fit covariance gives a degenerate set
-    (numpy LinAlgError: e.g. a stiffness drawn at its bound of zero), retry with the
-    covariance of the well-determined parameters only, then without a covariance. Each
-    fallback adds a note (once) to ``notes``. Used by ``gprm demo`` for every stage that
-    draws from the fit covariance; a notebook can wrap its own calls the same way."""
-    try:
-        return call(fm)
-    except np.linalg.LinAlgError as exc:
-        first = exc
-    fm2, held = well_determined(fm)
-    try:
-        out = call(fm2)
-        note = (f"degenerate draws from the fit covariance ({first}): {what} use the "
-                f"well-determined parameters' uncertainty only ({', '.join(held)} held at "
-                "the best fit, standard error over 50 % of the value)")
-    except np.linalg.LinAlgError:
-        out = call(replace(fm, covariance=np.zeros_like(fm.covariance)))
-        note = (f"degenerate draws from the fit covariance ({first}): {what} without "
-                "parameter uncertainty")
-    if note not in notes:
-        notes.append(note)
-    return out

@@ -3,3 +3,7 @@
 gap. See docs/prediction.md. Modules: ``kinematics`` (stable body-kinematics API),
 ``trajectories``, ``energy``, ``masses``, ``scenarios``, ``whatif``, ``risk``, ``core``
 (``predict``), ``files`` (NetCDF), ``plots``, ``commands`` (CLI)."""
+
+from gprm.predict.api import PredictOptions, run_predict, run_whatif
+
+__all__ = ["PredictOptions", "run_predict", "run_whatif"]

@@ -43,6 +43,13 @@ def parse_length(text: str, field: str) -> float:
     return float(q.to("m").magnitude)
 
 
+#: PredictOptions field -> the flag that sets it (for error messages)
+_FLAGS = {"piezo": "--piezo", "scale_eccentricity": "--scale-eccentricity",
+          "overrides": "--set", "t_start": "--t-start", "t_end": "--t-end", "rate": "--rate",
+          "samples": "--samples", "seed": "--seed", "bins": "--bins",
+          "ke_window": "--ke-start/--ke-end", "gap": "--gap", "gap_std": "--gap-std"}
+
+
 def register(app: typer.Typer, synth_app: typer.Typer) -> None:
     from gprm.cli import one_line_errors
     from gprm.options import Int, Number, Quantity
@@ -95,53 +102,43 @@ def register(app: typer.Typer, synth_app: typer.Typer) -> None:
         """Predict trajectories, kinetic energy, masses, overshoot and impact risk."""
         from gprm._io import write_json_atomic, write_netcdf_atomic
         from gprm.errors import GprmInputError
-        from gprm.predict.core import load_model, predict, prediction_times
+        from gprm.predict.api import PredictOptions, run_predict, run_whatif
+        from gprm.predict.core import load_model
         from gprm.predict.files import prediction_dataset
-        from gprm.predict.scenarios import Scenario
-        from gprm.predict.whatif import whatif
-        from gprm.simulate import read_voltage_csv
 
-        if piezo not in (1, 2):
-            raise GprmInputError(f"must be 1 or 2, got {piezo}", field="--piezo")
-        if not (scale_eccentricity > 0):
-            raise GprmInputError(f"must be > 0, got {scale_eccentricity:g}",
-                                 field="--scale-eccentricity")
-        if samples < 0:
-            raise GprmInputError(f"must be >= 0, got {samples}", field="--samples")
         from gprm._io import check_outputs
-
-        if not t_start < t_end:
-            raise GprmInputError(f"must be after --t-start, got {t_end:g} s <= {t_start:g} s",
-                                 field="--t-end")
-        if not ke_start < ke_end:
-            raise GprmInputError(f"must be after --ke-start, got {ke_end:g} s <= "
-                                 f"{ke_start:g} s", field="--ke-end")
-        check_outputs([(out, "--out"), (whatif_out, "--whatif")],
-                      inputs=[None if fit == "paper" else fit, means, voltage])
         from gprm.resources import check_memory
 
+        check_outputs([(out, "--out"), (whatif_out, "--whatif")],
+                      inputs=[None if fit == "paper" else fit, means, voltage])
         # about 1.95 kB per drawn set and time (measured with tracemalloc at 20 and 80 sets
         # over the default 251 times; docs/README.md) plus a fixed 50 MB
         n_times = (t_end - t_start) * rate + 1
-        check_memory(max(samples, 1) * n_times, 2500.0, fixed=50e6, field="--samples",
-                     what=f"{samples} sets x {n_times:.4g} times", unit_scale=n_times,
-                     integer=True)
+        if n_times > 0:
+            check_memory(max(samples, 1) * n_times, 2500.0, fixed=50e6, field="--samples",
+                         what=f"{samples} sets x {n_times:.4g} times", unit_scale=n_times,
+                         integer=True)
         if means is not None:
             from gprm.validate import read_means
 
             read_means(means)         # refuse a bad file before the prediction runs
+        try:
+            opts = PredictOptions(piezo=piezo, scale_eccentricity=scale_eccentricity,
+                                  overrides=parse_overrides(set_), name="cli", t_start=t_start,
+                                  t_end=t_end, rate=rate, samples=samples, seed=seed,
+                                  means=means, bins=bins, ke_window=(ke_start, ke_end), gap=gap,
+                                  gap_std=gap_std, voltage=voltage)
+        except GprmInputError as exc:
+            raise GprmInputError(exc.problem, source=exc.source,
+                                 field=_FLAGS.get(exc.field, exc.field)) from None
         fm = load_model(fit)
-        sc = Scenario("cli", piezo, scale_eccentricity, parse_overrides(set_))
-        g, gs = gap, gap_std
-        t = prediction_times(t_start, t_end, rate)
-        trace = read_voltage_csv(voltage) if voltage is not None else None
-        pred = predict(fm, scenario=sc, times=t, samples=samples, seed=seed, means=means,
-                       n_bins=bins, gap=g, gap_std=gs, voltage=trace,
-                       energy_window=(ke_start, ke_end))
+        if not fm.has_uncertainty:
+            typer.echo(f"note: {fm.uncertainty_note}")
+        pred = run_predict(fm, opts)
         write_netcdf_atomic(prediction_dataset(pred), out)
-        os_ = pred.overshoot
-        pts = list(pred.trajectories.points)
-        msg = (f"wrote {out}: {t.size} times, {pred.trajectories.n_ok}/{samples} samples, "
+        os_, tr = pred.overshoot, pred.trajectories
+        pts = list(tr.points)
+        msg = (f"wrote {out}: {tr.time.size} times, {tr.n_ok}/{samples} samples, "
                f"piezo {piezo}; overshoot M_xz x {os_[pts.index('M_xz'), 0] * 1e6:.3f} um, "
                f"M_yz y {os_[pts.index('M_yz'), 1] * 1e6:.3f} um, "
                f"M_xz z {os_[pts.index('M_xz'), 2] * 1e6:.3f} um")
@@ -150,6 +147,5 @@ def register(app: typer.Typer, synth_app: typer.Typer) -> None:
                                              zip(pred.risk.planes, pred.risk.p_cross))
         typer.echo(msg)
         if whatif_out is not None:
-            write_json_atomic(whatif_out, whatif(fm, samples=min(samples, 100), seed=seed,
-                                                 voltage=trace))
+            write_json_atomic(whatif_out, run_whatif(fm, opts))
             typer.echo(f"wrote {whatif_out}")

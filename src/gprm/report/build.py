@@ -1,5 +1,5 @@
-"""Build the report from a run directory (the files ``gprm demo`` writes, or any run laid out
-the same way). Each section appears with its figures when its input files are present, and
+"""Build the report from a run directory (the files ``gprm run`` / ``gprm demo`` write, or
+any run laid out the same way). Each section appears with its figures when its input files are present, and
 says "not run" otherwise.
 
 Run directory layout::
@@ -10,10 +10,10 @@ Run directory layout::
     predict.nc        trajectories and energy, Piezo 2           (gprm predict)
     predict_piezo1.nc what-if: Piezo 1                           (gprm predict --piezo 1)
     predict_ecc10.nc  what-if: Piezo 1, eccentricities / 10      (gprm predict ...)
-    whatif.json       what-if overshoot ratios                   (gprm demo)
+    whatif.json       what-if overshoot ratios                   (gprm predict --whatif)
     telemetry.nc      in-flight releases                         (gprm synth telemetry)
     impact.json       release velocities, impact times, Tukey    (gprm impact)
-    run.json          command, seed, versions, per-stage timings (gprm demo)
+    run.json          command, seed, versions, per-stage timings (gprm run)
 
 Figures carry stable HTML ids (:data:`FIGURE_IDS`) so that tests and links can find them.
 """
@@ -25,13 +25,13 @@ from pathlib import Path
 import numpy as np
 
 from gprm._io import open_netcdf, read_json, write_text_atomic
-from gprm.demo.summary import (impact_times_found, json_attr, summarise, truth_for_fit,
-                               truth_from_means)
 from gprm.errors import GprmInputError
 from gprm.fit.uncertainty import COVERAGE_HEADLINE
 from gprm.report import figures as F
 from gprm.report.html import (Card, Section, fig_to_img, not_run, num, paragraph, pm, render,
                               table)
+from gprm.report.summary import (impact_times_found, json_attr, summarise, truth_for_fit,
+                                 truth_from_means)
 
 # Figure id -> the paper's figure it mirrors.
 FIGURE_IDS = {
@@ -445,7 +445,10 @@ def provenance_section(run: Path, prov: dict) -> Section:
         if key in prov:
             rows.append((key, prov[key]))
     for k, v in (prov.get("options") or {}).items():
-        rows.append((f"option {k}", v))
+        if isinstance(v, dict):          # a stage's options (gprm run: preprocess, fit)
+            rows.extend((f"option {k}.{k2}", v2) for k2, v2 in v.items())
+        else:
+            rows.append((f"option {k}", v))
     for k, v in (prov.get("versions") or {}).items():
         rows.append((f"version {k}", v))
     files = sorted(f.name for f in run.iterdir() if f.is_file() and not f.name.startswith("."))

@@ -1,20 +1,16 @@
-"""The whole chain in one call: synthetic campaign -> preprocess -> fit -> predict (+ what-ifs)
--> synthetic telemetry -> impact -> report, into one run directory.
-
-The run directory is the contract between the stages and the report (see ``docs/README.md``)::
-
-    campaign.nc  means.nc  fit.json fit.nc  predict.nc  predict_piezo1.nc  predict_ecc10.nc
-    whatif.json  telemetry.nc  impact.json impact.nc  run.json  report.html
+"""The stage runner of ``gprm run`` / ``gprm demo``: runs a chain of stages into one run
+directory, resuming what is up to date, and records ``run.json``.
 
 Resuming: after each stage ``run.json`` records the SHA-256 of the stage's input files, its
 settings and the SHA-256 of the files it wrote. A rerun into the same directory skips a stage
 when its outputs still exist with those hashes and its inputs and settings are unchanged, so an
-interrupted demo continues where it stopped (the fit also checkpoints its chunks of starts in
+interrupted run continues where it stopped (the fit also checkpoints its chunks of starts in
 ``fit.json.ckpt/``). Any change upstream reruns everything downstream of it, because the
 downstream stage's input hash changes.
 
-A stage whose library is not installed (or not yet written) is recorded as "not available";
-the stages after it that need its output are "skipped", and the report says "not run" for them.
+A stage that fails is recorded (with the last lines of its traceback); the stages that need
+its output are "blocked", and the report says "not run" for them. This module knows nothing of
+the particular stages (:mod:`gprm.run.stages`); it sits above the report, which it calls last.
 """
 
 from __future__ import annotations
@@ -24,74 +20,47 @@ import json
 import platform
 import sys
 import time
-from dataclasses import dataclass, field
+from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import Callable
+from typing import Any, Callable
 
 from gprm._io import read_json, write_json_atomic
+from gprm.report.build import write_report
+from gprm.report.summary import summarise
 
 RUN_JSON = "run.json"
 FORMAT_VERSION = 1
 
-
-class StageUnavailable(RuntimeError):
-    """The library a stage needs is not installed (or not written yet)."""
-
-
-@dataclass(frozen=True)
-class DemoOptions:
-    """Settings of one demo run. Those that change a stage's output are part of its hash."""
-
-    seed: int = 0
-    starts: int = 1000
-    quick: bool = False
-    workers: int = 0
-    band_samples: int = 200
-    predict_samples: int = 200
-    releases: int = 11
-    # Where preprocessing puts each signal's 2-sigma crossing. At 1.0 ms the crossing of the
-    # aligned data precedes the model's onset t_c + t0, so the lag a fit needs is negative
-    # (about -6 us, docs/data-formats.md) while the registry bounds t0 >= 0; 1.01 ms gives
-    # the positive lag the paper reports (t0 about 4 us) and a fit that recovers it.
-    align_time: float = 1.01e-3
-    # Fit the per-signal alignment offsets dt_x_head, dt_y_base, dt_y_head as well (docs/
-    # model.md): each signal is aligned at its own crossing, which one t0 cannot absorb.
-    fit_offsets: bool = True
-
-    @classmethod
-    def make(cls, *, quick: bool = False, seed: int = 0, starts: int | None = None,
-             workers: int = 0) -> "DemoOptions":
-        """The defaults of ``gprm demo``; ``--quick``: 50 starts and 40 parameter samples for
-        the bands (fit, prediction, impact curves) instead of 1000 and 200."""
-        if starts is None:
-            starts = 50 if quick else 1000
-        return cls(seed=seed, starts=starts, quick=quick, workers=workers,
-                   band_samples=40 if quick else 200, predict_samples=40 if quick else 200)
+Progress = Callable[[str, str, "int | None", "int | None"], None]
 
 
 @dataclass(frozen=True)
 class Stage:
-    """One step of the chain: reads ``inputs`` from the run directory, writes ``outputs``."""
+    """One step of the chain: reads ``inputs`` from the run directory, writes ``outputs``.
+
+    ``settings(opts)`` is what of the options changes the outputs (part of the hash);
+    ``run(run_dir, opts, step)`` does the work and returns a small dict of facts (``notes``:
+    a list of sentences the report shows)."""
 
     name: str
     title: str
     inputs: tuple[str, ...]
     outputs: tuple[str, ...]
-    settings: Callable[[DemoOptions], dict]
-    run: Callable[[Path, DemoOptions, Callable[[int, int], None]], dict]
+    settings: Callable[[Any], dict]
+    run: Callable[[Path, Any, Callable[[int, int], None]], dict]
 
 
 @dataclass
 class StageRecord:
     name: str
-    status: str                 # ran | skipped (up to date) | not available | blocked | failed
+    status: str                 # ran | skipped (up to date) | blocked | failed
     seconds: float = 0.0
     detail: str = ""
     info: dict = field(default_factory=dict)
 
 
 @dataclass
-class DemoResult:
+class RunResult:
     run_dir: Path
     records: list[StageRecord]
     summary: dict
@@ -108,7 +77,7 @@ def sha256_file(path: Path) -> str:
     return h.hexdigest()
 
 
-def input_key(run: Path, stage: Stage, opts: DemoOptions) -> str:
+def input_key(run: Path, stage: Stage, opts) -> str:
     """Hash of everything a stage's output depends on: its input files, its settings, the
     gprm version."""
     from gprm import __version__
@@ -148,18 +117,18 @@ def _versions() -> dict:
             "platform": platform.platform()}
 
 
-def run_demo(out: str | Path, opts: DemoOptions = DemoOptions(), *, stages=None,
-             progress: Callable[[str, str, int | None, int | None], None] | None = None,
-             command: str | None = None, report_html: bool = True) -> DemoResult:
-    """Run the chain into ``out`` (created if needed), resuming what is up to date.
+def _options_json(opts) -> dict:
+    return asdict(opts) if hasattr(opts, "__dataclass_fields__") else dict(vars(opts))
+
+
+def run_stages(out: str | Path, opts, stages, *, progress: Progress | None = None,
+               command: str | None = None, report_html: bool = True) -> RunResult:
+    """Run ``stages`` into ``out`` (created if needed), resuming what is up to date.
 
     ``progress(stage, event, done, total)`` is called with event ``start``, ``step`` (with
-    done/total, e.g. fit chunks), ``done``, ``skip``, ``unavailable``, ``blocked`` or ``fail``.
-    Returns the stage records and the summary (also written to ``run.json``).
+    done/total, e.g. fit chunks), ``done``, ``skip``, ``blocked`` or ``fail``. Returns the
+    stage records and the summary (also written to ``run.json``).
     """
-    from gprm.demo.stages import STAGES
-
-    stages = STAGES if stages is None else stages
     run = Path(out)
     run.mkdir(parents=True, exist_ok=True)
     prev_path = run / RUN_JSON
@@ -170,12 +139,13 @@ def run_demo(out: str | Path, opts: DemoOptions = DemoOptions(), *, stages=None,
         except Exception:   # a damaged record only costs a full rerun
             previous = {}
     report = progress or (lambda *a: None)
+    seed = getattr(opts, "seed", None)
     state = {
         "format_version": FORMAT_VERSION,
         "command": command or " ".join(sys.argv),
         "started": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
-        "options": opts.__dict__ | {},
-        "seed": opts.seed,
+        "options": _options_json(opts),
+        "seed": seed,
         "versions": _versions(),
         "stages": {},
         "timings_s": {},
@@ -183,9 +153,8 @@ def run_demo(out: str | Path, opts: DemoOptions = DemoOptions(), *, stages=None,
     records: list[StageRecord] = []
 
     def not_done(stage: Stage, rec: StageRecord, event: str, **entry) -> None:
-        """Record a stage that produced no outputs (blocked, not available, failed) and
-        remove its outputs: those of an older run would no longer match, a half-written one
-        must not be reused."""
+        """Record a stage that produced no outputs (blocked, failed) and remove its outputs:
+        those of an older run would no longer match, a half-written one must not be reused."""
         report(stage.name, event, None, None)
         records.append(rec)
         state["stages"][stage.name] = {"status": rec.status, "detail": rec.detail, **entry}
@@ -217,16 +186,12 @@ def run_demo(out: str | Path, opts: DemoOptions = DemoOptions(), *, stages=None,
         t0 = time.perf_counter()
         try:
             info = stage.run(run, opts, lambda d, t, _n=stage.name: report(_n, "step", d, t))
-        except StageUnavailable as exc:
-            not_done(stage, StageRecord(stage.name, "not available", detail=str(exc)),
-                     "unavailable")
-            continue
         except Exception as exc:
-            # a failing stage does not stop the demo: it is recorded (with the traceback's
+            # a failing stage does not stop the chain: it is recorded (with the traceback's
             # last lines), the stages needing its output are blocked, the report says why
             import traceback
 
-            detail = f"{type(exc).__name__}: {exc}"
+            detail = str(exc) if _is_input_error(exc) else f"{type(exc).__name__}: {exc}"
             tb = traceback.format_exc().strip().splitlines()[-12:]
             not_done(stage, StageRecord(stage.name, "failed", seconds=time.perf_counter() - t0,
                                         detail=detail), "fail", traceback=tb)
@@ -247,15 +212,11 @@ def run_demo(out: str | Path, opts: DemoOptions = DemoOptions(), *, stages=None,
             "settings": stage.settings(opts), "info": rec.info}
         state["timings_s"][stage.name] = round(dt, 3)
         _write_state(run, state)
-    from gprm.demo.summary import summarise
-
     summary = summarise(run)
     state["summary"] = summary
     state["timings_s"]["stages (this invocation)"] = round(time.perf_counter() - t_all, 3)
     _write_state(run, state)
     if report_html:
-        from gprm.report.build import write_report
-
         report("report", "start", None, None)
         t0 = time.perf_counter()
         write_report(run, run / "report.html")
@@ -268,7 +229,13 @@ def run_demo(out: str | Path, opts: DemoOptions = DemoOptions(), *, stages=None,
     state["timings_s"]["total (this invocation)"] = round(total, 3)
     state["finished"] = time.strftime("%Y-%m-%dT%H:%M:%S%z")
     _write_state(run, state)
-    return DemoResult(run, records, summary, total)
+    return RunResult(run, records, summary, total)
+
+
+def _is_input_error(exc: Exception) -> bool:
+    from gprm.errors import GprmInputError
+
+    return isinstance(exc, GprmInputError)
 
 
 def _json_safe(obj):

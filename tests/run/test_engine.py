@@ -1,5 +1,6 @@
-"""The demo's stage runner: resuming by hashes, unavailable stages, run.json provenance.
-Uses small stand-in stages (files of text), so it runs in well under a second."""
+"""The stage runner of gprm run / gprm demo: resuming by hashes, blocked and failing stages,
+run.json provenance. Uses small stand-in stages (files of text), so it runs in well under a
+second."""
 
 from __future__ import annotations
 
@@ -8,7 +9,15 @@ from pathlib import Path
 
 import pytest
 
-from gprm.demo.pipeline import DemoOptions, Stage, StageUnavailable, run_demo
+from dataclasses import dataclass
+
+from gprm.run.engine import Stage, run_stages
+
+
+@dataclass(frozen=True)
+class Opts:
+    seed: int = 0
+    starts: int = 1
 
 
 def _writer(out: str, calls: list, text=lambda run, o: "x"):
@@ -35,7 +44,7 @@ def _chain(calls):
 def test_rerun_skips_up_to_date_stages_and_reruns_what_changed(tmp_path):
     calls: list = []
     events: list = []
-    res = run_demo(tmp_path, DemoOptions(seed=1), stages=_chain(calls), report_html=False,
+    res = run_stages(tmp_path, Opts(seed=1), stages=_chain(calls), report_html=False,
                    progress=lambda *e: events.append(e))
     assert calls == ["a.txt", "b.txt", "c.txt"]
     assert [r.status for r in res.records] == ["ran"] * 3
@@ -46,25 +55,25 @@ def test_rerun_skips_up_to_date_stages_and_reruns_what_changed(tmp_path):
     assert rec["stages"]["b"]["inputs"]["a.txt"] and rec["versions"]["gprm"]
 
     calls.clear()      # same inputs and settings: nothing reruns
-    res = run_demo(tmp_path, DemoOptions(seed=1), stages=_chain(calls), report_html=False)
+    res = run_stages(tmp_path, Opts(seed=1), stages=_chain(calls), report_html=False)
     assert calls == [] and [r.status for r in res.records] == ["skipped"] * 3
 
     calls.clear()      # a setting of the last stage changed: only it reruns
-    run_demo(tmp_path, DemoOptions(seed=1, starts=7), stages=_chain(calls), report_html=False)
+    run_stages(tmp_path, Opts(seed=1, starts=7), stages=_chain(calls), report_html=False)
     assert calls == ["c.txt"]
 
     calls.clear()      # an output edited by hand: that stage reruns; it writes the same
     (tmp_path / "b.txt").write_text("tampered")   # file again, so the next one stays valid
-    run_demo(tmp_path, DemoOptions(seed=1, starts=7), stages=_chain(calls), report_html=False)
+    run_stages(tmp_path, Opts(seed=1, starts=7), stages=_chain(calls), report_html=False)
     assert calls == ["b.txt"] and (tmp_path / "b.txt").read_text() == "SEED 1"
 
     calls.clear()      # an output deleted: that stage reruns
     (tmp_path / "c.txt").unlink()
-    run_demo(tmp_path, DemoOptions(seed=1, starts=7), stages=_chain(calls), report_html=False)
+    run_stages(tmp_path, Opts(seed=1, starts=7), stages=_chain(calls), report_html=False)
     assert calls == ["c.txt"] and (tmp_path / "c.txt").read_text() == "SEED 1!"
 
     calls.clear()      # the seed changes the first stage's output: everything reruns
-    run_demo(tmp_path, DemoOptions(seed=2, starts=7), stages=_chain(calls), report_html=False)
+    run_stages(tmp_path, Opts(seed=2, starts=7), stages=_chain(calls), report_html=False)
     assert calls == ["a.txt", "b.txt", "c.txt"]
     assert (tmp_path / "c.txt").read_text() == "SEED 2!"
 
@@ -78,26 +87,29 @@ def test_interrupted_run_resumes_after_the_last_finished_stage(tmp_path):
 
     broken = chain[:2] + [Stage("c", "C", ("b.txt",), ("c.txt",), lambda o: {}, boom)]
     with pytest.raises(KeyboardInterrupt):
-        run_demo(tmp_path, DemoOptions(), stages=broken, report_html=False)
+        run_stages(tmp_path, Opts(), stages=broken, report_html=False)
     assert json.loads((tmp_path / "run.json").read_text())["stages"]["c"]["status"] == \
         "interrupted"
     calls.clear()
-    res = run_demo(tmp_path, DemoOptions(), stages=_chain(calls), report_html=False)
+    res = run_stages(tmp_path, Opts(), stages=_chain(calls), report_html=False)
     assert calls == ["c.txt"]
     assert [r.status for r in res.records] == ["skipped", "skipped", "ran"]
 
 
-def test_unavailable_stage_blocks_the_ones_that_need_it(tmp_path):
+def test_failing_stage_blocks_the_ones_that_need_it_and_removes_stale_outputs(tmp_path):
     calls: list = []
     chain = list(_chain(calls))
 
     def missing(run_dir, opts, step):
-        raise StageUnavailable("gprm.nothing is not available")
+        from gprm.errors import GprmInputError
+
+        raise GprmInputError("missing variable", source="x.nc", field="time")
 
     chain[1] = Stage("b", "B", ("a.txt",), ("b.txt",), lambda o: {}, missing)
     (tmp_path / "c.txt").write_text("from an older run")
-    res = run_demo(tmp_path, DemoOptions(), stages=chain, report_html=False)
-    assert [r.status for r in res.records] == ["ran", "not available", "blocked"]
+    res = run_stages(tmp_path, Opts(), stages=chain, report_html=False)
+    assert [r.status for r in res.records] == ["ran", "failed", "blocked"]
+    assert res.records[1].detail == "x.nc: field 'time': missing variable"   # as the CLI says
     assert "b.txt" in res.records[2].detail
     assert not (tmp_path / "c.txt").exists()
 
@@ -113,7 +125,7 @@ def test_failing_stage_is_recorded_and_the_rest_continues(tmp_path):
     chain[1] = Stage("b", "B", ("a.txt",), ("b.txt",), lambda o: {}, bad)
     chain.append(Stage("d", "D", ("a.txt",), ("d.txt",), lambda o: {},
                        _writer("d.txt", calls)))
-    res = run_demo(tmp_path, DemoOptions(), stages=chain, report_html=False)
+    res = run_stages(tmp_path, Opts(), stages=chain, report_html=False)
     assert [r.status for r in res.records] == ["ran", "failed", "blocked", "ran"]
     assert res.records[1].detail == "ValueError: no convergence"
     assert not (tmp_path / "b.txt").exists()          # no half-written output is kept

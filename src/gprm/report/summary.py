@@ -1,6 +1,6 @@
 """The facts of a run directory in one dict: best chi-square, truth recovery, what-if ratios,
-Tukey verdict. Used for the demo's closing table, ``run.json`` and the report's summary cards.
-Every entry is present only when the file it comes from is.
+Tukey verdict. Used for the closing table of ``gprm run`` / ``gprm demo``, ``run.json`` and
+the report's summary cards. Every entry is present only when the file it comes from is.
 """
 
 from __future__ import annotations

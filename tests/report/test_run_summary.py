@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import math
 
-from gprm.demo.summary import truth_for_fit, truth_recovery
+from gprm.report.summary import truth_for_fit, truth_recovery
 
 
 def _fit(**params):

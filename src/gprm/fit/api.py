@@ -1,0 +1,148 @@
+"""Library entry point of the fit stage: ``run_fit`` with its validated options.
+
+``gprm fit``, ``gprm run`` and ``gprm demo`` call exactly this, so the defaults of
+:class:`FitOptions` are the one recommended configuration: weights ``sem`` and the per-signal
+alignment offsets (``gprm.params.ALIGNMENT_OFFSETS``) fitted with the 23 parameters of
+Table 3 (each signal is aligned at its own crossing, which one lag t0 cannot absorb;
+docs/model.md). What only changes how fast a result comes (workers, a scheduler, a checkpoint
+folder, a progress callback) is an argument of ``run_fit``, not an option.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+from dataclasses import dataclass
+from typing import Callable
+
+import xarray as xr
+
+from gprm.errors import GprmInputError
+from gprm.fit.multistart import LMOptions, MultiStartOptions
+from gprm.fit.objective import fit_data_from_means
+from gprm.fit.prior import DEFAULT_WIDTH
+from gprm.fit.result import FitResult, identify
+from gprm.fit.uncertainty import DEFAULT_METHOD, METHODS
+from gprm.params import ALIGNMENT_OFFSETS, ParameterSet, load_params
+
+
+def _int(name: str, v, lo: int) -> None:
+    if isinstance(v, bool) or not isinstance(v, int) or v < lo:
+        raise GprmInputError(f"must be an integer, at least {lo}; got {v!r}", field=name)
+
+
+def _num(name: str, v, *, positive: bool = False) -> None:
+    if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) \
+            or v < 0 or (positive and v == 0):
+        raise GprmInputError(f"must be a finite number {'> 0' if positive else '>= 0'}, "
+                             f"got {v!r}", field=name)
+
+
+@dataclass(frozen=True)
+class FitOptions:
+    """What defines a fit result (SI). Validated on construction; a bad value raises
+    :class:`GprmInputError` naming the option."""
+
+    starts: int = 1000
+    seed: int = 0
+    spread: float = 0.2
+    sampling: str = "uniform"                 # or "lhs"
+    window: tuple[float, float] = (0.97e-3, 1.2e-3)
+    sigma: str = "sem"                        # or "std" (the paper's across-run std)
+    fit_offsets: bool = True                  # also fit dt_x_head, dt_y_base, dt_y_head
+    piezo: int = 2
+    chunk: int = 250
+    max_iter: int = 100
+    stall_window: int = 5
+    stall_tol: float = 0.05
+    prune_after: int = 10
+    prune_factor: float = 100.0
+    band_samples: int = 200
+    profile: bool = False
+    z_bk_absolute: bool = False
+    uncertainty: str = DEFAULT_METHOD         # gprm.fit.uncertainty.METHODS
+    prior_width: float = DEFAULT_WIDTH        # 0: no prior (the paper's fit; eq7 methods)
+    boot: int = 30                            # campaigns of the parametric bootstrap
+
+    def __post_init__(self):
+        _int("starts", self.starts, 1)
+        _int("seed", self.seed, 0)
+        _num("spread", self.spread, positive=True)
+        if self.sampling not in ("uniform", "lhs"):
+            raise GprmInputError(f"must be uniform or lhs, got {self.sampling!r}",
+                                 field="sampling")
+        w = tuple(self.window)
+        if len(w) != 2 or not all(isinstance(x, (int, float)) and math.isfinite(x)
+                                  for x in w) or not w[0] < w[1]:
+            raise GprmInputError(f"must be two finite times start < end, got {self.window!r}",
+                                 field="window")
+        object.__setattr__(self, "window", (float(w[0]), float(w[1])))
+        if self.sigma not in ("sem", "std"):
+            raise GprmInputError(f"must be sem or std, got {self.sigma!r}", field="sigma")
+        for name in ("fit_offsets", "profile", "z_bk_absolute"):
+            if not isinstance(getattr(self, name), bool):
+                raise GprmInputError(f"must be true or false, got {getattr(self, name)!r}",
+                                     field=name)
+        if self.piezo not in (1, 2) or isinstance(self.piezo, bool):
+            raise GprmInputError(f"must be 1 or 2, got {self.piezo!r}", field="piezo")
+        _int("chunk", self.chunk, 1)
+        _int("max_iter", self.max_iter, 1)
+        _int("stall_window", self.stall_window, 0)
+        _num("stall_tol", self.stall_tol)
+        _int("prune_after", self.prune_after, 0)
+        _num("prune_factor", self.prune_factor, positive=True)
+        _int("band_samples", self.band_samples, 0)
+        if self.uncertainty not in METHODS:
+            raise GprmInputError(f"must be one of {', '.join(METHODS)}, got "
+                                 f"{self.uncertainty!r}", field="uncertainty")
+        _num("prior_width", self.prior_width)
+        if self.prior_width == 0 and self.uncertainty not in ("eq7", "eq7-corr"):
+            raise GprmInputError("0 (no prior) needs the uncertainty eq7 or eq7-corr",
+                                 field="prior_width")
+        _int("boot", self.boot, 5)
+
+    def multistart(self) -> MultiStartOptions:
+        return MultiStartOptions(n_starts=self.starts, seed=self.seed, spread=self.spread,
+                                 sampling=self.sampling, chunk_size=self.chunk,
+                                 lm=LMOptions(max_iter=self.max_iter,
+                                              stall_window=self.stall_window,
+                                              stall_tol=self.stall_tol),
+                                 prune_after=self.prune_after, prune_factor=self.prune_factor)
+
+    def parameters(self, base: ParameterSet) -> ParameterSet:
+        """``base`` with the alignment offsets added to its fitted set when ``fit_offsets``."""
+        if not self.fit_offsets:
+            return base
+        extra = tuple(n for n in ALIGNMENT_OFFSETS.values() if n not in base.fitted)
+        return base.with_fitted(tuple(base.fitted) + extra)
+
+
+def run_fit(means: str | os.PathLike | xr.Dataset, opts: FitOptions = FitOptions(), *,
+            params: str | os.PathLike | ParameterSet | None = None, workers: int = 0,
+            scheduler: str | None = None, checkpoint_dir: str | os.PathLike | None = None,
+            progress: Callable[[int, int], None] | None = None,
+            source: str | None = None) -> FitResult:
+    """Multi-start identification (Sec. 3.1) of a mean-signals file or dataset.
+
+    ``params``: the parameter set (constants, fitted set, bounds): a TOML file, a
+    :class:`ParameterSet`, or None for the paper's. ``workers``: local Dask worker processes
+    (0: in this process); the result does not depend on it. ``checkpoint_dir``: chunks of
+    starts already done are read back from it (resuming). ``progress(done, total)`` per chunk.
+    """
+    from gprm.validate import read_means
+
+    if not isinstance(opts, FitOptions):
+        raise GprmInputError(f"expected FitOptions, got {type(opts).__name__}", field="opts")
+    if isinstance(workers, bool) or not isinstance(workers, int) or workers < 0:
+        raise GprmInputError(f"must be an integer >= 0, got {workers!r}", field="workers")
+    if isinstance(means, xr.Dataset):
+        ds, src = means, source or str(means.attrs.get("source", "mean signals"))
+    else:
+        ds, src = read_means(means), source or str(means)
+    data = fit_data_from_means(ds, window=opts.window, sigma=opts.sigma, source=src)
+    base = params if isinstance(params, ParameterSet) else load_params(params)
+    return identify(data, opts.parameters(base), opts.multistart(), piezo=opts.piezo,
+                    workers=workers, scheduler=scheduler, checkpoint_dir=checkpoint_dir,
+                    progress=progress, profile=opts.profile, z_bk_absolute=opts.z_bk_absolute,
+                    band_samples=opts.band_samples, uncertainty=opts.uncertainty,
+                    prior_width=opts.prior_width or None, n_boot=opts.boot)

@@ -1,0 +1,205 @@
+"""CLI: ``gprm run``: the whole chain on the user's campaign (and, optionally, real
+telemetry), resumable, ending in report.html; the progress display and closing tables it
+shares with ``gprm demo``."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+from typing import Optional
+
+import typer
+
+from gprm.run.stages import NO_UNCERTAINTY
+
+
+def register(app: typer.Typer, synth_app: typer.Typer) -> None:
+    from gprm.cli import one_line_errors
+
+    @app.command("run")
+    @one_line_errors
+    def run_cmd(
+        campaign: Path = typer.Argument(..., help="campaign: NetCDF file or CSV folder with "
+                                        "manifest.csv"),
+        out: Path = typer.Option(..., "--out", help="run directory (created; a rerun resumes "
+                                 "what is up to date)"),
+        telemetry: Optional[Path] = typer.Option(None, "--telemetry", help="in-flight "
+                                                 "telemetry NetCDF (default: synthetic "
+                                                 "releases drawn from the fit)"),
+        quick: bool = typer.Option(False, "--quick", help="50 starts, fewer band samples"),
+        seed: int = typer.Option(0, "--seed", help="seed of the starts, the sampled bands "
+                                 "and synthetic telemetry"),
+        starts: Optional[int] = typer.Option(None, "--starts", help="random starts of the fit "
+                                             "(default 1000, or 50 with --quick)"),
+        workers: Optional[int] = typer.Option(None, "--workers", help="local Dask worker "
+                                              "processes for the fit (default: one per core, "
+                                              "or 0 with --quick; 0: in this process; the "
+                                              "result does not depend on it)"),
+        releases: int = typer.Option(11, "--releases", help="synthetic releases (without "
+                                     "--telemetry)"),
+    ):
+        """The whole chain on a campaign, resumable, ending in report.html.
+
+        campaign -> preprocess -> fit -> predict, what-ifs -> telemetry -> impact -> report
+        """
+        from gprm.run.options import RunOptions
+
+        opts = make_options(RunOptions, quick=quick, seed=seed, starts=starts, workers=workers,
+                            campaign=campaign, telemetry=telemetry, releases=releases)
+        run_and_print(out, opts, demo=False)
+
+
+def make_options(cls, *, quick, seed, starts, workers, **kw):
+    """RunOptions from command-line values; a bad value is named as its flag."""
+    import os
+
+    from gprm.errors import GprmInputError
+
+    if workers is None:
+        workers = 0 if quick else max(1, os.cpu_count() or 1)
+    try:
+        return cls.make(quick=quick, seed=seed, starts=starts, workers=workers, **kw)
+    except GprmInputError as exc:
+        flag = None if exc.field is None else "--" + exc.field.replace("_", "-")
+        raise GprmInputError(exc.problem, source=exc.source, field=flag) from None
+
+
+def run_and_print(out: Path, opts, *, demo: bool) -> None:
+    """Run (or, for ``gprm demo``, generate and run) with the progress display, print the
+    closing tables, exit 1 if a stage failed."""
+    import sys
+
+    from rich.console import Console
+
+    from gprm.run import run_chain, run_demo, stage_titles
+
+    titles = stage_titles(opts)
+    name = "gprm demo" if demo else "gprm run"
+    with _Progress(Console(stderr=True), titles) as prog:
+        res = (run_demo if demo else run_chain)(out, opts, progress=prog.event,
+                                                command="gprm " + " ".join(sys.argv[1:]))
+    print_summary(Console(), res, titles, name)
+    failed = [r for r in res.records if r.status == "failed"]
+    if failed:
+        typer.echo(f"gprm: error: stage(s) failed: "
+                   + "; ".join(f"{r.name}: {r.detail}" for r in failed)
+                   + f" (details in {out / 'run.json'})", err=True)
+        raise typer.Exit(code=1)
+
+
+class _Progress:
+    """One line per stage: spinner while it runs, a bar where the stage reports steps."""
+
+    def __init__(self, console, titles: dict[str, str]):
+        from rich.progress import (BarColumn, MofNCompleteColumn, Progress, SpinnerColumn,
+                                   TextColumn, TimeElapsedColumn)
+
+        self.titles = titles
+        self.bar = Progress(SpinnerColumn(finished_text="•"), TextColumn("{task.description}"),
+                            BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
+                            console=console)
+        self.tasks = {}
+
+    def __enter__(self):
+        self.bar.__enter__()
+        return self
+
+    def __exit__(self, *exc):
+        return self.bar.__exit__(*exc)
+
+    def event(self, stage: str, kind: str, done=None, total=None):
+        title = self.titles.get(stage, stage)
+        if kind == "start":
+            self.tasks[stage] = self.bar.add_task(f"[bold]{title}", total=None)
+        elif kind == "step" and stage in self.tasks:
+            self.bar.update(self.tasks[stage], completed=done, total=total)
+        elif kind == "done" and stage in self.tasks:
+            self.bar.update(self.tasks[stage], description=f"[green]✓ {title}", total=1,
+                            completed=1)
+        else:
+            label = {"skip": "[dim]↷ {} (up to date)", "unavailable": "[yellow]– {} (not "
+                     "available)", "blocked": "[yellow]– {} (needs an earlier stage)",
+                     "fail": "[red]✗ {} (failed)"}.get(kind)
+            if label is None:
+                return
+            if stage in self.tasks:      # finished (full bar, no spinner), with its outcome
+                self.bar.update(self.tasks[stage], description=label.format(title), total=1,
+                                completed=1)
+            else:
+                self.tasks[stage] = self.bar.add_task(label.format(title), total=1)
+                self.bar.update(self.tasks[stage], completed=1)
+
+
+def _f(v, fmt="{:.4g}"):
+    if v is None or (isinstance(v, float) and not math.isfinite(v)):
+        return "—"
+    return fmt.format(v)
+
+
+def print_summary(console, res, titles: dict[str, str], name: str = "gprm run") -> None:
+    """The closing tables: stages with timings, then the results."""
+    from rich.table import Table
+
+    t = Table(title=f"{name} → {res.run_dir}", title_justify="left")
+    t.add_column("stage")
+    t.add_column("status")
+    t.add_column("time [s]", justify="right")
+    for r in res.records:
+        colour = {"ran": "green", "skipped": "dim", "failed": "red"}.get(r.status, "yellow")
+        t.add_row(titles.get(r.name, r.name), f"[{colour}]{r.status}[/]"
+                  + (f" [dim]({r.detail})[/]" if r.detail and r.status != "skipped" else ""),
+                  _f(r.seconds, "{:.1f}") if r.status == "ran" else "—")
+    t.add_row("[bold]total", "", f"{res.total_seconds:.1f}")
+    console.print(t)
+
+    s = res.summary
+    k = Table(title="Results", title_justify="left", show_header=False)
+    k.add_column("quantity")
+    k.add_column("value")
+    if "fit" in s:
+        f = s["fit"]
+        k.add_row("best χ²", f"{_f(f['chi2'])} for {f['dof']} degrees of freedom")
+        k.add_row("reduced χ²", f"{_f(f['reduced_chi2'])} (weights: {f.get('sigma')})")
+        k.add_row("starts at the best (Δχ² ≤ 1)", f"{f.get('n_at_best')} of {f.get('starts')}"
+                  f" ({f.get('converged')} converged)")
+    if "fit" in s and any(NO_UNCERTAINTY in n for r in res.records
+                          for n in (r.info or {}).get("notes", [])):
+        k.add_row("[yellow]uncertainty", f"{NO_UNCERTAINTY} (see the notes in run.json)")
+    if "truth_recovery" in s and not s["truth_recovery"]["n"]:
+        mrel = s["truth_recovery"].get("mass_max_relative_error")
+        k.add_row("truth recovery", "no standard errors (the fit has no covariance)" + (
+            "" if mrel is None else f"; masses m1–m4 within {100 * mrel:.1f} % of the truth"))
+    elif "truth_recovery" in s:
+        tr = s["truth_recovery"]
+        k.add_row("truth recovery", f"{tr['within_1sigma']}/{tr['n']} parameters within 1σ, "
+                  f"{tr['within_2sigma']}/{tr['n']} within 2σ, {tr['within_3sigma']}/{tr['n']}"
+                  f" within 3σ (max |z| = {_f(tr['max_abs_z'], '{:.2f}')})" + (
+                      "" if tr.get("mass_max_relative_error") is None else
+                      f"; masses within {100 * tr['mass_max_relative_error']:.1f} %"))
+    if "whatif" in s and s["whatif"]:
+        for name, ratios in s["whatif"].items():
+            if isinstance(ratios, dict):
+                txt = ", ".join(f"{a} {_f(v, '{:.3g}')}" for a, v in ratios.items())
+            else:
+                txt = _f(ratios, "{:.3g}")
+            paper = (s.get("whatif_paper") or {}).get(name)
+            if paper:
+                txt += " (paper: " + ", ".join(f"{a} {v:g}" for a, v in paper.items()) + ")"
+            k.add_row(f"overshoot Piezo 2 / {name}", txt)
+    if "tukey" in s:
+        tk = s["tukey"]
+        k.add_row(f"Tukey test (α = {tk.get('alpha')})", f"{tk['verdict']}; "
+                  f"{s.get('releases', '?')} releases")
+    notes: dict[str, list[str]] = {}
+    for r in res.records:
+        for note in (r.info or {}).get("notes", []):
+            notes.setdefault(note, []).append(r.name)
+    if notes:            # the first in full, the rest counted (all are in run.json)
+        first, where = next(iter(notes.items()))
+        stages = sorted({w for ws in notes.values() for w in ws})
+        more = f" (+{len(notes) - 1} more in run.json)" if len(notes) > 1 else ""
+        k.add_row(f"[yellow]notes ({', '.join(stages)})", first + more)
+    if not s:
+        k.add_row("no results", "no stage produced output (see the stage table)")
+    console.print(k)
+    console.print(f"report: {Path(res.run_dir) / 'report.html'}")

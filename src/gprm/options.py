@@ -128,6 +128,8 @@ def parse_quantity(text, unit: str) -> float:
                     v = float(q.to(unit).magnitude)
                 except Exception:
                     raise ValueError(f"{s!r} is not in a unit of {unit}") from None
+                # a typed '0.97 ms' is 0.97e-3 s, not the product's 0.0009699999999999999
+                v = float(f"{v:.15g}")
     if not math.isfinite(v):
         raise ValueError(f"must be finite, got {text!r}")
     return v

@@ -20,19 +20,15 @@ import shutil
 from dataclasses import asdict
 from pathlib import Path
 
-import numpy as np
-
 from gprm._io import atomic_path, read_json, write_json_atomic, write_netcdf_atomic
 from gprm.campaign.api import run_preprocess
 from gprm.campaign.data import load_campaign, write_campaign
 from gprm.campaign.synth import synth_campaign
-from gprm.errors import GprmInputError
 from gprm.fit.api import run_fit
 from gprm.fit.files import FittedModel, load_fit
 from gprm.flight.analysis import AnalysisOptions, analyze, curves_dataset
 from gprm.flight.synth import SynthOptions, synth_telemetry
 from gprm.flight.telemetry import load_telemetry, telemetry_csv_dataset
-from gprm.params import ParameterSet, paper
 from gprm.predict.api import PredictOptions, run_predict, run_whatif
 from gprm.predict.files import prediction_dataset
 from gprm.predict.scenarios import standard_scenarios
@@ -53,25 +49,11 @@ def load_model(run: Path) -> tuple[FittedModel, list[str]]:
     (a direction the data do not determine) still gives its best-fit values: later stages
     run on them without parameter uncertainty, and the note says so."""
     path = Path(run) / "fit.json"
-    try:
-        fm = load_fit(path)
-    except GprmInputError as exc:
-        if exc.field != "correlation":
-            raise
+    fm = load_fit(path)
+    if not fm.has_uncertainty:
         doc = read_json(path, what="fit result")
-        values = dict(paper().values)
-        values.update({k: float(v["value"]) for k, v in doc["parameters"].items()})
-        names = tuple(k for k, v in doc["parameters"].items() if v.get("fitted"))
-        ps = ParameterSet(values, source=str(path)).with_fitted(names)
-        fm = FittedModel(ps, np.zeros((len(ps.fitted), len(ps.fitted))),
-                         piezo=int(doc["piezo"]), source=str(path),
-                         z_bk_absolute=bool(doc.get("z_bk_absolute", False)))
-        why = str(doc.get("covariance_message", "") or "singular covariance")
+        why = str(doc.get("covariance_message", "") or "no covariance")
         return fm, [f"{NO_UNCERTAINTY} (the fit has no covariance: {why})"]
-    # FittedModel.has_uncertainty: False where the covariance gives no usable spread (the
-    # draws are then the best fit repeated); older FittedModels lack it.
-    if not getattr(fm, "has_uncertainty", True):
-        return fm, [NO_UNCERTAINTY]
     return fm, []
 
 

@@ -82,9 +82,11 @@ def test_one_configuration():
     assert fit["no_fit_offsets"] is False
     for name in ("starts", "seed", "spread", "sampling", "sigma", "piezo", "chunk", "max_iter",
                  "stall_window", "stall_tol", "prune_after", "prune_factor", "band_samples",
-                 "profile", "z_bk_absolute"):
+                 "profile", "z_bk_absolute", "uncertainty", "prior_width", "boot"):
         assert fit[name] == getattr(fo, name), name
-    assert tuple(fit["window"]) == fo.window
+    from gprm.options import Window
+
+    assert tuple(Window("s")(fit["window"])) == fo.window
     pred = {p.name: p.default for p in cmds["predict"].params}
     po = PredictOptions()
     for name in ("piezo", "scale_eccentricity", "t_start", "t_end", "rate", "samples", "seed",
@@ -139,18 +141,23 @@ def test_no_import_cycle_among_run_demo_report_modules():
 
 
 def test_a_model_without_uncertainty_is_noted(monkeypatch, tmp_path):
-    """FittedModel.has_uncertainty False (the library's flag for 'best fit repeated') gives
-    the note 'best fit only, no uncertainty' that run.json and the report show; a model with
-    uncertainty (or an older FittedModel without the flag) gives none."""
-    from types import SimpleNamespace
+    """FittedModel.has_uncertainty False (best fit only) gives the note 'best fit only, no
+    uncertainty' with the fit's reason, which run.json and the report show; a model with
+    uncertainty gives none."""
+    import json
+
+    import numpy as np
 
     import gprm.run.stages as st
+    from gprm.fit.files import FittedModel
 
-    monkeypatch.setattr(st, "load_fit", lambda p: SimpleNamespace(has_uncertainty=False))
-    assert st.load_model(tmp_path)[1] == [st.NO_UNCERTAINTY] == ["best fit only, no uncertainty"]
-    monkeypatch.setattr(st, "load_fit", lambda p: SimpleNamespace(has_uncertainty=True))
-    assert st.load_model(tmp_path)[1] == []
-    monkeypatch.setattr(st, "load_fit", lambda p: SimpleNamespace())
+    (tmp_path / "fit.json").write_text(json.dumps({"covariance_message": "singular J'J"}))
+    monkeypatch.setattr(st, "load_fit", lambda p: FittedModel(paper(), None))
+    notes = st.load_model(tmp_path)[1]
+    assert len(notes) == 1 and notes[0].startswith(st.NO_UNCERTAINTY)
+    assert st.NO_UNCERTAINTY == "best fit only, no uncertainty" and "singular J'J" in notes[0]
+    cov = np.diag(paper().paper_stderr() ** 2)
+    monkeypatch.setattr(st, "load_fit", lambda p: FittedModel(paper(), cov))
     assert st.load_model(tmp_path)[1] == []
 
 

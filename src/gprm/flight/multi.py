@@ -27,9 +27,10 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from gprm.flight.impact import _skew
+from gprm.model.linear import MECHANICAL
 from gprm.flight.predicted import ImpactGeometry
 
-MECH = ("z_lr", "z_A", "x_A", "y_A", "eta", "theta", "mu3", "mu4")
+MECH = MECHANICAL            # the model's mechanical coordinates (model.definition)
 
 
 @dataclass(frozen=True)

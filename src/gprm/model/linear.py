@@ -23,7 +23,10 @@ from gprm.model.definition import COORDINATES
 
 MECH = 8
 NSTATE = 17
-STATE_NAMES: tuple[str, ...] = (COORDINATES[:8] + tuple(f"{c}_dot" for c in COORDINATES[:8])
+#: the eight mechanical coordinates (the model's COORDINATES without the charge q): the one
+#: definition the simulator, the body kinematics and the flight analysis use
+MECHANICAL: tuple[str, ...] = COORDINATES[:MECH]
+STATE_NAMES: tuple[str, ...] = (MECHANICAL + tuple(f"{c}_dot" for c in MECHANICAL)
                                 + ("q",))
 
 

@@ -57,10 +57,11 @@ from typing import Mapping, Sequence
 import numpy as np
 
 from gprm.errors import GprmInputError
+from gprm.model.linear import MECHANICAL
 from gprm.params import ParameterSet, batch
 
-MECH: tuple[str, ...] = ("z_lr", "z_A", "x_A", "y_A", "eta", "theta", "mu3", "mu4")
-"""The eight mechanical coordinates."""
+MECH: tuple[str, ...] = MECHANICAL
+"""The eight mechanical coordinates (gprm.model.definition)."""
 RATES: tuple[str, ...] = tuple(f"{c}_dot" for c in MECH)
 
 POINTS: tuple[str, ...] = ("com", "M_xz", "M_yz", "tip_edge", "spacer", "assembly_com")

@@ -12,6 +12,7 @@ from typing import Mapping, Sequence
 import numpy as np
 
 from gprm.errors import GprmInputError
+from gprm.model.definition import COORDINATES
 from gprm.model.linear import NSTATE, STATE_NAMES
 from gprm.params import ParameterSet, batch
 from gprm.params.registry import ALIGNMENT_OFFSETS
@@ -21,7 +22,7 @@ from gprm.simulate.inputs import VoltageTrace, default_voltage
 OUTPUTS: tuple[str, ...] = ("x_base", "x_head", "y_base", "y_head", "z_bk")
 """The five measured points fitted (paper Eq. 3)."""
 
-COORDS: tuple[str, ...] = ("z_lr", "z_A", "x_A", "y_A", "eta", "theta", "mu3", "mu4", "q")
+COORDS: tuple[str, ...] = COORDINATES          # the model's coordinates (model.definition)
 RATES: tuple[str, ...] = tuple(f"{c}_dot" for c in COORDS[:8])
 _IDX = {n: i for i, n in enumerate(STATE_NAMES)}
 

@@ -61,7 +61,6 @@ def register(app: typer.Typer, synth_app: typer.Typer) -> None:
         import shutil
 
         from rich.console import Console
-        from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 
         from gprm._io import open_netcdf
         from gprm.errors import GprmInputError
@@ -93,20 +92,31 @@ def register(app: typer.Typer, synth_app: typer.Typer) -> None:
         if workers < 0:
             raise GprmInputError(f"must be >= 0, got {workers}", field="--workers")
         ckpt = checkpoint if checkpoint is not None else Path(str(out) + ".ckpt")
-        console = Console(stderr=True)
-        with Progress(TextColumn("fit"), BarColumn(), TextColumn("{task.completed}/"
-                      "{task.total} chunks"), TimeElapsedColumn(), console=console,
-                      transient=True) as bar:
-            task = bar.add_task("fit", total=None)
+        from gprm.fit.report_text import starts_progress
 
-            def progress(done, total):
-                bar.update(task, completed=done, total=total)
-
+        with starts_progress(Console(stderr=True), starts) as progress:
             res = identify(data, base, opts, piezo=piezo, workers=workers,
                            scheduler=scheduler, checkpoint_dir=ckpt, progress=progress,
                            profile=profile, z_bk_absolute=z_bk_absolute,
                            band_samples=band_samples)
         side = res.write(out)
         shutil.rmtree(ckpt, ignore_errors=True)
-        typer.echo(res.summary())
+        from gprm.fit.report_text import fit_report
+
+        typer.echo(fit_report(res.to_json_dict()))
         typer.echo(f"wrote {out} and {side} ({res.timings['total']:.1f} s)")
+
+    @app.command("show")
+    @one_line_errors
+    def show_cmd(
+        fit: Path = typer.Argument(..., help="saved fit (fit.json of gprm fit or gprm demo)"),
+        min_correl: float = typer.Option(0.9, "--min-correl", help="list parameter "
+                                         "correlations with |C| at or above this"),
+    ):
+        """Print the fit report of a saved fit (the text that ends gprm fit)."""
+        from gprm.errors import GprmInputError
+        from gprm.fit.report_text import fit_report, read_fit_json
+
+        if not 0 <= min_correl <= 1:
+            raise GprmInputError(f"must be in [0, 1], got {min_correl}", field="--min-correl")
+        typer.echo(fit_report(read_fit_json(fit), min_correl=min_correl))

@@ -407,7 +407,9 @@ def run_multistart(obj: Objective, opts: MultiStartOptions = MultiStartOptions()
                    stop_after: int | None = None) -> StartsOutcome:
     """Run all starts. ``workers=0`` runs in this process; ``workers>0`` starts a local Dask
     cluster with that many single-threaded worker processes; ``scheduler`` connects to an
-    existing cluster instead. ``progress(done, total)`` is called as chunks finish.
+    existing cluster instead. ``progress(done, total)`` is called as chunks finish, counting
+    starts (finished, requested); a callback that takes a ``best_chi2`` keyword also gets
+    the smallest chi-square reached so far (nan before the first chunk).
     ``stop_after`` stops (raising KeyboardInterrupt) after that many new chunks: used to test
     resuming.
     """
@@ -421,8 +423,8 @@ def run_multistart(obj: Objective, opts: MultiStartOptions = MultiStartOptions()
         if r is not None:
             results[i] = r
     total = len(chunks)
-    if progress:
-        progress(len(results), total)
+    report = _progress_reporter(progress, chunks, results)
+    report()
     pending = [ChunkTask(i, ids, X0n[ids], obj, opts) for i, ids in enumerate(chunks)
                if i not in results]
     new = 0
@@ -432,8 +434,7 @@ def run_multistart(obj: Objective, opts: MultiStartOptions = MultiStartOptions()
         results[int(res["index"])] = res
         ck.save(res)
         new += 1
-        if progress:
-            progress(len(results), total)
+        report()
         if stop_after is not None and new >= stop_after and len(results) < total:
             raise KeyboardInterrupt("stopped after the requested number of chunks")
 
@@ -469,6 +470,31 @@ def run_multistart(obj: Objective, opts: MultiStartOptions = MultiStartOptions()
         chi2=cat["chi2"][order], iterations=cat["iterations"][order],
         converged=cat["converged"][order], status=cat["status"][order].astype(str),
         resampled=cat["resampled"][order])
+
+
+def _progress_reporter(progress, chunks, results):
+    """A no-argument function that reports (starts done, starts requested[, best_chi2])."""
+    if progress is None:
+        return lambda: None
+    import inspect
+
+    try:
+        sig = inspect.signature(progress).parameters
+        with_best = "best_chi2" in sig or any(p.kind is p.VAR_KEYWORD for p in sig.values())
+    except (TypeError, ValueError):  # pragma: no cover - builtins without a signature
+        with_best = False
+    n_total = int(sum(len(c) for c in chunks))
+
+    def report():
+        done = int(sum(len(chunks[i]) for i in results))
+        if not with_best:
+            progress(done, n_total)
+            return
+        best = [np.nanmin(r["chi2"]) for r in results.values()
+                if np.any(np.isfinite(r["chi2"]))]
+        progress(done, n_total, best_chi2=float(min(best)) if best else float("nan"))
+
+    return report
 
 
 def starts_to_dataset(out: StartsOutcome):

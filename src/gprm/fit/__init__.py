@@ -1,5 +1,7 @@
 """fit stage: Levenberg-Marquardt (Algorithm 1), multi-start identification, uncertainties."""
 
-from gprm.fit.lm import LMResult, levenberg_marquardt
+from gprm._lazy import attach
 
-__all__ = ["LMResult", "levenberg_marquardt"]
+__getattr__, __dir__, __all__ = attach(__name__, {
+    "lm": ["LMResult", "levenberg_marquardt"],
+})

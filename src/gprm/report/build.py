@@ -28,6 +28,7 @@ from gprm._io import open_netcdf, read_json, write_text_atomic
 from gprm.demo.summary import (impact_times_found, json_attr, summarise, truth_for_fit,
                                truth_from_means)
 from gprm.errors import GprmInputError
+from gprm.fit.report_text import pretty_unit
 from gprm.report import figures as F
 from gprm.report.html import (Card, Section, fig_to_img, not_run, num, paragraph, pm, render,
                               table)
@@ -98,12 +99,16 @@ def campaign_section(run: Path) -> Section:
            f"alignment (each signal's 2σ crossing at {align * 1e3:g} ms; the retraction "
            "command is at 1 ms, Section 2), with the across-run standard deviation σ(t).")
     if n_runs is not None:
-        txt += f" Runs averaged per position: {int(np.min(n_runs))}–{int(np.max(n_runs))}."
+        lo, hi = int(np.min(n_runs)), int(np.max(n_runs))
+        txt += (f" Runs averaged per position: {lo}." if lo == hi else
+                f" Runs averaged per position: {lo} to {hi}.")
     if camp is not None and "seed" in camp.attrs:
         txt += f" Synthetic campaign, seed {camp.attrs['seed']}."
     s.blocks.append(paragraph(txt))
     s.blocks.append(fig_to_img(F.fig_mean_signals(means),
-                               "Campaign mean signals: x_base with ±σ(t) (a) and the "
+                               "Campaign mean signals from 0.9 ms (the retraction "
+                               "command is at 1 ms): x_base with ±σ(t), σ(t) itself on the "
+                               "right axis in nm, about a thousandth of the signal (a); the "
                                "synchronised mean signals of the x (b), y (c) and z (d) "
                                "positions (cf. Fig. 3)", "fig-campaign"))
     rows = _table1(means)
@@ -111,7 +116,14 @@ def campaign_section(run: Path) -> Section:
         s.blocks.append(table(["ratio", "this campaign", "paper"], rows,
                               "Table 1: ratios of the maxima of the mean signals", "table-1",
                               note="Dimensionless. The fit uses x_base, x_head, y_base, "
-                                   "y_head and z_bk; the others serve the hypotheses of Sec. 2."))
+                                   "y_head and z_bk; the others serve the hypotheses of Sec. 2. "
+                                   "Why the ratios are not the paper's: a synthetic campaign's "
+                                   "flange and linear-runner motions come from supports tuned "
+                                   "once so that the noise-free ratios are near the paper's; "
+                                   "the ratios here are of the noisy, synchronised means and "
+                                   "move by a few per cent with the seed and the drawn truth "
+                                   "(a small y motion divided by a small one moves most). On "
+                                   "measured data they are the campaign's own."))
     dropped = json_attr(means.attrs, "dropped_json")
     if dropped:
         rows = []
@@ -152,7 +164,8 @@ def table3_rows(fit: dict, truth: dict | None) -> list:
         spec = REGISTRY[name]
         unit_scale = from_si(1.0, name)
         err = p.get("stderr")
-        row = [name, spec.unit.replace("us", "µs"), pm(p["value"], err, unit_scale)]
+        row = [name, pretty_unit(spec.unit.replace("us", "µs")),
+               pm(p["value"], err, unit_scale)]
         if truth is not None:
             t = truth.get(name)
             row.append("—" if t is None else num(t * unit_scale))
@@ -303,7 +316,12 @@ def flight_section(run: Path) -> Section:
         f"{n} releases: the release velocity per axis from the telemetry, and the impact time "
         "at which the impact model (Appendix B) applied to the predicted plunger state gives "
         f"that velocity (first crossing): {n_ok} of {6 * n} impact times found. Tukey's range "
-        "test asks whether the six axes' impact times share one mean (Eq. 9)."))
+        "test asks whether the six axes' impact times share one mean (Eq. 9). The two v_z "
+        "axes are one measurement read through two models: the measured v_z is compared "
+        "with the x–z plane's curve (vz_xz) and with the y–z plane's (vz_yz), so their impact "
+        "times differ only where the two planar models do; in each plane the frictionless "
+        "impact pushes the test mass along the indent normal, so the planar v_x/v_z and "
+        "v_y/v_z are tan α (docs/flight.md, Section 2)."))
     tele = _load_nc(run, "telemetry.nc", "telemetry file")
     fig = F.fig_release_fit(tele, imp)
     if fig is not None:
@@ -349,6 +367,25 @@ def flight_section(run: Path) -> Section:
 
 # ----------------------------------------------------------------------------- provenance
 
+def git_commit(where: Path | None = None) -> str:
+    """The commit of the gprm source that builds the report (``+dirty`` with uncommitted
+    changes), or why there is none (an installed wheel has no git checkout)."""
+    import subprocess
+
+    where = Path(__file__).parent if where is None else where
+    try:
+        rev = subprocess.run(["git", "-C", str(where), "rev-parse", "HEAD"], capture_output=True,
+                             text=True, timeout=10)
+        if rev.returncode != 0:
+            return "not a git checkout"
+        dirty = subprocess.run(["git", "-C", str(where), "status", "--porcelain",
+                                "--untracked-files=no"], capture_output=True, text=True,
+                               timeout=10).stdout.strip()
+    except (OSError, subprocess.SubprocessError):
+        return "git not available"
+    return rev.stdout.strip() + ("+dirty" if dirty else "")
+
+
 def provenance_section(run: Path, prov: dict) -> Section:
     """``prov``: the run record (run.json; empty where there is none)."""
     s = Section("Provenance", "provenance")
@@ -360,15 +397,21 @@ def provenance_section(run: Path, prov: dict) -> Section:
         rows.append((f"option {k}", v))
     for k, v in (prov.get("versions") or {}).items():
         rows.append((f"version {k}", v))
+    if prov.get("git"):
+        rows.append(("git commit (run)", prov["git"]))
+    rows.append(("git commit (report)", git_commit()))
     files = sorted(f.name for f in run.iterdir() if f.is_file() and not f.name.startswith("."))
     rows.append(("files", ", ".join(files)))
+    notes: dict[str, list[str]] = {}          # one row per distinct note, naming its stages
     for name, rec in (prov.get("stages") or {}).items():
         for fname, sha in (rec.get("inputs") or {}).items():
             rows.append((f"{name} input {fname}", f"sha256 {sha[:16]}…"))
         for note in (rec.get("info") or {}).get("notes", []):
-            rows.append((f"{name} note", note))
+            notes.setdefault(str(note), []).append(name)
         if rec.get("status") in ("not available", "blocked", "failed"):
             rows.append((f"{name} status", f"{rec['status']}: {rec.get('detail', '')}"))
+    for note, stages in notes.items():
+        rows.append((f"note ({', '.join(stages)})", note))
     s.blocks.append(table(["item", "value"], rows, "Inputs, seed, versions",
                           "table-provenance"))
     tim = prov.get("stages") or {}

@@ -497,6 +497,22 @@ def _progress_reporter(progress, chunks, results):
     return report
 
 
+def _si_units(names) -> list[str]:
+    """The SI unit of each named parameter as a string (``1`` when dimensionless)."""
+    from gprm.params import REGISTRY
+    from gprm.params.files import ureg
+
+    units = []
+    for n in names:
+        if n not in REGISTRY:
+            units.append("unknown")
+            continue
+        q = ureg().Quantity(1.0, REGISTRY[n].unit).to_base_units()
+        u = f"{q.units:~}".replace(" ", "")
+        units.append({"": "1"}.get(u, u))
+    return units
+
+
 def starts_to_dataset(out: StartsOutcome):
     """The NetCDF sidecar content: every start's initial and final values, chi-square,
     iterations and outcome."""
@@ -510,8 +526,15 @@ def starts_to_dataset(out: StartsOutcome):
          "status": ("start", out.status.astype(str)),
          "resampled": ("start", out.resampled)},
         coords={"start": np.arange(out.chi2.size), "param": list(out.names)})
-    ds["x0"].attrs["long_name"] = "initial parameter values (SI)"
-    ds["x"].attrs["long_name"] = "final parameter values (SI)"
-    ds["chi2"].attrs["long_name"] = "final chi-square (Eq. 6)"
+    units = _si_units(out.names)
+    ds = ds.assign_coords(param_units=("param", units))
+    ds["param_units"].attrs["long_name"] = "SI unit of each parameter"
+    for v, what in (("x0", "initial"), ("x", "final")):
+        ds[v].attrs["long_name"] = f"{what} parameter values (SI)"
+        # CF has one unit string per variable; these differ along param
+        ds[v].attrs["comment"] = "units vary along param: see param_units"
+    ds["chi2_0"].attrs.update(long_name="chi-square of the start (Eq. 6)", units="1")
+    ds["chi2"].attrs.update(long_name="final chi-square (Eq. 6)", units="1")
+    ds["status"].attrs["long_name"] = "outcome of the start"
     ds["converged"].attrs["long_name"] = "1 if the start met a convergence criterion"
     return ds

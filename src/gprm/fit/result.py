@@ -191,6 +191,9 @@ class FitResult:
         if self.covariance is not None:
             ds["covariance"] = (("param", "param2"), self.covariance)
             ds = ds.assign_coords(param2=list(self.names))
+            ds["covariance"].attrs.update(
+                long_name="parameter covariance (Eq. 7, SI)",
+                comment="units vary: param_units[param] * param_units[param2]")
         for v in ("data_mean", "data_sigma", "model_best", "band_linear_std",
                   "band_sample_std", "band_sample_lo", "band_sample_hi"):
             if v in ds:

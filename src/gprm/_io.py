@@ -70,8 +70,9 @@ def _history_entry() -> str:
 
 def cf_dataset(ds):
     """A copy of ``ds`` with the CF-1.10 global attributes (``Conventions``, ``history``
-    appended to the one the data came with) and ``units = "1"`` on integer and boolean
-    variables without units (counts, indices, flags: dimensionless). Float variables keep
+    appended to the one the data came with), ``units = "1"`` on integer and boolean
+    variables without units (counts, indices, flags: dimensionless) and no ``_FillValue`` on
+    float coordinate variables (CF 2.5.1). Float variables keep
     what their writer gave them; ``ds`` itself is not modified. A global ``units`` attribute
     (not CF) is dropped: every variable carries its own."""
     out = ds.copy(deep=False)
@@ -83,7 +84,10 @@ def cf_dataset(ds):
     out.attrs["history"] = entry if not prev else (
         prev if prev.endswith(entry) else f"{prev}\n{entry}")
     for name in list(out.variables):
-        var = out[name]
+        var = out.variables[name]
+        if var.dims == (name,) and var.dtype.kind == "f":
+            # CF 2.5.1: a coordinate variable has no missing values, hence no _FillValue
+            var.encoding = {**var.encoding, "_FillValue": None}
         if var.dtype.kind in "iub" and "units" not in var.attrs and "units" not in \
                 var.encoding:
             out.variables[name].attrs = {**var.attrs, "units": "1"}

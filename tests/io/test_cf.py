@@ -24,10 +24,17 @@ def _toy():
 
 
 def test_cf_dataset_adds_conventions_history_and_dimensionless_units_without_touching_input():
-    ds = _toy()
-    before = {v: dict(ds[v].attrs) for v in ds.variables}, dict(ds.attrs)
+    ds = _toy().assign_coords(t=("t", [0.0, 1.0]))
+    ds["t"].encoding["_FillValue"] = np.nan
+
+    def state(d):
+        return ({v: (dict(d[v].attrs), dict(d[v].encoding)) for v in d.variables},
+                dict(d.attrs))
+
+    before = state(ds)
     out = cf_dataset(ds)
-    assert ({v: dict(ds[v].attrs) for v in ds.variables}, dict(ds.attrs)) == before
+    assert state(ds) == before
+    assert out["t"].encoding["_FillValue"] is None        # CF 2.5.1 (coordinate variable)
     assert out.attrs["Conventions"] == "CF-1.10" and "units" not in out.attrs
     assert out.attrs["history"].startswith("made by hand\nwritten by ")
     assert out["n"].attrs["units"] == "1" and out["flag"].attrs["units"] == "1"
@@ -92,3 +99,22 @@ def test_fit_sidecar_parameter_units(files):
             want = ureg().Quantity(1.0, REGISTRY[name].unit).to(unit).magnitude
             assert want == pytest.approx(ureg().Quantity(1.0, REGISTRY[name].unit)
                                          .to_base_units().magnitude)
+
+
+@pytest.mark.parametrize("name", ["campaign.nc", "fit.nc"])
+def test_cf_checker_finds_no_problem_the_conventions_step_owns(files, name):
+    """The IOOS compliance checker (``pip install ".[cf]"``), CF 1.10: Conventions, units
+    recognised by UDUNITS, no _FillValue on coordinate variables. (Its recommendations of
+    long_name/standard_name and of a reference time for ``time`` are not checked here: the
+    record time is seconds from the start of a record, not a calendar time.)"""
+    runner = pytest.importorskip("compliance_checker.runner")
+    cs = runner.CheckSuite()
+    cs.load_all_available_checkers()
+    results, errors = cs.run_all(cs.load_dataset(str(files / name)), ["cf:1.10"],
+                                 skip_checks=[])["cf:1.10"]
+    owned = ("§2.5.1", "§3.1 ")
+    problems = [(r.name, r.msgs) for r in results
+                if r.name.startswith(owned) and r.msgs]
+    assert problems == []
+    assert not [m for r in results for m in r.msgs if "Conventions" in m]
+    assert any(r.name.startswith("§3.1 ") for r in results)     # the checks did run

@@ -69,7 +69,9 @@ def _not_run(s: Section, what: str, why: str) -> Section:
 # ----------------------------------------------------------------------------- campaign
 
 def _table1(means) -> list:
-    stored = json_attr(means.attrs, "table1_json", {})
+    from gprm.campaign.preprocess import read_tables
+
+    stored = read_tables(means)[0]
     sig = [str(s) for s in means["signal"].values]
     rows = []
     for key, paper_v in _PAPER_T1.items():
@@ -124,7 +126,9 @@ def campaign_section(run: Path) -> Section:
                                    "move by a few per cent with the seed and the drawn truth "
                                    "(a small y motion divided by a small one moves most). On "
                                    "measured data they are the campaign's own."))
-    dropped = json_attr(means.attrs, "dropped_json")
+    from gprm.campaign.preprocess import read_tables
+
+    dropped = read_tables(means)[1]
     if dropped:
         rows = []
         entries = dropped.items() if isinstance(dropped, dict) else \

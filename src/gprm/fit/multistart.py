@@ -497,22 +497,6 @@ def _progress_reporter(progress, chunks, results):
     return report
 
 
-def _si_units(names) -> list[str]:
-    """The SI unit of each named parameter as a string (``1`` when dimensionless)."""
-    from gprm.params import REGISTRY
-    from gprm.params.files import ureg
-
-    units = []
-    for n in names:
-        if n not in REGISTRY:
-            units.append("unknown")
-            continue
-        q = ureg().Quantity(1.0, REGISTRY[n].unit).to_base_units()
-        u = f"{q.units:~}".replace(" ", "")
-        units.append({"": "1"}.get(u, u))
-    return units
-
-
 def starts_to_dataset(out: StartsOutcome):
     """The NetCDF sidecar content: every start's initial and final values, chi-square,
     iterations and outcome."""
@@ -526,7 +510,9 @@ def starts_to_dataset(out: StartsOutcome):
          "status": ("start", out.status.astype(str)),
          "resampled": ("start", out.resampled)},
         coords={"start": np.arange(out.chi2.size), "param": list(out.names)})
-    units = _si_units(out.names)
+    from gprm.params.files import si_unit_strings
+
+    units = si_unit_strings(out.names)
     ds = ds.assign_coords(param_units=("param", units))
     ds["param_units"].attrs["long_name"] = "SI unit of each parameter"
     for v, what in (("x0", "initial"), ("x", "final")):

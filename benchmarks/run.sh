@@ -6,7 +6,7 @@ set -euo pipefail
 cd "$(dirname "$0")/.."
 PY=.venv/bin/python
 echo "# gprm benchmarks ($(date -u +%Y-%m-%dT%H:%MZ), $(nproc) cores, $(grep -m1 'model name' /proc/cpuinfo | cut -d: -f2 | xargs))"
-for b in simulate preprocess fit predict flight; do
+for b in startup simulate preprocess fit predict flight; do
   echo
   "$PY" "benchmarks/bench_${b}.py" "$@"
 done

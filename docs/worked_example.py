@@ -42,7 +42,10 @@ write_campaign(campaign, OUT / "campaign.nc")
 # lag t0 stays positive, as in the paper (docs/README.md, "One configuration")
 means = run_preprocess(campaign, PreprocessOptions())
 write_netcdf_atomic(means, OUT / "means.nc")
-print("Table 1 (this campaign):", means.attrs["table1_json"][:120], "...")
+from gprm.campaign.preprocess import read_tables
+
+table1 = read_tables(means)[0]                     # Table 1 is stored as variables (ratio)
+print("Table 1 (this campaign):", {k: round(v["value"], 2) for k, v in table1.items()})
 
 # %% 4. Identification: multi-start Levenberg-Marquardt (Algorithm 1), uncertainty
 from gprm.fit import FitOptions, run_fit

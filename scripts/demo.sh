@@ -4,6 +4,5 @@
 # A rerun resumes: stages whose inputs are unchanged are skipped.
 set -euo pipefail
 cd "$(dirname "$0")/.."
-GPRM_EXTRAS=""
 source scripts/_venv.sh
-exec .venv/bin/gprm demo --out demo-run "$@"
+exec "$VENV/bin/gprm" demo --out demo-run "$@"

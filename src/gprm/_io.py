@@ -59,10 +59,53 @@ def write_json_atomic(path: str | os.PathLike, obj: Any) -> None:
     write_text_atomic(path, json.dumps(obj, indent=2, allow_nan=False) + "\n")
 
 
+CONVENTIONS = "CF-1.10"
+
+
+def _history_entry() -> str:
+    """What wrote the file: the gprm command line, or the Python API. No wall-clock time, so
+    that the same inputs and seed still give byte-identical files (run.json has the times)."""
+    import sys
+
+    from gprm import __version__
+
+    argv0 = os.path.basename(sys.argv[0]) if sys.argv else ""
+    how = ("gprm " + " ".join(sys.argv[1:])) if argv0 == "gprm" else "the gprm Python API"
+    return f"written by {how} (gprm {__version__})"
+
+
+def cf_dataset(ds):
+    """A copy of ``ds`` with the CF-1.10 global attributes (``Conventions``, ``history``
+    appended to the one the data came with), ``units = "1"`` on integer and boolean
+    variables without units (counts, indices, flags: dimensionless) and no ``_FillValue`` on
+    float coordinate variables (CF 2.5.1). Float variables keep
+    what their writer gave them; ``ds`` itself is not modified. A global ``units`` attribute
+    (not CF) is dropped: every variable carries its own."""
+    out = ds.copy(deep=False)
+    out.attrs = dict(ds.attrs)
+    out.attrs.pop("units", None)
+    out.attrs["Conventions"] = CONVENTIONS
+    entry = _history_entry()
+    prev = str(ds.attrs.get("history", "")).rstrip("\n")
+    out.attrs["history"] = entry if not prev else (
+        prev if prev.endswith(entry) else f"{prev}\n{entry}")
+    for name in list(out.variables):
+        var = out.variables[name]
+        if var.dims == (name,) and var.dtype.kind == "f":
+            # CF 2.5.1: a coordinate variable has no missing values, hence no _FillValue
+            var.encoding = {**var.encoding, "_FillValue": None}
+        if var.dtype.kind in "iub" and "units" not in var.attrs and "units" not in \
+                var.encoding:
+            out.variables[name].attrs = {**var.attrs, "units": "1"}
+    return out
+
+
 def write_netcdf_atomic(ds, path: str | os.PathLike) -> None:
-    """Write an xarray Dataset to NetCDF4 atomically."""
+    """Write an xarray Dataset to NetCDF4 atomically, with the CF attributes of
+    :func:`cf_dataset` (docs/data-formats.md, "Conventions")."""
+    out = cf_dataset(ds)
     with atomic_path(path) as tmp:
-        ds.to_netcdf(tmp, engine="netcdf4")
+        out.to_netcdf(tmp, engine="netcdf4")
 
 
 def open_netcdf(path: str | os.PathLike, *, what: str = "NetCDF file"):

@@ -8,7 +8,7 @@ from scipy.interpolate import CubicSpline
 from scipy.optimize import minimize_scalar
 
 from gprm.campaign.data import MODEL_POSITIONS, POSITIONS
-from gprm.campaign.preprocess import first_crossing, noise_std, synchronise
+from gprm.campaign.preprocess import first_crossing, noise_std, read_tables, synchronise
 
 GOOD_SNR = MODEL_POSITIONS + ("x_lr", "y_lr", "z_fl")
 WINDOW = (0.97e-3, 1.2e-3)
@@ -168,11 +168,30 @@ def test_table1_from_data(full_campaign, full_means):
 
 def test_dropped_positions(full_means):
     ds = full_means.to_dataset()
-    dropped = json.loads(ds.attrs["dropped_json"])
+    table, dropped, _ = read_tables(ds)
     assert set(dropped) == {"x_fl", "y_fl", "z_fl", "x_lr", "y_lr"}
     assert all(d["supported"] for d in dropped.values())
-    table = json.loads(ds.attrs["table1_json"])
     assert dropped["x_lr"]["value"] == table["max(x_head)/max(x_lr)"]["value"]
+
+
+def test_tables_are_variables_and_round_trip_through_the_file(full_means, tmp_path):
+    """Table 1, the dropped positions and the SNR summary are variables along their own
+    dimension (CF; no JSON strings) and read back to exactly the dicts MeanSignals holds;
+    files of the older layout (JSON attributes) read the same."""
+    from gprm._io import open_netcdf, write_netcdf_atomic
+
+    ds = full_means.to_dataset()
+    assert not [a for a in ds.attrs if a in ("table1_json", "dropped_json", "snr_json")]
+    assert ds["table1_value"].dims == ("ratio",) and ds["snr_peak"].attrs["units"] == "m"
+    write_netcdf_atomic(ds, tmp_path / "m.nc")
+    want = (full_means.table1, full_means.dropped, full_means.snr)
+    assert read_tables(open_netcdf(tmp_path / "m.nc")) == want
+    legacy = ds.drop_vars([v for v in ds.variables if v.startswith(("table1_", "dropped_",
+                                                                      "snr_"))]
+                          + ["ratio", "dropped_position", "snr_position"])
+    legacy.attrs.update({"table1_json": json.dumps(want[0]), "dropped_json": json.dumps(want[1]),
+                         "snr_json": json.dumps(want[2])})
+    assert read_tables(legacy) == want
 
 
 def test_mean_signals_contract(full_campaign, full_means):
@@ -189,9 +208,10 @@ def test_mean_signals_contract(full_campaign, full_means):
     t = ds["time"].values
     assert t[0] <= WINDOW[0] and t[-1] >= WINDOW[1]
     np.testing.assert_allclose(np.diff(t), 5e-6, rtol=1e-9)
-    for a in ("source", "sample_rate", "campaign_sha256", "table1_json", "dropped_json",
-              "truth_json", "seed"):
+    for a in ("source", "sample_rate", "campaign_sha256", "truth_json", "seed"):
         assert a in ds.attrs, a
+    for v in ("table1_value", "table1_paper", "dropped_supported", "snr_peak_over_std"):
+        assert v in ds and "units" in ds[v].attrs, v
     assert json.loads(ds.attrs["truth_json"]) == json.loads(full_campaign.attrs["truth_json"])
     assert ds.attrs["seed"] == 7
     ta = json.loads(ds.attrs["truth_alignment_json"])

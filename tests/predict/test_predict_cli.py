@@ -42,7 +42,12 @@ def test_predict_writes_documented_dataset(tmp_path):
     assert list(ds["point"].values) == ["com", "M_xz", "M_yz", "tip_edge"]
     assert ds["pos"].dims == ("point", "axis", "time")
     assert np.isclose(float(ds["time"][-1]), 1.15e-3)
-    assert json.loads(ds.attrs["parameters_json"])["h2"] == pytest.approx(0.031)
+    from gprm.predict.files import read_parameters
+
+    values, fitted = read_parameters(ds)                 # variables along `parameter`
+    assert values["h2"] == pytest.approx(0.031) and "h2" not in fitted
+    assert ds["parameter_units"].sel(parameter="h2").item() == "m"
+    assert "parameters_json" not in ds.attrs and "masses_json" not in ds.attrs
     for v in ("pos_p2_5", "pos_p97_5", "pos_std_linear", "vel", "overshoot", "hist_measured",
               "hist_model_point", "mass_nominal", "clearance", "p_cross"):
         assert v in ds and "units" in ds[v].attrs, v
@@ -144,3 +149,17 @@ def test_singular_correlation_draws_are_simulable(tmp_path):
     assert r.exit_code == 0, r.output
     with xr.open_dataset(out) as ds:
         assert int(ds.attrs["samples_ok"]) == 8
+
+
+def test_read_parameters_of_new_and_older_prediction_files():
+    """The parameter set is variables since issue 15; files with the older JSON attributes
+    read to the same values and fitted names."""
+    from gprm.predict.files import parameters_dataset, read_parameters
+
+    values, fitted = {"m2": 0.0124, "h2": 0.031, "k_lr": 1.64e6}, ("m2", "k_lr")
+    ds = parameters_dataset(values, fitted)
+    assert read_parameters(ds) == (values, ["m2", "k_lr"])
+    assert list(ds["parameter_units"].values) == ["kg", "m", "kg/s**2"]
+    old = xr.Dataset(attrs={"parameters_json": json.dumps(values),
+                            "fitted_json": json.dumps(list(fitted))})
+    assert read_parameters(old) == (values, ["m2", "k_lr"])

@@ -2,16 +2,16 @@
 directory with a manifest), synthetic campaigns with known truth, and the preprocessing that
 turns a campaign into the mean signals the fit reads. See docs/data-formats.md."""
 
-from gprm.campaign.api import PreprocessOptions, preprocess_campaign, run_preprocess
-from gprm.campaign.csvdir import read_campaign_dir, write_campaign_dir
-from gprm.campaign.data import (MODEL_POSITIONS, POSITIONS, campaign_dataset, load_campaign,
-                                validate_campaign, write_campaign)
-from gprm.campaign.preprocess import (MeanSignals, PreprocessConfig, alignment_shift,
-                                      preprocess)
-from gprm.campaign.synth import SynthConfig, synth_campaign
+from gprm._lazy import attach
 
-__all__ = ["MODEL_POSITIONS", "POSITIONS", "MeanSignals", "PreprocessConfig",
-           "PreprocessOptions", "SynthConfig", "alignment_shift", "campaign_dataset",
-           "load_campaign", "preprocess", "preprocess_campaign", "read_campaign_dir",
-           "run_preprocess", "synth_campaign", "validate_campaign", "write_campaign",
-           "write_campaign_dir"]
+# ``preprocess`` is not re-exported: it is also the name of the submodule, which would shadow
+# it once imported (import the function from gprm.campaign.preprocess).
+
+__getattr__, __dir__, __all__ = attach(__name__, {
+    "api": ["PreprocessOptions", "preprocess_campaign", "run_preprocess"],
+    "csvdir": ["read_campaign_dir", "write_campaign_dir"],
+    "data": ["MODEL_POSITIONS", "POSITIONS", "campaign_dataset", "load_campaign",
+             "validate_campaign", "write_campaign"],
+    "preprocess": ["MeanSignals", "PreprocessConfig", "alignment_shift"],
+    "synth": ["SynthConfig", "synth_campaign"],
+})

@@ -5,7 +5,7 @@
 - ``voltage(vrun, vtime)`` V: the retraction voltage traces (optional),
 
 ``position`` holding the ten laser positions by name (Sec. 2, Fig. 2), ``time`` in s from the
-start of the record, and attributes ``sample_rate`` (Hz), ``units`` and, for synthetic
+start of the record, and attributes ``sample_rate`` (Hz) and, for synthetic
 campaigns, ``truth_json`` and ``seed``. :func:`validate_campaign` checks everything a later
 stage relies on and raises a one-line :class:`GprmInputError` naming file and field;
 :func:`load_campaign` reads a NetCDF file or a CSV directory (see :mod:`gprm.campaign.csvdir`).
@@ -68,7 +68,6 @@ def campaign_dataset(displacement: np.ndarray, noise: np.ndarray, time: np.ndarr
         data[k] = v
     ds = xr.Dataset(data, coords=coords)
     ds.attrs = {"title": "GPRM ground-test campaign", "sample_rate": float(sample_rate),
-                "units": "SI (displacement m, voltage V, time s)",
                 "format": "gprm-campaign", "format_version": 1}
     ds.attrs.update(attrs or {})
     return ds

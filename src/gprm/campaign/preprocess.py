@@ -140,10 +140,81 @@ class MeanSignals:
                 "units": "m", "long_name": "noise-free truth response aligned by the same "
                 "rule (synthetic campaigns)"})
         ds.attrs = dict(self.attrs)
-        ds.attrs["table1_json"] = json.dumps(self.table1)
-        ds.attrs["dropped_json"] = json.dumps(self.dropped)
-        ds.attrs["snr_json"] = json.dumps(self.snr)
-        return ds
+        return ds.merge(tables_dataset(self.table1, self.dropped, self.snr))
+
+
+# Table 1, the dropped positions and the signal-to-noise summary are tables: in the file they
+# are variables along their own key dimension (CF, docs/data-formats.md), not JSON strings.
+_T1_FIELDS = (("value", "table1_value", "1", "ratio of the maxima (this campaign)"),
+              ("paper", "table1_paper", "1", "ratio of the maxima in the paper's Table 1"),
+              ("numerator_m", "table1_numerator", "m", "max |mean| of the numerator"),
+              ("denominator_m", "table1_denominator", "m", "max |mean| of the denominator"))
+_DROP_FIELDS = (("hypothesis", "dropped_hypothesis", None, "hypothesis of Sec. 2"),
+                ("ratio", "dropped_ratio", None, "Table 1 ratio that is the evidence"),
+                ("value", "dropped_value", "1", "value of that ratio"),
+                ("paper", "dropped_paper", "1", "the paper's value of that ratio"),
+                ("supported", "dropped_supported", "1", "1 if value >= support_threshold"),
+                ("support_threshold", "dropped_support_threshold", "1",
+                 "ratio needed to support the hypothesis"))
+_SNR_FIELDS = (("peak_m", "snr_peak", "m", "max |mean|"),
+               ("std_at_peak_m", "snr_std_at_peak", "m", "across-run std at the peak"),
+               ("peak_over_std", "snr_peak_over_std", "1", "peak / std at the peak"),
+               ("time_of_peak_s", "snr_time_of_peak", "s", "time of the peak"))
+
+
+def _table_vars(rows: dict, dim: str, fields) -> dict:
+    keys = list(rows)
+    out = {}
+    for field, var, unit, long_name in fields:
+        vals = [rows[k][field] for k in keys]
+        if unit is None:
+            arr = np.array(vals, dtype=str)
+        elif field == "supported":
+            arr = np.array(vals, dtype=np.int8)
+        else:
+            arr = np.array(vals, dtype=float)
+        attrs = {"long_name": long_name} | ({} if unit is None else {"units": unit})
+        out[var] = ((dim,), arr, attrs)
+    return out
+
+
+def tables_dataset(table1: dict, dropped: dict, snr: dict):
+    """The mean-signals file's tables as variables: ``table1_*(ratio)``,
+    ``dropped_*(dropped_position)``, ``snr_*(snr_position)``."""
+    data = {}
+    for rows, dim, fields in ((table1, "ratio", _T1_FIELDS),
+                              (dropped, "dropped_position", _DROP_FIELDS),
+                              (snr, "snr_position", _SNR_FIELDS)):
+        data.update(_table_vars(rows, dim, fields))
+    coords = {"ratio": ("ratio", list(table1)),
+              "dropped_position": ("dropped_position", list(dropped)),
+              "snr_position": ("snr_position", list(snr))}
+    return xr.Dataset(data, coords=coords)
+
+
+def read_tables(ds) -> tuple[dict, dict, dict]:
+    """``(table1, dropped, snr)`` of a mean-signals dataset, as the dicts ``MeanSignals``
+    holds; files written before the tables became variables (``*_json`` attributes) read
+    too."""
+    def table(dim, fields, legacy):
+        if dim in ds.coords or dim in ds.dims:
+            rows = {}
+            for i, key in enumerate(ds[dim].values.astype(str)):
+                row = {}
+                for field, var, unit, _ in fields:
+                    if var not in ds:
+                        continue
+                    x = ds[var].values[i]
+                    row[field] = (str(x) if unit is None else bool(x) if field == "supported"
+                                  else float(x))
+                rows[str(key)] = row
+            return rows
+        raw = ds.attrs.get(legacy)
+        return json.loads(raw) if isinstance(raw, str) and raw else {}
+
+    return (table("ratio", _T1_FIELDS, "table1_json"),
+            table("dropped_position", _DROP_FIELDS, "dropped_json"),
+            table("snr_position", _SNR_FIELDS, "snr_json"))
 
 
 def noise_std(noise: np.ndarray, time: np.ndarray) -> float:

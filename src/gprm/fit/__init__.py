@@ -1,6 +1,10 @@
 """fit stage: Levenberg-Marquardt (Algorithm 1), multi-start identification, uncertainties."""
 
-from gprm.fit.api import FitOptions, run_fit
-from gprm.fit.lm import LMResult, levenberg_marquardt
+from gprm._lazy import attach
 
-__all__ = ["FitOptions", "LMResult", "levenberg_marquardt", "run_fit"]
+__getattr__, __dir__, __all__ = attach(__name__, {
+    "api": ["FitOptions", "run_fit"],
+    "files": ["FittedModel", "load_fit", "paper_model"],
+    "lm": ["LMResult", "levenberg_marquardt"],
+    "uncertainty": ["METHODS", "DEFAULT_METHOD"],
+})

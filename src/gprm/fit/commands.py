@@ -98,7 +98,6 @@ def register(app: typer.Typer, synth_app: typer.Typer) -> None:
         import re
 
         from rich.console import Console
-        from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 
         from gprm.errors import GprmInputError
         from gprm.fit.api import FitOptions, run_fit
@@ -142,15 +141,9 @@ def register(app: typer.Typer, synth_app: typer.Typer) -> None:
         if not scheduler and workers > 4 * n_cpu:   # each is a process with its own memory
             raise GprmInputError(f"{workers} local worker processes on {n_cpu} cores; the "
                                  f"largest value accepted is {4 * n_cpu}", field="--workers")
-        console = Console(stderr=True)
-        with Progress(TextColumn("fit"), BarColumn(), TextColumn("{task.completed}/"
-                      "{task.total} chunks"), TimeElapsedColumn(), console=console,
-                      transient=True) as bar:
-            task = bar.add_task("fit", total=None)
+        from gprm.fit.report_text import fit_report, starts_progress
 
-            def progress(done, total):
-                bar.update(task, completed=done, total=total)
-
+        with starts_progress(Console(stderr=True), starts) as progress:
             try:
                 with dask_dashboard(dashboard):
                     res = run_fit(ds, opts, params=base, workers=workers,
@@ -161,8 +154,21 @@ def register(app: typer.Typer, synth_app: typer.Typer) -> None:
                 raise
         side = res.write(out)
         remove_checkpoints(ckpt)          # only what gprm wrote there, never other files
-        typer.echo(res.summary())
+        typer.echo(fit_report(res.to_json_dict()))
         typer.echo(f"wrote {out} and {side} ({res.timings['total']:.1f} s)")
+
+    @app.command("show")
+    @one_line_errors
+    def show_cmd(
+        fit: Path = typer.Argument(..., help="saved fit (fit.json of gprm fit or gprm demo)"),
+        min_correl: float = typer.Option(0.9, "--min-correl", parser=Number(0, 1),
+                                         help="list parameter correlations with |C| at or "
+                                              "above this (0..1)"),
+    ):
+        """Print the fit report of a saved fit (the text that ends gprm fit)."""
+        from gprm.fit.report_text import fit_report, read_fit_json
+
+        typer.echo(fit_report(read_fit_json(fit), min_correl=min_correl))
 
 
 def dask_dashboard(address):

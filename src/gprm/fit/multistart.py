@@ -507,7 +507,9 @@ def run_multistart(obj: Objective, opts: MultiStartOptions = MultiStartOptions()
                    stop_after: int | None = None) -> StartsOutcome:
     """Run all starts. ``workers=0`` runs in this process; ``workers>0`` starts a local Dask
     cluster with that many single-threaded worker processes; ``scheduler`` connects to an
-    existing cluster instead. ``progress(done, total)`` is called as chunks finish.
+    existing cluster instead. ``progress(done, total)`` is called as chunks finish, counting
+    starts (finished, requested); a callback that takes a ``best_chi2`` keyword also gets
+    the smallest chi-square reached so far (nan before the first chunk).
     ``stop_after`` stops (raising KeyboardInterrupt) after that many new chunks: used to test
     resuming.
     """
@@ -521,8 +523,8 @@ def run_multistart(obj: Objective, opts: MultiStartOptions = MultiStartOptions()
         if r is not None:
             results[i] = r
     total = len(chunks)
-    if progress:
-        progress(len(results), total)
+    report = _progress_reporter(progress, chunks, results)
+    report()
     pending = [ChunkTask(i, ids, X0n[ids], obj, opts) for i, ids in enumerate(chunks)
                if i not in results]
     new = 0
@@ -532,8 +534,7 @@ def run_multistart(obj: Objective, opts: MultiStartOptions = MultiStartOptions()
         results[int(res["index"])] = res
         ck.save(res)
         new += 1
-        if progress:
-            progress(len(results), total)
+        report()
         if stop_after is not None and new >= stop_after and len(results) < total:
             raise KeyboardInterrupt("stopped after the requested number of chunks")
 
@@ -578,6 +579,31 @@ def run_multistart(obj: Objective, opts: MultiStartOptions = MultiStartOptions()
         resampled=cat["resampled"][order])
 
 
+def _progress_reporter(progress, chunks, results):
+    """A no-argument function that reports (starts done, starts requested[, best_chi2])."""
+    if progress is None:
+        return lambda: None
+    import inspect
+
+    try:
+        sig = inspect.signature(progress).parameters
+        with_best = "best_chi2" in sig or any(p.kind is p.VAR_KEYWORD for p in sig.values())
+    except (TypeError, ValueError):  # pragma: no cover - builtins without a signature
+        with_best = False
+    n_total = int(sum(len(c) for c in chunks))
+
+    def report():
+        done = int(sum(len(chunks[i]) for i in results))
+        if not with_best:
+            progress(done, n_total)
+            return
+        best = [np.nanmin(r["chi2"]) for r in results.values()
+                if np.any(np.isfinite(r["chi2"]))]
+        progress(done, n_total, best_chi2=float(min(best)) if best else float("nan"))
+
+    return report
+
+
 def starts_to_dataset(out: StartsOutcome):
     """The NetCDF sidecar content: every start's initial and final values, chi-square,
     iterations and outcome."""
@@ -591,8 +617,17 @@ def starts_to_dataset(out: StartsOutcome):
          "status": ("start", out.status.astype(str)),
          "resampled": ("start", out.resampled)},
         coords={"start": np.arange(out.chi2.size), "param": list(out.names)})
-    ds["x0"].attrs["long_name"] = "initial parameter values (SI)"
-    ds["x"].attrs["long_name"] = "final parameter values (SI)"
-    ds["chi2"].attrs["long_name"] = "final chi-square (Eq. 6)"
+    from gprm.params.files import si_unit_strings
+
+    units = si_unit_strings(out.names)
+    ds = ds.assign_coords(param_units=("param", units))
+    ds["param_units"].attrs["long_name"] = "SI unit of each parameter"
+    for v, what in (("x0", "initial"), ("x", "final")):
+        ds[v].attrs["long_name"] = f"{what} parameter values (SI)"
+        # CF has one unit string per variable; these differ along param
+        ds[v].attrs["comment"] = "units vary along param: see param_units"
+    ds["chi2_0"].attrs.update(long_name="chi-square of the start (Eq. 6)", units="1")
+    ds["chi2"].attrs.update(long_name="final chi-square (Eq. 6)", units="1")
+    ds["status"].attrs["long_name"] = "outcome of the start"
     ds["converged"].attrs["long_name"] = "1 if the start met a convergence criterion"
     return ds

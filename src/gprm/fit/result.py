@@ -276,10 +276,14 @@ class FitResult:
         if self.covariance is not None:
             ds["covariance"] = (("param", "param2"), self.covariance)
             ds = ds.assign_coords(param2=list(self.names))
+            ds["covariance"].attrs.update(
+                long_name="parameter covariance of the uncertainty method (SI)",
+                comment="units vary: param_units[param] * param_units[param2]")
         if self.uncertainty is not None and self.uncertainty.draws is not None:
             ds["posterior_draws"] = (("draw", "param"), self.uncertainty.draws, {
                 "long_name": f"parameter sets from the uncertainty method "
-                f"({self.uncertainty.method}), SI; later stages propagate these"})
+                f"({self.uncertainty.method}), SI; later stages propagate these",
+                "comment": "units vary along param: param_units[param]"})
         for v in ("data_mean", "data_sigma", "model_best", "band_linear_std",
                   "band_sample_std", "band_sample_lo", "band_sample_hi"):
             if v in ds:

@@ -1,8 +1,9 @@
 """Model definitions (kinematics and energies), symbolic derivation, generated matrices,
 piezo configurations and the state-space form."""
 
-from gprm.model.definition import COORDINATES, DEFINITIONS, ModelDefinition
-from gprm.model.linear import STATE_NAMES, StateSpace, generated, state_space
+from gprm._lazy import attach
 
-__all__ = ["COORDINATES", "DEFINITIONS", "ModelDefinition", "STATE_NAMES", "StateSpace",
-           "generated", "state_space"]
+__getattr__, __dir__, __all__ = attach(__name__, {
+    "definition": ["COORDINATES", "DEFINITIONS", "ModelDefinition"],
+    "linear": ["STATE_NAMES", "StateSpace", "generated", "state_space"],
+})

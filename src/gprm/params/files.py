@@ -61,6 +61,21 @@ def from_si(value: float, name: str) -> float:
     return value / base
 
 
+def si_unit_strings(names) -> list[str]:
+    """The SI unit of each named parameter as a UDUNITS-readable string (``1`` when
+    dimensionless, ``unknown`` for a name not in the registry); used where files store
+    parameter vectors, whose units vary along the parameter dimension."""
+    u = ureg()
+    out = []
+    for n in names:
+        if n not in REGISTRY:
+            out.append("unknown")
+            continue
+        q = u.Quantity(1.0, REGISTRY[n].unit).to_base_units()
+        out.append(f"{q.units:~}".replace(" ", "") or "1")
+    return out
+
+
 def load_params(path: str | os.PathLike | None = None, *, base: ParameterSet | None = None) -> ParameterSet:
     """Resolve a parameter file on top of ``base`` (default: the ``paper`` set)."""
     base = paper() if base is None else base

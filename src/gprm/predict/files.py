@@ -108,10 +108,39 @@ def prediction_dataset(pred: Prediction) -> xr.Dataset:
         "energy_window_s": json.dumps(list(en.window)),
         "energy_formula": "E_5: docs/prediction.md",
         "means_source": pred.means_source or "",
-        "parameters_json": json.dumps(dict(pred.fm.params.values)),
-        "fitted_json": json.dumps(list(pred.fm.names)),
     }
     if pred.risk is not None:
         ds.attrs["impact_risk_json"] = json.dumps(pred.risk.to_json())
-    ds.attrs["masses_json"] = json.dumps(pred.masses)
+    # the parameter set used, as variables (the masses table is the mass_* variables above)
+    return ds.merge(parameters_dataset(dict(pred.fm.params.values), pred.fm.names))
+
+
+def parameters_dataset(values: dict, fitted) -> xr.Dataset:
+    """A parameter set as variables along ``parameter``: ``parameter_value`` (SI, units in
+    the coordinate ``parameter_units``) and ``parameter_fitted`` (1 if fitted)."""
+    from gprm.params.files import si_unit_strings
+
+    names = list(values)
+    ds = xr.Dataset(
+        {"parameter_value": ("parameter", np.array([values[n] for n in names], float),
+                             {"long_name": "parameter value (SI)",
+                              "comment": "units vary along parameter: see parameter_units"}),
+         "parameter_fitted": ("parameter", np.array([n in set(fitted) for n in names],
+                                                    np.int8),
+                              {"long_name": "1 if the parameter was fitted", "units": "1"})},
+        coords={"parameter": ("parameter", names),
+                "parameter_units": ("parameter", si_unit_strings(names),
+                                    {"long_name": "SI unit of each parameter"})})
     return ds
+
+
+def read_parameters(ds) -> tuple[dict, list]:
+    """``(values, fitted names)`` of a prediction file; older files stored them as the JSON
+    attributes ``parameters_json``, ``fitted_json``."""
+    if "parameter_value" in ds:
+        names = [str(n) for n in ds["parameter"].values]
+        vals = {n: float(v) for n, v in zip(names, ds["parameter_value"].values)}
+        fitted = [n for n, f in zip(names, ds["parameter_fitted"].values) if f]
+        return vals, fitted
+    return (json.loads(ds.attrs.get("parameters_json", "{}")),
+            json.loads(ds.attrs.get("fitted_json", "[]")))

@@ -27,6 +27,7 @@ import numpy as np
 from gprm._io import open_netcdf, read_json, write_text_atomic
 from gprm.errors import GprmInputError
 from gprm.fit.uncertainty import COVERAGE_HEADLINE
+from gprm.fit.report_text import pretty_unit
 from gprm.report import figures as F
 from gprm.report.html import (Card, Section, fig_to_img, not_run, num, paragraph, pm, render,
                               table)
@@ -69,7 +70,9 @@ def _not_run(s: Section, what: str, why: str) -> Section:
 # ----------------------------------------------------------------------------- campaign
 
 def _table1(means) -> list:
-    stored = json_attr(means.attrs, "table1_json", {})
+    from gprm.campaign.preprocess import read_tables
+
+    stored = read_tables(means)[0]
     sig = [str(s) for s in means["signal"].values]
     rows = []
     for key, paper_v in _PAPER_T1.items():
@@ -99,12 +102,16 @@ def campaign_section(run: Path) -> Section:
            f"alignment (each signal's 2σ crossing at {align * 1e3:g} ms; the retraction "
            "command is at 1 ms, Section 2), with the across-run standard deviation σ(t).")
     if n_runs is not None:
-        txt += f" Runs averaged per position: {int(np.min(n_runs))}–{int(np.max(n_runs))}."
+        lo, hi = int(np.min(n_runs)), int(np.max(n_runs))
+        txt += (f" Runs averaged per position: {lo}." if lo == hi else
+                f" Runs averaged per position: {lo} to {hi}.")
     if camp is not None and "seed" in camp.attrs:
         txt += f" Synthetic campaign, seed {camp.attrs['seed']}."
     s.blocks.append(paragraph(txt))
     s.blocks.append(fig_to_img(F.fig_mean_signals(means),
-                               "Campaign mean signals: x_base with ±σ(t) (a) and the "
+                               "Campaign mean signals from 0.9 ms (the retraction "
+                               "command is at 1 ms): x_base with ±σ(t), σ(t) itself on the "
+                               "right axis in nm, about a thousandth of the signal (a); the "
                                "synchronised mean signals of the x (b), y (c) and z (d) "
                                "positions (cf. Fig. 3)", "fig-campaign"))
     rows = _table1(means)
@@ -112,8 +119,17 @@ def campaign_section(run: Path) -> Section:
         s.blocks.append(table(["ratio", "this campaign", "paper"], rows,
                               "Table 1: ratios of the maxima of the mean signals", "table-1",
                               note="Dimensionless. The fit uses x_base, x_head, y_base, "
-                                   "y_head and z_bk; the others serve the hypotheses of Sec. 2."))
-    dropped = json_attr(means.attrs, "dropped_json")
+                                   "y_head and z_bk; the others serve the hypotheses of Sec. 2. "
+                                   "Why the ratios are not the paper's: a synthetic campaign's "
+                                   "flange and linear-runner motions come from supports tuned "
+                                   "once so that the noise-free ratios are near the paper's; "
+                                   "the ratios here are of the noisy, synchronised means and "
+                                   "move by a few per cent with the seed and the drawn truth "
+                                   "(a small y motion divided by a small one moves most). On "
+                                   "measured data they are the campaign's own."))
+    from gprm.campaign.preprocess import read_tables
+
+    dropped = read_tables(means)[1]
     if dropped:
         rows = []
         entries = dropped.items() if isinstance(dropped, dict) else \
@@ -156,7 +172,7 @@ def table3_rows(fit: dict, truth: dict | None) -> list:
         iv = p.get("interval") or {}
         lo, hi = iv.get("lower"), iv.get("upper")
         ident = p.get("identified")
-        row = [name, spec.unit.replace("us", "µs"), num(p["value"] * unit_scale),
+        row = [name, pretty_unit(spec.unit.replace("us", "µs")), num(p["value"] * unit_scale),
                "—" if lo is None or hi is None else
                f"[{num(lo * unit_scale)}, {num(hi * unit_scale)}]",
                "—" if ident is None else ("yes" if ident else "not determined")]
@@ -382,7 +398,9 @@ def flight_section(run: Path) -> Section:
         "Tukey's range test asks whether the six axes' impact times share one mean (Eq. 9); "
         "the joint estimate combines the axes into one impact time per release (weighted "
         "least squares with the model's covariance between the axes), and its χ² is a second "
-        "consistency check."
+        "consistency check. The two v_z axes are one measurement read through two planes: "
+        "the measured v_z is compared with the x–z plane's curve (vz_xz) and with the y–z "
+        "plane's (vz_yz), each the test mass's full v_z (docs/flight.md, Section 2)."
         + ("" if not imp.get("missing") else
            " Missing impact times, each with its reason: " + "; ".join(
                f"{m.get('release')} {m.get('axis')}: {m.get('reason')}"
@@ -437,6 +455,25 @@ def flight_section(run: Path) -> Section:
 
 # ----------------------------------------------------------------------------- provenance
 
+def git_commit(where: Path | None = None) -> str:
+    """The commit of the gprm source that builds the report (``+dirty`` with uncommitted
+    changes), or why there is none (an installed wheel has no git checkout)."""
+    import subprocess
+
+    where = Path(__file__).parent if where is None else where
+    try:
+        rev = subprocess.run(["git", "-C", str(where), "rev-parse", "HEAD"], capture_output=True,
+                             text=True, timeout=10)
+        if rev.returncode != 0:
+            return "not a git checkout"
+        dirty = subprocess.run(["git", "-C", str(where), "status", "--porcelain",
+                                "--untracked-files=no"], capture_output=True, text=True,
+                               timeout=10).stdout.strip()
+    except (OSError, subprocess.SubprocessError):
+        return "git not available"
+    return rev.stdout.strip() + ("+dirty" if dirty else "")
+
+
 def provenance_section(run: Path, prov: dict) -> Section:
     """``prov``: the run record (run.json; empty where there is none)."""
     s = Section("Provenance", "provenance")
@@ -451,15 +488,21 @@ def provenance_section(run: Path, prov: dict) -> Section:
             rows.append((f"option {k}", v))
     for k, v in (prov.get("versions") or {}).items():
         rows.append((f"version {k}", v))
+    if prov.get("git"):
+        rows.append(("git commit (run)", prov["git"]))
+    rows.append(("git commit (report)", git_commit()))
     files = sorted(f.name for f in run.iterdir() if f.is_file() and not f.name.startswith("."))
     rows.append(("files", ", ".join(files)))
+    notes: dict[str, list[str]] = {}          # one row per distinct note, naming its stages
     for name, rec in (prov.get("stages") or {}).items():
         for fname, sha in (rec.get("inputs") or {}).items():
             rows.append((f"{name} input {fname}", f"sha256 {sha[:16]}…"))
         for note in (rec.get("info") or {}).get("notes", []):
-            rows.append((f"{name} note", note))
+            notes.setdefault(str(note), []).append(name)
         if rec.get("status") in ("not available", "blocked", "failed"):
             rows.append((f"{name} status", f"{rec['status']}: {rec.get('detail', '')}"))
+    for note, stages in notes.items():
+        rows.append((f"note ({', '.join(stages)})", note))
     s.blocks.append(table(["item", "value"], rows, "Inputs, seed, versions",
                           "table-provenance"))
     tim = prov.get("stages") or {}

@@ -100,6 +100,9 @@ def fig_masses(fit: dict, truth: dict | None = None):
         p = fit["parameters"][n]
         spec = REGISTRY[n]
         cols = [("fit", p["value"], p.get("stderr"), "o", COLORS["model"])]
+        init = p.get("initial", spec.initial)
+        if init is not None:
+            cols.append(("initial", init, None, "^", "#9467bd"))
         cols.append(("paper", spec.default, spec.paper_stderr, "D", "#7f7f7f"))
         if spec.nominal is not None:
             cols.append(("CAD", spec.nominal, None, "s", COLORS["nominal"]))
@@ -129,8 +132,15 @@ def fig_mean_signals(means):
     ax.fill_between(t, m - sd, m + sd, color=_color(s0), alpha=0.25, lw=0, label="±σ(t)")
     ax.plot(t, m, color=_color(s0), lw=1, label=f"mean {s0}")
     ax.set_title(f"(a) {s0} with σ(t)")
-    ax.set_xlim(0.9, t[-1])                       # the motion; σ(t) is visible here
-    ax.legend()
+    # sigma is ~1e-3 of the signal: a band around the mean cannot show it, so it also gets
+    # its own axis (right, nm)
+    ax2 = ax.twinx()
+    ax2.plot(t, sd * 1e3, color="#444444", lw=0.9, ls="--", label="σ(t) (right axis)")
+    ax2.set_ylabel("σ(t) [nm]")
+    ax2.set_ylim(0, max(float(np.nanmax(sd * 1e3)) * 1.15, 1e-9))
+    h1, l1 = ax.get_legend_handles_labels()
+    h2, l2 = ax2.get_legend_handles_labels()
+    ax.legend(h1 + h2, l1 + l2, fontsize=8)
     for ax, (axis, title) in zip([axes[0, 1], axes[1, 0], axes[1, 1]],
                                  [("x", "(b) x signals"), ("y", "(c) y signals"),
                                   ("z", "(d) z signals")]):
@@ -141,6 +151,7 @@ def fig_mean_signals(means):
         ax.set_title(title)
         ax.legend(ncol=2)
     for ax in axes.ravel():
+        ax.set_xlim(0.9, t[-1])       # from just before the retraction command (1 ms) on
         ax.set_xlabel("time [ms]")
         ax.set_ylabel("displacement [µm]")
     fig.suptitle("Campaign mean signals (cf. Fig. 3)")

@@ -91,6 +91,10 @@ def pm(value, err, scale: float = 1.0) -> str:
     if err is None or not math.isfinite(err) or err <= 0:
         return num(v)
     e = err * scale
+    if e >= abs(v):
+        # the error exceeds the value (not determined, or a parameter at zero): rounding the
+        # value to the error's digits would print it as 0; give both their own digits
+        return f"{num(v, 3)} ± {num(e, 2)}"
     big = max(abs(v), e)
     p = int(math.floor(math.log10(big))) if big > 0 else 0
     shift = p if (p >= 5 or p < -3) else 0

@@ -1,9 +1,10 @@
 """Simulation: input profiles and measured traces, the exact batched solver with
 sensitivities, and reference integrators for checks."""
 
-from gprm.simulate.core import (COORDS, OUTPUTS, RATES, Observation, SimulationResult,
-                                observe, record_times, simulate)
-from gprm.simulate.inputs import VoltageTrace, default_voltage, read_voltage_csv
+from gprm._lazy import attach
 
-__all__ = ["COORDS", "OUTPUTS", "RATES", "Observation", "SimulationResult", "VoltageTrace",
-           "default_voltage", "observe", "read_voltage_csv", "record_times", "simulate"]
+__getattr__, __dir__, __all__ = attach(__name__, {
+    "core": ["COORDS", "OUTPUTS", "RATES", "Observation", "SimulationResult", "observe",
+             "record_times", "simulate"],
+    "inputs": ["VoltageTrace", "default_voltage", "read_voltage_csv"],
+})

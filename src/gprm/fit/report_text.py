@@ -1,0 +1,179 @@
+"""The text fit report (lmfit-like) built from a saved fit's JSON dictionary.
+
+One builder serves ``gprm fit`` (from ``FitResult.to_json_dict()``) and ``gprm show FIT.json``
+(from the file), so both print the same text. Fields added in later format versions
+(``initial``, ``at_bound``, ``identified``, ``interval``, ``uncertainty``) are shown when
+present; older files print without them.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+from pathlib import Path
+
+from gprm.errors import GprmInputError
+
+DEFAULT_MIN_CORREL = 0.9
+
+
+def _finite(x) -> bool:
+    return isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x)
+
+
+def _scale(name: str, p: dict) -> tuple[float, str]:
+    """Factor SI -> display unit, and the display unit (SI when the file gives none)."""
+    v, dv = p.get("value"), p.get("display_value")
+    du = p.get("display_unit")
+    if du and _finite(v) and _finite(dv) and v != 0:
+        return dv / v, du
+    if du:
+        try:
+            from gprm.params import REGISTRY
+            from gprm.params.files import from_si
+
+            if name in REGISTRY and REGISTRY[name].unit == du:
+                return from_si(1.0, name), du
+        except Exception:  # pragma: no cover - degrade to SI
+            pass
+    return 1.0, p.get("unit") or ""
+
+
+def pretty_unit(unit: str) -> str:
+    """A unit as people write it: ``N*s/m`` -> ``N·s/m`` (pint's ``*`` is for parsing)."""
+    return unit.replace("*", "·")
+
+
+def _g(x, fmt: str = ".6g") -> str:
+    return format(x, fmt) if _finite(x) else "-"
+
+
+def correlations_above(corr: dict | None, min_correl: float = DEFAULT_MIN_CORREL):
+    """Pairs (a, b, r) with |r| >= min_correl, strongest first (each pair once)."""
+    if not corr or corr.get("matrix") is None:
+        return []
+    names, m = corr["names"], corr["matrix"]
+    out = []
+    for i in range(len(names)):
+        for j in range(i + 1, len(names)):
+            r = m[i][j]
+            if _finite(r) and abs(r) >= min_correl:
+                out.append((names[i], names[j], float(r)))
+    return sorted(out, key=lambda t: -abs(t[2]))
+
+
+def fit_report(d: dict, *, min_correl: float = DEFAULT_MIN_CORREL) -> str:
+    """lmfit-style report of a fit dictionary (the content of fit.json)."""
+    lines = [f"[[Fit]] model {d.get('model', '?')}, piezo {d.get('piezo', '?')}, "
+             f"sigma={d.get('sigma', '?')}"]
+    st = d.get("starts") or {}
+    if st:
+        lines.append(f"    starts: {st.get('requested', '?')}, converged "
+                     f"{st.get('converged', '?')}, pruned {st.get('pruned', '?')}, failed "
+                     f"{st.get('failed', '?')}, at best (dchi2<=1) {st.get('n_at_best', '?')}")
+    if _finite(d.get("chi2")):
+        lines.append(f"    chi-square {d['chi2']:.6g}, dof {d.get('dof', '?')}, reduced "
+                     f"{_g(d.get('reduced_chi2'), '.4g')}")
+    if d.get("window"):
+        w = d["window"]
+        lines.append(f"    window {w[0] * 1e3:.4g} .. {w[1] * 1e3:.4g} ms")
+    unc = d.get("uncertainty")
+    if isinstance(unc, dict) and unc.get("method"):
+        lines.append(f"    uncertainty: {unc['method']}"
+                     + (f" ({unc['note']})" if unc.get("note") else ""))
+    lines.append("[[Parameters]]  (value +/- stderr (relative), initial; "
+                 "* at a bound; ? not identified)")
+    params = d.get("parameters") or {}
+    legacy_bounds = set(d.get("parameters_at_bounds") or [])
+    level = None
+    for name, p in params.items():
+        if not p.get("fitted", False):
+            continue
+        k, unit = _scale(name, p)
+        v, e = p.get("value"), p.get("stderr")
+        vs = v * k if _finite(v) else None
+        row = f"    {name:>8} = {_g(vs, '12.6g'):>12}"
+        if _finite(e):
+            rel = abs(e / v) * 100 if _finite(v) and v != 0 else None
+            row += f" +/- {_g(e * k, '.3g'):<9} ({_g(rel, '.2f')}%)" if rel is not None \
+                else f" +/- {_g(e * k, '.3g'):<9}"
+        else:
+            row += " +/- n/a      "
+        row += f" {pretty_unit(unit)}"
+        if _finite(p.get("initial")):
+            row += f"  (init = {p['initial'] * k:.6g})"
+        at = p.get("at_bound") if "at_bound" in p else ("bound" if name in legacy_bounds
+                                                       else None)
+        if at:
+            row += f"  * at {at} bound" if at in ("lower", "upper") else "  * at a bound"
+        if p.get("identified") is False:
+            row += "  ? not identified"
+        iv = p.get("interval")
+        if isinstance(iv, dict) and ("lower" in iv or "upper" in iv):
+            level = iv.get("level", level)
+            lo, hi = iv.get("lower"), iv.get("upper")
+            row += (f"  [{_g(lo * k) if _finite(lo) else '-inf'}, "
+                    f"{_g(hi * k) if _finite(hi) else '+inf'}]")
+        lines.append(row)
+    if level is not None:
+        lines.append(f"    [..]: {level * 100:g} % interval; an infinite end: not bounded "
+                     "by the data on that side")
+    fixed = [n for n, p in params.items() if not p.get("fitted", False)]
+    if fixed:
+        lines.append(f"    fixed: {len(fixed)} parameters ({', '.join(fixed)})")
+    corr = d.get("correlation")
+    if not corr or corr.get("matrix") is None:
+        msg = d.get("covariance_message") or "not available"
+        lines.append(f"    (no covariance: {msg})")
+    else:
+        pairs = correlations_above(corr, min_correl)
+        lines.append(f"[[Correlations]] (|C| >= {min_correl:g})")
+        if pairs:
+            lines += [f"    C({a}, {b}) = {r:+.4f}" for a, b, r in pairs]
+        else:
+            lines.append("    none")
+    return "\n".join(lines)
+
+
+def read_fit_json(path: str | os.PathLike) -> dict:
+    """Read a fit.json with clear errors (the file is not modified)."""
+    path = Path(path)
+    if not path.is_file():
+        raise GprmInputError("no such file", source=str(path))
+    try:
+        d = json.loads(path.read_text(encoding="utf-8"))
+    except (UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise GprmInputError(f"not a JSON file ({exc})", source=str(path)) from None
+    if not isinstance(d, dict) or not isinstance(d.get("parameters"), dict):
+        raise GprmInputError("not a gprm fit file (no 'parameters' table)", source=str(path),
+                             field="parameters")
+    return d
+
+
+class starts_progress:
+    """Context manager: a rich bar over the starts of a multi-start fit, with the best
+    chi-square so far and the time remaining; yields the callback for ``run_multistart``."""
+
+    def __init__(self, console, n_starts: int, description: str = "fit"):
+        from rich.progress import (BarColumn, MofNCompleteColumn, Progress, TextColumn,
+                                   TimeElapsedColumn, TimeRemainingColumn)
+
+        self.bar = Progress(TextColumn(description), BarColumn(), MofNCompleteColumn(),
+                            TextColumn("starts"), TextColumn("{task.fields[best]}"),
+                            TimeElapsedColumn(), TextColumn("eta"), TimeRemainingColumn(),
+                            console=console, transient=True)
+        self.n_starts = int(n_starts)
+
+    def __enter__(self):
+        self.bar.__enter__()
+        task = self.bar.add_task("fit", total=self.n_starts, best="best chi2 -")
+
+        def progress(done, total, best_chi2=float("nan")):
+            best = f"best chi2 {best_chi2:.6g}" if math.isfinite(best_chi2) else "best chi2 -"
+            self.bar.update(task, completed=done, total=total, best=best)
+
+        return progress
+
+    def __exit__(self, *exc):
+        return self.bar.__exit__(*exc)

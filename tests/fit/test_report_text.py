@@ -1,0 +1,145 @@
+"""The text fit report (``gprm show`` and the end of ``gprm fit``) and the starts progress."""
+
+from __future__ import annotations
+
+import json
+import math
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+from typer.testing import CliRunner
+
+from gprm.cli import app
+from gprm.fit.report_text import correlations_above, fit_report
+from gprm.params import paper
+
+sys.path.insert(0, str(Path(__file__).parent))
+from means_factory import make_means  # noqa: E402
+
+
+def _new_format() -> dict:
+    """A fit dictionary with the fields of the newer format (issue #12)."""
+    return {
+        "model": "m", "piezo": 2, "sigma": "sem", "chi2": 12.5, "dof": 10, "reduced_chi2": 1.25,
+        "window": [0.97e-3, 1.2e-3],
+        "uncertainty": {"method": "covariance", "note": "J^T W J"},
+        "starts": {"requested": 60, "converged": 50, "pruned": 8, "failed": 2, "n_at_best": 7},
+        "parameters": {
+            "v2": {"value": 2.0e-3, "stderr": 1.0e-4, "unit": "m", "display_unit": "mm",
+                   "display_value": 2.0, "fitted": True, "initial": 2.5e-3, "at_bound": None,
+                   "identified": True,
+                   "interval": {"level": 0.95, "lower": 1.8e-3, "upper": 2.2e-3}},
+            "g2": {"value": -4.0e-4, "stderr": None, "unit": "m", "display_unit": "mm",
+                   "display_value": -0.4, "fitted": True, "initial": -3.0e-4,
+                   "at_bound": "upper", "identified": False,
+                   "interval": {"level": 0.95, "lower": -6e-4, "upper": None}},
+            "kz": {"value": 3.0, "stderr": 0.3, "unit": "N/m", "fitted": True},
+            "m": {"value": 1.0, "stderr": None, "unit": "kg", "fitted": False},
+        },
+        "correlation": {"names": ["v2", "g2", "kz"],
+                        "matrix": [[1, -0.95, 0.2], [-0.95, 1, 0.91], [0.2, 0.91, 1]]},
+    }
+
+
+def _row(text: str, name: str) -> str:
+    return next(ln for ln in text.splitlines() if ln.strip().startswith(f"{name} ="))
+
+
+def test_report_rows_show_value_error_relative_initial_bound_identified_interval():
+    text = fit_report(_new_format())
+    v2 = _row(text, "v2")
+    assert "2 +/- 0.1" in v2 and "(5.00%)" in v2 and "mm" in v2      # display units, 0.1/2
+    assert "init = 2.5" in v2 and "[1.8, 2.2]" in v2 and "bound" not in v2
+    g2 = _row(text, "g2")
+    assert "n/a" in g2 and "* at upper bound" in g2 and "not identified" in g2
+    assert "[-0.6, +inf]" in g2 and "init = -0.3" in g2
+    kz = _row(text, "kz")                     # no display unit: SI, (0.3/3 = 10 %)
+    assert "N/m" in kz and "(10.00%)" in kz and "init" not in kz
+    assert "m =" not in text.split("[[Parameters]]")[1].split("fixed")[0]   # fixed: not a row
+    assert "fixed: 1 parameters (m)" in text
+    assert "uncertainty: covariance (J^T W J)" in text and "95 % interval" in text
+
+
+def test_correlations_above_threshold_strongest_first_each_pair_once():
+    corr = _new_format()["correlation"]
+    assert correlations_above(corr, 0.9) == [("v2", "g2", -0.95), ("g2", "kz", 0.91)]
+    assert correlations_above(corr, 0.93) == [("v2", "g2", -0.95)]
+    assert len(correlations_above(corr, 0.0)) == 3
+    text = fit_report(_new_format(), min_correl=0.93)
+    assert "C(v2, g2) = -0.9500" in text and "C(g2, kz)" not in text
+
+
+def test_report_of_an_old_file_degrades_gracefully():
+    """Files without the newer fields (and without covariance) still print."""
+    d = _new_format()
+    for p in d["parameters"].values():
+        for k in ("initial", "at_bound", "identified", "interval"):
+            p.pop(k, None)
+    d.pop("uncertainty")
+    d["parameters_at_bounds"] = ["kz"]
+    d["correlation"] = {"names": ["v2", "g2", "kz"], "matrix": None}
+    d["covariance_message"] = "singular"
+    text = fit_report(d)
+    rows = [_row(text, n) for n in ("v2", "g2", "kz")]
+    assert not any("init" in r or "identified" in r or "[" in r for r in rows)
+    assert "* at a bound" in _row(text, "kz")
+    assert "(no covariance: singular)" in text and "[[Correlations]]" not in text
+
+
+@pytest.fixture(scope="module")
+def fitted(tmp_path_factory):
+    d = tmp_path_factory.mktemp("show")
+    means = d / "means.nc"
+    make_means(paper(), seed=4).to_netcdf(means)
+    out = d / "fit.json"
+    r = CliRunner().invoke(app, ["fit", str(means), "--out", str(out), "--starts", "4",
+                                 "--chunk", "2", "--max-iter", "8", "--band-samples", "0",
+                                 "--seed", "3", "--workers", "0"])
+    assert r.exit_code == 0, r.output
+    return out, r.output
+
+
+def test_gprm_fit_ends_with_the_text_gprm_show_prints(fitted):
+    out, fit_output = fitted
+    before = out.read_bytes()
+    r = CliRunner().invoke(app, ["show", str(out)])
+    assert r.exit_code == 0, r.output
+    assert r.output.strip() in fit_output
+    assert "[[Parameters]]" in r.output and "starts: 4" in r.output
+    d = json.loads(before)
+    assert sum(1 for p in d["parameters"].values() if p["fitted"]) == \
+        sum(1 for ln in r.output.splitlines() if " = " in ln and "+/-" in ln)
+    assert out.read_bytes() == before                      # input not modified
+
+
+@pytest.mark.parametrize("content, text", [
+    (None, "no such file"), ("{not json", "not a JSON file"),
+    ('{"chi2": 1}', "field 'parameters'")])
+def test_gprm_show_bad_files(tmp_path, content, text):
+    f = tmp_path / "f.json"
+    if content is not None:
+        f.write_text(content)
+    r = CliRunner().invoke(app, ["show", str(f)])
+    assert r.exit_code == 2 and text in r.output and "Traceback" not in r.output
+
+
+def test_progress_counts_starts_and_reports_best_chi2():
+    """run_multistart reports starts (not chunks) and the running minimum of chi-square."""
+    from gprm.fit.multistart import LMOptions, MultiStartOptions, run_multistart
+    from gprm.fit.objective import Objective, fit_data_from_means
+
+    data = fit_data_from_means(make_means(paper(), seed=4))
+    obj = Objective.create(data, paper(), piezo=2)
+    opts = MultiStartOptions(n_starts=5, seed=1, chunk_size=2, lm=LMOptions(max_iter=3))
+    calls, plain = [], []
+    out = run_multistart(obj, opts, progress=lambda d, t, best_chi2: calls.append((d, t,
+                                                                                   best_chi2)))
+    run_multistart(obj, opts, progress=lambda d, t: plain.append((d, t)))
+    assert [c[:2] for c in calls] == [(0, 5), (2, 5), (4, 5), (5, 5)] == plain
+    assert math.isnan(calls[0][2])
+    bests = [c[2] for c in calls[1:]]
+    assert bests == sorted(bests, reverse=True)            # a running minimum
+    assert bests[-1] == pytest.approx(np.nanmin(out.chi2))
+    assert bests[0] == pytest.approx(np.nanmin(out.chi2[:2]))

@@ -165,6 +165,9 @@ CASES = [
     ("report-out-folder", ["report", "folder", "--out", "folder"], "--out", None),
     ("report-over-run-file", ["report", ".", "--out", "m.nc"], "would overwrite the input",
      None),
+    ("show-binary", ["show", "bad.toml"], "bad.toml", None),
+    ("show-folder", ["show", "folder"], "folder", None),
+    ("show-min-correl", ["show", "bad.toml", "--min-correl", "2"], "--min-correl", None),
     ("unknown-option", ["fit", "m.nc", "--out", "f.json", "--bogus"], "--bogus", None),
     ("missing-option", ["simulate"], "--out", None),
 ]

@@ -4,6 +4,8 @@ gap. See docs/prediction.md. Modules: ``kinematics`` (stable body-kinematics API
 ``trajectories``, ``energy``, ``masses``, ``scenarios``, ``whatif``, ``risk``, ``core``
 (``predict``), ``files`` (NetCDF), ``plots``, ``commands`` (CLI)."""
 
-from gprm.predict.api import PredictOptions, run_predict, run_whatif
+from gprm._lazy import attach
 
-__all__ = ["PredictOptions", "run_predict", "run_whatif"]
+__getattr__, __dir__, __all__ = attach(__name__, {
+    "api": ["PredictOptions", "run_predict", "run_whatif"],
+})

@@ -10,7 +10,6 @@ from typing import Optional
 
 import typer
 
-from gprm.run.stages import NO_UNCERTAINTY
 
 
 def register(app: typer.Typer, synth_app: typer.Typer) -> None:
@@ -151,6 +150,8 @@ def print_summary(console, res, titles: dict[str, str], name: str = "gprm run") 
                   _f(r.seconds, "{:.1f}") if r.status == "ran" else "—")
     t.add_row("[bold]total", "", f"{res.total_seconds:.1f}")
     console.print(t)
+
+    from gprm.run.stages import NO_UNCERTAINTY
 
     s = res.summary
     k = Table(title="Results", title_justify="left", show_header=False)

@@ -193,8 +193,8 @@ def test_interrupted_run_resumes_and_reruns_only_what_changed(runs):
                                                           "does not exist"),
     (["run", "{campaign}", "--telemetry", "nope.nc", "--out", "{tmp}/x"],
      "nope.nc: telemetry NetCDF does not exist"),
-    (["run", "{campaign}", "--starts", "0", "--out", "{tmp}/x"], "--starts:"),
-    (["run", "{campaign}", "--releases", "1", "--out", "{tmp}/x"], "--releases:"),
+    (["run", "{campaign}", "--starts", "0", "--out", "{tmp}/x"], "'--starts': must be >= 1"),
+    (["run", "{campaign}", "--releases", "1", "--out", "{tmp}/x"], "'--releases': must be >= 2"),
 ])
 def test_bad_input_is_one_line(runs, tmp_path, args, text):
     _, a, _, _ = runs

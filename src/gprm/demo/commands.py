@@ -10,6 +10,7 @@ import typer
 
 def register(app: typer.Typer, synth_app: typer.Typer) -> None:
     from gprm.cli import one_line_errors
+    from gprm.options import Int
 
     @app.command("demo")
     @one_line_errors
@@ -18,10 +19,10 @@ def register(app: typer.Typer, synth_app: typer.Typer) -> None:
                                  "rerun resumes what is up to date)"),
         quick: bool = typer.Option(False, "--quick", help="a small run: 50 starts, fewer "
                                    "band samples (about a minute)"),
-        seed: int = typer.Option(0, "--seed", help="seed of the synthetic data and the starts"),
-        starts: Optional[int] = typer.Option(None, "--starts", help="random starts of the fit "
+        seed: int = typer.Option(0, "--seed", parser=Int(min=0), help="seed of the synthetic data and the starts"),
+        starts: Optional[int] = typer.Option(None, "--starts", parser=Int(min=1), help="random starts of the fit "
                                              "(default 1000, or 50 with --quick)"),
-        workers: Optional[int] = typer.Option(None, "--workers", help="local Dask worker "
+        workers: Optional[int] = typer.Option(None, "--workers", parser=Int(min=0), help="local Dask worker "
                                               "processes for the fit (default: one per core, "
                                               "or 0 with --quick; 0: in this process; the "
                                               "result does not depend on it)"),

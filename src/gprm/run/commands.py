@@ -14,6 +14,7 @@ import typer
 
 def register(app: typer.Typer, synth_app: typer.Typer) -> None:
     from gprm.cli import one_line_errors
+    from gprm.options import Int
 
     @app.command("run")
     @one_line_errors
@@ -26,15 +27,15 @@ def register(app: typer.Typer, synth_app: typer.Typer) -> None:
                                                  "telemetry NetCDF (default: synthetic "
                                                  "releases drawn from the fit)"),
         quick: bool = typer.Option(False, "--quick", help="50 starts, fewer band samples"),
-        seed: int = typer.Option(0, "--seed", help="seed of the starts, the sampled bands "
+        seed: int = typer.Option(0, "--seed", parser=Int(min=0), help="seed of the starts, the sampled bands "
                                  "and synthetic telemetry"),
-        starts: Optional[int] = typer.Option(None, "--starts", help="random starts of the fit "
+        starts: Optional[int] = typer.Option(None, "--starts", parser=Int(min=1), help="random starts of the fit "
                                              "(default 1000, or 50 with --quick)"),
-        workers: Optional[int] = typer.Option(None, "--workers", help="local Dask worker "
+        workers: Optional[int] = typer.Option(None, "--workers", parser=Int(min=0), help="local Dask worker "
                                               "processes for the fit (default: one per core, "
                                               "or 0 with --quick; 0: in this process; the "
                                               "result does not depend on it)"),
-        releases: int = typer.Option(11, "--releases", help="synthetic releases (without "
+        releases: int = typer.Option(11, "--releases", parser=Int(2, 10_000), help="synthetic releases (without "
                                      "--telemetry)"),
     ):
         """The whole chain on a campaign, resumable, ending in report.html.

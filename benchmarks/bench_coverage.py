@@ -9,7 +9,9 @@ method the fraction of 95 % and 68 % intervals that contain the truth:
   identified);
 - predictions: the overshoot (largest |displacement| over 0.95-1.2 ms) of the four points
   (CoM, M_xz, M_yz, tip edge) on three axes in the three scenarios of Sec. 4.2, for the
-  point-axes that move (truth overshoot above 1 % of the scenario's largest).
+  point-axes that move (truth overshoot above 1 % of the scenario's largest); the bins of the
+  kinetic-energy histogram (Fig. 8) the truth occupies; the velocity-vs-impact-time curves of
+  the six axes (Fig. 11, nominal geometry) at 21 times over t_c .. t_c + 0.2 ms.
 
 Methods: ``eq7`` and ``eq7-corr`` on the paper's unregularised fit; ``laplace-prior``,
 ``parametric-bootstrap``, ``bootstrap-runs`` and ``mcmc`` on the prior-regularised fit
@@ -78,6 +80,56 @@ def prediction_cover(fm: FittedModel, truth, times, n: int, seed: int) -> dict:
     return res
 
 
+def energy_cover(fm: FittedModel, truth, n: int, seed: int) -> dict:
+    """Per-bin coverage of the kinetic-energy histogram (time per energy bin of the total
+    kinetic energy over the energy window, Fig. 8) of the truth by the draws' bands; bins
+    where the truth spends time."""
+    from gprm.predict.energy import DEFAULT_WINDOW as ENERGY_WINDOW
+    from gprm.predict.energy import histogram, window_weights
+    from gprm.predict.kinematics import body_motion, kinetic_energy
+
+    t = np.linspace(0.95e-3, 1.25e-3, 301)
+    w = window_weights(t, ENERGY_WINDOW)
+    e_t = kinetic_energy(body_motion(batch([truth]), t, piezo=2))["total"]
+    m = body_motion(fm.sample(n, seed), t, piezo=2)
+    e_d = kinetic_energy(m)["total"][m.ok]
+    edges = np.linspace(0.0, 1.05 * max(e_t.max(), np.percentile(e_d.max(axis=1), 50)), 11)
+    h_t = histogram(e_t, w, edges)[0]
+    h_d = histogram(e_d, w, edges)
+    used = h_t > 0
+    lo95, hi95 = np.percentile(h_d, [2.5, 97.5], axis=0)
+    lo68, hi68 = np.percentile(h_d, [16, 84], axis=0)
+    return {"in95": int(np.sum(used & (lo95 <= h_t) & (h_t <= hi95))),
+            "in68": int(np.sum(used & (lo68 <= h_t) & (h_t <= hi68))), "n": int(used.sum())}
+
+
+def curve_cover(fm: FittedModel, truth, n: int, seed: int) -> dict:
+    """Coverage of the truth's velocity-vs-impact-time curves (the post-impact test-mass
+    velocity on the six axes if the impact happened at t, nominal geometry, Fig. 11) by the
+    draws' bands, at 21 times over t_c .. t_c + 0.2 ms where the truth's curve exists."""
+    from gprm.flight.predicted import tm_velocity_vs_time
+    from gprm.flight.telemetry import AXES
+    from gprm.predict.kinematics import body_motion
+
+    t = truth["t_c"] + np.linspace(0.0, 0.2e-3, 21)
+    v_t = tm_velocity_vs_time(body_motion(batch([truth]), t, piezo=2))
+    m = body_motion(fm.sample(n, seed), t, piezo=2)
+    v_d = tm_velocity_vs_time(m)
+    res = {"in95": 0, "in68": 0, "n": 0}
+    for a in AXES:
+        vt = v_t[a][0]
+        vd = v_d[a][m.ok]
+        ok = np.isfinite(vt) & (np.mean(np.isfinite(vd), axis=0) > 0.5)
+        if not ok.any():
+            continue
+        q = np.nanpercentile(vd[:, ok], [2.5, 97.5, 16, 84], axis=0)
+        x = vt[ok]
+        res["in95"] += int(np.sum((q[0] <= x) & (x <= q[1])))
+        res["in68"] += int(np.sum((q[2] <= x) & (x <= q[3])))
+        res["n"] += int(ok.sum())
+    return res
+
+
 def one_campaign(seed: int, starts: int, samples: int, n_boot: int, methods) -> dict:
     truth = draw_truth(seed)
     camp = synth_campaign(truth, seed=seed)
@@ -121,19 +173,25 @@ def one_campaign(seed: int, starts: int, samples: int, n_boot: int, methods) -> 
                        "identified": bool(u.identified[k])}
         fm = FittedModel(res.params, u.covariance, piezo=2, draws=u.draws,
                          uncertainty=method)
-        pred = prediction_cover(fm, truth, times, samples, seed) if fm.has_uncertainty else \
-            {"in95": 0, "in68": 0, "n": 0, "undefined": True}
-        out["methods"][method] = {"params": rows, "pred": pred, "message": u.message}
+        none = {"in95": 0, "in68": 0, "n": 0, "undefined": True}
+        ok = fm.has_uncertainty
+        out["methods"][method] = {
+            "params": rows, "message": u.message,
+            "pred": prediction_cover(fm, truth, times, samples, seed) if ok else none,
+            "energy": energy_cover(fm, truth, samples, seed) if ok else none,
+            "curves": curve_cover(fm, truth, samples, seed) if ok else none}
     return out
 
 
 def table(results: list[dict]) -> str:
     lines = ["| method | params 95 % (all 21) | params 68 % | identified / campaign | "
              "identified 95 % | identified 68 % | overshoots 95 % | overshoots 68 % | "
-             "undefined |",
-             "|---|---|---|---|---|---|---|---|---|"]
+             "KE histogram 95 % | KE histogram 68 % | velocity curves 95 % | "
+             "velocity curves 68 % | undefined |",
+             "|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for m in results[0]["methods"]:
         a95 = a68 = an = i95 = i68 = ni = p95 = p68 = pn = undef = 0
+        ek, ck = [0, 0, 0], [0, 0, 0]
         for r in results:
             mm = r["methods"][m]
             undef += not mm["message"].startswith("ok")
@@ -148,12 +206,18 @@ def table(results: list[dict]) -> str:
             p95 += mm["pred"]["in95"]
             p68 += mm["pred"]["in68"]
             pn += mm["pred"]["n"]
+            for key, acc in (("energy", ek), ("curves", ck)):
+                q = mm.get(key) or {}
+                acc[0] += q.get("in95", 0)
+                acc[1] += q.get("in68", 0)
+                acc[2] += q.get("n", 0)
 
         def f(a, b):
             return f"{a / b:.1%} ({a}/{b})" if b else "-"
         lines.append(f"| {m} | {f(a95, an)} | {f(a68, an)} | {ni / len(results):.1f} | "
                      f"{f(i95, ni)} | {f(i68, ni)} | {f(p95, pn)} | {f(p68, pn)} | "
-                     f"{undef}/{len(results)} |")
+                     f"{f(ek[0], ek[2])} | {f(ek[1], ek[2])} | {f(ck[0], ck[2])} | "
+                     f"{f(ck[1], ck[2])} | {undef}/{len(results)} |")
     return "\n".join(lines)
 
 

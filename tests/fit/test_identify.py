@@ -328,3 +328,42 @@ def test_sem_and_std_weights_give_the_same_fit_and_covariance(case):
     se = np.sqrt(np.diag(out["sem"][2]))
     assert np.max(np.abs(out["std"][1] - out["sem"][1]) / se) < 1e-3
     np.testing.assert_allclose(np.sqrt(np.diag(out["std"][2])), se, rtol=1e-3)
+
+
+def test_profile_of_a_predicted_quantity_matches_the_parameter_profile(case, best):
+    """A predicted quantity that is a parameter itself (g(x) = m2): its profile, computed
+    through the soft constraint, brackets the same 68 % and 95 % intervals as the parameter's
+    own profile; and a real prediction (the plunger CoM's x overshoot) gets a profile with its
+    minimum at the best fit."""
+    from gprm.fit.prior import default_prior
+    from gprm.fit.result import profile_likelihood, profile_prediction
+
+    truth, ds, data = case
+    u = best.uncertainty
+    prior = default_prior(paper(), best.names).with_weight(np.sqrt(u.s2))
+    obj = Objective.create(data, paper(), prior=prior)
+    k = obj.names.index("m2")
+    sd_u = u.contraction * prior.sd
+    par = profile_likelihood(obj, best.x, "m2", s2=u.s2, sd_u=sd_u[k])
+    pred = profile_prediction(obj, best.x, lambda X: X[:, k], "m2 as a prediction", s2=u.s2,
+                              sd=best.x[k] * sd_u[k])
+    assert pred.identifiable and par.identifiable
+    for a, b in ((pred.lower, par.lower), (pred.upper, par.upper),
+                 (pred.lower95, par.lower95), (pred.upper95, par.upper95)):
+        assert a == pytest.approx(b, rel=0.02 * (par.upper95 - par.lower95) / best.x[k])
+
+    from gprm.params import batch_from_vectors
+    from gprm.predict.trajectories import default_times, sampled_points
+
+    t = default_times(rate=2e5)
+
+    def overshoot_x(X):
+        pos, _, _ = sampled_points(batch_from_vectors(paper(), obj.names, X), t, ("com",),
+                                   piezo=2)
+        return np.max(np.abs(pos[:, 0, 0]), axis=-1)
+
+    prof = profile_prediction(obj, best.x, overshoot_x, "com x overshoot", s2=u.s2)
+    assert np.nanmin(prof.chi2) == 0.0
+    assert prof.grid[np.nanargmin(prof.chi2)] == pytest.approx(overshoot_x(best.x[None])[0],
+                                                              rel=1e-6)
+    assert prof.lower95 < overshoot_x(best.x[None])[0] < prof.upper95

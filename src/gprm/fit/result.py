@@ -440,6 +440,75 @@ def profile_likelihood(obj: Objective, x_best: np.ndarray, name: str, *, s2: flo
     return Profile(name, grid, dchi, lower, upper, lower95, upper95)
 
 
+class _Constrained:
+    """The objective with a soft constraint g(x) = c appended as one residual row
+    ``weight * (g(x) - c) / scale``; the target c of each row rides along as an extra,
+    never-moving coordinate (its Jacobian column is zero, as in :class:`_FixedOne`), so each
+    row keeps its own target whatever subset of rows the lock-step optimizer evaluates. The
+    row's gradient is a forward difference in the normalised coordinates."""
+
+    def __init__(self, obj: Objective, quantity, scale: float, weight: float):
+        self.obj, self.g, self.scale, self.weight = obj, quantity, scale, weight
+
+    def _row(self, X, c):
+        return self.weight * (self.g(self.obj.to_physical(X)) - c) / self.scale
+
+    def __call__(self, Xa):
+        X, c = Xa[:, :-1], Xa[:, -1]
+        r, J = self.obj(X)
+        B, P = X.shape
+        h = 1e-6 * np.maximum(np.abs(X), 1e-3)
+        Xh = np.repeat(X[:, None, :], P, axis=1)
+        Xh[:, np.arange(P), np.arange(P)] += h
+        gh = self._row(Xh.reshape(B * P, P), np.repeat(c, P)).reshape(B, P)
+        g0 = self._row(X, c)
+        Jg = (gh - g0[:, None]) / h
+        Ja = np.concatenate([J, Jg[:, None, :]], axis=1)
+        Ja = np.concatenate([Ja, np.zeros(Ja.shape[:2] + (1,))], axis=2)
+        return np.concatenate([r, g0[:, None]], axis=1), Ja
+
+    def residuals(self, Xa):
+        X, c = Xa[:, :-1], Xa[:, -1]
+        return np.concatenate([self.obj.residuals(X), self._row(X, c)[:, None]], axis=1)
+
+
+def profile_prediction(obj: Objective, x_best: np.ndarray, quantity, name: str, *,
+                       s2: float = 1.0, sd: float | None = None,
+                       lm: LMOptions = LMOptions(), weight: float = 30.0) -> Profile:
+    """Profile likelihood of a predicted quantity ``g = quantity(X)`` ((B, P) physical
+    parameter rows -> (B,)), e.g. an overshoot of a body point: at targets
+    g(x^) + (-3 .. 3) ``sd`` the objective is minimised with g held near the target by a soft
+    constraint (:class:`_Constrained`), and each minimum is recorded at the value g actually
+    takes there, so every point of the profile is exact whatever the constraint's slack.
+    Statistic, thresholds and intervals as in :func:`profile_likelihood` (the grid holds
+    values of g)."""
+    xn = obj.to_normalised(x_best)
+    g0 = float(quantity(x_best[None])[0])
+    h = float(sd) if sd is not None and np.isfinite(sd) and sd > 0 else 0.1 * max(abs(g0), 1e-30)
+    targets = g0 + h * np.array([-3.0, -2.0, -1.0, -0.5, 0.5, 1.0, 2.0, 3.0])
+    lo, hi = obj.bounds_normalised()
+    f = _Constrained(obj, quantity, h, weight)
+    Xa = np.column_stack([np.repeat(xn[None], targets.size, axis=0), targets])
+    kw = lm.as_kwargs()
+    kw.update(ftol_abs=min(kw["ftol_abs"], 1e-4), stall_window=0)
+    res = levenberg_marquardt_batch(f, Xa, residuals=f.residuals,
+                                    lower=np.append(lo, -np.inf), upper=np.append(hi, np.inf),
+                                    **kw)
+    X = res.x[:, :-1]
+    phi = obj.chi2(X)
+    g = quantity(obj.to_physical(X))
+    phi0 = float(obj.chi2(xn[None])[0])
+    grid = np.append(g, g0)
+    vals = np.append(phi, phi0)
+    keep = np.isfinite(grid) & np.isfinite(vals)
+    order = np.argsort(grid[keep])
+    grid, vals = grid[keep][order], vals[keep][order]
+    dchi = (vals - vals.min()) / s2
+    lower, upper = _crossings(grid, dchi, g0, 1.0)
+    lower95, upper95 = _crossings(grid, dchi, g0, 3.84)
+    return Profile(name, grid, dchi, lower, upper, lower95, upper95)
+
+
 def _crossings(grid, dchi, centre, level=1.0):
     lower = upper = np.nan
     left = np.nonzero((grid < centre) & (dchi >= level))[0]

@@ -23,11 +23,19 @@ import tempfile
 import traceback
 from pathlib import Path
 
-from typer import _click as click  # typer ships its own click; its errors are these
 import typer
-from typer._click.exceptions import NoArgsIsHelpError
+
+try:                                   # typer >= 0.2x ships its own click; its errors are these
+    from typer import _click as click
+    from typer._click.exceptions import NoArgsIsHelpError
+except ImportError:                    # older typer (the lower bound) uses the click package
+    import click
+    from click.exceptions import NoArgsIsHelpError
 from typer.core import TyperGroup
-from typer.exceptions import Abort
+try:
+    from typer.exceptions import Abort
+except ImportError:                    # older typer: click's
+    from click.exceptions import Abort
 
 from gprm.errors import GprmInputError
 

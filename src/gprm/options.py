@@ -37,6 +37,10 @@ class _Parser:
     def __call__(self, value):
         return self.convert(value, None, None)
 
+    @property
+    def __name__(self) -> str:          # older click wraps a parser by its function name
+        return self.name
+
     def __repr__(self):
         return f"{type(self).__name__}({vars(self)})"
 

@@ -149,8 +149,14 @@ def register(app: typer.Typer, synth_app: typer.Typer) -> None:
                     res = run_fit(ds, opts, params=base, workers=workers,
                                   scheduler=scheduler, checkpoint_dir=ckpt,
                                   progress=progress, source=str(means))
-            except Exception:
+            except GprmInputError as exc:
                 remove_checkpoints(ckpt, only_if_empty=True)   # refused: leave nothing behind
+                if exc.field in ("checkpoint", "scheduler"):   # name the option as typed
+                    raise GprmInputError(exc.problem, source=exc.source,
+                                         field="--" + exc.field) from None
+                raise
+            except Exception:
+                remove_checkpoints(ckpt, only_if_empty=True)
                 raise
         side = res.write(out)
         remove_checkpoints(ckpt)          # only what gprm wrote there, never other files

@@ -135,3 +135,22 @@ def test_killed_run_resumes_to_the_identical_result(means_file, tmp_path):
         d.pop("timings_s")
         d["data"].pop("source")
     assert a == b
+
+
+def test_checkpoints_of_another_run_are_refused_naming_the_option(means_file, tmp_path):
+    """A marked checkpoint folder whose chunks belong to other inputs or options: refused
+    during the run, with the option named as typed; nothing is added to the folder and
+    nothing but gprm's own bookkeeping files (no chunk was written) is removed."""
+    from gprm.fit.multistart import CHECKPOINT_MARKER
+
+    ck = tmp_path / "ck"
+    ck.mkdir()
+    (ck / CHECKPOINT_MARKER).write_text("gprm\n")
+    (ck / "fingerprint.txt").write_text("another run\n")
+    before = sorted(p.name for p in ck.iterdir())
+    r = CliRunner().invoke(app, ["fit", str(means_file), "--out", str(tmp_path / "f.json"),
+                                 "--starts", "3", "--workers", "0", "--checkpoint", str(ck)])
+    assert r.exit_code == 2, r.output
+    assert "--checkpoint" in r.output and "other inputs or options" in r.output
+    assert set(p.name for p in ck.iterdir()) <= set(before)
+    assert not (tmp_path / "f.json").exists()

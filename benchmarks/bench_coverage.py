@@ -88,7 +88,10 @@ def energy_cover(fm: FittedModel, truth, n: int, seed: int) -> dict:
     from gprm.predict.energy import histogram, window_weights
     from gprm.predict.kinematics import body_motion, kinetic_energy
 
-    t = np.linspace(0.95e-3, 1.25e-3, 301)
+    # 0.05 us steps: the histogram of the continuous-time energy. Coarser grids alias the
+    # fastest modes into lumpy bin occupancies that the bands cover too easily (measured on
+    # 30 campaigns, 68 % coverage: 92 / 82 / 75 / 74 % with 301 / 1201 / 3001 / 6001 points)
+    t = np.linspace(0.95e-3, 1.25e-3, 6001)
     w = window_weights(t, ENERGY_WINDOW)
     e_t = kinetic_energy(body_motion(batch([truth]), t, piezo=2))["total"]
     m = body_motion(fm.sample(n, seed), t, piezo=2)

@@ -127,8 +127,9 @@ def test_gprm_show_bad_files(tmp_path, content, text):
 
 def test_progress_counts_starts_and_reports_best_chi2():
     """run_multistart reports starts (not chunks) and the running minimum of chi-square."""
-    from gprm.fit.multistart import LMOptions, MultiStartOptions, run_multistart
+    from gprm.fit.engine import run_multistart
     from gprm.fit.objective import Objective, fit_data_from_means
+    from gprm.fit.starts import LMOptions, MultiStartOptions
 
     data = fit_data_from_means(make_means(paper(), seed=4))
     obj = Objective.create(data, paper(), piezo=2)

@@ -18,10 +18,11 @@ from typing import Callable
 import xarray as xr
 
 from gprm.errors import GprmInputError
-from gprm.fit.multistart import LMOptions, MultiStartOptions
+from gprm.fit.identify import identify
 from gprm.fit.objective import fit_data_from_means
 from gprm.fit.prior import DEFAULT_WIDTH
-from gprm.fit.result import FitResult, identify
+from gprm.fit.result import FitResult
+from gprm.fit.starts import LMOptions, MultiStartOptions
 from gprm.fit.uncertainty import DEFAULT_METHOD, METHODS
 from gprm.params import ALIGNMENT_OFFSETS, ParameterSet, load_params
 

@@ -8,12 +8,7 @@ present; older files print without them.
 
 from __future__ import annotations
 
-import json
 import math
-import os
-from pathlib import Path
-
-from gprm.errors import GprmInputError
 
 DEFAULT_MIN_CORREL = 0.9
 
@@ -134,21 +129,6 @@ def fit_report(d: dict, *, min_correl: float = DEFAULT_MIN_CORREL) -> str:
         else:
             lines.append("    none")
     return "\n".join(lines)
-
-
-def read_fit_json(path: str | os.PathLike) -> dict:
-    """Read a fit.json with clear errors (the file is not modified)."""
-    path = Path(path)
-    if not path.is_file():
-        raise GprmInputError("no such file", source=str(path))
-    try:
-        d = json.loads(path.read_text(encoding="utf-8"))
-    except (UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise GprmInputError(f"not a JSON file ({exc})", source=str(path)) from None
-    if not isinstance(d, dict) or not isinstance(d.get("parameters"), dict):
-        raise GprmInputError("not a gprm fit file (no 'parameters' table)", source=str(path),
-                             field="parameters")
-    return d
 
 
 class starts_progress:

@@ -12,8 +12,8 @@ from pathlib import Path
 from typing import Mapping
 
 from gprm.errors import GprmInputError
-from gprm.fit.files import FittedModel
-from gprm.predict.core import Prediction, load_model, predict, prediction_times
+from gprm.fit.files import FittedModel, load_model
+from gprm.predict.core import Prediction, predict, prediction_times
 from gprm.predict.scenarios import Scenario, check_scenario
 from gprm.predict.whatif import whatif
 

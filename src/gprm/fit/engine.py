@@ -12,6 +12,7 @@ from __future__ import annotations
 import contextlib
 import ctypes
 import hashlib
+import inspect
 import json
 import os
 import re
@@ -308,7 +309,7 @@ def local_worker_config() -> dict:
 def run_multistart(obj: Objective, opts: MultiStartOptions = MultiStartOptions(), *,
                    workers: int = 0, scheduler: str | None = None,
                    checkpoint_dir: str | os.PathLike | None = None,
-                   progress: Callable[[int, int], None] | None = None,
+                   progress: Callable[..., None] | None = None,
                    stop_after: int | None = None) -> StartsOutcome:
     """Run all starts. ``workers=0`` runs in this process; ``workers>0`` starts a local Dask
     cluster with that many single-threaded worker processes; ``scheduler`` connects to an
@@ -384,17 +385,22 @@ def run_multistart(obj: Objective, opts: MultiStartOptions = MultiStartOptions()
         resampled=cat["resampled"][order])
 
 
+def takes_keyword(f: Callable, name: str) -> bool:
+    """Whether ``f`` accepts the keyword ``name`` (by name or through ``**kwargs``)."""
+    try:
+        sig = inspect.signature(f).parameters
+    except (TypeError, ValueError):  # pragma: no cover - builtins without a signature
+        return False
+    return name in sig or any(p.kind is p.VAR_KEYWORD for p in sig.values())
+
+
 def _progress_reporter(progress, chunks, results):
-    """A no-argument function that reports (starts done, starts requested[, best_chi2])."""
+    """A no-argument function that reports (starts done, starts requested[, best_chi2]):
+    the progress callback of the fit (:func:`run_multistart`), the same for ``gprm fit``,
+    ``gprm run`` and ``gprm demo``."""
     if progress is None:
         return lambda: None
-    import inspect
-
-    try:
-        sig = inspect.signature(progress).parameters
-        with_best = "best_chi2" in sig or any(p.kind is p.VAR_KEYWORD for p in sig.values())
-    except (TypeError, ValueError):  # pragma: no cover - builtins without a signature
-        with_best = False
+    with_best = takes_keyword(progress, "best_chi2")
     n_total = int(sum(len(c) for c in chunks))
 
     def report():

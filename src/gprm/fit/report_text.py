@@ -131,6 +131,12 @@ def fit_report(d: dict, *, min_correl: float = DEFAULT_MIN_CORREL) -> str:
     return "\n".join(lines)
 
 
+def starts_info(best_chi2: float) -> str:
+    """The text beside the bar of a fit's starts: the unit and the best chi-square so far."""
+    best = f"{best_chi2:.6g}" if math.isfinite(best_chi2) else "-"
+    return f"starts  best chi2 {best}"
+
+
 class starts_progress:
     """Context manager: a rich bar over the starts of a multi-start fit, with the best
     chi-square so far and the time remaining; yields the callback for ``run_multistart``."""
@@ -140,18 +146,17 @@ class starts_progress:
                                    TimeElapsedColumn, TimeRemainingColumn)
 
         self.bar = Progress(TextColumn(description), BarColumn(), MofNCompleteColumn(),
-                            TextColumn("starts"), TextColumn("{task.fields[best]}"),
+                            TextColumn("{task.fields[info]}"),
                             TimeElapsedColumn(), TextColumn("eta"), TimeRemainingColumn(),
                             console=console, transient=True)
         self.n_starts = int(n_starts)
 
     def __enter__(self):
         self.bar.__enter__()
-        task = self.bar.add_task("fit", total=self.n_starts, best="best chi2 -")
+        task = self.bar.add_task("fit", total=self.n_starts, info=starts_info(float("nan")))
 
         def progress(done, total, best_chi2=float("nan")):
-            best = f"best chi2 {best_chi2:.6g}" if math.isfinite(best_chi2) else "best chi2 -"
-            self.bar.update(task, completed=done, total=total, best=best)
+            self.bar.update(task, completed=done, total=total, info=starts_info(best_chi2))
 
         return progress
 

@@ -33,6 +33,7 @@ from gprm.model.linear import admissible
 from gprm.params import (REGISTRY, ParameterSet, batch_from_vectors, from_si, paper,
                          validate_values)
 from gprm.params.files import si_unit_strings, ureg
+from gprm.validate import Schema, Var, check_dataset
 
 if TYPE_CHECKING:
     from gprm.fit.objective import FitData
@@ -41,6 +42,26 @@ if TYPE_CHECKING:
 
 MODEL_NAME = "gprm-3d"
 FORMAT_VERSION = 1
+
+#: the fit's NetCDF sidecar as its reader checks it (docs/fitting.md, "Files"); the starts'
+#: values may be NaN (a failed start), the bands too (no covariance)
+FIT_SIDECAR = Schema("fit sidecar NetCDF", (
+    Var("time", ("time",), "s", increasing=True),
+    Var("signal", ("signal",), numeric=False, unique=True),
+    Var("param", ("param",), numeric=False, unique=True),
+    Var("x0", ("start", "param"), finite=False),
+    Var("x", ("start", "param"), finite=False),
+    Var("chi2_0", ("start",), finite=False, min=0.0),
+    Var("chi2", ("start",), finite=False, min=0.0),
+    Var("status", ("start",), numeric=False),
+    Var("data_mean", ("signal", "time"), "m"),
+    Var("data_sigma", ("signal", "time"), "m", min=0.0, min_open=True),
+    *(Var(v, ("signal", "time"), "m", required=False, finite=False)
+      for v in ("model_best", "band_linear_std", "band_sample_std", "band_sample_lo",
+                "band_sample_hi")),
+    Var("covariance", ("param", "param2"), required=False, finite=False),
+    Var("posterior_draws", ("draw", "param"), required=False, finite=False),
+))
 
 
 @dataclass(frozen=True)
@@ -204,12 +225,13 @@ def read_fit_document(path: str | os.PathLike) -> dict:
 
 
 def read_fit_sidecar(path: str | os.PathLike) -> xr.Dataset:
-    """The NetCDF sidecar of a fit file (``fit.nc``; the JSON's name with ``.nc`` is accepted
-    too), opened read-only."""
+    """The NetCDF sidecar of a fit file (``fit.nc``; the JSON's name is accepted too), checked
+    against :data:`FIT_SIDECAR` (variables, dimensions, units converted to SI); a problem is
+    an input error naming the file and the variable."""
     path = Path(path)
     if path.suffix == ".json":
         path = path.with_suffix(".nc")
-    return open_netcdf(path, what="fit sidecar")
+    return check_dataset(open_netcdf(path, what="fit sidecar"), FIT_SIDECAR, str(path))
 
 
 def load_fit(path: str | os.PathLike) -> FittedModel:
@@ -314,14 +336,14 @@ def _read_draws(side: Path, names: tuple[str, ...]) -> np.ndarray | None:
     if not side.is_file():
         return None
     try:
-        with xr.open_dataset(side) as ds:
-            if "posterior_draws" not in ds:
-                return None
-            da = ds["posterior_draws"]
-            have = [str(v) for v in da["param"].values]
-            if not set(names) <= set(have):
-                return None
-            X = np.asarray(da.sel(param=list(names)).transpose("draw", "param").values, float)
+        ds = read_fit_sidecar(side)
+        if "posterior_draws" not in ds:
+            return None
+        da = ds["posterior_draws"]
+        have = [str(v) for v in da["param"].values]
+        if not set(names) <= set(have):
+            return None
+        X = np.asarray(da.sel(param=list(names)).transpose("draw", "param").values, float)
     except Exception:  # noqa: BLE001 - optional extra; see the docstring
         return None
     return X if X.ndim == 2 and len(X) >= 2 and np.all(np.isfinite(X)) else None

@@ -26,8 +26,8 @@ from gprm._io import atomic_path, write_text_atomic
 from gprm.errors import GprmInputError
 from gprm.fit.lm import levenberg_marquardt_batch
 from gprm.fit.objective import Objective
-from gprm.fit.starts import (LMOptions, MultiStartOptions, StartsOutcome, draw_starts, make_prune_rule,
-                             resample_invalid)
+from gprm.fit.starts import (LMOptions, MultiStartOptions, StartsOutcome, draw_starts,
+                             make_prune_rule, resample_invalid)
 
 
 # ----------------------------------------------------------------------------- one chunk

@@ -564,6 +564,7 @@ def select_plugins(*, damping: str = "current", geodesic: bool = False, geo_h: f
                    xtol: float = 1e-15, lambda_max: float = 1e12) -> tuple:
     """The plug-ins of the keyword options of :func:`levenberg_marquardt_batch`:
     ``(damping, control, acceleration)``."""
+    damp: Algorithm1Damping | MinpackDamping
     if damping == "current":
         damp = Algorithm1Damping()
     elif damping == "max":
@@ -776,6 +777,7 @@ def accept(state: LMState, prop: Proposal, trial: Trial, settings: Settings, dam
     X, r, J, chi2 = state.x, state.r, state.J, state.chi2
     njev, stale, factors, scale = state.njev, state.stale, f, state.scale
     if acc.size:
+        assert trial.r is not None                          # accepted rows were evaluated
         pos = np.searchsorted(trial.ev, acc_local)         # rows of trial.r for accepted rows
         X, r, chi2 = X.copy(), r.copy(), chi2.copy()
         X[acc] = prop.xt[acc_local]

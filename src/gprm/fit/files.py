@@ -43,19 +43,21 @@ if TYPE_CHECKING:
 MODEL_NAME = "gprm-3d"
 FORMAT_VERSION = 1
 
-#: the fit's NetCDF sidecar as its reader checks it (docs/fitting.md, "Files"); the starts'
-#: values may be NaN (a failed start), the bands too (no covariance)
+#: the fit's NetCDF sidecar as its reader checks it (docs/fitting.md, "Files"): required are
+#: what its readers use (the starts' final chi-square, the data and their sigma); the rest is
+#: checked where present. The starts' values may be NaN (a failed start), the bands too (no
+#: covariance)
 FIT_SIDECAR = Schema("fit sidecar NetCDF", (
     Var("time", ("time",), "s", increasing=True),
     Var("signal", ("signal",), numeric=False, unique=True),
-    Var("param", ("param",), numeric=False, unique=True),
-    Var("x0", ("start", "param"), finite=False),
-    Var("x", ("start", "param"), finite=False),
-    Var("chi2_0", ("start",), finite=False, min=0.0),
     Var("chi2", ("start",), finite=False, min=0.0),
-    Var("status", ("start",), numeric=False),
     Var("data_mean", ("signal", "time"), "m"),
     Var("data_sigma", ("signal", "time"), "m", min=0.0, min_open=True),
+    Var("param", ("param",), numeric=False, unique=True, required=False),
+    Var("x0", ("start", "param"), required=False, finite=False),
+    Var("x", ("start", "param"), required=False, finite=False),
+    Var("chi2_0", ("start",), required=False, finite=False, min=0.0),
+    Var("status", ("start",), numeric=False, required=False),
     *(Var(v, ("signal", "time"), "m", required=False, finite=False)
       for v in ("model_best", "band_linear_std", "band_sample_std", "band_sample_lo",
                 "band_sample_hi")),

@@ -65,6 +65,9 @@ def test_run_and_fit_displays_show_starts_best_chi2_and_time_remaining():
     line = _render(prog.bar)
     assert "250/1000" in line and starts_info(1234.5678) in line and "eta" in line
     assert "best chi2 1234.57" in line
+    prog.event("fit", "step", 1000, 1000, best_chi2=1200.0)
+    prog.event("fit", "done")
+    assert "1000/1000" in _render(prog.bar) and "best chi2 1200" in _render(prog.bar)
 
     fit = starts_progress(Console(file=io.StringIO()), 1000)
     callback = fit.__enter__()

@@ -120,8 +120,13 @@ class _Progress:
             info = "" if best_chi2 is None else starts_info(best_chi2)
             self.bar.update(self.tasks[stage], completed=done, total=total, info=info)
         elif kind == "done" and stage in self.tasks:
-            self.bar.update(self.tasks[stage], description=f"[green]✓ {title}", total=1,
-                            completed=1)
+            # a stage that counted steps (the fit's starts) keeps its count (1000/1000
+            # starts); the elapsed time is the stage's, not that of its last step: a change
+            # of total restarts rich's finish clock
+            n = next((t.total for t in self.bar.tasks if t.id == self.tasks[stage]), None) or 1
+            self.bar.update(self.tasks[stage], total=n + 1)
+            self.bar.update(self.tasks[stage], description=f"[green]✓ {title}", total=n,
+                            completed=n)
         else:
             label = {"skip": "[dim]↷ {} (up to date)", "unavailable": "[yellow]– {} (not "
                      "available)", "blocked": "[yellow]– {} (needs an earlier stage)",

@@ -36,9 +36,9 @@ from gprm.campaign.preprocess import PreprocessConfig, preprocess
 from gprm.campaign.synth import synth_campaign
 from gprm.fit.bootstrap import bootstrap_uncertainty
 from gprm.fit.files import FittedModel
-from gprm.fit.multistart import MultiStartOptions
+from gprm.fit.identify import identify
 from gprm.fit.objective import fit_data_from_means
-from gprm.fit.result import identify
+from gprm.fit.starts import MultiStartOptions
 from gprm.fit.uncertainty import from_mcmc
 from gprm.params import ALIGNMENT_OFFSETS, batch, paper
 from gprm.predict.scenarios import Scenario, apply_scenario, standard_scenarios

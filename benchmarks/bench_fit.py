@@ -193,9 +193,9 @@ def speed(n_starts: int, workers: int, chunk: int | None, prune: bool, full_base
           check_prune: bool = False, means: str | None = None, demo: bool = False) -> str:
     from means_factory import make_means
 
-    from gprm.fit.multistart import MultiStartOptions
+    from gprm.fit.identify import identify
     from gprm.fit.objective import fit_data_from_means
-    from gprm.fit.result import identify
+    from gprm.fit.starts import MultiStartOptions
     from gprm.params import paper
 
     p = paper()
@@ -275,8 +275,8 @@ def variants(workers: int) -> str:
     ``local_worker_config``."""
     from dataclasses import replace
 
-    from gprm.fit.multistart import (ChunkTask, LMOptions, MultiStartOptions, draw_starts,
-                                     local_worker_config, run_chunk, run_multistart)
+    from gprm.fit.engine import ChunkTask, local_worker_config, run_chunk, run_multistart
+    from gprm.fit.starts import LMOptions, MultiStartOptions, draw_starts
     from gprm.fit.objective import Objective
 
     data, base = demo_fit_input()
@@ -409,9 +409,9 @@ def uncertainty_speed(n_starts: int, workers: int, methods: tuple[str, ...]) -> 
     Eq. 7-only fit (no prior), in one run (issue 12's speed target: <= 60 s on 2 cores)."""
     from gprm.campaign.preprocess import PreprocessConfig, preprocess
     from gprm.campaign.synth import synth_campaign
-    from gprm.fit.multistart import MultiStartOptions
+    from gprm.fit.identify import identify
     from gprm.fit.objective import fit_data_from_means
-    from gprm.fit.result import identify
+    from gprm.fit.starts import MultiStartOptions
     from gprm.params import ALIGNMENT_OFFSETS, paper
 
     means = preprocess(synth_campaign(seed=0), PreprocessConfig(align_time=1.01e-3)).to_dataset()

@@ -33,7 +33,8 @@ def main():
     from gprm.fit.files import paper_model
     from gprm.flight.synth import SynthOptions, synth_telemetry
     from gprm.params import paper
-    from gprm.predict.core import load_model, predict, prediction_times
+    from gprm.fit.files import load_model
+    from gprm.predict.core import predict, prediction_times
     from gprm.simulate import simulate
     from gprm.simulate.files import simulation_dataset
 

@@ -61,11 +61,14 @@ print(fit.summary().splitlines()[2])
 # %% 5. Prediction: trajectories of the contact points, kinetic energy, what-ifs (Sec. 4.2)
 from gprm.predict import PredictOptions, run_predict, run_whatif
 from gprm.predict.files import prediction_dataset
-from gprm.run import load_model
+from gprm.fit import load_model
+from gprm.run import model_notes
 
-# what later stages read: a FittedModel (gprm.fit.files.load_fit). It reads every fit, also
-# one without uncertainty (then fm.has_uncertainty is False: best fit only, said in `notes`)
-fm, notes = load_model(OUT)
+# what later stages read: a FittedModel (gprm.fit.load_model: 'paper', a fit JSON or a run
+# folder). It reads every fit, also one without uncertainty (then fm.has_uncertainty is
+# False: best fit only, said in `notes`)
+fm = load_model(OUT)
+notes = model_notes(fm)
 print(fm.uncertainty_note, "; identified:", ", ".join(fm.identified or ()))
 popts = PredictOptions(piezo=2, name="piezo2", samples=20, seed=1, means=str(OUT / "means.nc"))
 # Bands come from 20 parameter sets of the fit's uncertainty method (FittedModel.sample:

@@ -13,8 +13,9 @@ from typer.testing import CliRunner
 
 from gprm.cli import app
 from gprm.errors import GprmInputError
-from gprm.fit.multistart import (CHECKPOINT_MARKER, LMOptions, MultiStartOptions, Checkpoints,
-                                 remove_checkpoints, run_multistart, starts_memory)
+from gprm.fit.engine import (CHECKPOINT_MARKER, Checkpoints, remove_checkpoints, run_multistart,
+                             starts_memory)
+from gprm.fit.starts import LMOptions, MultiStartOptions
 
 sys.path.insert(0, str(Path(__file__).parents[1] / "fit"))
 from means_factory import make_means  # noqa: E402

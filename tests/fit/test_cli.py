@@ -141,7 +141,7 @@ def test_checkpoints_of_another_run_are_refused_naming_the_option(means_file, tm
     """A marked checkpoint folder whose chunks belong to other inputs or options: refused
     during the run, with the option named as typed; nothing is added to the folder and
     nothing but gprm's own bookkeeping files (no chunk was written) is removed."""
-    from gprm.fit.multistart import CHECKPOINT_MARKER
+    from gprm.fit.engine import CHECKPOINT_MARKER
 
     ck = tmp_path / "ck"
     ck.mkdir()

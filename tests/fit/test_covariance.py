@@ -11,7 +11,7 @@ import pytest
 
 from gprm.fit.covariance import (CovarianceError, covariance, parameters_at_bounds,
                                  sample_normal)
-from gprm.fit.multistart import MultiStartOptions, draw_starts
+from gprm.fit.starts import MultiStartOptions, draw_starts
 
 sys.path.insert(0, str(Path(__file__).parent))
 import nist  # noqa: E402

@@ -14,11 +14,12 @@ from scipy.optimize import least_squares
 
 from gprm.errors import GprmInputError
 from gprm.fit.covariance import covariance
-from gprm.fit.lm import levenberg_marquardt_batch
-from gprm.fit.multistart import LMOptions, MultiStartOptions, run_multistart
-from gprm.fit.objective import Objective, fit_data_from_means
+from gprm.fit.engine import run_multistart
 from gprm.fit.files import load_fit
-from gprm.fit.result import identify
+from gprm.fit.identify import identify
+from gprm.fit.lm import levenberg_marquardt_batch
+from gprm.fit.objective import Objective, fit_data_from_means
+from gprm.fit.starts import LMOptions, MultiStartOptions
 from gprm.params import paper
 
 sys.path.insert(0, str(Path(__file__).parent))
@@ -222,7 +223,7 @@ def test_fit_files_follow_the_contract(case, tmp_path):
     # a profile with a grid point that could not be evaluated still writes valid JSON
     import dataclasses
 
-    from gprm.fit.result import Profile
+    from gprm.fit.uncertainty import Profile
 
     prof = Profile("m2", np.array([1.0, 2.0, 3.0]), np.array([5.0, np.nan, 4.0]), np.nan, 2.5)
     dataclasses.replace(res, profiles=(prof,)).write(tmp_path / "p.json")
@@ -247,7 +248,7 @@ def test_profile_likelihood_brackets_the_best_fit(case, best):
     on at least one side (its interval comes from the prior alone)."""
     truth, ds, data = case
     from gprm.fit.prior import default_prior
-    from gprm.fit.result import profile_likelihood
+    from gprm.fit.uncertainty import profile_likelihood
 
     u = best.uncertainty
     prior = default_prior(paper(), best.names).with_weight(np.sqrt(u.s2))
@@ -336,7 +337,7 @@ def test_profile_of_a_predicted_quantity_matches_the_parameter_profile(case, bes
     own profile; and a real prediction (the plunger CoM's x overshoot) gets a profile with its
     minimum at the best fit."""
     from gprm.fit.prior import default_prior
-    from gprm.fit.result import profile_likelihood, profile_prediction
+    from gprm.fit.uncertainty import profile_likelihood, profile_prediction
 
     truth, ds, data = case
     u = best.uncertainty

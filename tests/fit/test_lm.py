@@ -271,7 +271,8 @@ def test_geodesic_acceleration_solves_the_damped_system_with_the_second_derivati
     """For residuals quadratic in x the finite-difference second directional derivative is
     exact, so the acceleration must equal the solution of
     [J^T J + lam diag(J^T J)] a = -J^T (v^T H v), computed here by a dense solve."""
-    from gprm.fit.lm import _geodesic_correction, reduce_jacobian, scaled_svd, svd_steps
+    from gprm.fit.lm import (Box, GeodesicAcceleration, Problem, reduce_jacobian, scaled_svd,
+                             svd_steps)
 
     rng = np.random.default_rng(3)
     N, P = 12, 4
@@ -289,18 +290,113 @@ def test_geodesic_acceleration_solves_the_damped_system_with_the_second_derivati
     R1, qtr, d = reduce_jacobian(J[None], r[None])
     W, sv, g = scaled_svd(R1, qtr, d)
     v = svd_steps(W, sv, g, lam)
-    nfev = np.zeros(1, int)
-    step, bad = _geodesic_correction(None, r_of, x[None], v, r[None], J[None], W, sv, lam,
-                                     d, np.ones(1, bool), np.full(P, -np.inf),
-                                     np.full(P, np.inf), 0.1, 1e9, nfev, np.arange(1))
+    problem, box = Problem(None, r_of), Box.of(None, None, P)
+    step, bad, evaluated = GeodesicAcceleration(0.1, 1e9).correct(
+        problem, box, x[None], v, r[None], J[None], W, sv, lam, d, np.ones(1, bool))
     rvv = np.einsum("p,npq,q->n", v[0], Hs, v[0])
     M = J.T @ J + lam[0] * np.diag(np.diag(J.T @ J))
     a = np.linalg.solve(M, -J.T @ rvv)
     np.testing.assert_allclose(step[0], v[0] + 0.5 * a, rtol=1e-9, atol=1e-12)
     np.testing.assert_allclose(v[0], np.linalg.solve(M, -J.T @ r), rtol=1e-10)
-    assert nfev[0] == 1 and not bad[0]
+    assert list(evaluated) == [0] and not bad[0]             # one residual call, kept
     # the same step with a tight limit on 2|a|/|v| is flagged for rejection
-    _, bad2 = _geodesic_correction(None, r_of, x[None], v, r[None], J[None], W, sv, lam, d,
-                                   np.ones(1, bool), np.full(P, -np.inf), np.full(P, np.inf),
-                                   0.1, 1e-12, nfev, np.arange(1))
+    _, bad2, _ = GeodesicAcceleration(0.1, 1e-12).correct(
+        problem, box, x[None], v, r[None], J[None], W, sv, lam, d, np.ones(1, bool))
     assert bad2[0]
+
+
+# ----------------------------------------------------------------------------- plug-ins
+
+VARIANTS = {
+    "plain": dict(damping="current", geodesic=False),
+    "minpack+geodesic": dict(damping="max", geodesic=True),
+    "trust region": dict(damping="max", geodesic=False, step_bound=100.0),
+}
+
+
+@pytest.mark.parametrize("variant", VARIANTS)
+def test_keyword_options_select_the_plugins(variant):
+    """The keyword front end picks the damping, lambda control and acceleration plug-ins,
+    and running the plug-ins directly gives the same bits."""
+    from gprm.fit.lm import (Algorithm1Damping, Algorithm1Lambda, GeodesicAcceleration,
+                             MinpackDamping, NoAcceleration, Problem, Settings, TrustRegion,
+                             minimize_batch, select_plugins)
+
+    kw = VARIANTS[variant]
+    damp, control, accel = select_plugins(lambda_max=1e10, xtol=1e-13, geo_h=0.2,
+                                          geo_alpha=0.5, **kw)
+    assert isinstance(damp, MinpackDamping if kw["damping"] == "max" else Algorithm1Damping)
+    if "step_bound" in kw:
+        assert control == TrustRegion(100.0, 1e-13)
+    else:
+        assert control == Algorithm1Lambda(1e10)
+    assert accel == (GeodesicAcceleration(0.2, 0.5) if kw["geodesic"] else NoAcceleration())
+    p = nist.load("Misra1a")
+
+    def fun(X):
+        return (np.stack([p.residuals(x) for x in X]), np.stack([p.jacobian(x) for x in X]))
+
+    X0 = np.stack(p.starts)
+    a = levenberg_marquardt_batch(fun, X0, max_iter=60, ftol=1e-12, **kw)
+    damp, control, accel = select_plugins(**kw)               # the front end's defaults
+    b = minimize_batch(Problem(fun), X0, Settings(max_iter=60, ftol=1e-12),
+                       damping=damp, control=control, acceleration=accel)
+    np.testing.assert_array_equal(a.x, b.x)
+    np.testing.assert_array_equal(a.chi2, b.chi2)
+    assert list(a.status) == list(b.status) and list(a.iterations) == list(b.iterations)
+
+
+def test_unknown_damping_is_refused():
+    from gprm.fit.lm import select_plugins
+
+    with pytest.raises(ValueError, match="damping"):
+        select_plugins(damping="min")
+
+
+@pytest.mark.parametrize("variant", VARIANTS)
+def test_batched_lm_equals_the_single_problem_lm(variant):
+    """Every variant: a batch of starts gives, row by row, the bits, chi-square, iterations
+    and status of the single-problem optimizer (no fallback) from that start alone."""
+    p = nist.load("Chwirut2")
+
+    def fun(X):
+        return (np.stack([p.residuals(x) for x in X]), np.stack([p.jacobian(x) for x in X]))
+
+    def res(X):
+        return np.stack([p.residuals(x) for x in X])
+
+    X0 = np.stack([p.starts[0], p.starts[1], 0.5 * (p.starts[0] + p.starts[1])])
+    kw = dict(VARIANTS[variant], max_iter=200, ftol=1e-12, lambda_max=1e16)
+    together = levenberg_marquardt_batch(fun, X0, residuals=res, **kw)
+    for i in range(3):
+        single = levenberg_marquardt(p.residuals, X0[i], p.jacobian, fallback=False, **kw)
+        np.testing.assert_array_equal(single.x, together.x[i])
+        assert single.chi2 == together.chi2[i]
+        assert single.iterations == together.iterations[i]
+        assert single.status == together.status[i]
+
+
+def test_a_step_leaves_its_input_state_unchanged():
+    """The state is advanced by pure functions: a step returns a new state and the old one
+    still holds the values it had."""
+    from gprm.fit.lm import (Algorithm1Damping, Algorithm1Lambda, Box, NoAcceleration, Problem,
+                             Settings, lm_init, lm_step)
+
+    p = nist.load("Misra1a")
+
+    def fun(X):
+        return (np.stack([p.residuals(x) for x in X]), np.stack([p.jacobian(x) for x in X]))
+
+    settings = Settings(stall_window=2)
+    damp, control = Algorithm1Damping(), Algorithm1Lambda()
+    s0 = lm_init(Problem(fun), np.stack(p.starts), settings, damp, control)
+    before = {k: np.copy(getattr(s0, k)) for k in ("x", "r", "J", "chi2", "lam", "status",
+                                                    "active", "iterations", "nfev", "ring")}
+    s1 = s0
+    for _ in range(3):
+        s1 = lm_step(s1, Problem(fun), Box.of(None, None, 2), settings, damp, control,
+                     NoAcceleration())
+    assert s1.it == 3 and s0.it == 0 and np.all(s1.chi2 <= s0.chi2)
+    assert not np.array_equal(s1.x, s0.x)
+    for k, v in before.items():
+        np.testing.assert_array_equal(getattr(s0, k), v)

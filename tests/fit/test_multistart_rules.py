@@ -1,4 +1,4 @@
-"""The multi-start driver's early-stop rules (gprm.fit.multistart.make_prune_rule) on chi-square
+"""The multi-start driver's early-stop rules (gprm.fit.starts.make_prune_rule) on chi-square
 sequences with known answers, the settings of the local Dask workers, and the reuse of a
 trial point's spectrum for its Jacobian."""
 
@@ -6,8 +6,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from gprm.fit.multistart import (LMOptions, MultiStartOptions, local_worker_config,
-                                 make_prune_rule)
+from gprm.fit.engine import local_worker_config
+from gprm.fit.starts import LMOptions, MultiStartOptions, make_prune_rule
 
 
 def _drive(rule, paths):

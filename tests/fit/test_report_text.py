@@ -115,8 +115,10 @@ def test_gprm_fit_ends_with_the_text_gprm_show_prints(fitted):
 
 
 @pytest.mark.parametrize("content, text", [
-    (None, "no such file"), ("{not json", "not a JSON file"),
-    ('{"chi2": 1}', "field 'parameters'")])
+    (None, "does not exist"), ("{not json", "not valid JSON"),
+    ('{"chi2": 1}', "field 'model'"),
+    ('{"model": "gprm-3d", "chi2": 1}', "field 'parameters'"),
+    ('{"model": "gprm-3d", "parameters": {"m2": {"value": "x"}}}', "field 'parameters.m2.value'")])
 def test_gprm_show_bad_files(tmp_path, content, text):
     f = tmp_path / "f.json"
     if content is not None:
@@ -127,8 +129,9 @@ def test_gprm_show_bad_files(tmp_path, content, text):
 
 def test_progress_counts_starts_and_reports_best_chi2():
     """run_multistart reports starts (not chunks) and the running minimum of chi-square."""
-    from gprm.fit.multistart import LMOptions, MultiStartOptions, run_multistart
+    from gprm.fit.engine import run_multistart
     from gprm.fit.objective import Objective, fit_data_from_means
+    from gprm.fit.starts import LMOptions, MultiStartOptions
 
     data = fit_data_from_means(make_means(paper(), seed=4))
     obj = Objective.create(data, paper(), piezo=2)

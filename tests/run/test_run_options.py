@@ -140,25 +140,20 @@ def test_no_import_cycle_among_run_demo_report_modules():
     assert not cycles
 
 
-def test_a_model_without_uncertainty_is_noted(monkeypatch, tmp_path):
+def test_a_model_without_uncertainty_is_noted():
     """FittedModel.has_uncertainty False (best fit only) gives the note 'best fit only, no
     uncertainty' with the fit's reason, which run.json and the report show; a model with
     uncertainty gives none."""
-    import json
-
     import numpy as np
 
     import gprm.run.stages as st
     from gprm.fit.files import FittedModel
 
-    (tmp_path / "fit.json").write_text(json.dumps({"covariance_message": "singular J'J"}))
-    monkeypatch.setattr(st, "load_fit", lambda p: FittedModel(paper(), None))
-    notes = st.load_model(tmp_path)[1]
+    notes = st.model_notes(FittedModel(paper(), None, covariance_message="singular J'J"))
     assert len(notes) == 1 and notes[0].startswith(st.NO_UNCERTAINTY)
     assert st.NO_UNCERTAINTY == "best fit only, no uncertainty" and "singular J'J" in notes[0]
     cov = np.diag(paper().paper_stderr() ** 2)
-    monkeypatch.setattr(st, "load_fit", lambda p: FittedModel(paper(), cov))
-    assert st.load_model(tmp_path)[1] == []
+    assert st.model_notes(FittedModel(paper(), cov)) == []
 
 
 def test_a_fit_without_covariance_runs_on_its_best_fit(tmp_path):
@@ -169,6 +164,7 @@ def test_a_fit_without_covariance_runs_on_its_best_fit(tmp_path):
     import numpy as np
 
     import gprm.run.stages as st
+    from gprm.fit.files import load_model
 
     ps = paper()
     doc = {"model": "gprm-3d", "format_version": 1, "piezo": 2,
@@ -177,7 +173,8 @@ def test_a_fit_without_covariance_runs_on_its_best_fit(tmp_path):
                           for n in ps.values},
            "correlation": {"names": list(ps.fitted), "matrix": None}}
     (tmp_path / "fit.json").write_text(json.dumps(doc))
-    fm, notes = st.load_model(tmp_path)
+    fm = load_model(tmp_path)
+    notes = st.model_notes(fm)
     assert fm.names == ps.fitted and not np.any(fm.covariance)
     assert fm.params.values["m2"] == pytest.approx(ps.values["m2"] * 1.01)
     assert len(notes) == 1 and notes[0].startswith(st.NO_UNCERTAINTY)

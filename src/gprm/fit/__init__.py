@@ -4,7 +4,12 @@ from gprm._lazy import attach
 
 __getattr__, __dir__, __all__ = attach(__name__, {
     "api": ["FitOptions", "run_fit"],
-    "files": ["FittedModel", "load_fit", "paper_model"],
-    "lm": ["LMResult", "levenberg_marquardt"],
-    "uncertainty": ["METHODS", "DEFAULT_METHOD"],
+    "engine": ["run_multistart"],
+    "files": ["FittedModel", "load_fit", "load_model", "paper_model", "read_fit_document",
+              "read_fit_sidecar", "write_fit"],
+    "lm": ["LMResult", "levenberg_marquardt", "levenberg_marquardt_batch"],
+    "result": ["FitResult"],
+    "starts": ["LMOptions", "MultiStartOptions", "StartsOutcome", "draw_starts"],
+    "uncertainty": ["METHODS", "DEFAULT_METHOD", "Bands", "Profile", "profile_likelihood",
+                    "profile_prediction"],
 })

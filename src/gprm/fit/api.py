@@ -18,10 +18,11 @@ from typing import Callable
 import xarray as xr
 
 from gprm.errors import GprmInputError
-from gprm.fit.multistart import LMOptions, MultiStartOptions
+from gprm.fit.identify import identify
 from gprm.fit.objective import fit_data_from_means
 from gprm.fit.prior import DEFAULT_WIDTH
-from gprm.fit.result import FitResult, identify
+from gprm.fit.result import FitResult
+from gprm.fit.starts import LMOptions, MultiStartOptions
 from gprm.fit.uncertainty import DEFAULT_METHOD, METHODS
 from gprm.params import ALIGNMENT_OFFSETS, ParameterSet, load_params
 
@@ -120,14 +121,17 @@ class FitOptions:
 def run_fit(means: str | os.PathLike | xr.Dataset, opts: FitOptions = FitOptions(), *,
             params: str | os.PathLike | ParameterSet | None = None, workers: int = 0,
             scheduler: str | None = None, checkpoint_dir: str | os.PathLike | None = None,
-            progress: Callable[[int, int], None] | None = None,
+            progress: Callable[..., None] | None = None,
             source: str | None = None) -> FitResult:
     """Multi-start identification (Sec. 3.1) of a mean-signals file or dataset.
 
     ``params``: the parameter set (constants, fitted set, bounds): a TOML file, a
     :class:`ParameterSet`, or None for the paper's. ``workers``: local Dask worker processes
     (0: in this process); the result does not depend on it. ``checkpoint_dir``: chunks of
-    starts already done are read back from it (resuming). ``progress(done, total)`` per chunk.
+    starts already done are read back from it (resuming). ``progress(done, total)`` as chunks
+    finish, in starts (finished, requested); a callback that takes a ``best_chi2`` keyword
+    also gets the smallest chi-square reached so far (nan before the first chunk): the one
+    progress callback of ``gprm fit``, ``gprm run`` and ``gprm demo``.
     """
     from gprm.validate import read_means
 

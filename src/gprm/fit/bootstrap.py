@@ -26,8 +26,9 @@ import xarray as xr
 
 from gprm.campaign.preprocess import PreprocessConfig, preprocess
 from gprm.campaign.synth import Support, SynthConfig, nonlinear_correction, synth_campaign
-from gprm.fit.multistart import LMOptions
+from gprm.fit.engine import polish_best
 from gprm.fit.objective import FitData, Objective, fit_data_from_means
+from gprm.fit.starts import LMOptions
 from gprm.params.registry import ALIGNMENT_OFFSETS
 
 
@@ -69,8 +70,6 @@ def synth_config(data: FitData) -> SynthConfig:
 
 def _refit(obj: Objective, data: FitData, x_start: np.ndarray, lm: LMOptions,
            max_iter: int) -> np.ndarray:
-    from gprm.fit.result import polish_best
-
     ob = Objective(data, obj.base, obj.names, obj.scale, obj.piezo, obj.z_bk_absolute,
                    obj.prior)
     x, _ = polish_best(ob, x_start, lm, max_iter=max_iter, ftol=1e-8)

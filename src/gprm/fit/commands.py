@@ -103,8 +103,7 @@ def register(app: typer.Typer, synth_app: typer.Typer) -> None:
         from gprm.fit.api import FitOptions, run_fit
 
         from gprm._io import check_outputs
-        from gprm.fit.multistart import (check_checkpoint_folder, remove_checkpoints,
-                                         starts_memory)
+        from gprm.fit.engine import check_checkpoint_folder, remove_checkpoints, starts_memory
         from gprm.params import load_params
         from gprm.resources import check_memory
         from gprm.validate import read_means
@@ -172,9 +171,10 @@ def register(app: typer.Typer, synth_app: typer.Typer) -> None:
                                               "above this (0..1)"),
     ):
         """Print the fit report of a saved fit (the text that ends gprm fit)."""
-        from gprm.fit.report_text import fit_report, read_fit_json
+        from gprm.fit.files import read_fit_document
+        from gprm.fit.report_text import fit_report
 
-        typer.echo(fit_report(read_fit_json(fit), min_correl=min_correl))
+        typer.echo(fit_report(read_fit_document(fit), min_correl=min_correl))
 
 
 def dask_dashboard(address):

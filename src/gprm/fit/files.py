@@ -1,26 +1,69 @@
-"""Reading fit results back: the one object later stages (predict, flight, report) use.
+"""The fit file: its writer and its reader side by side, and :class:`FittedModel`, the object
+every later stage (predict, flight, report, run) consumes.
 
-A :class:`FittedModel` is a parameter set plus the covariance of its fitted parameters. It
-comes either from a fit result JSON (``gprm fit``, INTERFACES.md) or from the paper's Table 3
-(best-fit values and their uncertainties as a diagonal reference covariance, MODEL.md), so
-every later stage runs with or without a fit of its own.
+The fit file is a JSON document (INTERFACES.md, docs/fitting.md) with a NetCDF sidecar of the
+same name (``.nc``: every start, the data, the bands, the covariance, the uncertainty
+method's draws).
+
+- writing: :func:`write_fit` (:func:`fit_document`, :func:`fit_sidecar`, both from a
+  :class:`gprm.fit.result.FitResult`);
+- reading: :func:`read_fit_document` (the JSON, validated: model, format version, parameter
+  table), :func:`read_fit_sidecar`, :func:`load_fit` (a :class:`FittedModel`) and
+  :func:`load_model`, which resolves what a command accepts as a model: the word ``paper``
+  (the paper's Table 3 with its uncertainties as a diagonal reference covariance,
+  MODEL.md), a fit JSON, or a run folder holding ``fit.json``.
 """
 
 from __future__ import annotations
 
+import hashlib
 import os
+from dataclasses import dataclass, replace
 from pathlib import Path
-from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
+import xarray as xr
 
-from gprm._io import read_json
+import gprm
+from gprm._io import open_netcdf, read_json, write_json_atomic, write_netcdf_atomic
 from gprm.errors import GprmInputError
 from gprm.fit.covariance import sample_normal
-from gprm.params import REGISTRY, ParameterSet, batch_from_vectors, paper
+from gprm.model.linear import admissible
+from gprm.params import (REGISTRY, ParameterSet, batch_from_vectors, from_si, paper,
+                         validate_values)
+from gprm.params.files import si_unit_strings, ureg
+from gprm.validate import Schema, Var, check_dataset
+
+if TYPE_CHECKING:
+    from gprm.fit.objective import FitData
+    from gprm.fit.result import FitResult
+    from gprm.fit.starts import StartsOutcome
 
 MODEL_NAME = "gprm-3d"
 FORMAT_VERSION = 1
+
+#: the fit's NetCDF sidecar as its reader checks it (docs/fitting.md, "Files"): required are
+#: what its readers use (the starts' final chi-square, the data and their sigma); the rest is
+#: checked where present. The starts' values may be NaN (a failed start), the bands too (no
+#: covariance)
+FIT_SIDECAR = Schema("fit sidecar NetCDF", (
+    Var("time", ("time",), "s", increasing=True),
+    Var("signal", ("signal",), numeric=False, unique=True),
+    Var("chi2", ("start",), finite=False, min=0.0),
+    Var("data_mean", ("signal", "time"), "m"),
+    Var("data_sigma", ("signal", "time"), "m", min=0.0, min_open=True),
+    Var("param", ("param",), numeric=False, unique=True, required=False),
+    Var("x0", ("start", "param"), required=False, finite=False),
+    Var("x", ("start", "param"), required=False, finite=False),
+    Var("chi2_0", ("start",), required=False, finite=False, min=0.0),
+    Var("status", ("start",), numeric=False, required=False),
+    *(Var(v, ("signal", "time"), "m", required=False, finite=False)
+      for v in ("model_best", "band_linear_std", "band_sample_std", "band_sample_lo",
+                "band_sample_hi")),
+    Var("covariance", ("param", "param2"), required=False, finite=False),
+    Var("posterior_draws", ("draw", "param"), required=False, finite=False),
+))
 
 
 @dataclass(frozen=True)
@@ -42,6 +85,8 @@ class FittedModel:
     uncertainty: the method's name (``eq7``, ``laplace-prior``, ``none`` ...).
     piezo: the piezo driven in the campaign the model was fitted to.
     source: a fit JSON path or ``paper``.
+    covariance_message: the fit's note on its covariance (why there is none, parameters at a
+        bound), ``""`` where not given.
     """
 
     params: ParameterSet
@@ -52,6 +97,7 @@ class FittedModel:
     draws: np.ndarray | None = None
     identified: tuple[str, ...] | None = None
     uncertainty: str = "covariance"
+    covariance_message: str = ""
 
     @property
     def names(self) -> tuple[str, ...]:
@@ -90,8 +136,6 @@ class FittedModel:
         redrawn too; where none can be had (or no uncertainty exists) the best fit is
         repeated. Never raises on a degenerate covariance.
         """
-        from gprm.model.linear import admissible
-
         n = int(n)
         x = self.params.vector()
         rng = np.random.default_rng(seed)
@@ -149,20 +193,11 @@ def _number(x, src: str, field: str, *, allow_none: bool = False):
     return float(x)
 
 
-def load_fit(path: str | os.PathLike) -> FittedModel:
-    """Read a fit result JSON (INTERFACES.md) into a :class:`FittedModel`.
-
-    Every fit ``gprm fit`` writes loads, with or without a covariance: where there is none
-    (``correlation.matrix`` null), the model is the best fit alone (``has_uncertainty``
-    False) and later stages say so. The covariance is rebuilt from the standard errors and the
-    correlation matrix; the uncertainty method's parameter draws are read from the NetCDF
-    sidecar (same name, ``.nc``) where it holds them. A file of another model or format
-    version, a value that is not a finite number, a matrix of the wrong shape, or a best fit
-    that cannot be simulated (a zero spring or mass) is an input error naming the field.
-    """
-    from gprm.model.linear import admissible
-    from gprm.params import validate_values
-
+def read_fit_document(path: str | os.PathLike) -> dict:
+    """The JSON of a fit file, validated: a JSON object of this model (``model``) and format
+    version with a non-empty parameter table of known parameters, each with a finite value.
+    A missing or unreadable file, or any of these problems, is an input error naming the file
+    and the field. The file is not modified."""
     src = str(path)
     doc = read_json(path, what="fit result")
     if not isinstance(doc, dict):
@@ -181,14 +216,45 @@ def load_fit(path: str | os.PathLike) -> FittedModel:
     table = doc.get("parameters")
     if not isinstance(table, dict) or not table:
         raise GprmInputError("missing parameter table", source=src, field="parameters")
-    values = dict(paper().values)
     for name, entry in table.items():
         if name not in REGISTRY:
             raise GprmInputError("unknown parameter (fit from another model version?)",
                                  source=src, field=f"parameters.{name}")
         if not isinstance(entry, dict) or "value" not in entry:
             raise GprmInputError("missing value", source=src, field=f"parameters.{name}")
-        values[name] = _number(entry["value"], src, f"parameters.{name}.value")
+        _number(entry["value"], src, f"parameters.{name}.value")
+    return doc
+
+
+def read_fit_sidecar(path: str | os.PathLike) -> xr.Dataset:
+    """The NetCDF sidecar of a fit file (``fit.nc``; the JSON's name is accepted too), checked
+    against :data:`FIT_SIDECAR` (variables, dimensions, units converted to SI); a problem is
+    an input error naming the file and the variable."""
+    path = Path(path)
+    if path.suffix == ".json":
+        path = path.with_suffix(".nc")
+    return check_dataset(open_netcdf(path, what="fit sidecar"), FIT_SIDECAR, str(path))
+
+
+def load_fit(path: str | os.PathLike) -> FittedModel:
+    """Read a fit result JSON (INTERFACES.md) into a :class:`FittedModel`.
+
+    Every fit ``gprm fit`` writes loads, with or without a covariance: where there is none
+    (``correlation.matrix`` null), the model is the best fit alone (``has_uncertainty``
+    False) and later stages say so (``covariance_message`` tells why). The covariance is
+    rebuilt from the standard errors and the correlation matrix; the uncertainty method's
+    parameter draws are read from the NetCDF sidecar (same name, ``.nc``) where it holds them.
+    A file of another model or format version, a value that is not a finite number, a matrix
+    of the wrong shape, or a best fit that cannot be simulated (a zero spring or mass) is an
+    input error naming the field (:func:`read_fit_document`).
+    """
+    src = str(path)
+    doc = read_fit_document(path)
+    piezo = doc.get("piezo", 2)
+    table = doc["parameters"]
+    values = dict(paper().values)
+    for name, entry in table.items():
+        values[name] = float(entry["value"])
     validate_values(values, source=src)
     corr = doc.get("correlation") or {}
     if not isinstance(corr, dict):
@@ -241,7 +307,28 @@ def load_fit(path: str | os.PathLike) -> FittedModel:
     return FittedModel(ps, cov, piezo=int(piezo), source=src,
                        z_bk_absolute=bool(doc.get("z_bk_absolute", False)), draws=draws,
                        identified=ident,
-                       uncertainty=str(unc.get("method", "eq7" if cov is not None else "none")))
+                       uncertainty=str(unc.get("method", "eq7" if cov is not None else "none")),
+                       covariance_message=str(doc.get("covariance_message", "") or ""))
+
+
+def load_model(source: str | os.PathLike | FittedModel, *,
+               piezo: int | None = None) -> FittedModel:
+    """The model a command or stage runs on: a :class:`FittedModel` as it is, the word
+    ``paper`` (:func:`paper_model`), a fit JSON (:func:`load_fit`) or a run folder (its
+    ``fit.json``). ``piezo`` (1 or 2) overrides the piezo of the fitted campaign (``paper``:
+    default 2)."""
+    if piezo is not None and (piezo not in (1, 2) or isinstance(piezo, bool)):
+        raise GprmInputError(f"must be 1 or 2, got {piezo!r}", field="piezo")
+    if isinstance(source, FittedModel):
+        fm = source
+    elif str(source) == "paper":
+        return paper_model(piezo or 2)
+    else:
+        path = Path(source)
+        fm = load_fit(path / "fit.json" if path.is_dir() else path)
+    if piezo is not None and piezo != fm.piezo:
+        fm = replace(fm, piezo=piezo)
+    return fm
 
 
 def _read_draws(side: Path, names: tuple[str, ...]) -> np.ndarray | None:
@@ -250,17 +337,204 @@ def _read_draws(side: Path, names: tuple[str, ...]) -> np.ndarray | None:
     documented result, and the covariance then stands in."""
     if not side.is_file():
         return None
-    import xarray as xr
-
     try:
-        with xr.open_dataset(side) as ds:
-            if "posterior_draws" not in ds:
-                return None
-            da = ds["posterior_draws"]
-            have = [str(v) for v in da["param"].values]
-            if not set(names) <= set(have):
-                return None
-            X = np.asarray(da.sel(param=list(names)).transpose("draw", "param").values, float)
+        ds = read_fit_sidecar(side)
+        if "posterior_draws" not in ds:
+            return None
+        da = ds["posterior_draws"]
+        have = [str(v) for v in da["param"].values]
+        if not set(names) <= set(have):
+            return None
+        X = np.asarray(da.sel(param=list(names)).transpose("draw", "param").values, float)
     except Exception:  # noqa: BLE001 - optional extra; see the docstring
         return None
     return X if X.ndim == 2 and len(X) >= 2 and np.all(np.isfinite(X)) else None
+
+
+# ----------------------------------------------------------------------------- writer
+
+def fit_document(res: FitResult) -> dict:
+    """The fit file's JSON content (INTERFACES.md, docs/fitting.md) of a fit result."""
+    corr = res.correlation
+    u = res.uncertainty
+    params = {}
+    for name in REGISTRY:
+        fitted = name in res.names
+        err = None
+        entry = {}
+        if fitted:
+            k = res.names.index(name)
+            e = res.stderr[k]
+            err = float(e) if np.isfinite(e) else None
+            spec = res.params.bounds.get(name, (REGISTRY[name].lower, REGISTRY[name].upper))
+            entry["initial"] = float(res.params.initial_vector((name,))[0])
+            entry["at_bound"] = (("lower" if np.isclose(res.params[name], spec[0],
+                                                        rtol=0, atol=1e-12 * max(1, abs(spec[0])))
+                                  else "upper") if name in res.at_bounds else None)
+            if u is not None:
+                entry["identified"] = bool(u.identified[k])
+                entry["interval"] = {"level": 0.95, "lower": _num(u.lower95[k]),
+                                     "upper": _num(u.upper95[k]), "method": u.method}
+                entry["interval68"] = {"level": 0.68, "lower": _num(u.lower68[k]),
+                                       "upper": _num(u.upper68[k])}
+                entry["contraction"] = _num(u.contraction[k])
+            if res.eq7 is not None:
+                entry["stderr_eq7"] = _num(res.eq7.stderr[k])
+        params[name] = {"value": float(res.params[name]), "stderr": err,
+                        "unit": _si_unit(name), "fitted": fitted,
+                        "display_unit": REGISTRY[name].unit,
+                        "display_value": float(from_si(res.params[name], name)), **entry}
+    best = res.starts.best_index
+    d = {
+        "model": MODEL_NAME, "format_version": FORMAT_VERSION, "piezo": res.piezo,
+        "version": gprm.__version__, "seed": res.options.seed,
+        "window": [float(res.data.window[0]), float(res.data.window[1])],
+        "signals": list(res.data.signals), "sigma": res.data.sigma_kind,
+        "z_bk_absolute": res.z_bk_absolute,
+        "parameters": params,
+        "chi2": float(res.chi2), "dof": int(res.dof),
+        "reduced_chi2": float(res.reduced_chi2),
+        "covariance_message": res.covariance_message,
+        "uncertainty": _uncertainty_document(res),
+        "identified": list(res.identified),
+        "not_determined": [n for n in res.names if n not in res.identified],
+        "identifiable_combinations": res.combinations(),
+        "parameters_at_bounds": list(res.at_bounds),
+        "correlation": {"names": list(res.names),
+                        "matrix": None if corr is None else corr.tolist()},
+        "starts": {"requested": int(res.options.n_starts),
+                   "converged": int(res.starts.converged.sum()),
+                   "failed": int(np.sum(np.char.startswith(res.starts.status.astype(str),
+                                                           "failed"))),
+                   "pruned": int(np.sum(res.starts.status.astype(str) == "pruned")),
+                   "best_index": int(best), "n_at_best": res.starts.n_at_best(),
+                   "prune_after": res.options.prune_after,
+                   "prune_factor": res.options.prune_factor,
+                   "prune_rate_window": res.options.prune_rate_window,
+                   "stall_window": res.options.lm.stall_window,
+                   "stall_tol": res.options.lm.stall_tol,
+                   "max_iter": res.options.lm.max_iter,
+                   "chunk_size": res.options.chunk_size,
+                   "spread": res.options.spread, "sampling": res.options.sampling},
+        "profiles": [{"name": p.name, "grid": p.grid.tolist(),
+                      "chi2": [_num(c) for c in p.chi2],
+                      "lower": _num(p.lower), "upper": _num(p.upper),
+                      "lower95": _num(p.lower95), "upper95": _num(p.upper95),
+                      "statistic": "(Phi - Phi_min) / s2",
+                      "identifiable": p.identifiable} for p in res.profiles],
+        "data": {"source": res.data.source, "n_obs": res.data.n_obs,
+                 "sha256": _data_hash(res.data)},
+        "polish": res.polish,
+        "band_samples": 0 if res.bands is None else int(res.bands.n_samples),
+        "timings_s": res.timings,
+    }
+    if "truth_json" in res.data.attrs:
+        d["data"]["truth_available"] = True
+    return d
+
+
+def _uncertainty_document(res: FitResult) -> dict:
+    from gprm.fit.uncertainty import CONTRACTION   # scipy: only when writing
+
+    u = res.uncertainty
+    if u is None:
+        return {"method": "eq7", "note": res.covariance_message}
+    d = {"method": u.method, "note": u.message if u.message != "ok" else
+         ("posterior of the prior-regularised fit (Laplace); identified = posterior sd "
+          f"below {CONTRACTION} of the prior's" if u.method == "laplace-prior" else
+          "linearised covariance"),
+         "s2": _num(u.s2), "tau": _num(u.tau), "identified_threshold": CONTRACTION,
+         "draws": 0 if u.draws is None else int(len(u.draws))}
+    if res.prior is not None:
+        d["prior"] = {"width": float(res.prior.sd[res.prior.log][0])
+                      if res.prior.log.any() else None,
+                      "centre": "initial values (Table 3)", "docs": "docs/fitting.md"}
+    if res.eq7 is not None:
+        d["eq7_message"] = res.eq7.message
+    return d
+
+def fit_sidecar(res: FitResult) -> xr.Dataset:
+    """The fit file's NetCDF sidecar: every start, the data, the bands, the covariance and
+    the uncertainty method's draws."""
+    ds = starts_dataset(res.starts)
+    ds = ds.assign_coords(signal=list(res.data.signals), time=res.data.time)
+    ds["data_mean"] = (("signal", "time"), res.data.values)
+    ds["data_sigma"] = (("signal", "time"), res.data.sigma)
+    if res.bands is not None:
+        b = res.bands
+        ds["model_best"] = (("signal", "time"), b.best)
+        ds["band_linear_std"] = (("signal", "time"), b.linear_std)
+        ds["band_sample_std"] = (("signal", "time"), b.sample_std)
+        ds["band_sample_lo"] = (("signal", "time"), b.sample_lo)
+        ds["band_sample_hi"] = (("signal", "time"), b.sample_hi)
+        ds.attrs["band_samples"] = b.n_samples
+    if res.covariance is not None:
+        ds["covariance"] = (("param", "param2"), res.covariance)
+        ds = ds.assign_coords(param2=list(res.names))
+        ds["covariance"].attrs.update(
+            long_name="parameter covariance of the uncertainty method (SI)",
+            comment="units vary: param_units[param] * param_units[param2]")
+    if res.uncertainty is not None and res.uncertainty.draws is not None:
+        ds["posterior_draws"] = (("draw", "param"), res.uncertainty.draws, {
+            "long_name": f"parameter sets from the uncertainty method "
+            f"({res.uncertainty.method}), SI; later stages propagate these",
+            "comment": "units vary along param: param_units[param]"})
+    for v in ("data_mean", "data_sigma", "model_best", "band_linear_std",
+              "band_sample_std", "band_sample_lo", "band_sample_hi"):
+        if v in ds:
+            ds[v].attrs["units"] = "m"
+    ds["time"].attrs["units"] = "s"
+    ds.attrs.update({"model": MODEL_NAME, "gprm_version": gprm.__version__,
+                     "seed": res.options.seed})
+    return ds
+
+def write_fit(res: FitResult, out: str | os.PathLike) -> Path:
+    """Write a fit result: the JSON ``out`` and its sidecar (same name, ``.nc``), each
+    atomically; returns the sidecar's path."""
+    out = Path(out)
+    side = out.with_suffix(".nc")
+    write_netcdf_atomic(fit_sidecar(res), side)
+    write_json_atomic(out, fit_document(res))
+    return side
+
+
+def starts_dataset(out: StartsOutcome) -> xr.Dataset:
+    """The NetCDF sidecar content: every start's initial and final values, chi-square,
+    iterations and outcome."""
+    ds = xr.Dataset(
+        {"x0": (("start", "param"), out.x0), "x": (("start", "param"), out.x),
+         "chi2_0": ("start", out.chi2_0), "chi2": ("start", out.chi2),
+         "iterations": ("start", out.iterations),
+         "converged": ("start", out.converged.astype(np.int8)),
+         "status": ("start", out.status.astype(str)),
+         "resampled": ("start", out.resampled)},
+        coords={"start": np.arange(out.chi2.size), "param": list(out.names)})
+    units = si_unit_strings(out.names)
+    ds = ds.assign_coords(param_units=("param", units))
+    ds["param_units"].attrs["long_name"] = "SI unit of each parameter"
+    for v, what in (("x0", "initial"), ("x", "final")):
+        ds[v].attrs["long_name"] = f"{what} parameter values (SI)"
+        # CF has one unit string per variable; these differ along param
+        ds[v].attrs["comment"] = "units vary along param: see param_units"
+    ds["chi2_0"].attrs.update(long_name="chi-square of the start (Eq. 6)", units="1")
+    ds["chi2"].attrs.update(long_name="final chi-square (Eq. 6)", units="1")
+    ds["status"].attrs["long_name"] = "outcome of the start"
+    ds["converged"].attrs["long_name"] = "1 if the start met a convergence criterion"
+    return ds
+
+
+def _num(x):
+    return float(x) if np.isfinite(x) else None
+
+
+def _si_unit(name: str) -> str:
+    q = ureg().Quantity(1.0, REGISTRY[name].unit).to_base_units()
+    u = f"{q.units:~}".replace(" ", "")
+    return {"rad": "rad", "": "1"}.get(u, u)
+
+
+def _data_hash(data: FitData) -> str:
+    h = hashlib.sha256()
+    for a in (data.time, data.values, data.sigma):
+        h.update(np.ascontiguousarray(a, float).tobytes())
+    return h.hexdigest()[:16]

@@ -1,10 +1,21 @@
 """Levenberg-Marquardt as in the paper's Algorithm 1 (Sec. 3.1), for a batch of problems run
 in lock-step.
 
-One function, :func:`levenberg_marquardt_batch`, is the optimizer. It advances B independent
+:func:`levenberg_marquardt_batch` is the optimizer's front end. It advances B independent
 starting points of the same residual function together, so that one (batched) model
 evaluation serves all of them; :func:`levenberg_marquardt` is the single-problem API, a batch
 of one with an optional finite-difference Jacobian.
+
+Inside, the optimizer is a small frozen state, :class:`LMState` (points, residuals,
+Jacobians, chi-square, lambda, status and counters per row, the factors of the current
+Jacobians), advanced by pure functions: :func:`lm_init`, then per iteration :func:`lm_prune`
+and :func:`lm_step` (:func:`refresh_jacobians`, :func:`refresh_factors`, :func:`propose`,
+:func:`evaluate`, :func:`accept`), and :func:`lm_finish`; :func:`minimize_batch` runs them.
+The variants are plug-in objects passed to it, chosen from the keyword options by
+:func:`select_plugins`: the damping scale (:class:`Algorithm1Damping`, ``damping="current"``;
+:class:`MinpackDamping`, ``"max"``), the control of lambda (:class:`Algorithm1Lambda`;
+:class:`TrustRegion`, ``step_bound``) and the acceleration (:class:`NoAcceleration`;
+:class:`GeodesicAcceleration`, ``geodesic=True``).
 
 Algorithm 1 as implemented (for every row of the batch independently):
 
@@ -84,7 +95,7 @@ An iteration is one trial step (accepted or rejected), as ``i`` in Algorithm 1.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Callable
 
 import numpy as np
@@ -281,33 +292,6 @@ def _chi2(r: np.ndarray) -> np.ndarray:
     return np.where(np.isfinite(c), c, np.inf)
 
 
-def _geodesic_correction(fun, residuals, X, v, r, J, W, sv, lam, dd, free, lo_in, hi_in, h,
-                         alpha, nfev, idx):
-    """Geodesic acceleration for the rows of a batch (module docstring): returns the
-    corrected steps ``v + a/2`` and a (rows,) bool of the rows whose ``2|a|/|v|`` exceeds
-    ``alpha`` (to be rejected without evaluation); ``dd`` is the damping diagonal of the
-    metric (:func:`_damping_diagonal`). Rows not ``free`` (a parameter held at a
-    bound) or whose ``x + h v`` leaves the box keep ``v``. ``nfev`` is updated in place."""
-    Xh = X + h * v
-    ok = free & np.all(np.isfinite(Xh) & (Xh > lo_in) & (Xh < hi_in), axis=1)
-    a = np.zeros_like(v)
-    bad = np.zeros(v.shape[0], bool)
-    e = np.nonzero(ok)[0]
-    if e.size == 0:
-        return v, bad
-    rh = np.asarray(residuals(Xh[e]) if residuals is not None else fun(Xh[e])[0], float)
-    nfev[idx[e]] += 1
-    with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
-        rvv = (2.0 / h) * ((rh - r[e]) / h - np.einsum("bnp,bp->bn", J[e], v[e]))
-        # [J^T J + lam D] a = -J^T r'' with J^T J + lam D = W diag(s^2 + lam) W^T
-        c = np.einsum("bpm,bp->bm", W[e], np.einsum("bnp,bn->bp", J[e], rvv))
-        a[e] = -np.einsum("bpm,bm->bp", W[e], c / (sv[e] ** 2 + lam[e, None]))
-        d = dd[e]
-        ratio = 2.0 * np.sqrt(np.sum(d * a[e] ** 2, axis=1) / np.sum(d * v[e] ** 2, axis=1))
-        bad[e] = ratio > alpha
-    return v + 0.5 * a, bad
-
-
 def _trust_region_update(better, chi_t, chi2, dx, R1, qtr, dd, lam, delta, idx, ftol):
     """Trust-region bookkeeping for the rows ``idx`` of one iteration: the ratio of the actual
     to the predicted decrease of chi-square (predicted by the linear model, ``|Q1^T r|^2 -
@@ -339,6 +323,552 @@ def _trust_region_update(better, chi_t, chi2, dx, R1, qtr, dd, lam, delta, idx, 
     accepted = better & (ratio >= 1e-4)
     small_pred = (np.abs(act) <= ftol * chi2) & (pred <= ftol * chi2) & (ratio <= 2.0)
     return accepted, small_pred
+
+
+# ----------------------------------------------------------------------------- the pieces
+#
+# The optimizer is a small frozen state (:class:`LMState`) advanced by pure functions
+# (:func:`lm_init`, :func:`lm_prune`, :func:`lm_step`, :func:`lm_finish`; a step is
+# :func:`refresh_jacobians`, :func:`refresh_factors`, :func:`propose`, :func:`evaluate` and
+# :func:`accept`), with the variants as plug-in objects: the damping scale
+# (:class:`Algorithm1Damping`, :class:`MinpackDamping`), the control of lambda
+# (:class:`Algorithm1Lambda`, :class:`TrustRegion`) and the acceleration
+# (:class:`NoAcceleration`, :class:`GeodesicAcceleration`). Every function returns new arrays
+# and leaves its inputs unchanged.
+
+
+@dataclass(frozen=True)
+class Problem:
+    """The residual function of a batch: ``fun(X) -> (r, J)`` and, optionally, a cheaper
+    ``residuals(X) -> r`` used for trial points (then ``fun`` runs at accepted points only)."""
+
+    fun: Callable
+    residuals: Callable | None = None
+
+    def values(self, X: np.ndarray) -> np.ndarray:
+        """Residuals only (``residuals`` if given, else the first output of ``fun``)."""
+        return self.residuals(X) if self.residuals is not None else self.fun(X)[0]
+
+    def trial(self, X: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
+        """Residuals at trial points, and their Jacobian when it comes with them."""
+        if self.residuals is not None:
+            return np.asarray(self.residuals(X), float), None
+        r, J = self.fun(X)
+        return np.asarray(r, float), np.asarray(J, float)
+
+
+@dataclass(frozen=True)
+class Box:
+    """The bounds and the box strictly inside them that trial points are projected onto
+    (``BOUND_MARGIN`` max(1, |bound|) inside each finite bound)."""
+
+    lo: np.ndarray
+    hi: np.ndarray
+    near_lo: np.ndarray
+    near_hi: np.ndarray
+    lo_in: np.ndarray
+    hi_in: np.ndarray
+
+    @classmethod
+    def of(cls, lower, upper, n_params: int) -> Box:
+        P = n_params
+        lo = np.broadcast_to(np.asarray(-np.inf if lower is None else lower, float), (P,))
+        hi = np.broadcast_to(np.asarray(np.inf if upper is None else upper, float), (P,))
+        with np.errstate(invalid="ignore"):
+            near_lo = np.where(np.isfinite(lo), BOUND_MARGIN * np.maximum(1.0, np.abs(lo)), 0.0)
+            near_hi = np.where(np.isfinite(hi), BOUND_MARGIN * np.maximum(1.0, np.abs(hi)), 0.0)
+        return cls(lo, hi, near_lo, near_hi, lo + near_lo, hi - near_hi)
+
+    def blocked(self, X: np.ndarray, dx: np.ndarray) -> np.ndarray:
+        """(rows, P) parameters held at a bound by a step pointing out of the box."""
+        return (((X - self.lo_in <= self.near_lo) & (dx < 0))
+                | ((self.hi_in - X <= self.near_hi) & (dx > 0)))
+
+
+@dataclass(frozen=True)
+class Factors:
+    """Per row: the factors of the current Jacobian (:func:`reduce_jacobian`: ``R1``,
+    ``qtr`` = Q1^T r, ``d`` = diag(J^T J)) and of its damped steps (:func:`scaled_svd`:
+    ``W``, ``s``, ``g``); ``fresh`` marks the rows whose factors belong to their current J."""
+
+    R1: np.ndarray
+    qtr: np.ndarray
+    d: np.ndarray
+    W: np.ndarray
+    s: np.ndarray
+    g: np.ndarray
+    fresh: np.ndarray
+
+    @classmethod
+    def empty(cls, B: int, k: int, P: int) -> Factors:
+        return cls(np.zeros((B, k, P)), np.zeros((B, k)), np.zeros((B, P)),
+                   np.zeros((B, P, k)), np.zeros((B, k)), np.zeros((B, k)), np.zeros(B, bool))
+
+    def outdated(self, rows: np.ndarray) -> Factors:
+        """The same factors with ``rows`` marked as no longer belonging to their J."""
+        fresh = self.fresh.copy()
+        fresh[rows] = False
+        return replace(self, fresh=fresh)
+
+
+# ----------------------------------------------------------------------------- plug-ins
+
+@dataclass(frozen=True)
+class Algorithm1Damping:
+    """Algorithm 1's damping: lambda diag(J^T J) at the current point (``damping="current"``)."""
+
+    name: str = "current"
+
+    def init(self, J: np.ndarray) -> np.ndarray | None:
+        return None
+
+    def seen(self, scale, rows: np.ndarray, J_rows: np.ndarray):
+        return scale
+
+    def floor(self, scale, rows: np.ndarray) -> np.ndarray | None:
+        return None
+
+
+@dataclass(frozen=True)
+class MinpackDamping:
+    """MINPACK's scale: lambda times the largest diag(J^T J) seen so far along the row's path
+    (``damping="max"``); its state is that running maximum (B, P)."""
+
+    name: str = "max"
+
+    def init(self, J: np.ndarray) -> np.ndarray:
+        return np.einsum("bnp,bnp->bp", J, J)
+
+    def seen(self, scale: np.ndarray, rows: np.ndarray, J_rows: np.ndarray) -> np.ndarray:
+        out = scale.copy()
+        out[rows] = np.maximum(out[rows], np.einsum("bnp,bnp->bp", J_rows, J_rows))
+        return out
+
+    def floor(self, scale: np.ndarray, rows: np.ndarray) -> np.ndarray:
+        return scale[rows]
+
+
+@dataclass(frozen=True)
+class Algorithm1Lambda:
+    """Algorithm 1's control of lambda: / 10 on an accepted step (not below ``LAMBDA_MIN``),
+    x 10 on a rejected one; a row stops (``lambda_max``) once lambda exceeds ``lambda_max``."""
+
+    lambda_max: float = 1e12
+
+    def init(self, X: np.ndarray, J: np.ndarray, scale) -> None:
+        return None
+
+    def lambdas(self, lam: np.ndarray, s: np.ndarray, g: np.ndarray, delta) -> np.ndarray:
+        return lam
+
+    def steps(self, W: np.ndarray, s: np.ndarray, g: np.ndarray, lam: np.ndarray):
+        return svd_steps(W, s, g, lam)
+
+    def judge(self, better, chi_t, chi2, dx, R1, qtr, dd, lam, delta, idx, ftol):
+        """(accepted rows, per-row 'predicted decrease small' or None, new control state)."""
+        return better, None, delta
+
+    def next_lambda(self, lam: np.ndarray, idx, lam_idx, acc, rej) -> np.ndarray:
+        lam = lam.copy()
+        lam[acc] = np.maximum(lam[acc] / 10.0, LAMBDA_MIN)
+        lam[rej] *= 10.0
+        return lam
+
+    def finished(self, X, active, delta, idx, rej, lam, dd) -> tuple[np.ndarray, str]:
+        return rej[lam[rej] > self.lambda_max], "lambda_max"
+
+
+@dataclass(frozen=True)
+class TrustRegion:
+    """Trust-region step control (module docstring): lambda chosen so that ``|D dx|`` is at
+    most delta (:func:`trust_region_lambda`), delta updated from the ratio of the actual to
+    the predicted decrease (:func:`_trust_region_update`); a row stops (``xtol``) once delta
+    falls to ``xtol |D x|``. Its state is delta (B,)."""
+
+    step_bound: float = FALLBACK_STEP_BOUND
+    xtol: float = 1e-15
+
+    def init(self, X: np.ndarray, J: np.ndarray, scale) -> np.ndarray:
+        dd0 = _damping_diagonal(np.einsum("bnp,bnp->bp", J, J), scale)[0]
+        delta = float(self.step_bound) * np.sqrt(np.sum(dd0 * X * X, axis=1))
+        return np.where(np.isfinite(delta) & (delta > 0), delta, float(self.step_bound))
+
+    def lambdas(self, lam: np.ndarray, s: np.ndarray, g: np.ndarray, delta) -> np.ndarray:
+        return trust_region_lambda(s, g, delta)
+
+    def steps(self, W: np.ndarray, s: np.ndarray, g: np.ndarray, lam: np.ndarray):
+        with np.errstate(divide="ignore", invalid="ignore"):   # lambda 0: pseudo-inverse
+            c = np.where(s > 0, s * g / (s ** 2 + lam[:, None]), 0.0)
+        return -np.einsum("bpm,bm->bp", W, c)
+
+    def judge(self, better, chi_t, chi2, dx, R1, qtr, dd, lam, delta, idx, ftol):
+        delta = delta.copy()
+        accepted, small_pred = _trust_region_update(better, chi_t, chi2, dx, R1, qtr, dd, lam,
+                                                    delta, idx, ftol)
+        return accepted, small_pred, delta
+
+    def next_lambda(self, lam: np.ndarray, idx, lam_idx, acc, rej) -> np.ndarray:
+        lam = lam.copy()
+        lam[idx] = lam_idx
+        return lam
+
+    def finished(self, X, active, delta, idx, rej, lam, dd) -> tuple[np.ndarray, str]:
+        xn = np.sqrt(np.sum(dd * X[idx] ** 2, axis=1))
+        return idx[active[idx] & (delta[idx] <= self.xtol * xn)], "xtol"
+
+
+@dataclass(frozen=True)
+class NoAcceleration:
+    """The plain damped step."""
+
+    def correct(self, problem: Problem, box: Box, X, v, r, J, W, s, lam, dd, free):
+        """(corrected steps, rows to reject unevaluated, rows that cost a residual call)."""
+        return v, np.zeros(v.shape[0], bool), np.zeros(0, int)
+
+
+@dataclass(frozen=True)
+class GeodesicAcceleration:
+    """Geodesic acceleration (module docstring): the step ``v`` corrected by half the
+    acceleration ``a``; ``h`` the finite-difference step (in units of the step), ``alpha``
+    the largest ``2|a|/|v|`` accepted."""
+
+    h: float = 0.1
+    alpha: float = 0.75
+
+    def correct(self, problem: Problem, box: Box, X, v, r, J, W, s, lam, dd, free):
+        """``dd`` is the damping diagonal of the metric (:func:`_damping_diagonal`). Rows not
+        ``free`` (a parameter held at a bound) or whose ``x + h v`` leaves the box keep
+        ``v``."""
+        h = self.h
+        Xh = X + h * v
+        ok = free & np.all(np.isfinite(Xh) & (Xh > box.lo_in) & (Xh < box.hi_in), axis=1)
+        a = np.zeros_like(v)
+        bad = np.zeros(v.shape[0], bool)
+        e = np.nonzero(ok)[0]
+        if e.size == 0:
+            return v, bad, e
+        rh = np.asarray(problem.values(Xh[e]), float)
+        with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
+            rvv = (2.0 / h) * ((rh - r[e]) / h - np.einsum("bnp,bp->bn", J[e], v[e]))
+            # [J^T J + lam D] a = -J^T r'' with J^T J + lam D = W diag(s^2 + lam) W^T
+            c = np.einsum("bpm,bp->bm", W[e], np.einsum("bnp,bn->bp", J[e], rvv))
+            a[e] = -np.einsum("bpm,bm->bp", W[e], c / (s[e] ** 2 + lam[e, None]))
+            d = dd[e]
+            ratio = 2.0 * np.sqrt(np.sum(d * a[e] ** 2, axis=1) / np.sum(d * v[e] ** 2, axis=1))
+            bad[e] = ratio > self.alpha
+        return v + 0.5 * a, bad, e
+
+
+def select_plugins(*, damping: str = "current", geodesic: bool = False, geo_h: float = 0.1,
+                   geo_alpha: float = 0.75, step_bound: float | None = None,
+                   xtol: float = 1e-15, lambda_max: float = 1e12) -> tuple:
+    """The plug-ins of the keyword options of :func:`levenberg_marquardt_batch`:
+    ``(damping, control, acceleration)``."""
+    damp: Algorithm1Damping | MinpackDamping
+    if damping == "current":
+        damp = Algorithm1Damping()
+    elif damping == "max":
+        damp = MinpackDamping()
+    else:
+        raise ValueError(f"damping must be 'current' or 'max', got {damping!r}")
+    control = (Algorithm1Lambda(lambda_max) if step_bound is None
+               else TrustRegion(float(step_bound), xtol))
+    accel = GeodesicAcceleration(geo_h, geo_alpha) if geodesic else NoAcceleration()
+    return damp, control, accel
+
+
+@dataclass(frozen=True)
+class Settings:
+    """The stopping rules of a run (:func:`levenberg_marquardt_batch`)."""
+
+    max_iter: int = 100
+    lambda0: float = 1e-2
+    ftol: float = 1e-8
+    ftol_abs: float = 0.0
+    chi2_tol: float = 0.0
+    stall_window: int = 0
+    stall_tol: float = 0.0
+    keep_jacobian: bool = False
+
+
+# ----------------------------------------------------------------------------- the state
+
+@dataclass(frozen=True)
+class LMState:
+    """Everything Algorithm 1 carries from one iteration to the next, per row of the batch."""
+
+    it: int                     # iterations done (lock-step: the same for every active row)
+    x: np.ndarray               # (B, P) current points
+    r: np.ndarray               # (B, N) residuals there
+    J: np.ndarray               # (B, N, P) Jacobians (of the last point evaluated with fun)
+    chi2: np.ndarray            # (B,)
+    chi2_0: np.ndarray          # (B,)
+    lam: np.ndarray             # (B,) damping
+    status: np.ndarray          # (B,) object: "" while running, else a key of MESSAGES
+    active: np.ndarray          # (B,) bool
+    iterations: np.ndarray      # (B,) trial steps taken
+    nfev: np.ndarray            # (B,) residual evaluations
+    njev: np.ndarray            # (B,) Jacobian evaluations
+    stale: np.ndarray           # (B,) bool: J not yet evaluated at the (accepted) point
+    factors: Factors
+    scale: np.ndarray | None    # state of the damping plug-in
+    delta: np.ndarray | None    # state of the lambda control plug-in
+    ring: np.ndarray | None     # chi2 after the last iterations (stall window)
+
+
+@dataclass(frozen=True)
+class Proposal:
+    """The trial steps of the active rows ``idx`` at one iteration."""
+
+    idx: np.ndarray             # active rows
+    lam: np.ndarray             # their lambda for this step
+    dd: np.ndarray              # their damping diagonal
+    dx: np.ndarray              # their steps (after the bounds and the acceleration)
+    xt: np.ndarray              # trial points, projected onto the box
+    inside: np.ndarray          # trial points to evaluate
+    accel_rows: np.ndarray      # rows of idx whose acceleration cost a residual call
+
+
+@dataclass(frozen=True)
+class Trial:
+    """Residuals (and Jacobians, without a residual-only function) at the evaluated trial
+    points ``ev`` (positions in the proposal's rows)."""
+
+    chi2: np.ndarray            # (rows,) inf where not evaluated
+    ev: np.ndarray
+    r: np.ndarray | None
+    J: np.ndarray | None
+
+
+def lm_init(problem: Problem, X0: np.ndarray, settings: Settings, damping, control) -> LMState:
+    """The state at the starting points: residuals and Jacobians evaluated once; rows whose
+    residuals or Jacobian are not finite are ``failed``."""
+    X = np.array(X0, dtype=float, copy=True)
+    if X.ndim != 2:
+        raise ValueError("X0 must be 2-D (B, P)")
+    B, P = X.shape
+    r, J = problem.fun(X)
+    r = np.array(r, dtype=float)
+    J = np.array(J, dtype=float)
+    if r.ndim != 2 or r.shape[0] != B or J.shape != (B, r.shape[1], P):
+        raise ValueError(f"fun must return r (B, N) and J (B, N, P); got {r.shape}, {J.shape}")
+    chi2 = _chi2(r)
+    finite_J = np.all(np.isfinite(J), axis=(1, 2))
+    status = np.full(B, "", dtype=object)
+    active = np.isfinite(chi2) & finite_J
+    status[~active] = "failed"
+    scale = damping.init(J)
+    ring = None
+    if int(settings.stall_window) > 0:
+        ring = np.empty((int(settings.stall_window) + 1, B))
+        ring[0] = chi2
+    return LMState(0, X, r, J, chi2, chi2.copy(), np.full(B, float(settings.lambda0)), status,
+                   active, np.zeros(B, int), np.ones(B, int), np.ones(B, int), np.zeros(B, bool),
+                   Factors.empty(B, min(J.shape[1], P), P), scale, control.init(X, J, scale),
+                   ring)
+
+
+def lm_prune(state: LMState, prune: Callable | None) -> LMState:
+    """Stop the rows the ``prune`` rule marks (status ``pruned``)."""
+    if prune is None:
+        return state
+    cut = np.asarray(prune(state.chi2, state.active), bool) & state.active
+    if not cut.any():
+        return state
+    status = state.status.copy()
+    status[cut] = "pruned"
+    return replace(state, status=status, active=state.active & ~cut)
+
+
+def refresh_jacobians(state: LMState, problem: Problem, damping) -> LMState:
+    """Evaluate ``fun`` at the active rows whose Jacobian is stale (accepted by residuals)."""
+    idx = np.nonzero(state.active)[0]
+    st = idx[state.stale[idx]]
+    if not st.size:
+        return state
+    _, JJ = problem.fun(state.x[st])
+    J = state.J.copy()
+    J[st] = JJ
+    njev = state.njev.copy()
+    njev[st] += 1
+    stale = state.stale.copy()
+    stale[st] = False
+    return replace(state, J=J, njev=njev, stale=stale, factors=state.factors.outdated(st),
+                   scale=damping.seen(state.scale, st, JJ))
+
+
+def refresh_factors(state: LMState, damping) -> LMState:
+    """Factorise the Jacobians of the active rows whose factors are outdated."""
+    idx = np.nonzero(state.active)[0]
+    f = state.factors
+    new = idx[~f.fresh[idx]]
+    if not new.size:
+        return state
+    R1, qtr, d, W, s, g, fresh = (f.R1.copy(), f.qtr.copy(), f.d.copy(), f.W.copy(),
+                                  f.s.copy(), f.g.copy(), f.fresh.copy())
+    R1[new], qtr[new], d[new] = reduce_jacobian(state.J[new], state.r[new])
+    W[new], s[new], g[new] = scaled_svd(R1[new], qtr[new], d[new],
+                                        damping.floor(state.scale, new))
+    fresh[new] = True
+    return replace(state, factors=Factors(R1, qtr, d, W, s, g, fresh))
+
+
+def propose(state: LMState, problem: Problem, box: Box, damping, control,
+            acceleration) -> Proposal:
+    """The damped steps of the active rows: lambda from the control, parameters held at a
+    bound by a step pointing out of the box frozen and the step of the others recomputed
+    without them (their Jacobian columns zeroed; same Q1^T r), then the acceleration, and
+    the trial points projected onto the box."""
+    idx = np.nonzero(state.active)[0]
+    f = state.factors
+    dfl = damping.floor(state.scale, idx)
+    delta = None if state.delta is None else state.delta[idx]
+    lam = control.lambdas(state.lam[idx], f.s[idx], f.g[idx], delta)
+    dx = control.steps(f.W[idx], f.s[idx], f.g[idx], lam)
+    Xa = state.x[idx]
+    blocked = box.blocked(Xa, dx)
+    rows = np.nonzero(np.any(blocked, axis=1))[0]
+    if rows.size:
+        keep = ~blocked[rows]
+        br = idx[rows]
+        dx[rows] = damped_steps_reduced(f.R1[br] * keep[:, None, :], f.qtr[br], f.d[br] * keep,
+                                        lam[rows], None if dfl is None else dfl[rows])
+    dd = _damping_diagonal(f.d[idx], dfl)[0]
+    dx, too_curved, accel_rows = acceleration.correct(
+        problem, box, Xa, dx, state.r[idx], state.J[idx], f.W[idx], f.s[idx], lam, dd,
+        ~np.any(blocked, axis=1))
+    Xt = np.clip(Xa + dx, box.lo_in, box.hi_in)                 # projection onto the box
+    inside = np.all(np.isfinite(Xt) & (Xt > box.lo) & (Xt < box.hi), axis=1) & ~too_curved
+    return Proposal(idx, lam, dd, dx, Xt, inside, accel_rows)
+
+
+def evaluate(prop: Proposal, problem: Problem) -> Trial:
+    """Chi-square at the trial points inside the box (inf elsewhere)."""
+    chi_t = np.full(prop.idx.size, np.inf)
+    ev = np.nonzero(prop.inside)[0]
+    rt = Jt = None
+    if ev.size:
+        rt, Jt = problem.trial(prop.xt[ev])
+        chi_t[ev] = _chi2(rt)
+    return Trial(chi_t, ev, rt, Jt)
+
+
+def accept(state: LMState, prop: Proposal, trial: Trial, settings: Settings, damping,
+           control) -> LMState:
+    """Algorithm 1's acceptance (a smaller chi-square, with the control's own test), the
+    update of lambda and the stopping rules of the rows ``prop.idx``."""
+    idx = prop.idx
+    nfev = state.nfev.copy()
+    nfev[idx[prop.accel_rows]] += 1
+    nfev[idx[trial.ev]] += 1
+    iters = state.iterations.copy()
+    iters[idx] += 1
+    f = state.factors
+    better = trial.chi2 < state.chi2[idx]
+    better, small_pred, delta = control.judge(better, trial.chi2, state.chi2[idx], prop.dx,
+                                              f.R1[idx], f.qtr[idx], prop.dd, prop.lam,
+                                              state.delta, idx, settings.ftol)
+    if trial.J is not None:
+        better[trial.ev] &= np.all(np.isfinite(trial.J), axis=(1, 2))
+    acc_local = np.nonzero(better)[0]
+    acc = idx[acc_local]
+    rej = idx[~better]
+    old = state.chi2[acc]
+    X, r, J, chi2 = state.x, state.r, state.J, state.chi2
+    njev, stale, factors, scale = state.njev, state.stale, f, state.scale
+    if acc.size:
+        assert trial.r is not None                          # accepted rows were evaluated
+        pos = np.searchsorted(trial.ev, acc_local)         # rows of trial.r for accepted rows
+        X, r, chi2 = X.copy(), r.copy(), chi2.copy()
+        X[acc] = prop.xt[acc_local]
+        r[acc] = trial.r[pos]
+        chi2[acc] = trial.chi2[acc_local]
+        factors = f.outdated(acc)
+        if trial.J is not None:
+            Ja = trial.J[pos]
+            J = J.copy()
+            J[acc] = Ja
+            njev = njev.copy()
+            njev[acc] += 1
+            scale = damping.seen(scale, acc, Ja)
+        else:
+            stale = stale.copy()
+            stale[acc] = True
+    lam = control.next_lambda(state.lam, idx, prop.lam, acc, rej)
+    status, active = state.status.copy(), state.active.copy()
+    # stopping rules
+    small = (old - chi2[acc]) <= settings.ftol * chi2[acc] + settings.ftol_abs
+    if small_pred is not None:
+        small &= small_pred[acc_local]
+    low = chi2[acc] <= settings.chi2_tol
+    status[acc[low]] = "chi2_tol"
+    status[acc[small & ~low]] = "ftol"
+    active[acc[small | low]] = False
+    done, why = control.finished(X, active, delta, idx, rej, lam, prop.dd)
+    status[done] = why
+    active[done] = False
+    it = state.it + 1
+    ring = state.ring
+    if ring is not None:
+        w = ring.shape[0] - 1
+        ring = ring.copy()
+        ring[it % (w + 1)] = chi2
+        if it >= w:
+            # every active row has taken it iterations (lock-step from iteration 0)
+            before = ring[(it - w) % (w + 1)]
+            flat = active & (before - chi2 <= settings.stall_tol)
+            status[flat] = "stalled"
+            active &= ~flat
+    return LMState(it, X, r, J, chi2, state.chi2_0, lam, status, active, iters, nfev, njev,
+                   stale, factors, scale, delta, ring)
+
+
+def lm_step(state: LMState, problem: Problem, box: Box, settings: Settings, damping, control,
+            acceleration) -> LMState:
+    """One iteration (one trial step) of every active row."""
+    state = refresh_jacobians(state, problem, damping)
+    state = refresh_factors(state, damping)
+    prop = propose(state, problem, box, damping, control, acceleration)
+    return accept(state, prop, evaluate(prop, problem), settings, damping, control)
+
+
+def lm_finish(state: LMState, problem: Problem, settings: Settings) -> LMBatchResult:
+    """The result: rows still running end with status ``max_iter``; the Jacobian at the final
+    points is computed where stale when asked for."""
+    status = state.status.copy()
+    status[state.active] = "max_iter"
+    jac = None
+    njev = state.njev
+    if settings.keep_jacobian:
+        jac = state.J
+        st = np.nonzero(state.stale)[0]
+        if st.size:
+            _, JJ = problem.fun(state.x[st])
+            jac = jac.copy()
+            jac[st] = JJ
+            njev = njev.copy()
+            njev[st] += 1
+    converged = np.isin(status.astype(str), CONVERGED)
+    return LMBatchResult(state.x, state.chi2, state.chi2_0, state.iterations, converged,
+                         status.astype(str), state.lam, state.nfev, njev, state.r, jac)
+
+
+def minimize_batch(problem: Problem, X0: np.ndarray, settings: Settings = Settings(), *,
+                   damping=Algorithm1Damping(), control=Algorithm1Lambda(),
+                   acceleration=NoAcceleration(), lower=None, upper=None,
+                   prune: Callable | None = None) -> LMBatchResult:
+    """Algorithm 1 for B starting points in lock-step with the given plug-ins (the keyword
+    front end is :func:`levenberg_marquardt_batch`)."""
+    state = lm_init(problem, X0, settings, damping, control)
+    box = Box.of(lower, upper, state.x.shape[1])
+    for _ in range(int(settings.max_iter)):
+        if not state.active.any():
+            break
+        state = lm_prune(state, prune)
+        if not state.active.any():
+            break
+        state = lm_step(state, problem, box, settings, damping, control, acceleration)
+    return lm_finish(state, problem, settings)
 
 
 def levenberg_marquardt_batch(fun: Callable, X0: np.ndarray, *, residuals: Callable | None = None,
@@ -381,187 +911,13 @@ def levenberg_marquardt_batch(fun: Callable, X0: np.ndarray, *, residuals: Calla
         rows it marks stop with status ``pruned`` (used by the multi-start driver, which
         documents its rule).
     """
-    X = np.array(X0, dtype=float, copy=True)
-    if X.ndim != 2:
-        raise ValueError("X0 must be 2-D (B, P)")
-    B, P = X.shape
-    lo = np.broadcast_to(np.asarray(-np.inf if lower is None else lower, float), (P,))
-    hi = np.broadcast_to(np.asarray(np.inf if upper is None else upper, float), (P,))
-    # the box the trial points are projected onto: strictly inside the bounds
-    with np.errstate(invalid="ignore"):
-        near_lo = np.where(np.isfinite(lo), BOUND_MARGIN * np.maximum(1.0, np.abs(lo)), 0.0)
-        near_hi = np.where(np.isfinite(hi), BOUND_MARGIN * np.maximum(1.0, np.abs(hi)), 0.0)
-    lo_in, hi_in = lo + near_lo, hi - near_hi
-    r, J = fun(X)
-    r = np.asarray(r, float)
-    J = np.array(J, dtype=float)
-    if r.ndim != 2 or r.shape[0] != B or J.shape != (B, r.shape[1], P):
-        raise ValueError(f"fun must return r (B, N) and J (B, N, P); got {r.shape}, {J.shape}")
-    chi2 = _chi2(r)
-    chi2_0 = chi2.copy()
-    finite_J = np.all(np.isfinite(J), axis=(1, 2))
-    status = np.full(B, "", dtype=object)
-    active = np.isfinite(chi2) & finite_J
-    status[~active] = "failed"
-    lam = np.full(B, float(lambda0))
-    iters = np.zeros(B, int)
-    nfev = np.ones(B, int)
-    njev = np.ones(B, int)
-    stale = np.zeros(B, bool)            # J not yet evaluated at the (accepted) point
-    if damping not in ("current", "max"):
-        raise ValueError(f"damping must be 'current' or 'max', got {damping!r}")
-    dmax = np.einsum("bnp,bnp->bp", J, J) if damping == "max" else None
-    kq = min(J.shape[1], P)
-    R1 = np.zeros((B, kq, P))             # factors of the current J (reduce_jacobian)
-    QTr = np.zeros((B, kq))
-    DJ = np.zeros((B, P))
-    SW = np.zeros((B, P, kq))             # and of its damped steps (scaled_svd)
-    SS = np.zeros((B, kq))
-    SG = np.zeros((B, kq))
-    fresh = np.zeros(B, bool)
-    tr = step_bound is not None
-    if tr:
-        dd0 = _damping_diagonal(np.einsum("bnp,bnp->bp", J, J), dmax)[0]
-        delta = float(step_bound) * np.sqrt(np.sum(dd0 * X * X, axis=1))
-        delta = np.where(np.isfinite(delta) & (delta > 0), delta, float(step_bound))
-    stall_window = int(stall_window)
-    if stall_window > 0:
-        ring = np.empty((stall_window + 1, B))     # chi2 after the last iterations
-        ring[0] = chi2
-
-    for it in range(int(max_iter)):
-        idx = np.nonzero(active)[0]
-        if idx.size == 0:
-            break
-        if prune is not None:
-            cut = np.asarray(prune(chi2, active), bool) & active
-            if cut.any():
-                status[cut] = "pruned"
-                active &= ~cut
-                idx = np.nonzero(active)[0]
-                if idx.size == 0:
-                    break
-        st = idx[stale[idx]]
-        if st.size:
-            rr, JJ = fun(X[st])
-            J[st] = JJ
-            njev[st] += 1
-            stale[st] = False
-            fresh[st] = False
-            if dmax is not None:
-                dmax[st] = np.maximum(dmax[st], np.einsum("bnp,bnp->bp", JJ, JJ))
-        dfl = None if dmax is None else dmax[idx]
-        new = idx[~fresh[idx]]
-        if new.size:
-            R1[new], QTr[new], DJ[new] = reduce_jacobian(J[new], r[new])
-            SW[new], SS[new], SG[new] = scaled_svd(R1[new], QTr[new], DJ[new],
-                                                   None if dmax is None else dmax[new])
-            fresh[new] = True
-        if tr:
-            lam[idx] = trust_region_lambda(SS[idx], SG[idx], delta[idx])
-            with np.errstate(divide="ignore", invalid="ignore"):   # lambda 0: pseudo-inverse
-                c = np.where(SS[idx] > 0, SS[idx] * SG[idx] / (SS[idx] ** 2 + lam[idx, None]),
-                             0.0)
-            dx = -np.einsum("bpm,bm->bp", SW[idx], c)
-        else:
-            dx = svd_steps(SW[idx], SS[idx], SG[idx], lam[idx])
-        # parameters held at a bound by a step pointing out of the box are frozen and the
-        # step of the others recomputed without them (active set)
-        Xa = X[idx]
-        blocked = (((Xa - lo_in <= near_lo) & (dx < 0)) | ((hi_in - Xa <= near_hi) & (dx > 0)))
-        rows = np.nonzero(np.any(blocked, axis=1))[0]
-        if rows.size:
-            # J with the frozen columns zeroed is Q1 (R1 with them zeroed): same Q1^T r
-            keep = ~blocked[rows]
-            br = idx[rows]
-            dx[rows] = damped_steps_reduced(R1[br] * keep[:, None, :], QTr[br], DJ[br] * keep,
-                                            lam[br], None if dfl is None else dfl[rows])
-        too_curved = np.zeros(idx.size, bool)
-        if geodesic:
-            dx, too_curved = _geodesic_correction(
-                fun, residuals, Xa, dx, r[idx], J[idx], SW[idx], SS[idx], lam[idx],
-                _damping_diagonal(DJ[idx], dfl)[0], ~np.any(blocked, axis=1), lo_in, hi_in,
-                geo_h, geo_alpha, nfev, idx)
-        Xt = np.clip(Xa + dx, lo_in, hi_in)                  # projection onto the box
-        inside = np.all(np.isfinite(Xt) & (Xt > lo) & (Xt < hi), axis=1) & ~too_curved
-        chi_t = np.full(idx.size, np.inf)
-        ev = np.nonzero(inside)[0]
-        rt = Jt = None
-        if ev.size:
-            if residuals is not None:
-                rt = np.asarray(residuals(Xt[ev]), float)
-            else:
-                rt, Jt = fun(Xt[ev])
-                rt, Jt = np.asarray(rt, float), np.asarray(Jt, float)
-            chi_t[ev] = _chi2(rt)
-            nfev[idx[ev]] += 1
-        iters[idx] += 1
-        better = chi_t < chi2[idx]
-        if tr:
-            better, small_pred = _trust_region_update(
-                better, chi_t, chi2[idx], dx, R1[idx], QTr[idx],
-                _damping_diagonal(DJ[idx], dfl)[0], lam[idx], delta, idx, ftol)
-        if Jt is not None:
-            better[ev] &= np.all(np.isfinite(Jt), axis=(1, 2))
-        acc_local = np.nonzero(better)[0]
-        acc = idx[acc_local]
-        rej = idx[~better]
-        old = chi2[acc]                                     # (fancy indexing: a copy)
-        if acc.size:
-            pos = np.searchsorted(ev, acc_local)            # rows of rt for accepted rows
-            X[acc] = Xt[acc_local]
-            r[acc] = rt[pos]
-            fresh[acc] = False
-            chi2[acc] = chi_t[acc_local]
-            if Jt is not None:
-                Ja = Jt[pos]
-                J[acc] = Ja
-                njev[acc] += 1
-                if dmax is not None:
-                    dmax[acc] = np.maximum(dmax[acc], np.einsum("bnp,bnp->bp", Ja, Ja))
-            else:
-                stale[acc] = True
-            if not tr:
-                lam[acc] = np.maximum(lam[acc] / 10.0, LAMBDA_MIN)
-        if not tr:
-            lam[rej] *= 10.0
-        # stopping rules
-        small = (old - chi2[acc]) <= ftol * chi2[acc] + ftol_abs
-        if tr:
-            small &= small_pred[acc_local]
-        low = chi2[acc] <= chi2_tol
-        status[acc[low]] = "chi2_tol"
-        status[acc[small & ~low]] = "ftol"
-        active[acc[small | low]] = False
-        if tr:
-            xn = np.sqrt(np.sum(_damping_diagonal(DJ[idx], dfl)[0] * X[idx] ** 2, axis=1))
-            tiny = idx[active[idx] & (delta[idx] <= xtol * xn)]
-            status[tiny] = "xtol"
-            active[tiny] = False
-        else:
-            stuck = rej[lam[rej] > lambda_max]
-            status[stuck] = "lambda_max"
-            active[stuck] = False
-        if stall_window > 0:
-            ring[(it + 1) % (stall_window + 1)] = chi2
-            if it + 1 >= stall_window:
-                # every active row has taken it + 1 iterations (lock-step from iteration 0)
-                before = ring[(it + 1 - stall_window) % (stall_window + 1)]
-                flat = active & (before - chi2 <= stall_tol)
-                status[flat] = "stalled"
-                active &= ~flat
-    status[active] = "max_iter"
-    jac = None
-    if keep_jacobian:
-        st = np.nonzero(stale)[0]
-        if st.size:
-            _, JJ = fun(X[st])
-            J[st] = JJ
-            njev[st] += 1
-        jac = J
-    converged = np.isin(status.astype(str), CONVERGED)
-    return LMBatchResult(X, chi2, chi2_0, iters, converged, status.astype(str), lam, nfev,
-                         njev, r, jac)
+    damp, control, accel = select_plugins(damping=damping, geodesic=geodesic, geo_h=geo_h,
+                                          geo_alpha=geo_alpha, step_bound=step_bound,
+                                          xtol=xtol, lambda_max=lambda_max)
+    settings = Settings(int(max_iter), lambda0, ftol, ftol_abs, chi2_tol, int(stall_window),
+                        stall_tol, keep_jacobian)
+    return minimize_batch(Problem(fun, residuals), X0, settings, damping=damp, control=control,
+                          acceleration=accel, lower=lower, upper=upper, prune=prune)
 
 
 def finite_difference_jacobian(residuals: Callable, x: np.ndarray, r0: np.ndarray | None = None,

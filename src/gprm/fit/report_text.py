@@ -8,12 +8,7 @@ present; older files print without them.
 
 from __future__ import annotations
 
-import json
 import math
-import os
-from pathlib import Path
-
-from gprm.errors import GprmInputError
 
 DEFAULT_MIN_CORREL = 0.9
 
@@ -136,19 +131,10 @@ def fit_report(d: dict, *, min_correl: float = DEFAULT_MIN_CORREL) -> str:
     return "\n".join(lines)
 
 
-def read_fit_json(path: str | os.PathLike) -> dict:
-    """Read a fit.json with clear errors (the file is not modified)."""
-    path = Path(path)
-    if not path.is_file():
-        raise GprmInputError("no such file", source=str(path))
-    try:
-        d = json.loads(path.read_text(encoding="utf-8"))
-    except (UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise GprmInputError(f"not a JSON file ({exc})", source=str(path)) from None
-    if not isinstance(d, dict) or not isinstance(d.get("parameters"), dict):
-        raise GprmInputError("not a gprm fit file (no 'parameters' table)", source=str(path),
-                             field="parameters")
-    return d
+def starts_info(best_chi2: float) -> str:
+    """The text beside the bar of a fit's starts: the unit and the best chi-square so far."""
+    best = f"{best_chi2:.6g}" if math.isfinite(best_chi2) else "-"
+    return f"starts  best chi2 {best}"
 
 
 class starts_progress:
@@ -160,18 +146,17 @@ class starts_progress:
                                    TimeElapsedColumn, TimeRemainingColumn)
 
         self.bar = Progress(TextColumn(description), BarColumn(), MofNCompleteColumn(),
-                            TextColumn("starts"), TextColumn("{task.fields[best]}"),
+                            TextColumn("{task.fields[info]}"),
                             TimeElapsedColumn(), TextColumn("eta"), TimeRemainingColumn(),
                             console=console, transient=True)
         self.n_starts = int(n_starts)
 
     def __enter__(self):
         self.bar.__enter__()
-        task = self.bar.add_task("fit", total=self.n_starts, best="best chi2 -")
+        task = self.bar.add_task("fit", total=self.n_starts, info=starts_info(float("nan")))
 
         def progress(done, total, best_chi2=float("nan")):
-            best = f"best chi2 {best_chi2:.6g}" if math.isfinite(best_chi2) else "best chi2 -"
-            self.bar.update(task, completed=done, total=total, best=best)
+            self.bar.update(task, completed=done, total=total, info=starts_info(best_chi2))
 
         return progress
 

@@ -28,6 +28,10 @@ Identified: a parameter whose posterior standard deviation in u is below ``CONTR
 of the prior's, i.e. the data shrank the prior's variance at least ~11-fold. Every other
 parameter is reported as not determined, with the interval the posterior gives (close to the
 prior's), never a small standard error.
+
+Also here, on the best fit: uncertainty bands on the fitted signals (:func:`compute_bands`)
+and profile likelihoods of a parameter (:func:`profile_likelihood`) or of a predicted quantity
+(:func:`profile_prediction`).
 """
 
 from __future__ import annotations
@@ -37,8 +41,11 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.stats import norm
 
-from gprm.fit.covariance import CovarianceError, covariance
+from gprm.fit.covariance import CovarianceError, covariance, sample_normal
+from gprm.fit.lm import levenberg_marquardt_batch
+from gprm.fit.objective import Objective
 from gprm.fit.prior import Prior
+from gprm.fit.starts import LMOptions
 from gprm.params.registry import ALIGNMENT_OFFSETS
 
 LAG_PARAMETERS: tuple[str, ...] = ("t0", "t1", *ALIGNMENT_OFFSETS.values())
@@ -347,3 +354,241 @@ COVERAGE_HEADLINE = ("Over 20 synthetic campaigns with truths within ±10 % of T
                      "identified parameters, 92.1 % of the moving overshoots, 93.0 % of the "
                      "kinetic-energy histogram's bins and 91.8 % of the velocity-curve points "
                      "(68 %: 71.9, 64.4, 74.0 and 64.7 %)")
+
+
+# ---------------------------------------------------------------------- bands and profiles
+
+@dataclass(frozen=True)
+class Bands:
+    """Model signals at the best fit with uncertainty bands, (n_signals, T) each."""
+
+    time: np.ndarray
+    best: np.ndarray
+    linear_std: np.ndarray      # linear propagation sqrt(diag(J C J^T))
+    sample_std: np.ndarray      # std over covariance samples
+    sample_lo: np.ndarray       # 2.5 % over samples
+    sample_hi: np.ndarray       # 97.5 %
+    n_samples: int
+
+
+@dataclass(frozen=True)
+class Profile:
+    """Profile likelihood of one parameter: grid (physical, ascending), the profile statistic
+    D = (Phi - Phi_min) / s2 with Phi the minimised objective (chi-square plus the weighted
+    prior) re-minimised over the other parameters, and the intervals where D <= 1 (68 %) and
+    D <= 3.84 (95 %). An end is NaN where the profile does not rise to the threshold before
+    the physical bound or the search limit: the data do not bound the parameter on that side.
+    ``chi2`` holds D (kept under its old name in the files)."""
+
+    name: str
+    grid: np.ndarray
+    chi2: np.ndarray
+    lower: float
+    upper: float
+    lower95: float = float("nan")
+    upper95: float = float("nan")
+
+    @property
+    def identifiable(self) -> bool:
+        return bool(np.isfinite(self.lower95) and np.isfinite(self.upper95))
+
+
+def compute_bands(obj: Objective, x: np.ndarray, cov: np.ndarray | None, *, n_samples=200,
+                  seed: int = 0, draws: np.ndarray | None = None) -> Bands:
+    """Bands on the fitted signals: linear propagation of the covariance, and the spread of
+    model signals over ``n_samples`` parameter sets: the uncertainty method's ``draws`` where
+    given, else draws from N(x, cov)."""
+    o = obj.model(x[None], jacobian=cov is not None)
+    best = o.y[0]
+    nanb = np.full_like(best, np.nan)
+    if cov is None:
+        return Bands(obj.data.time, best, nanb, nanb, nanb, nanb, 0)
+    J = o.dy[0]                                                   # (S, T, P)
+    lin = np.sqrt(np.maximum(np.einsum("stp,pq,stq->st", J, cov, J), 0.0))
+    if n_samples <= 0:
+        return Bands(obj.data.time, best, lin, nanb, nanb, nanb, 0)
+    rng = np.random.default_rng([seed, 3])
+    if draws is not None and len(draws) >= 2:
+        X = np.asarray(draws, float)[rng.integers(0, len(draws), n_samples)]
+    else:
+        X = sample_normal(x, cov, n_samples, rng)
+    lo, hi = obj.bounds()
+    X = X[np.all((X > lo) & (X < hi), axis=1)]           # physical sets only
+    if X.shape[0] < 2:          # (almost) every draw non-physical: no sampled band
+        return Bands(obj.data.time, best, lin, nanb, nanb, nanb, 0)
+    ys = obj.model(X).y
+    ok = np.all(np.isfinite(ys), axis=(1, 2))
+    ys = ys[ok]
+    if ys.shape[0] < 2:
+        return Bands(obj.data.time, best, lin, nanb, nanb, nanb, 0)
+    return Bands(obj.data.time, best, lin, ys.std(axis=0, ddof=1),
+                 np.percentile(ys, 2.5, axis=0), np.percentile(ys, 97.5, axis=0),
+                 int(ok.sum()))
+
+
+class _FixedOne:
+    """The objective with parameter k held fixed: its Jacobian column is zero, so the damped
+    step never moves it (see :func:`gprm.fit.lm.scaled_svd`). Each row keeps its own fixed
+    value, whatever subset of rows the lock-step optimizer evaluates."""
+
+    def __init__(self, obj: Objective, k: int):
+        self.obj, self.k = obj, k
+
+    def __call__(self, X):
+        r, J = self.obj(X)             # J is a new array each call: zeroed in place
+        J[:, :, self.k] = 0.0
+        return r, J
+
+    def residuals(self, X):
+        return self.obj.residuals(X)
+
+
+def profile_likelihood(obj: Objective, x_best: np.ndarray, name: str, *, s2: float = 1.0,
+                       sd_u: float | None = None, lm: LMOptions = LMOptions(),
+                       max_extend: int = 3) -> Profile:
+    """Profile likelihood of ``name`` at the best fit ``x_best`` (physical).
+
+    The grid lives in the posterior's coordinate u of the parameter (ln x for a positive
+    parameter under the prior, so the physical bound 0 is never crossed; else x), at
+    -3 .. +3 posterior standard deviations ``sd_u`` (10 % of the value where not given). A
+    side whose outer point has not risen to D = 3.84 is extended by doubling its reach, up to
+    ``max_extend`` times (adaptive steps); points outside the physical bounds are not
+    evaluated. Each grid point is a fit of the other parameters with this one fixed, started
+    from the best fit, all in lock-step. The statistic is scaled by the data's variance scale
+    ``s2`` (the same scale as the Laplace covariance), so its thresholds 1 and 3.84 match the
+    68 % and 95 % intervals of that covariance where the problem is linear.
+    """
+    k = obj.names.index(name)
+    prior = obj.prior
+    log = bool(prior is not None and prior.log[k])
+    to_u = (lambda v: np.log(v)) if log else (lambda v: v)
+    from_u = (lambda v: np.exp(v)) if log else (lambda v: v)
+    u0 = float(to_u(x_best[k]))
+    h = float(sd_u) if sd_u is not None and np.isfinite(sd_u) and sd_u > 0 else \
+        (0.1 if log else 0.1 * max(abs(x_best[k]), 1e-30))
+    lo_b, hi_b = obj.bounds()
+    xn = obj.to_normalised(x_best)
+    f = _FixedOne(obj, k)
+    kw = lm.as_kwargs()
+    kw.update(ftol_abs=min(kw["ftol_abs"], 1e-4), stall_window=0)
+    lo_n, hi_n = obj.bounds_normalised()
+    phi0 = float(obj.chi2(xn[None])[0])
+    pts: dict[float, float] = {}
+
+    def run(offsets):
+        us = [u0 + o * h for o in offsets]
+        xs = np.array([from_u(u) for u in us])
+        ok = (xs > lo_b[k]) & (xs < hi_b[k]) & np.isfinite(xs)
+        if not ok.any():
+            return
+        X0 = np.repeat(xn[None], int(ok.sum()), axis=0)
+        X0[:, k] = xs[ok] / obj.scale[k]
+        res = levenberg_marquardt_batch(f, X0, residuals=f.residuals, lower=lo_n, upper=hi_n,
+                                        **kw)
+        for x, c in zip(xs[ok], res.chi2):
+            pts[float(x)] = float(c) if np.isfinite(c) else np.nan
+
+    offsets = [-3.0, -2.0, -1.0, -0.5, 0.5, 1.0, 2.0, 3.0]
+    run(offsets)
+    for side in (-1.0, 1.0):
+        reach = 3.0
+        for _ in range(max_extend):
+            xs = sorted(pts)
+            phi_min = min([phi0] + [v for v in pts.values() if np.isfinite(v)])
+            edge = xs[0] if side < 0 else xs[-1]
+            if np.isfinite(pts[edge]) and (pts[edge] - phi_min) / s2 >= 3.84:
+                break
+            reach *= 2.0
+            run([side * reach * 0.75, side * reach])
+    pts[float(x_best[k])] = phi0
+    grid = np.array(sorted(pts))
+    phi = np.array([pts[g] for g in grid])
+    dchi = (phi - np.nanmin(phi)) / s2
+    d = np.where(np.isfinite(dchi), dchi, np.inf)
+    lower, upper = _crossings(grid, d, x_best[k], 1.0)
+    lower95, upper95 = _crossings(grid, d, x_best[k], 3.84)
+    return Profile(name, grid, dchi, lower, upper, lower95, upper95)
+
+
+class _Constrained:
+    """The objective with a soft constraint g(x) = c appended as one residual row
+    ``weight * (g(x) - c) / scale``; the target c of each row rides along as an extra,
+    never-moving coordinate (its Jacobian column is zero, as in :class:`_FixedOne`), so each
+    row keeps its own target whatever subset of rows the lock-step optimizer evaluates. The
+    row's gradient is a forward difference in the normalised coordinates."""
+
+    def __init__(self, obj: Objective, quantity, scale: float, weight: float):
+        self.obj, self.g, self.scale, self.weight = obj, quantity, scale, weight
+
+    def _row(self, X, c):
+        return self.weight * (self.g(self.obj.to_physical(X)) - c) / self.scale
+
+    def __call__(self, Xa):
+        X, c = Xa[:, :-1], Xa[:, -1]
+        r, J = self.obj(X)
+        B, P = X.shape
+        h = 1e-6 * np.maximum(np.abs(X), 1e-3)
+        Xh = np.repeat(X[:, None, :], P, axis=1)
+        Xh[:, np.arange(P), np.arange(P)] += h
+        gh = self._row(Xh.reshape(B * P, P), np.repeat(c, P)).reshape(B, P)
+        g0 = self._row(X, c)
+        Jg = (gh - g0[:, None]) / h
+        Ja = np.concatenate([J, Jg[:, None, :]], axis=1)
+        Ja = np.concatenate([Ja, np.zeros(Ja.shape[:2] + (1,))], axis=2)
+        return np.concatenate([r, g0[:, None]], axis=1), Ja
+
+    def residuals(self, Xa):
+        X, c = Xa[:, :-1], Xa[:, -1]
+        return np.concatenate([self.obj.residuals(X), self._row(X, c)[:, None]], axis=1)
+
+
+def profile_prediction(obj: Objective, x_best: np.ndarray, quantity, name: str, *,
+                       s2: float = 1.0, sd: float | None = None,
+                       lm: LMOptions = LMOptions(), weight: float = 30.0) -> Profile:
+    """Profile likelihood of a predicted quantity ``g = quantity(X)`` ((B, P) physical
+    parameter rows -> (B,)), e.g. an overshoot of a body point: at targets
+    g(x^) + (-3 .. 3) ``sd`` the objective is minimised with g held near the target by a soft
+    constraint (:class:`_Constrained`), and each minimum is recorded at the value g actually
+    takes there, so every point of the profile is exact whatever the constraint's slack.
+    Statistic, thresholds and intervals as in :func:`profile_likelihood` (the grid holds
+    values of g)."""
+    xn = obj.to_normalised(x_best)
+    g0 = float(quantity(x_best[None])[0])
+    h = float(sd) if sd is not None and np.isfinite(sd) and sd > 0 else 0.1 * max(abs(g0), 1e-30)
+    targets = g0 + h * np.array([-3.0, -2.0, -1.0, -0.5, 0.5, 1.0, 2.0, 3.0])
+    lo, hi = obj.bounds_normalised()
+    f = _Constrained(obj, quantity, h, weight)
+    Xa = np.column_stack([np.repeat(xn[None], targets.size, axis=0), targets])
+    kw = lm.as_kwargs()
+    kw.update(ftol_abs=min(kw["ftol_abs"], 1e-4), stall_window=0)
+    res = levenberg_marquardt_batch(f, Xa, residuals=f.residuals,
+                                    lower=np.append(lo, -np.inf), upper=np.append(hi, np.inf),
+                                    **kw)
+    X = res.x[:, :-1]
+    phi = obj.chi2(X)
+    g = quantity(obj.to_physical(X))
+    phi0 = float(obj.chi2(xn[None])[0])
+    grid = np.append(g, g0)
+    vals = np.append(phi, phi0)
+    keep = np.isfinite(grid) & np.isfinite(vals)
+    order = np.argsort(grid[keep])
+    grid, vals = grid[keep][order], vals[keep][order]
+    dchi = (vals - vals.min()) / s2
+    lower, upper = _crossings(grid, dchi, g0, 1.0)
+    lower95, upper95 = _crossings(grid, dchi, g0, 3.84)
+    return Profile(name, grid, dchi, lower, upper, lower95, upper95)
+
+
+def _crossings(grid, dchi, centre, level=1.0):
+    lower = upper = np.nan
+    left = np.nonzero((grid < centre) & (dchi >= level))[0]
+    if left.size:
+        i = left[-1]
+        j = i + 1
+        lower = np.interp(level, [min(dchi[j], level), dchi[i]], [grid[j], grid[i]])
+    right = np.nonzero((grid > centre) & (dchi >= level))[0]
+    if right.size:
+        j = right[0]
+        i = j - 1
+        upper = np.interp(level, [min(dchi[i], level), dchi[j]], [grid[i], grid[j]])
+    return lower, upper

@@ -8,21 +8,6 @@ from typing import Optional
 import typer
 
 
-def _model(src: str, piezo: Optional[int]):
-    from gprm.errors import GprmInputError
-    from gprm.fit.files import load_fit, paper_model
-
-    if src == "paper":
-        return paper_model(piezo or 2)
-    m = load_fit(src)
-    if piezo is not None and piezo != m.piezo:
-        from dataclasses import replace
-        if piezo not in (1, 2):
-            raise GprmInputError(f"must be 1 or 2, got {piezo}", field="--piezo")
-        m = replace(m, piezo=piezo)
-    return m
-
-
 def _window(window):
     from gprm.errors import GprmInputError
 
@@ -94,7 +79,9 @@ def register(app: typer.Typer, synth_app: typer.Typer) -> None:
             raise GprmInputError("must be >= 1", field="--releases")
         if rate <= 0 or post <= 0 or pos_noise <= 0 or att_noise <= 0:
             raise GprmInputError("rate, post and noise levels must be > 0", field="--rate")
-        m = _model(fit, piezo)
+        from gprm.fit.files import load_model
+
+        m = load_model(fit, piezo=piezo)
         ds = synth_telemetry(m, SynthOptions(n_releases=releases, seed=seed, rate=rate,
                                              post=post, pos_noise=pos_noise,
                                              att_noise=att_noise, truth_spread=not no_spread,
@@ -157,7 +144,9 @@ def register(app: typer.Typer, synth_app: typer.Typer) -> None:
         if impact_model not in ("3d", "planar"):
             raise GprmInputError(f"must be 3d or planar, got {impact_model!r}",
                                  field="--impact-model")
-        m = _model(fit, piezo)
+        from gprm.fit.files import load_model
+
+        m = load_model(fit, piezo=piezo)
         tel = load_telemetry(telemetry)
         opts = AnalysisOptions(alpha=alpha, n_samples=samples, seed=seed,
                                window=_window(window), fit_window=fit_window,

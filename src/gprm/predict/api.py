@@ -12,8 +12,8 @@ from pathlib import Path
 from typing import Mapping
 
 from gprm.errors import GprmInputError
-from gprm.fit.files import FittedModel
-from gprm.predict.core import Prediction, load_model, predict, prediction_times
+from gprm.fit.files import FittedModel, load_model
+from gprm.predict.core import Prediction, predict, prediction_times
 from gprm.predict.scenarios import Scenario, check_scenario
 from gprm.predict.whatif import whatif
 
@@ -94,10 +94,6 @@ class PredictOptions:
                    overrides=dict(sc.overrides), name=sc.name, **kw)
 
 
-def _model(model: FittedModel | str | os.PathLike) -> FittedModel:
-    return model if isinstance(model, FittedModel) else load_model(model)
-
-
 def _voltage(opts: PredictOptions):
     if opts.voltage is None:
         return None
@@ -114,7 +110,7 @@ def run_predict(model: FittedModel | str | os.PathLike,
     if not isinstance(opts, PredictOptions):
         raise GprmInputError(f"expected PredictOptions, got {type(opts).__name__}",
                              field="opts")
-    fm = _model(model)
+    fm = load_model(model)
     t = prediction_times(opts.t_start, opts.t_end, opts.rate)
     return predict(fm, scenario=opts.scenario(), times=t, samples=opts.samples,
                    seed=opts.seed, means=opts.means, n_bins=opts.bins, gap=opts.gap,
@@ -129,5 +125,5 @@ def run_whatif(model: FittedModel | str | os.PathLike,
     if not isinstance(opts, PredictOptions):
         raise GprmInputError(f"expected PredictOptions, got {type(opts).__name__}",
                              field="opts")
-    return whatif(_model(model), samples=min(opts.samples, WHATIF_MAX_SAMPLES), seed=opts.seed,
+    return whatif(load_model(model), samples=min(opts.samples, WHATIF_MAX_SAMPLES), seed=opts.seed,
                   voltage=_voltage(opts))

@@ -103,7 +103,7 @@ def register(app: typer.Typer, synth_app: typer.Typer) -> None:
         from gprm._io import write_json_atomic, write_netcdf_atomic
         from gprm.errors import GprmInputError
         from gprm.predict.api import PredictOptions, run_predict, run_whatif
-        from gprm.predict.core import load_model
+        from gprm.fit.files import load_model
         from gprm.predict.files import prediction_dataset
 
         from gprm._io import check_outputs

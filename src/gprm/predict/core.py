@@ -13,7 +13,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from gprm.errors import GprmInputError
-from gprm.fit.files import FittedModel, load_fit, paper_model
+from gprm.fit.files import FittedModel
 from gprm.predict.energy import DEFAULT_WINDOW as ENERGY_WINDOW
 from gprm.predict.energy import EnergyCheck, energy_check, read_means
 from gprm.predict.masses import mass_table
@@ -36,13 +36,6 @@ class Prediction:
     risk: ImpactRisk | None
     seed: int
     means_source: str | None
-
-
-def load_model(fit: str | os.PathLike) -> FittedModel:
-    """A FittedModel from a fit JSON, or the paper's Table 3 for the word ``paper``."""
-    if str(fit) == "paper":
-        return paper_model()
-    return load_fit(fit)
 
 
 def prediction_times(t_start: float, t_end: float, rate: float) -> np.ndarray:

@@ -26,6 +26,7 @@ import numpy as np
 
 from gprm._io import open_netcdf, read_json, write_text_atomic
 from gprm.errors import GprmInputError
+from gprm.fit.files import read_fit_document, read_fit_sidecar
 from gprm.fit.uncertainty import COVERAGE_HEADLINE
 from gprm.fit.report_text import pretty_unit
 from gprm.report import figures as F
@@ -221,10 +222,10 @@ def combination_rows(fit: dict) -> list:
 
 def fit_section(run: Path) -> tuple[Section, dict | None]:
     s = Section("Identification", "fit")
-    fit = _load_json(run, "fit.json", "fit result")
-    if fit is None:
+    if not (run / "fit.json").exists():
         return _not_run(s, "Fit", "fit.json is missing (gprm fit)."), None
-    side = _load_nc(run, "fit.nc", "fit sidecar")
+    fit = read_fit_document(run / "fit.json")
+    side = read_fit_sidecar(run / "fit.nc") if (run / "fit.nc").exists() else None
     st = fit.get("starts", {})
     s.blocks.append(paragraph(
         f"Weighted multi-signal Levenberg–Marquardt (Algorithm 1) from {st.get('requested')} "

@@ -10,6 +10,7 @@ import math
 from pathlib import Path
 
 from gprm._io import open_netcdf, read_json
+from gprm.fit.files import read_fit_document
 
 
 def json_attr(attrs, key: str, default=None):
@@ -102,7 +103,7 @@ def summarise(run: str | Path) -> dict:
     run = Path(run)
     s: dict = {}
     if (run / "fit.json").exists():
-        fit = read_json(run / "fit.json", what="fit result")
+        fit = read_fit_document(run / "fit.json")
         st = fit.get("starts", {})
         s["fit"] = {"chi2": fit.get("chi2"), "dof": fit.get("dof"),
                     "reduced_chi2": fit.get("reduced_chi2"),

@@ -18,5 +18,5 @@ __getattr__, __dir__, __all__ = attach(__name__, {
     "api": ["run_chain", "run_demo"],
     "engine": ["RUN_JSON", "RunResult", "Stage", "StageRecord"],
     "options": ["RunOptions"],
-    "stages": ["NO_UNCERTAINTY", "chain", "load_model", "stage_titles"],
+    "stages": ["NO_UNCERTAINTY", "chain", "model_notes", "stage_titles"],
 })

@@ -88,15 +88,18 @@ def run_and_print(out: Path, opts, *, demo: bool) -> None:
 
 
 class _Progress:
-    """One line per stage: spinner while it runs, a bar where the stage reports steps."""
+    """One line per stage: spinner while it runs, a bar where the stage reports steps; the
+    fit's line counts starts with the best chi-square so far and the time remaining, as
+    ``gprm fit`` shows them (the same progress callback of the library)."""
 
     def __init__(self, console, titles: dict[str, str]):
         from rich.progress import (BarColumn, MofNCompleteColumn, Progress, SpinnerColumn,
-                                   TextColumn, TimeElapsedColumn)
+                                   TextColumn, TimeElapsedColumn, TimeRemainingColumn)
 
         self.titles = titles
         self.bar = Progress(SpinnerColumn(finished_text="•"), TextColumn("{task.description}"),
-                            BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
+                            BarColumn(), MofNCompleteColumn(), TextColumn("{task.fields[info]}"),
+                            TimeElapsedColumn(), TextColumn("eta"), TimeRemainingColumn(),
                             console=console)
         self.tasks = {}
 
@@ -107,15 +110,23 @@ class _Progress:
     def __exit__(self, *exc):
         return self.bar.__exit__(*exc)
 
-    def event(self, stage: str, kind: str, done=None, total=None):
+    def event(self, stage: str, kind: str, done=None, total=None, best_chi2=None):
+        from gprm.fit.report_text import starts_info
+
         title = self.titles.get(stage, stage)
         if kind == "start":
-            self.tasks[stage] = self.bar.add_task(f"[bold]{title}", total=None)
+            self.tasks[stage] = self.bar.add_task(f"[bold]{title}", total=None, info="")
         elif kind == "step" and stage in self.tasks:
-            self.bar.update(self.tasks[stage], completed=done, total=total)
+            info = "" if best_chi2 is None else starts_info(best_chi2)
+            self.bar.update(self.tasks[stage], completed=done, total=total, info=info)
         elif kind == "done" and stage in self.tasks:
-            self.bar.update(self.tasks[stage], description=f"[green]✓ {title}", total=1,
-                            completed=1)
+            # a stage that counted steps (the fit's starts) keeps its count (1000/1000
+            # starts); the elapsed time is the stage's, not that of its last step: a change
+            # of total restarts rich's finish clock
+            n = next((t.total for t in self.bar.tasks if t.id == self.tasks[stage]), None) or 1
+            self.bar.update(self.tasks[stage], total=n + 1)
+            self.bar.update(self.tasks[stage], description=f"[green]✓ {title}", total=n,
+                            completed=n)
         else:
             label = {"skip": "[dim]↷ {} (up to date)", "unavailable": "[yellow]– {} (not "
                      "available)", "blocked": "[yellow]– {} (needs an earlier stage)",
@@ -126,7 +137,7 @@ class _Progress:
                 self.bar.update(self.tasks[stage], description=label.format(title), total=1,
                                 completed=1)
             else:
-                self.tasks[stage] = self.bar.add_task(label.format(title), total=1)
+                self.tasks[stage] = self.bar.add_task(label.format(title), total=1, info="")
                 self.bar.update(self.tasks[stage], completed=1)
 
 

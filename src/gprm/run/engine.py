@@ -25,6 +25,7 @@ from pathlib import Path
 from typing import Any, Callable
 
 from gprm._io import read_json, write_json_atomic
+from gprm.fit.engine import takes_keyword
 from gprm.report.build import write_report
 from gprm.report.summary import summarise
 
@@ -121,12 +122,24 @@ def _options_json(opts) -> dict:
     return asdict(opts) if hasattr(opts, "__dataclass_fields__") else dict(vars(opts))
 
 
+def _events(progress: Progress | None) -> Callable[..., None]:
+    """The progress callback as a function that takes the fit's ``best_chi2`` keyword, which
+    a callback of (stage, event, done, total) alone is not given."""
+    if progress is None:
+        return lambda *a, **k: None
+    if takes_keyword(progress, "best_chi2"):
+        return progress
+    return lambda stage, event, done=None, total=None, **_: progress(stage, event, done, total)
+
+
 def run_stages(out: str | Path, opts, stages, *, progress: Progress | None = None,
                command: str | None = None, report_html: bool = True) -> RunResult:
     """Run ``stages`` into ``out`` (created if needed), resuming what is up to date.
 
     ``progress(stage, event, done, total)`` is called with event ``start``, ``step`` (with
-    done/total, e.g. fit chunks), ``done``, ``skip``, ``blocked`` or ``fail``. Returns the
+    done/total, e.g. the fit's starts), ``done``, ``skip``, ``blocked`` or ``fail``; a
+    callback that takes a ``best_chi2`` keyword also gets the fit's smallest chi-square so far
+    with its steps (the fit's progress callback, :func:`gprm.fit.run_fit`). Returns the
     stage records and the summary (also written to ``run.json``).
     """
     run = Path(out)
@@ -138,7 +151,7 @@ def run_stages(out: str | Path, opts, stages, *, progress: Progress | None = Non
             previous = read_json(prev_path, what="run record")
         except Exception:   # a damaged record only costs a full rerun
             previous = {}
-    report = progress or (lambda *a: None)
+    report = _events(progress)
     seed = getattr(opts, "seed", None)
     state = {
         "format_version": FORMAT_VERSION,
@@ -185,7 +198,8 @@ def run_stages(out: str | Path, opts, stages, *, progress: Progress | None = Non
         report(stage.name, "start", None, None)
         t0 = time.perf_counter()
         try:
-            info = stage.run(run, opts, lambda d, t, _n=stage.name: report(_n, "step", d, t))
+            info = stage.run(run, opts, lambda d, t, _n=stage.name, **kw:
+                             report(_n, "step", d, t, **kw))
         except Exception as exc:
             # a failing stage does not stop the chain: it is recorded (with the traceback's
             # last lines), the stages needing its output are blocked, the report says why

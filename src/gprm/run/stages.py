@@ -20,12 +20,12 @@ import shutil
 from dataclasses import asdict
 from pathlib import Path
 
-from gprm._io import atomic_path, read_json, write_json_atomic, write_netcdf_atomic
+from gprm._io import atomic_path, write_json_atomic, write_netcdf_atomic
 from gprm.campaign.api import run_preprocess
 from gprm.campaign.data import load_campaign, write_campaign
 from gprm.campaign.synth import synth_campaign
 from gprm.fit.api import run_fit
-from gprm.fit.files import FittedModel, load_fit
+from gprm.fit.files import FittedModel, load_model
 from gprm.flight.analysis import AnalysisOptions, analyze, curves_dataset
 from gprm.flight.synth import SynthOptions, synth_telemetry
 from gprm.flight.telemetry import load_telemetry, telemetry_csv_dataset
@@ -44,17 +44,14 @@ PREDICT_FILES = {"piezo2": "predict.nc", "piezo1": "predict_piezo1.nc",
 PREDICT_SPAN = dict(t_start=0.95e-3, t_end=1.2e-3, rate=1e6)
 
 
-def load_model(run: Path) -> tuple[FittedModel, list[str]]:
-    """The fitted model of ``run/fit.json`` and its notes. A fit without a usable covariance
+def model_notes(fm: FittedModel) -> list[str]:
+    """The notes a stage records on the model it ran on. A fit without a usable covariance
     (a direction the data do not determine) still gives its best-fit values: later stages
     run on them without parameter uncertainty, and the note says so."""
-    path = Path(run) / "fit.json"
-    fm = load_fit(path)
     if not fm.has_uncertainty:
-        doc = read_json(path, what="fit result")
-        why = str(doc.get("covariance_message", "") or "no covariance")
-        return fm, [f"{NO_UNCERTAINTY} (the fit has no covariance: {why})"]
-    return fm, []
+        why = fm.covariance_message or "no covariance"
+        return [f"{NO_UNCERTAINTY} (the fit has no covariance: {why})"]
+    return []
 
 
 def _with_notes(info: dict, notes: list[str]) -> dict:
@@ -142,7 +139,8 @@ def _predict_options(run: Path, opts: RunOptions, sc=None) -> PredictOptions:
 
 
 def _predict(run: Path, opts: RunOptions, step) -> dict:
-    fm, notes = load_model(run)
+    fm = load_model(run)
+    notes = model_notes(fm)
     scen = {sc.name: sc for sc in standard_scenarios()}
     todo = [(scen[name], fname) for name, fname in PREDICT_FILES.items()]
     step(0, len(todo) + 1)
@@ -176,7 +174,8 @@ def _telemetry(run: Path, opts: RunOptions, step) -> dict:
             with atomic_path(dest) as tmp:
                 shutil.copyfile(src, tmp)
         return {"source": str(src), "releases": len(tel.releases)}
-    fm, notes = load_model(run)
+    fm = load_model(run)
+    notes = model_notes(fm)
     ds = synth_telemetry(fm, SynthOptions(n_releases=opts.releases, seed=opts.seed))
     write_netcdf_atomic(ds, dest)
     return _with_notes({"source": "synthetic", "releases": opts.releases}, notes)
@@ -188,7 +187,8 @@ def _telemetry_csv_dataset(path: Path):
 
 
 def _impact(run: Path, opts: RunOptions, step) -> dict:
-    fm, notes = load_model(run)
+    fm = load_model(run)
+    notes = model_notes(fm)
     tel = load_telemetry(run / "telemetry.nc")
     aopts = AnalysisOptions(n_samples=opts.predict_samples, seed=opts.seed)
     doc, curves = analyze(fm, tel, aopts)

@@ -1,12 +1,10 @@
-"""Multi-start identification (paper Sec. 3.1: 1000 random starts within ±20% of the initial
-values; the smallest chi-square is the best fit).
-
-Starts are drawn once from the seed, split into chunks, and each chunk runs Levenberg-Marquardt
-in lock-step (one batched simulation per iteration serves the whole chunk). Chunks are
-independent tasks: they run in-process or on a Dask cluster, are checkpointed as they finish,
-and a rerun with the same inputs resumes from the checkpoints. Because the starts and the
-chunking depend only on the seed and the options, results are identical whatever the number
-of workers.
+"""Execution engine of the multi-start identification: starts are drawn once from the seed
+(:mod:`gprm.fit.starts`), split into chunks, and each chunk runs Levenberg-Marquardt in
+lock-step (one batched simulation per iteration serves the whole chunk). Chunks are
+independent tasks: they run in-process or on a Dask cluster (one BLAS thread each), are
+checkpointed as they finish, and a rerun with the same inputs resumes from the checkpoints.
+Because the starts and the chunking depend only on the seed and the options, results are
+identical whatever the number of workers.
 """
 
 from __future__ import annotations
@@ -14,12 +12,13 @@ from __future__ import annotations
 import contextlib
 import ctypes
 import hashlib
+import inspect
 import json
 import os
 import re
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass
 from pathlib import Path
-from typing import Callable, Sequence
+from typing import Callable
 
 import numpy as np
 
@@ -27,201 +26,8 @@ from gprm._io import atomic_path, write_text_atomic
 from gprm.errors import GprmInputError
 from gprm.fit.lm import levenberg_marquardt_batch
 from gprm.fit.objective import Objective
-
-MAX_RESAMPLE = 5
-
-
-@dataclass(frozen=True)
-class LMOptions:
-    """Options of Algorithm 1 used for every start (see :mod:`gprm.fit.lm`).
-
-    The stopping rule of an accepted step is ``|d chi2| <= ftol * chi2 + ftol_abs``
-    (epsilon_1 of Algorithm 1). The default absolute part, 1e-3, is far below the
-    Delta chi2 = 1 that separates statistically distinguishable fits. ``ftol_reduced`` > 0
-    raises the relative part to ``ftol_reduced / dof`` (a change in units of the reduced
-    chi-square, see :meth:`for_starts`); it is off by default because on a campaign with model
-    mismatch (reduced chi-square ~250) 1e-3 stopped the creeping starts early and the best of
-    100 starts came out 134 higher in chi-square (0.5 in reduced units), for 28 % less time.
-    The best start is polished with a tight tolerance (:func:`gprm.fit.result.polish_best`)
-    before the uncertainties are computed.
-
-    ``stall_window``/``stall_tol``: a start whose chi-square fell by at most ``stall_tol``
-    over its last ``stall_window`` iterations stops (status ``stalled``). The starts' job is
-    to find the basin of the smallest chi-square, not to converge each of them to machine
-    precision: on the demo campaign many starts otherwise creep along a flat
-    valley (the weakly determined y-plane parameters) by a few thousandths of chi-square per
-    iteration until the iteration limit, already at the best minimum. The default, 0.05 over
-    5 iterations (a mean 0.01 per iteration, a hundredth of the Delta chi2 = 1 that separates
-    distinguishable fits), finds the same best start on the demo's fit in about half the time
-    (``benchmarks/bench_fit.py --variants``, docs/fitting.md).
-
-    ``damping``/``geodesic``: the optimizer variants of :mod:`gprm.fit.lm`; the
-    identification keeps plain Algorithm 1 (measured by the same command).
-    """
-
-    max_iter: int = 100
-    lambda0: float = 1e-2
-    ftol: float = 1e-8
-    ftol_abs: float = 1e-3
-    chi2_tol: float = 0.0     # stop when chi-square falls below (epsilon_2)
-    lambda_max: float = 1e12
-    residual_trials: bool = True   # trial points: residuals only, Jacobian if accepted
-    ftol_reduced: float = 0.0
-    stall_window: int = 5
-    stall_tol: float = 0.05
-    damping: str = "current"       # Algorithm 1; "max": MINPACK's scale (gprm.fit.lm)
-    geodesic: bool = False         # geodesic acceleration (gprm.fit.lm); off, as measured
-
-    def as_kwargs(self) -> dict:
-        d = asdict(self)
-        d.pop("residual_trials")
-        d.pop("ftol_reduced")
-        return d
-
-    def for_starts(self, dof: int) -> dict:
-        """Keyword arguments of the multi-start runs for a fit with ``dof`` degrees of
-        freedom."""
-        d = self.as_kwargs()
-        if self.ftol_reduced > 0:
-            d["ftol"] = max(self.ftol, self.ftol_reduced / max(int(dof), 1))
-        return d
-
-
-@dataclass(frozen=True)
-class MultiStartOptions:
-    n_starts: int = 1000
-    seed: int = 0
-    spread: float = 0.2
-    sampling: str = "uniform"     # or "lhs" (Latin hypercube)
-    chunk_size: int = 250         # starts per lock-step batch (one task; see docs/fitting.md)
-    lm: LMOptions = field(default_factory=LMOptions)
-    prune_after: int = 10         # 0: never prune (see make_prune_rule)
-    prune_factor: float = 100.0
-    prune_rate_window: int = 10   # 0: no rate rule (see make_prune_rule)
-
-
-@dataclass(frozen=True)
-class StartsOutcome:
-    """Every start's initial and final point (physical units), chi-square, iterations and
-    outcome. Arrays are indexed by start."""
-
-    names: tuple[str, ...]
-    x0: np.ndarray
-    x: np.ndarray
-    chi2_0: np.ndarray
-    chi2: np.ndarray
-    iterations: np.ndarray
-    converged: np.ndarray
-    status: np.ndarray
-    resampled: np.ndarray
-
-    @property
-    def best_index(self) -> int:
-        c = np.where(np.isfinite(self.chi2), self.chi2, np.inf)
-        if not np.isfinite(c).any():
-            raise GprmInputError("no start produced a finite chi-square", field="starts")
-        return int(np.argmin(c))
-
-    def n_at_best(self, tol: float = 1.0) -> int:
-        """Number of starts whose chi-square is within ``tol`` of the best (Delta chi2 = 1 by
-        default: statistically indistinguishable minima)."""
-        c = self.chi2[np.isfinite(self.chi2)]
-        return int(np.sum(c <= c.min() + tol))
-
-
-# ----------------------------------------------------------------------------- starts
-
-def draw_starts(center: np.ndarray, opts: MultiStartOptions) -> np.ndarray:
-    """Normalised starting points (n, P): center * (1 + spread * U), U in [-1, 1]^P, uniform or
-    Latin-hypercube, from ``opts.seed`` alone."""
-    if opts.n_starts < 1:
-        raise GprmInputError(f"must be at least 1, got {opts.n_starts}", field="starts")
-    if not (opts.spread >= 0 and np.isfinite(opts.spread)):
-        raise GprmInputError(f"must be >= 0, got {opts.spread}", field="spread")
-    P = center.size
-    if opts.sampling == "uniform":
-        U = np.random.default_rng([opts.seed, 0]).uniform(-1, 1, (opts.n_starts, P))
-    elif opts.sampling == "lhs":
-        from scipy.stats import qmc
-
-        U = 2 * qmc.LatinHypercube(d=P, seed=np.random.default_rng([opts.seed, 1])).random(
-            opts.n_starts) - 1
-    else:
-        raise GprmInputError(f"unknown sampling {opts.sampling!r} (uniform, lhs)",
-                             field="sampling")
-    return center[None] * (1 + opts.spread * U)
-
-
-def make_prune_rule(opts: MultiStartOptions):
-    """Early stop of starts that are clearly far from the best (``prune_after = 0``: off).
-
-    Two rules, both against the smallest chi-square reached in the start's chunk so far
-    (running or finished), ``best``; a start they stop gets status ``pruned``:
-
-    - factor: from iteration ``prune_after`` on, chi2 > ``prune_factor`` x best;
-    - rate (``prune_rate_window`` = k > 0): from iteration k on, a start that cannot come
-      within Delta chi2 = 1 of ``best`` by the iteration limit even if it kept its mean
-      decrease over its last k iterations, chi2 - best > 1 + (decrease per iteration) x
-      (iterations left). LM's decrease slows as a start converges, so the straight-line
-      extrapolation is generous; on the demo's campaign it stops the starts stuck in a far
-      basin (chi-square about 12 x the best) that otherwise ran to the limit, and the best
-      fit is unchanged.
-
-    Chi-square never increases along a start, so a pruned start can become the best only by
-    outrunning these bounds; the benchmark checks that the best fit is unchanged with pruning
-    on (``bench_fit.py --check-prune``). The rules use the chunk only, so they do not depend
-    on the number of workers or on the order in which chunks finish.
-    """
-    if opts.prune_after <= 0:
-        return None
-    k = max(int(opts.prune_rate_window), 0)
-    max_iter = int(opts.lm.max_iter)
-    state: dict = {"it": 0, "ring": None}
-
-    def rule(chi2, active):
-        it = state["it"]                   # iterations done before this call
-        state["it"] += 1
-        cut = np.zeros_like(active)
-        if k:
-            if state["ring"] is None:
-                state["ring"] = np.empty((k + 1, chi2.size))
-            ring = state["ring"]
-            ring[it % (k + 1)] = chi2
-        best = np.min(chi2)
-        if it >= opts.prune_after:
-            cut |= active & (chi2 > opts.prune_factor * best)
-        if k and it >= k:
-            rate = (ring[(it - k) % (k + 1)] - chi2) / k
-            with np.errstate(invalid="ignore"):
-                cut |= active & (chi2 - best > 1.0 + rate * (max_iter - it))
-        return cut
-
-    return rule
-
-
-def _resample_invalid(obj: Objective, X0n: np.ndarray, start_ids: np.ndarray, opts) -> tuple:
-    """Replace starts whose model cannot be evaluated (unstable, singular, non-finite) by
-    fresh draws from a per-start stream, up to MAX_RESAMPLE times."""
-    X0n = X0n.copy()
-    counts = np.zeros(len(X0n), int)
-    reasons = np.full(len(X0n), "", dtype=object)
-    center = obj.to_normalised(obj.base.initial_vector(obj.names))
-    lo, hi = obj.bounds_normalised()
-    for attempt in range(MAX_RESAMPLE + 1):
-        obs = obj.model(obj.to_physical(X0n))
-        good = obs.ok & np.all(np.isfinite(obs.y), axis=(1, 2))
-        reasons[~good] = obs.reason[~good]
-        out = ~np.all((X0n > lo) & (X0n < hi), axis=1)
-        reasons[out] = "outside the parameter bounds"
-        good &= ~out
-        if good.all() or attempt == MAX_RESAMPLE:
-            break
-        for i in np.nonzero(~good)[0]:
-            rng = np.random.default_rng([opts.seed, 2, int(start_ids[i]), attempt])
-            X0n[i] = center * (1 + opts.spread * rng.uniform(-1, 1, center.size))
-            counts[i] += 1
-    reasons[good] = ""
-    return X0n, counts, reasons
+from gprm.fit.starts import (LMOptions, MultiStartOptions, StartsOutcome, draw_starts,
+                             make_prune_rule, resample_invalid)
 
 
 # ----------------------------------------------------------------------------- one chunk
@@ -294,7 +100,7 @@ def run_chunk(task: ChunkTask) -> dict:
 
 def _run_chunk(task: ChunkTask) -> dict:
     obj, opts = task.objective, task.options
-    X0n, counts, reasons = _resample_invalid(obj, task.X0n, task.start_ids, opts)
+    X0n, counts, reasons = resample_invalid(obj, task.X0n, task.start_ids, opts)
     n = X0n.shape[0]
     bad0 = reasons != ""
     good = np.nonzero(~bad0)[0]
@@ -503,7 +309,7 @@ def local_worker_config() -> dict:
 def run_multistart(obj: Objective, opts: MultiStartOptions = MultiStartOptions(), *,
                    workers: int = 0, scheduler: str | None = None,
                    checkpoint_dir: str | os.PathLike | None = None,
-                   progress: Callable[[int, int], None] | None = None,
+                   progress: Callable[..., None] | None = None,
                    stop_after: int | None = None) -> StartsOutcome:
     """Run all starts. ``workers=0`` runs in this process; ``workers>0`` starts a local Dask
     cluster with that many single-threaded worker processes; ``scheduler`` connects to an
@@ -579,17 +385,22 @@ def run_multistart(obj: Objective, opts: MultiStartOptions = MultiStartOptions()
         resampled=cat["resampled"][order])
 
 
+def takes_keyword(f: Callable, name: str) -> bool:
+    """Whether ``f`` accepts the keyword ``name`` (by name or through ``**kwargs``)."""
+    try:
+        sig = inspect.signature(f).parameters
+    except (TypeError, ValueError):  # pragma: no cover - builtins without a signature
+        return False
+    return name in sig or any(p.kind is p.VAR_KEYWORD for p in sig.values())
+
+
 def _progress_reporter(progress, chunks, results):
-    """A no-argument function that reports (starts done, starts requested[, best_chi2])."""
+    """A no-argument function that reports (starts done, starts requested[, best_chi2]):
+    the progress callback of the fit (:func:`run_multistart`), the same for ``gprm fit``,
+    ``gprm run`` and ``gprm demo``."""
     if progress is None:
         return lambda: None
-    import inspect
-
-    try:
-        sig = inspect.signature(progress).parameters
-        with_best = "best_chi2" in sig or any(p.kind is p.VAR_KEYWORD for p in sig.values())
-    except (TypeError, ValueError):  # pragma: no cover - builtins without a signature
-        with_best = False
+    with_best = takes_keyword(progress, "best_chi2")
     n_total = int(sum(len(c) for c in chunks))
 
     def report():
@@ -604,30 +415,18 @@ def _progress_reporter(progress, chunks, results):
     return report
 
 
-def starts_to_dataset(out: StartsOutcome):
-    """The NetCDF sidecar content: every start's initial and final values, chi-square,
-    iterations and outcome."""
-    import xarray as xr
-
-    ds = xr.Dataset(
-        {"x0": (("start", "param"), out.x0), "x": (("start", "param"), out.x),
-         "chi2_0": ("start", out.chi2_0), "chi2": ("start", out.chi2),
-         "iterations": ("start", out.iterations),
-         "converged": ("start", out.converged.astype(np.int8)),
-         "status": ("start", out.status.astype(str)),
-         "resampled": ("start", out.resampled)},
-        coords={"start": np.arange(out.chi2.size), "param": list(out.names)})
-    from gprm.params.files import si_unit_strings
-
-    units = si_unit_strings(out.names)
-    ds = ds.assign_coords(param_units=("param", units))
-    ds["param_units"].attrs["long_name"] = "SI unit of each parameter"
-    for v, what in (("x0", "initial"), ("x", "final")):
-        ds[v].attrs["long_name"] = f"{what} parameter values (SI)"
-        # CF has one unit string per variable; these differ along param
-        ds[v].attrs["comment"] = "units vary along param: see param_units"
-    ds["chi2_0"].attrs.update(long_name="chi-square of the start (Eq. 6)", units="1")
-    ds["chi2"].attrs.update(long_name="final chi-square (Eq. 6)", units="1")
-    ds["status"].attrs["long_name"] = "outcome of the start"
-    ds["converged"].attrs["long_name"] = "1 if the start met a convergence criterion"
-    return ds
+def polish_best(obj: Objective, x: np.ndarray, lm: LMOptions, *, max_iter: int = 200,
+                ftol: float = 1e-12) -> tuple[np.ndarray, dict]:
+    """Continue Algorithm 1 from the best start with a tight tolerance (relative chi-square
+    change 1e-12, no absolute part), so that the reported best fit does not depend on the
+    looser stopping rule used for the many starts. Chi-square can only decrease."""
+    lo, hi = obj.bounds_normalised()
+    kw = lm.as_kwargs()
+    kw.update(max_iter=max_iter, ftol=ftol, ftol_abs=0.0, stall_window=0)
+    res = levenberg_marquardt_batch(obj, obj.to_normalised(x)[None], lower=lo, upper=hi,
+                                    residuals=obj.residuals, **kw)
+    info = {"chi2_before": float(res.chi2_0[0]), "chi2_after": float(res.chi2[0]),
+            "iterations": int(res.iterations[0]), "status": str(res.status[0])}
+    if not np.isfinite(res.chi2[0]) or res.chi2[0] > res.chi2_0[0]:
+        return x, info
+    return obj.to_physical(res.x[0]), info

@@ -1,0 +1,102 @@
+"""The whole identification (paper Sec. 3.1): the multi-start run of :mod:`gprm.fit.engine`,
+the polish of the best start, the uncertainty of :mod:`gprm.fit.uncertainty` (with the
+prior weighed against the data's variance scale), bands and profiles, gathered in a
+:class:`gprm.fit.result.FitResult`.
+"""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+from gprm.errors import GprmInputError
+from gprm.fit.bootstrap import bootstrap_uncertainty
+from gprm.fit.covariance import parameters_at_bounds
+from gprm.fit.engine import polish_best, run_multistart
+from gprm.fit.objective import FitData, Objective
+from gprm.fit.prior import DEFAULT_WIDTH, default_prior
+from gprm.fit.result import FitResult
+from gprm.fit.starts import MultiStartOptions
+from gprm.fit.uncertainty import (DEFAULT_METHOD, compute_bands, estimate, from_mcmc,
+                                  profile_likelihood, time_correlation_factor)
+from gprm.params import ParameterSet
+
+
+def identify(data: FitData, base: ParameterSet, opts: MultiStartOptions = MultiStartOptions(),
+             *, piezo: int = 2, names=None, workers: int = 0, scheduler: str | None = None,
+             checkpoint_dir=None, progress=None, profile: bool = False, band_samples: int = 200,
+             z_bk_absolute: bool = False, stop_after: int | None = None,
+             uncertainty: str = DEFAULT_METHOD, prior_width: float | None = DEFAULT_WIDTH,
+             n_draws: int = 400, n_boot: int = 40) -> FitResult:
+    """Multi-start identification of ``names`` (default: the set's fitted parameters).
+
+    With ``prior_width`` (default) every start minimises chi-square plus the weak prior of
+    :mod:`gprm.fit.prior`; the best start is then polished with the prior weighed against
+    the data's variance scale s2 (negative log posterior chi2 / s2 + prior), and the
+    uncertainty comes from ``uncertainty`` (:mod:`gprm.fit.uncertainty`). ``prior_width=None``
+    is the paper's unregularised fit (its uncertainty then is Eq. 7 or eq7-corr).
+    """
+    t_start = time.perf_counter()
+    fit_names = tuple(base.fitted if names is None else names)
+    prior = None if prior_width is None else default_prior(base, fit_names, prior_width)
+    if prior is None and uncertainty in ("laplace-prior", "parametric-bootstrap", "mcmc"):
+        raise GprmInputError("the laplace-prior uncertainty needs a prior (a prior width)",
+                             field="--uncertainty")
+    obj = Objective.create(data, base, fit_names, piezo=piezo, z_bk_absolute=z_bk_absolute,
+                           prior=prior)
+    starts = run_multistart(obj, opts, workers=workers, scheduler=scheduler,
+                            checkpoint_dir=checkpoint_dir, progress=progress,
+                            stop_after=stop_after)
+    t_ms = time.perf_counter() - t_start
+    best = starts.best_index
+    x, polish = polish_best(obj, starts.x[best], opts.lm)
+    r, J = _data_jacobian(obj, x)
+    if prior is not None:
+        # weigh the prior against the data's variance scale, then polish again
+        s2 = time_correlation_factor(r, len(data.signals)) * float(r @ r) / obj.dof
+        obj = obj.with_prior(prior.with_weight(np.sqrt(max(s2, 1e-300))))
+        x, polish2 = polish_best(obj, x, opts.lm)
+        polish = {**polish, "posterior": polish2, "s2": s2}
+        r, J = _data_jacobian(obj, x)
+    chi2 = float(r @ r)
+    eq7 = estimate("eq7", x, J, r, obj.dof, len(data.signals), prior, obj.names)
+    base_method = ("laplace-prior" if uncertainty in ("parametric-bootstrap", "mcmc")
+                   else uncertainty)
+    unc = eq7 if uncertainty == "eq7" else estimate(
+        base_method, x, J, r, obj.dof, len(data.signals), prior, obj.names,
+        n_draws=n_draws, seed=opts.seed)
+    t_b = time.perf_counter()
+    if uncertainty == "parametric-bootstrap":
+        unc = bootstrap_uncertainty(obj, x, unc, prior, uncertainty, n_boot=n_boot,
+                                    seed=opts.seed, lm=opts.lm, n_draws=n_draws)
+    elif uncertainty == "mcmc":
+        unc = from_mcmc(obj, x, unc, prior, seed=opts.seed, n_draws=n_draws)
+    cov, msg = unc.covariance, unc.message
+    lo, hi = obj.bounds_normalised()
+    at_b = tuple(np.asarray(obj.names)[parameters_at_bounds(obj.to_normalised(x), lo, hi)]
+                 .tolist())
+    if at_b and cov is not None:
+        msg = f"ok (parameters at a bound: {', '.join(at_b)}; their errors are not reliable)"
+    params = base.with_values(**dict(zip(obj.names, map(float, x))))
+    bands = compute_bands(obj, x, cov, n_samples=band_samples, seed=opts.seed,
+                          draws=unc.draws)
+    profiles = ()
+    if profile:
+        s2p = unc.s2 if np.isfinite(unc.s2) else 1.0
+        sdu = (unc.contraction * prior.sd if prior is not None and unc.method == "laplace-prior"
+               else unc.stderr)
+        profiles = tuple(profile_likelihood(obj, x, n, s2=s2p, sd_u=sdu[i], lm=opts.lm)
+                         for i, n in enumerate(obj.names))
+    timings = {"multistart": round(t_ms, 3), "uncertainty": round(time.perf_counter() - t_b, 3),
+               "total": round(time.perf_counter() - t_start, 3)}
+    return FitResult(obj.names, params, chi2, obj.dof, cov, msg, at_b, starts, opts, data,
+                     piezo, bands, profiles, timings, z_bk_absolute, polish, unc, eq7, prior)
+
+
+def _data_jacobian(obj: Objective, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Weighted data residuals r (N,) and their Jacobian d r / d x (N, P), physical x; the
+    prior's rows left out."""
+    r, Jn = obj(obj.to_normalised(x)[None])
+    n = obj.data.n_obs
+    return r[0, :n], Jn[0, :n] / obj.scale

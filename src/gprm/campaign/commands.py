@@ -8,11 +8,11 @@ from typing import Optional
 
 import typer
 
+from gprm.console import one_line_errors
+from gprm.options import Int, Quantity
+
 
 def register(app: typer.Typer, synth_app: typer.Typer) -> None:
-    from gprm.cli import one_line_errors
-    from gprm.options import Int, Quantity
-
     @synth_app.command("campaign")
     @one_line_errors
     def synth_campaign_cmd(

@@ -7,6 +7,9 @@ from typing import Optional
 
 import typer
 
+from gprm.console import one_line_errors
+from gprm.options import Int, Number, Quantity, Window
+
 
 def _model(src: str, piezo: Optional[int]):
     from gprm.errors import GprmInputError
@@ -38,9 +41,6 @@ def _window(window):
 
 
 def register(app: typer.Typer, synth_app: typer.Typer) -> None:
-    from gprm.cli import one_line_errors
-    from gprm.options import Int, Number, Quantity, Window
-
     @synth_app.command("telemetry")
     @one_line_errors
     def synth_telemetry_cmd(

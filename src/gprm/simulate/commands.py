@@ -7,11 +7,11 @@ from typing import Optional
 
 import typer
 
+from gprm.console import one_line_errors
+from gprm.options import Int, Quantity
+
 
 def register(app: typer.Typer, synth_app: typer.Typer) -> None:
-    from gprm.cli import one_line_errors
-    from gprm.options import Int, Quantity
-
     @app.command("simulate")
     @one_line_errors
     def simulate_cmd(

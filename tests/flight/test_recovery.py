@@ -174,7 +174,7 @@ def test_synthetic_truth_is_the_3d_impact():
     the best fit and the nominal geometry)."""
     from gprm.flight.predicted import tm_velocity_vs_time
     from gprm.params import batch
-    from gprm.predict.kinematics import body_motion
+    from gprm.simulate.kinematics import body_motion
 
     m = paper_model()
     ds = synth_telemetry(m, SynthOptions(n_releases=5, seed=8, truth_spread=False))

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from gprm.errors import GprmInputError
-from gprm.predict.kinematics import body_motion, named_points, point_motion
+from gprm.simulate.kinematics import body_motion, named_points, point_motion
 from gprm.predict.plots import plot_sweep
 from gprm.predict.scenarios import ECCENTRICITIES, Scenario, apply_scenario
 from gprm.predict.whatif import PAPER_RATIOS, overshoot, sweep, whatif, window_times

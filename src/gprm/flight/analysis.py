@@ -12,7 +12,7 @@ from gprm.errors import GprmInputError
 from gprm.flight.impact_time import impact_time_mc
 from gprm.flight.joint import joint_impact_time
 from gprm.flight.predicted import ImpactGeometry, velocity_curves
-from gprm.flight.telemetry import AXES, AXIS_UNIT, release_velocities
+from gprm.flight.telemetry import AXES, AXIS_CHANNEL, AXIS_UNIT, release_velocities
 from gprm.flight.tukey import tukey_range_test
 
 
@@ -32,7 +32,6 @@ def _duplicate_axes(curves) -> set:
     """Axes that repeat an earlier axis: same telemetry channel and the same curves (both v_z
     axes of the one-contact 3D model). They keep their impact time (k = 6 for Tukey) but enter
     the joint estimate once."""
-    from gprm.flight.telemetry import AXIS_CHANNEL
 
     dup = set()
     for i, a in enumerate(AXES):

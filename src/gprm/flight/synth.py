@@ -24,13 +24,16 @@ Per release (docs/flight.md):
 from __future__ import annotations
 
 import json
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
+from gprm.errors import GprmInputError
 from gprm.flight.predicted import (GeometryUncertainty, ImpactGeometry, sample_geometries,
                                    tm_velocity_vs_time, default_window)
 from gprm.flight.telemetry import AXES, telemetry_dataset
+from gprm.params import batch
+from gprm.simulate.kinematics import body_motion
 
 TM_COMPONENTS = ("vx", "vy", "vz", "wx", "wy", "wz")
 
@@ -61,9 +64,6 @@ def plausible_window(model, *, window=None, step: float = 1e-7, geometry=None,
     peak of the six |velocity| curves, where every curve is monotone, so a first crossing is
     the true one (beyond the peak the first-crossing rule of Sec. 4.1 picks the rising branch).
     """
-    from gprm.errors import GprmInputError
-    from gprm.params import batch
-    from gprm.predict.kinematics import body_motion
 
     if mode not in ("identifiable", "approach"):
         raise GprmInputError("must be identifiable or approach", field="window_mode")
@@ -87,12 +87,6 @@ def plausible_window(model, *, window=None, step: float = 1e-7, geometry=None,
 def synth_telemetry(model, opts: SynthOptions = SynthOptions(), *, geometry=None,
                     uncertainty=None):
     """Generate the synthetic telemetry :class:`xarray.Dataset` (see the module docstring)."""
-    from gprm.params import batch
-    from gprm.predict.kinematics import body_motion
-
-    from dataclasses import replace
-
-    from gprm.errors import GprmInputError
 
     if opts.truth_model not in ("3d", "planar"):
         raise GprmInputError("must be 3d or planar", field="truth_model")

@@ -19,13 +19,12 @@ from types import ModuleType
 import numpy as np
 
 from gprm.errors import GprmInputError
-from gprm.model.definition import COORDINATES
+from gprm.model.definition import COORDINATES, MECHANICAL
 
-MECH = 8
+#: the eight mechanical coordinates (``MECHANICAL``, the model's COORDINATES without the
+#: charge q, defined once in model.definition) and the state size
+MECH = len(MECHANICAL)
 NSTATE = 17
-#: the eight mechanical coordinates (the model's COORDINATES without the charge q): the one
-#: definition the simulator, the body kinematics and the flight analysis use
-MECHANICAL: tuple[str, ...] = COORDINATES[:MECH]
 STATE_NAMES: tuple[str, ...] = (MECHANICAL + tuple(f"{c}_dot" for c in MECHANICAL)
                                 + ("q",))
 

@@ -1,7 +1,7 @@
 """predict stage: trajectories with uncertainty bands (Eq. 8, Fig. 10), kinetic-energy check
 (Fig. 8), mass comparison (Fig. 7), what-ifs and overshoots (Sec. 4.2), impact risk against a
-gap. See docs/prediction.md. Modules: ``kinematics`` (stable body-kinematics API),
-``trajectories``, ``energy``, ``masses``, ``scenarios``, ``whatif``, ``risk``, ``core``
+gap. See docs/prediction.md. Modules (the body kinematics they use are
+:mod:`gprm.simulate.kinematics`): ``trajectories``, ``energy``, ``masses``, ``scenarios``, ``whatif``, ``risk``, ``core``
 (``predict``), ``files`` (NetCDF), ``plots``, ``commands`` (CLI)."""
 
 from gprm._lazy import attach

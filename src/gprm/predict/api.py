@@ -16,6 +16,7 @@ from gprm.fit.files import FittedModel
 from gprm.predict.core import Prediction, load_model, predict, prediction_times
 from gprm.predict.scenarios import Scenario, check_scenario
 from gprm.predict.whatif import whatif
+from gprm.simulate.inputs import read_voltage_csv
 
 #: the what-if table draws at most this many parameter sets (its ranges are 2.5/97.5 %)
 WHATIF_MAX_SAMPLES = 100
@@ -101,7 +102,6 @@ def _model(model: FittedModel | str | os.PathLike) -> FittedModel:
 def _voltage(opts: PredictOptions):
     if opts.voltage is None:
         return None
-    from gprm.simulate import read_voltage_csv
 
     return read_voltage_csv(Path(opts.voltage))
 

@@ -19,10 +19,11 @@ import numpy as np
 
 from gprm.errors import GprmInputError
 from gprm.fit.files import FittedModel
-from gprm.params import REGISTRY
+from gprm.params import REGISTRY, batch
 from gprm.params.files import from_si
-from gprm.predict.scenarios import Scenario, apply_scenario, standard_scenarios
-from gprm.predict.trajectories import AXES, sampled_points
+from gprm.predict.scenarios import (ECCENTRICITIES, Scenario, apply_scenario, check_scenario,
+                                    standard_scenarios)
+from gprm.predict.trajectories import AXES, default_times, sampled_points
 
 WHATIF_POINTS: tuple[str, ...] = ("M_xz", "M_yz", "tip_edge")
 HEADLINE: dict[str, str] = {"x": "M_xz", "y": "M_yz", "z": "M_xz"}
@@ -42,7 +43,6 @@ DEFINITION = ("overshoot = max over the window of |p_a(t) - p_a(t_start)| (m), t
 
 
 def window_times(window: tuple[float, float] = DEFAULT_WINDOW, rate: float = 1e6) -> np.ndarray:
-    from gprm.predict.trajectories import default_times
 
     return default_times(window[0], window[1], rate)
 
@@ -59,7 +59,6 @@ def scenario_overshoots(fm: FittedModel, sc: Scenario, times, *, points=WHATIF_P
 
     Samples are drawn from the baseline model and then transformed by the scenario (same
     seed across scenarios: common random numbers, so ratios are per parameter draw)."""
-    from gprm.params import batch
 
     fs = apply_scenario(fm, sc)
     best, _, ok = sampled_points(batch([fs.params]), times, points, piezo=sc.piezo,
@@ -78,7 +77,6 @@ def scenario_overshoots(fm: FittedModel, sc: Scenario, times, *, points=WHATIF_P
 
 def transform_batch(pb: dict, sc: Scenario) -> dict:
     """Apply a scenario (eccentricity scale, overrides) to a parameter batch."""
-    from gprm.predict.scenarios import ECCENTRICITIES, check_scenario
 
     check_scenario(sc)
     out = {k: np.array(v, float) for k, v in pb.items()}
@@ -142,7 +140,6 @@ def sweep(fm: FittedModel, name: str, values: Sequence[float], *,
     """Best-fit overshoot of ``points`` as parameter ``name`` takes ``values`` (SI), on top
     of scenario ``base`` (default Piezo 2). JSON-able table; plot with
     :func:`gprm.predict.plots.plot_sweep`."""
-    from gprm.params import batch
 
     if name not in REGISTRY:
         raise GprmInputError("unknown parameter", field=name)

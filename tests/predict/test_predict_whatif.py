@@ -7,7 +7,7 @@ import pytest
 
 from gprm.errors import GprmInputError
 from gprm.simulate.kinematics import body_motion, named_points, point_motion
-from gprm.predict.plots import plot_sweep
+from gprm.report.figures import fig_sweep
 from gprm.predict.scenarios import ECCENTRICITIES, Scenario, apply_scenario
 from gprm.predict.whatif import PAPER_RATIOS, overshoot, sweep, whatif, window_times
 
@@ -104,8 +104,12 @@ def test_sweep_and_plot(fm, table, tmp_path):
         for a in sw["axes"]:
             assert np.isclose(sw["overshoot"][p][a][1], base[p][a], rtol=1e-12)
     assert sw["display_values"][1] == pytest.approx(30.0)
-    out = plot_sweep(sw, tmp_path / "sweep.png")
-    assert (tmp_path / "sweep.png").stat().st_size > 1000 and out.endswith("sweep.png")
+    fig = fig_sweep(sw)
+    drawn = fig.axes[0].lines[0].get_ydata()      # first axis, first point, in um
+    np.testing.assert_allclose(drawn, np.asarray(sw["overshoot"][sw["points"][0]][
+        sw["axes"][0]]) * 1e6)
+    fig.savefig(tmp_path / "sweep.png")
+    assert (tmp_path / "sweep.png").stat().st_size > 1000
     with pytest.raises(GprmInputError):
         sweep(fm, "m2", [0.01, -0.01])
 

@@ -139,7 +139,7 @@ def sweep(fm: FittedModel, name: str, values: Sequence[float], *,
           rate: float = 1e6, points: Sequence[str] = WHATIF_POINTS, voltage=None) -> dict:
     """Best-fit overshoot of ``points`` as parameter ``name`` takes ``values`` (SI), on top
     of scenario ``base`` (default Piezo 2). JSON-able table; plot with
-    :func:`gprm.predict.plots.plot_sweep`."""
+    :func:`gprm.report.figures.fig_sweep`."""
 
     if name not in REGISTRY:
         raise GprmInputError("unknown parameter", field=name)

@@ -8,6 +8,7 @@ commands never import the CLI module that registers them.
 from __future__ import annotations
 
 import functools
+from typing import Mapping
 
 import typer
 
@@ -31,3 +32,17 @@ def one_line_errors(fn):
             raise typer.Exit(code=2) from None
 
     return wrapper
+
+
+def cli_options(cls, flags: Mapping[str, str] | None = None, **values):
+    """``cls(**values)`` for a command: an option dataclass validated on construction, whose
+    error names the field; here it is named as the command-line flag that set it (``flags``:
+    field -> flag where they differ; else ``--`` + the field with ``-`` for ``_``)."""
+    try:
+        return cls(**values)
+    except GprmInputError as exc:
+        f = exc.field
+        if f is None or f.startswith("-"):
+            raise
+        flag = (flags or {}).get(f) or "--" + f.replace("_", "-")
+        raise GprmInputError(exc.problem, source=exc.source, field=flag) from None

@@ -14,7 +14,7 @@ from gprm.predict.whatif import PAPER_RATIOS, overshoot, sweep, whatif, window_t
 
 @pytest.fixture(scope="module")
 def table(fm):
-    return whatif(fm, samples=30, seed=4)
+    return whatif(fm, samples=30, seed=4).to_json()
 
 
 def test_overshoot_definition():
@@ -116,7 +116,7 @@ def test_sweep_and_plot(fm, table, tmp_path):
 
 def test_scenario_of_a_changed_model(fm):
     """A model with a different geometry gives different overshoots (the plumbing uses it)."""
-    a = whatif(fm, samples=0)["scenarios"][0]["overshoot"]["M_yz"]["y"]
+    a = whatif(fm, samples=0).scenarios[0]["overshoot"]["M_yz"]["y"]
     f2 = replace(fm, params=fm.params.with_values(h2=0.02))
-    b = whatif(f2, samples=0)["scenarios"][0]["overshoot"]["M_yz"]["y"]
+    b = whatif(f2, samples=0).scenarios[0]["overshoot"]["M_yz"]["y"]
     assert a != b

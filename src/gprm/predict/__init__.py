@@ -6,6 +6,14 @@ gap. See docs/prediction.md. Modules (the body kinematics they use are
 
 from gprm._lazy import attach
 
+# ``whatif`` is not re-exported: it is also the name of the submodule, which would shadow it
+# once imported (use run_whatif, or import the function from gprm.predict.whatif).
+
 __getattr__, __dir__, __all__ = attach(__name__, {
     "api": ["PredictOptions", "run_predict", "run_whatif"],
+    "core": ["Prediction", "load_model", "predict"],
+    "files": ["prediction_dataset"],
+    "masses": ["MassRow", "MassTable", "mass_table"],
+    "scenarios": ["Scenario", "standard_scenarios"],
+    "whatif": ["WhatIf", "sweep"],
 })

@@ -147,5 +147,5 @@ def register(app: typer.Typer, synth_app: typer.Typer) -> None:
                                              zip(pred.risk.planes, pred.risk.p_cross))
         typer.echo(msg)
         if whatif_out is not None:
-            write_json_atomic(whatif_out, run_whatif(fm, opts))
+            write_json_atomic(whatif_out, run_whatif(fm, opts).to_json())
             typer.echo(f"wrote {whatif_out}")

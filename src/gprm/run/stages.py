@@ -153,9 +153,9 @@ def _predict(run: Path, opts: RunOptions, step) -> dict:
         write_netcdf_atomic(prediction_dataset(pred), run / fname)
         step(k + 1, len(todo) + 1)
     table = run_whatif(fm, _predict_options(run, opts))
-    write_json_atomic(run / "whatif.json", table)
+    write_json_atomic(run / "whatif.json", table.to_json())
     step(len(todo) + 1, len(todo) + 1)
-    info = {"whatif": {r["name"]: r.get("headline", {}) for r in table.get("ratios", [])[1:]}}
+    info = {"whatif": {r["name"]: r.get("headline", {}) for r in table.ratios[1:]}}
     return _with_notes(info, notes)
 
 

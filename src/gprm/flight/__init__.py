@@ -15,7 +15,7 @@ from gprm._lazy import attach
 
 __getattr__, __dir__, __all__ = attach(__name__, {
     "analysis": ["AnalysisOptions", "ImpactResult", "analyze", "curves_dataset"],
-    "api": ["ImpactOptions", "TelemetryOptions", "check_piezo", "flight_model",
+    "api": ["ImpactOptions", "TelemetryOptions", "flight_model",
             "impact_sidecar", "run_impact", "run_synth_telemetry", "write_impact"],
     "impact": ["impact_3d", "kinetic_energy", "planar_impact"],
     "impact_time": ["first_crossing", "impact_time_mc"],

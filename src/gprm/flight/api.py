@@ -25,21 +25,14 @@ from gprm.flight.analysis import AnalysisOptions, ImpactResult, analyze
 from gprm.flight.multi import multi_impact_report
 from gprm.flight.synth import SynthOptions, synth_telemetry
 from gprm.flight.telemetry import Telemetry, load_telemetry
-
-
-def check_piezo(piezo, *, field: str = "piezo", optional: bool = True) -> None:
-    """The driven piezo: 1 or 2 (None: the model's own, where ``optional``)."""
-    if piezo is None and optional:
-        return
-    if isinstance(piezo, bool) or piezo not in (1, 2):
-        raise GprmInputError(f"must be 1 or 2, got {piezo!r}", field=field)
+from gprm.model.piezo import check_piezo
 
 
 def flight_model(source: FittedModel | str | os.PathLike, piezo: int | None = None
                  ) -> FittedModel:
     """The fitted model of ``source`` (a :class:`FittedModel`, a fit result JSON, or
     ``"paper"`` for Table 3), driving ``piezo`` (None: the fit's own; 2 for the paper)."""
-    check_piezo(piezo)
+    check_piezo(piezo, optional=True)
     if isinstance(source, FittedModel):
         m = source
     elif str(source) == "paper":
@@ -63,7 +56,7 @@ class ImpactOptions:
         if not isinstance(self.analysis, AnalysisOptions):
             raise GprmInputError(f"expected AnalysisOptions, got "
                                  f"{type(self.analysis).__name__}", field="analysis")
-        check_piezo(self.piezo)
+        check_piezo(self.piezo, optional=True)
         if not isinstance(self.multi, bool):
             raise GprmInputError(f"must be true or false, got {self.multi!r}", field="multi")
 
@@ -81,7 +74,7 @@ class TelemetryOptions:
         if not isinstance(self.synth, SynthOptions):
             raise GprmInputError(f"expected SynthOptions, got {type(self.synth).__name__}",
                                  field="synth")
-        check_piezo(self.piezo)
+        check_piezo(self.piezo, optional=True)
 
 
 def run_impact(model: FittedModel | str | os.PathLike, telemetry: Telemetry | str | os.PathLike,

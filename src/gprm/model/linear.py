@@ -18,8 +18,8 @@ from types import ModuleType
 
 import numpy as np
 
-from gprm.errors import GprmInputError
-from gprm.model.definition import COORDINATES, MECHANICAL
+from gprm.model.definition import MECHANICAL
+from gprm.model.piezo import check_piezo
 
 #: the eight mechanical coordinates (``MECHANICAL``, the model's COORDINATES without the
 #: charge q, defined once in model.definition) and the state size
@@ -31,8 +31,7 @@ STATE_NAMES: tuple[str, ...] = (MECHANICAL + tuple(f"{c}_dot" for c in MECHANICA
 
 def generated(piezo: int) -> ModuleType:
     """The generated code for a piezo (1 or 2)."""
-    if piezo not in (1, 2):
-        raise GprmInputError(f"piezo must be 1 or 2, got {piezo}", field="piezo")
+    check_piezo(piezo)
     return importlib.import_module(f"gprm.model._generated_piezo{piezo}")
 
 

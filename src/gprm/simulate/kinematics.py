@@ -59,6 +59,7 @@ import numpy as np
 from gprm.errors import GprmInputError
 from gprm.model.definition import MECHANICAL
 from gprm.model.linear import generated
+from gprm.model.piezo import check_piezo
 from gprm.params import ParameterSet, batch
 from gprm.simulate.core import RATES, observe
 
@@ -177,8 +178,7 @@ def body_motion(source, times, *, piezo: int = 2, voltage=None,
                 sensitivities: Sequence[str] = ()) -> PlungerMotion:
     """Simulate and return the plunger assembly's motion (see module docstring)."""
 
-    if piezo not in (1, 2):
-        raise GprmInputError(f"must be 1 or 2, got {piezo}", field="piezo")
+    check_piezo(piezo)
     pb = as_batch(source)
     t_max = None
     if voltage is not None:

@@ -13,7 +13,7 @@ import numpy as np
 
 from gprm.errors import GprmInputError
 from gprm.model.definition import COORDINATES, MECHANICAL
-from gprm.model.linear import NSTATE, STATE_NAMES
+from gprm.model.linear import NSTATE, STATE_NAMES, descriptor
 from gprm.params import ParameterSet, batch
 from gprm.params.registry import ALIGNMENT_OFFSETS
 from gprm.simulate import modal
@@ -154,7 +154,6 @@ def observe(pb: Mapping[str, np.ndarray], times, names: Sequence[str] = OUTPUTS,
 def _guard_singular(pb, piezo):
     """Detect sets whose mass matrix (the descriptor E) is singular or indefinite, and swap
     in a good set for them (their results are masked later). Returns the descriptor too."""
-    from gprm.model.linear import descriptor
 
     desc = descriptor(pb, piezo)
     Evv = desc[0][:, 8:16, 8:16]

@@ -148,3 +148,28 @@ def test_notes_and_multi_are_carried(telemetry):
     assert [r["id"] for r in doc["multiple_impacts"]["releases"]] == \
         [r["id"] for r in doc["releases"]]
     assert list(doc)[-2:] == ["multiple_impacts", "notes"]
+
+
+@pytest.mark.parametrize("args, flag", [
+    (["impact", "paper", "{tel}", "--out", "{tmp}/o.json", "--samples", "1"], "--samples"),
+    (["impact", "paper", "{tel}", "--out", "{tmp}/o.json", "--impact-model", "2d"],
+     "--impact-model"),
+    (["impact", "paper", "{tel}", "--out", "{tmp}/o.nc"], "--out"),
+    (["synth", "telemetry", "paper", "--out", "{tmp}/t.nc", "--z-from", "xy"], "--z-from"),
+    (["synth", "telemetry", "paper", "--out", "{tmp}/t.nc", "--truth-model", "2d"],
+     "--truth-model"),
+])
+def test_commands_name_a_bad_option_by_its_flag(telemetry, tmp_path, args, flag):
+    """The options' own checks, reached through the commands: one line naming the flag as
+    typed, exit code 2, nothing written."""
+    from typer.testing import CliRunner
+
+    from gprm.cli import app
+
+    argv = [a.format(tel=telemetry[0], tmp=tmp_path) for a in args]
+    res = CliRunner().invoke(app, argv)
+    assert res.exit_code == 2
+    err = res.stderr if hasattr(res, "stderr") else res.output
+    lines = [x for x in err.strip().splitlines() if x]
+    assert len(lines) == 1 and lines[0].startswith(f"gprm: error: {flag}"), lines
+    assert list(tmp_path.iterdir()) == []

@@ -86,7 +86,7 @@ def energy_cover(fm: FittedModel, truth, n: int, seed: int) -> dict:
     where the truth spends time."""
     from gprm.predict.energy import DEFAULT_WINDOW as ENERGY_WINDOW
     from gprm.predict.energy import histogram, window_weights
-    from gprm.predict.kinematics import body_motion, kinetic_energy
+    from gprm.simulate.kinematics import body_motion, kinetic_energy
 
     # 0.05 us steps: the histogram of the continuous-time energy. Coarser grids alias the
     # fastest modes into lumpy bin occupancies that the bands cover too easily (measured on
@@ -112,7 +112,7 @@ def curve_cover(fm: FittedModel, truth, n: int, seed: int) -> dict:
     draws' bands, at 21 times over t_c .. t_c + 0.2 ms where the truth's curve exists."""
     from gprm.flight.predicted import tm_velocity_vs_time
     from gprm.flight.telemetry import AXES
-    from gprm.predict.kinematics import body_motion
+    from gprm.simulate.kinematics import body_motion
 
     t = truth["t_c"] + np.linspace(0.0, 0.2e-3, 21)
     v_t = tm_velocity_vs_time(body_motion(batch([truth]), t, piezo=2))

@@ -39,7 +39,8 @@ def recovery(fm, n_campaigns: int, releases: int, seed0: int, model: str,
         tel = telemetry_from_dataset(ds, source=f"seed {s}")
         if models is not None:
             curves = None
-        doc, curves = analyze(m, tel, AnalysisOptions(impact_model=model), curves=curves)
+        res = analyze(m, tel, AnalysisOptions(impact_model=model), curves=curves)
+        doc, curves = res.to_json(), res.curves
         sm = doc["truth"]["summary"]
         for k in ("impact_times", "found", "within_2sigma", "joint_releases",
                   "joint_truth_in_ci95"):
@@ -166,7 +167,8 @@ def main() -> None:
     t, ds = timed(lambda: synth_telemetry(fm, SynthOptions(n_releases=11, seed=0)), rep)
     rows.append(("synthetic telemetry, 11 releases", t))
     tel = telemetry_from_dataset(ds)
-    t, (doc, _) = timed(lambda: analyze(fm, tel, AnalysisOptions(), curves=curves), rep)
+    t, res = timed(lambda: analyze(fm, tel, AnalysisOptions(), curves=curves), rep)
+    doc = res.to_json()
     rows.append(("release velocities + impact times + Tukey (curves given)", t))
     groups = {a: 1e-3 + 1e-6 * rng.standard_normal(11) for a in AXES}
     t, _ = timed(lambda: tukey_range_test(groups), rep)

@@ -26,7 +26,7 @@ def main() -> None:
     from gprm.fit.files import paper_model
     from gprm.predict.core import predict
     from gprm.predict.energy import energy_check
-    from gprm.predict.kinematics import body_motion, named_points, point_motion
+    from gprm.simulate.kinematics import body_motion, named_points, point_motion
     from gprm.predict.risk import impact_risk
     from gprm.predict.trajectories import default_times, predict_trajectories
     from gprm.predict.whatif import whatif

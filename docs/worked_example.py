@@ -13,7 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
-from gprm._io import write_json_atomic, write_netcdf_atomic
+from gprm.io import write_json_atomic, write_netcdf_atomic
 
 OUT = Path(sys.argv[1]) if len(sys.argv) > 1 else Path(tempfile.mkdtemp(prefix="gprm-example-"))
 OUT.mkdir(parents=True, exist_ok=True)
@@ -76,23 +76,24 @@ popts = PredictOptions(piezo=2, name="piezo2", samples=20, seed=1, means=str(OUT
 pred = run_predict(fm, popts)
 write_netcdf_atomic(prediction_dataset(pred), OUT / "predict.nc")
 wi = run_whatif(fm, popts)
-write_json_atomic(OUT / "whatif.json", wi)
-for r in wi["ratios"][1:]:
+write_json_atomic(OUT / "whatif.json", wi.to_json())   # a WhatIf result (to_json/to_xarray)
+for r in wi.ratios[1:]:
     print(f"overshoot Piezo 2 / {r['name']}:",
           ", ".join(f"{a} {v:.2f}" for a, v in r["headline"].items()))
 
 # %% 6. Flight: synthetic releases, release velocities, impact times, Tukey test (Sec. 4.1)
-from gprm.flight.analysis import AnalysisOptions, analyze, curves_dataset
-from gprm.flight.synth import SynthOptions, synth_telemetry
-from gprm.flight.telemetry import telemetry_from_dataset
+from gprm.flight import (AnalysisOptions, ImpactOptions, SynthOptions, TelemetryOptions,
+                         run_impact, run_synth_telemetry, write_impact)
 
-tele = synth_telemetry(fm, SynthOptions(n_releases=11, seed=1))
+# the entry points gprm synth telemetry, gprm impact and gprm run call; bad options raise
+# GprmInputError naming them
+tele = run_synth_telemetry(fm, TelemetryOptions(SynthOptions(n_releases=11, seed=1)))
 write_netcdf_atomic(tele, OUT / "telemetry.nc")
-doc, curves = analyze(fm, telemetry_from_dataset(tele), AnalysisOptions(n_samples=20, seed=1))
+imp = run_impact(fm, OUT / "telemetry.nc", ImpactOptions(AnalysisOptions(n_samples=20, seed=1)),
+                 notes=notes)
 print(*notes, sep="\n")
-write_json_atomic(OUT / "impact.json", doc)
-write_netcdf_atomic(curves_dataset(curves, doc), OUT / "impact.nc")
-tk = doc["tukey"]
+imp = write_impact(imp, OUT / "impact.json")      # + impact.nc (the curves: imp.to_xarray())
+tk = imp.tukey
 print("Tukey: all compatible" if tk.get("all_compatible") else f"Tukey: {tk}")
 
 # %% 7. The report of this run directory (one self-contained HTML file)

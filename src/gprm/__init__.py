@@ -3,7 +3,10 @@ to a validated 3D electro-mechanical model, and from that model to the test mass
 
 The package is laid out along the pipeline; each stage imports only from the ones before it::
 
-    params -> model -> simulate -> campaign -> fit -> predict -> flight -> report
+    params -> model -> simulate -> campaign -> fit -> predict | flight -> report -> run
+
+(predict and flight are siblings: both use the fit and the simulation, neither imports the
+other; docs/README.md, "Package layout").
 
 The command line (`gprm`, see :mod:`gprm.cli`) is a thin layer over these modules.
 """

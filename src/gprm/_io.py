@@ -219,10 +219,13 @@ def check_outputs(outputs: dict, inputs=(), *, folders: dict | None = None) -> N
             raise GprmInputError(f"cannot be written: {why}", source=str(path), field=opt)
 
 
-def files_read_from(folder: str | os.PathLike, *, suffixes=None) -> list[Path]:
-    """The files of an input folder a command may read: a CSV campaign folder's manifest and
-    the files it lists (as far as the manifest can be read; a bad one is refused later), or,
-    with ``suffixes``, every file with those endings (a run directory)."""
+def files_read_from(folder: str | os.PathLike, *, suffixes=None,
+                    listed=None) -> list[Path]:
+    """The files of an input folder a command may read: with ``suffixes``, every file with
+    those endings (a run directory); with ``listed`` (a function of the manifest's path
+    returning the file names it lists; the campaign stage passes its manifest reader, so this
+    module imports no stage), ``manifest.csv`` and the files it lists (as far as the manifest
+    can be read; a bad one is refused later)."""
     folder = Path(folder)
     if not folder.is_dir():
         return []
@@ -230,12 +233,11 @@ def files_read_from(folder: str | os.PathLike, *, suffixes=None) -> list[Path]:
         return [p for p in folder.iterdir() if p.is_file() and p.suffix in suffixes]
     manifest = folder / "manifest.csv"
     out = [manifest]
-    try:
-        from gprm.campaign.csvdir import read_manifest
-
-        out += [folder / row["file"] for row in read_manifest(manifest)]
-    except GprmInputError:
-        pass
+    if listed is not None:
+        try:
+            out += [folder / name for name in listed(manifest)]
+        except GprmInputError:
+            pass
     return out
 
 

@@ -1,7 +1,9 @@
 """The ``gprm`` command: argument parsing and printing only; the work is in the library.
 
 Each stage contributes its commands from ``gprm/<stage>/commands.py`` through a
-``register(app, synth_app)`` function, so this file stays small.
+``register(app, synth_app)`` function, imported here statically in pipeline order, so this
+file stays small and the import graph is the one a reader sees. The commands import
+:func:`gprm.console.one_line_errors` (below the stages), never this module.
 
 What reaches the console is always short:
 
@@ -15,8 +17,6 @@ What reaches the console is always short:
 from __future__ import annotations
 
 import datetime
-import functools
-import importlib
 import os
 import sys
 import tempfile
@@ -37,7 +37,17 @@ try:
 except ImportError:                    # older typer: click's
     from click.exceptions import Abort
 
+from gprm.campaign import commands as campaign_commands
+from gprm.console import one_line as _one_line, one_line_errors
+from gprm.demo import commands as demo_commands
 from gprm.errors import GprmInputError
+from gprm.fit import commands as fit_commands
+from gprm.flight import commands as flight_commands
+from gprm.params import commands as params_commands
+from gprm.predict import commands as predict_commands
+from gprm.report import commands as report_commands
+from gprm.run import commands as run_commands
+from gprm.simulate import commands as simulate_commands
 
 
 def _debug_requested(args) -> bool:
@@ -76,10 +86,6 @@ def write_crash_log(exc: BaseException, args) -> Path:
         except OSError:
             continue
     raise OSError("no writable folder for the error log")
-
-
-def _one_line(text: str) -> str:
-    return " ".join(str(text).split())
 
 
 class _GprmGroup(TyperGroup):
@@ -135,35 +141,14 @@ def _root(debug: bool = typer.Option(False, "--debug", help="print the traceback
     """gprm: GPRM ground-test identification and flight analysis."""
 
 
-def one_line_errors(fn):
-    """Decorator for commands: bad input -> one line on stderr, exit code 2."""
+#: the stages' commands, registered in pipeline order (the order of ``gprm --help``)
+STAGE_COMMANDS = (params_commands, simulate_commands, campaign_commands, fit_commands,
+                  predict_commands, flight_commands, report_commands, run_commands,
+                  demo_commands)
+for _mod in STAGE_COMMANDS:
+    _mod.register(app, synth_app)
 
-    @functools.wraps(fn)
-    def wrapper(*args, **kwargs):
-        try:
-            return fn(*args, **kwargs)
-        except GprmInputError as exc:
-            typer.echo(f"gprm: error: {_one_line(exc)}", err=True)
-            raise typer.Exit(code=2) from None
-
-    return wrapper
-
-
-_STAGES = ("params", "simulate", "campaign", "fit", "predict", "flight", "report", "run", "demo")
-
-
-def _register_all() -> None:
-    for stage in _STAGES:
-        try:
-            mod = importlib.import_module(f"gprm.{stage}.commands")
-        except ModuleNotFoundError as exc:
-            if exc.name == f"gprm.{stage}.commands" or exc.name == f"gprm.{stage}":
-                continue  # stage not present
-            raise
-        mod.register(app, synth_app)
-
-
-_register_all()
+__all__ = ["app", "main", "one_line_errors", "synth_app"]
 
 
 def main() -> None:  # console-script entry point

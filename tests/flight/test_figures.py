@@ -8,14 +8,14 @@ import pytest
 @pytest.fixture(scope="module")
 def result():
     from gprm.fit.files import paper_model
-    from gprm.flight import AnalysisOptions, SynthOptions, analyze, curves_dataset
+    from gprm.flight import AnalysisOptions, SynthOptions, analyze
     from gprm.flight import synth_telemetry
     from gprm.flight.telemetry import telemetry_from_dataset
 
     m = paper_model()
     tel = telemetry_from_dataset(synth_telemetry(m, SynthOptions(n_releases=4, seed=2)))
-    doc, curves = analyze(m, tel, AnalysisOptions(n_samples=40, n_times=201))
-    return doc, curves_dataset(curves)
+    res = analyze(m, tel, AnalysisOptions(n_samples=40, n_times=201))
+    return res.to_json(), res.to_xarray()
 
 
 def test_fig11_titles_and_joint(result):

@@ -53,7 +53,7 @@ def test_impulse_free_response_matches_matrix_exponential():
 
     from gprm.flight.multi import _setup, _with_perturbation
     from gprm.model.linear import state_space
-    from gprm.predict.kinematics import body_motion
+    from gprm.simulate.kinematics import body_motion
 
     m = paper_model()
     pb, geom, (E, lam, V, Vinv), pts = _setup(m, None)

@@ -6,7 +6,7 @@ import pytest
 
 from gprm.flight.predicted import ImpactGeometry, tm_velocity_vs_time
 from gprm.params import batch, paper
-from gprm.predict.kinematics import body_motion, named_points, point_motion
+from gprm.simulate.kinematics import body_motion, named_points, point_motion
 
 T = np.linspace(1.0e-3, 1.1e-3, 201)
 

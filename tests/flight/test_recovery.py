@@ -22,8 +22,8 @@ def run():
     m = paper_model()
     ds = synth_telemetry(m, SynthOptions(n_releases=40, seed=5))
     tel = telemetry_from_dataset(ds, source="synthetic")
-    doc, curves = analyze(m, tel, AnalysisOptions(seed=1))
-    return ds, tel, doc, curves
+    res = analyze(m, tel, AnalysisOptions(seed=1))
+    return ds, tel, res.to_json(), res.curves
 
 
 def test_truth_recovered_at_expected_rate(run):
@@ -70,8 +70,7 @@ def test_planar_analysis_systematic_error_is_measured(run):
     within 2 sigma (seed 5: 70 % against 92 % for the 3D analysis)."""
     m = paper_model()
     ds, tel, doc3, _ = run
-    docp, _ = analyze(m, tel, AnalysisOptions(seed=1,
-                                              impact_model="planar"))
+    docp = analyze(m, tel, AnalysisOptions(seed=1, impact_model="planar")).to_json()
     s3, sp = doc3["truth"]["summary"], docp["truth"]["summary"]
     assert docp["impact_model"] == "planar" and doc3["impact_model"] == "3d"
     assert sp["within_2sigma"] / sp["found"] < s3["within_2sigma"] / s3["found"] - 0.1
@@ -156,7 +155,8 @@ def test_chain_runs_on_a_fit_without_uncertainty():
     m = _BestFitOnly(paper_model())
     ds = synth_telemetry(m, SynthOptions(n_releases=6, seed=3))
     tel = telemetry_from_dataset(ds, source="synthetic")
-    doc, curves = analyze(m, tel, AnalysisOptions(n_samples=60, n_times=301))
+    res = analyze(m, tel, AnalysisOptions(n_samples=60, n_times=301))
+    doc, curves = res.to_json(), res.curves
     assert "best fit only" in doc["model_uncertainty"]
     # no fit spread (round-off of identical batched runs only)
     assert np.nanmax(curves.sigma_fit["vx"]) < 1e-9 * np.nanmax(np.abs(curves.nominal["vx"]))
@@ -174,7 +174,7 @@ def test_synthetic_truth_is_the_3d_impact():
     the best fit and the nominal geometry)."""
     from gprm.flight.predicted import tm_velocity_vs_time
     from gprm.params import batch
-    from gprm.predict.kinematics import body_motion
+    from gprm.simulate.kinematics import body_motion
 
     m = paper_model()
     ds = synth_telemetry(m, SynthOptions(n_releases=5, seed=8, truth_spread=False))

@@ -7,7 +7,7 @@ import pytest
 from gprm.errors import GprmInputError
 from gprm.predict.energy import (FIVE, derivative_std, differentiate, energy_check,
                                  histogram, point_energy, read_means, window_weights)
-from gprm.predict.kinematics import body_motion
+from gprm.simulate.kinematics import body_motion
 
 from predict_means_synth import synthetic_means
 

@@ -6,15 +6,15 @@ import numpy as np
 import pytest
 
 from gprm.errors import GprmInputError
-from gprm.predict.kinematics import body_motion, named_points, point_motion
-from gprm.predict.plots import plot_sweep
+from gprm.simulate.kinematics import body_motion, named_points, point_motion
+from gprm.report.figures import fig_sweep
 from gprm.predict.scenarios import ECCENTRICITIES, Scenario, apply_scenario
 from gprm.predict.whatif import PAPER_RATIOS, overshoot, sweep, whatif, window_times
 
 
 @pytest.fixture(scope="module")
 def table(fm):
-    return whatif(fm, samples=30, seed=4)
+    return whatif(fm, samples=30, seed=4).to_json()
 
 
 def test_overshoot_definition():
@@ -104,15 +104,19 @@ def test_sweep_and_plot(fm, table, tmp_path):
         for a in sw["axes"]:
             assert np.isclose(sw["overshoot"][p][a][1], base[p][a], rtol=1e-12)
     assert sw["display_values"][1] == pytest.approx(30.0)
-    out = plot_sweep(sw, tmp_path / "sweep.png")
-    assert (tmp_path / "sweep.png").stat().st_size > 1000 and out.endswith("sweep.png")
+    fig = fig_sweep(sw)
+    drawn = fig.axes[0].lines[0].get_ydata()      # first axis, first point, in um
+    np.testing.assert_allclose(drawn, np.asarray(sw["overshoot"][sw["points"][0]][
+        sw["axes"][0]]) * 1e6)
+    fig.savefig(tmp_path / "sweep.png")
+    assert (tmp_path / "sweep.png").stat().st_size > 1000
     with pytest.raises(GprmInputError):
         sweep(fm, "m2", [0.01, -0.01])
 
 
 def test_scenario_of_a_changed_model(fm):
     """A model with a different geometry gives different overshoots (the plumbing uses it)."""
-    a = whatif(fm, samples=0)["scenarios"][0]["overshoot"]["M_yz"]["y"]
+    a = whatif(fm, samples=0).scenarios[0]["overshoot"]["M_yz"]["y"]
     f2 = replace(fm, params=fm.params.with_values(h2=0.02))
-    b = whatif(f2, samples=0)["scenarios"][0]["overshoot"]["M_yz"]["y"]
+    b = whatif(f2, samples=0).scenarios[0]["overshoot"]["M_yz"]["y"]
     assert a != b

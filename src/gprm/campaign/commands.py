@@ -8,11 +8,11 @@ from typing import Optional
 
 import typer
 
+from gprm.console import one_line_errors
+from gprm.options import Int, Quantity
+
 
 def register(app: typer.Typer, synth_app: typer.Typer) -> None:
-    from gprm.cli import one_line_errors
-    from gprm.options import Int, Quantity
-
     @synth_app.command("campaign")
     @one_line_errors
     def synth_campaign_cmd(
@@ -73,8 +73,10 @@ def register(app: typer.Typer, synth_app: typer.Typer) -> None:
         """Synchronise, average and align a campaign (Sec. 2); prints Table 1."""
         from gprm._io import check_outputs, files_read_from, write_netcdf_atomic
         from gprm.campaign.api import PreprocessOptions, preprocess_campaign
+        from gprm.campaign.csvdir import read_manifest
 
-        check_outputs({out: "--out"}, inputs=[campaign, *files_read_from(campaign)])
+        check_outputs({out: "--out"}, inputs=[campaign, *files_read_from(
+            campaign, listed=lambda m: [row["file"] for row in read_manifest(m)])])
         ms = preprocess_campaign(campaign, PreprocessOptions(align_time=align_time))
         write_netcdf_atomic(ms.to_dataset(), out)
         typer.echo(f"wrote {out}: {len(ms.signals)} mean signals x {ms.time.size} samples "

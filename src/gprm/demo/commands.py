@@ -7,11 +7,11 @@ from typing import Optional
 
 import typer
 
+from gprm.console import one_line_errors
+from gprm.options import Int
+
 
 def register(app: typer.Typer, synth_app: typer.Typer) -> None:
-    from gprm.cli import one_line_errors
-    from gprm.options import Int
-
     @app.command("demo")
     @one_line_errors
     def demo_cmd(

@@ -7,11 +7,11 @@ from typing import Optional
 
 import typer
 
+from gprm.console import one_line_errors
+from gprm.options import Int, Number, Window
+
 
 def register(app: typer.Typer, synth_app: typer.Typer) -> None:
-    from gprm.cli import one_line_errors
-    from gprm.options import Int, Number, Window
-
     @app.command("fit")
     @one_line_errors
     def fit_cmd(

@@ -30,6 +30,7 @@ from gprm._io import open_netcdf, read_json, write_json_atomic, write_netcdf_ato
 from gprm.errors import GprmInputError
 from gprm.fit.covariance import sample_normal
 from gprm.model.linear import admissible
+from gprm.model.piezo import check_piezo
 from gprm.params import (REGISTRY, ParameterSet, batch_from_vectors, from_si, paper,
                          validate_values)
 from gprm.params.files import si_unit_strings, ureg
@@ -317,8 +318,7 @@ def load_model(source: str | os.PathLike | FittedModel, *,
     ``paper`` (:func:`paper_model`), a fit JSON (:func:`load_fit`) or a run folder (its
     ``fit.json``). ``piezo`` (1 or 2) overrides the piezo of the fitted campaign (``paper``:
     default 2)."""
-    if piezo is not None and (piezo not in (1, 2) or isinstance(piezo, bool)):
-        raise GprmInputError(f"must be 1 or 2, got {piezo!r}", field="piezo")
+    check_piezo(piezo, optional=True)
     if isinstance(source, FittedModel):
         fm = source
     elif str(source) == "paper":

@@ -4,14 +4,19 @@ release telemetry and velocities, impact times, Tukey's range test, multiple imp
 Pipeline: :mod:`impact` (models) -> :mod:`predicted` (curves and bands) -> :mod:`telemetry`
 (format, units, CSV, release velocities) -> :mod:`impact_time` (crossings, error bars from
 the draws) -> :mod:`joint` (one time per release) and :mod:`tukey` -> :mod:`analysis`
-(``gprm impact``); :mod:`synth` (``gprm synth telemetry``); :mod:`multi`
-(second impacts). See docs/flight.md.
+(``gprm impact``, :class:`ImpactResult`); :mod:`synth` (``gprm synth telemetry``); :mod:`multi`
+(second impacts); :mod:`api`: the stage's entry points (:func:`run_impact`,
+:func:`write_impact`, :func:`run_synth_telemetry`) with their validated options, which the
+commands and ``gprm run`` call. The body kinematics are :mod:`gprm.simulate.kinematics`.
+See docs/flight.md.
 """
 
 from gprm._lazy import attach
 
 __getattr__, __dir__, __all__ = attach(__name__, {
-    "analysis": ["AnalysisOptions", "analyze", "curves_dataset"],
+    "analysis": ["AnalysisOptions", "ImpactResult", "analyze", "curves_dataset"],
+    "api": ["ImpactOptions", "TelemetryOptions",
+            "impact_sidecar", "run_impact", "run_synth_telemetry", "write_impact"],
     "impact": ["impact_3d", "kinetic_energy", "planar_impact"],
     "impact_time": ["first_crossing", "impact_time_mc"],
     "joint": ["joint_impact_time"],

@@ -1,23 +1,49 @@
 """Flight analysis pipeline (``gprm impact``): release velocities -> predicted curves ->
-impact times -> Tukey test, as the JSON of INTERFACES.md plus a NetCDF sidecar of the curves.
+impact times -> Tukey test, as an :class:`ImpactResult` (its ``to_json()`` is the JSON of
+INTERFACES.md, its ``to_xarray()`` the NetCDF sidecar of the curves).
 """
 
 from __future__ import annotations
 
+import copy
+import math
 from dataclasses import dataclass
+from typing import Any, Mapping
 
 import numpy as np
+import xarray as xr
 
 from gprm.errors import GprmInputError
 from gprm.flight.impact_time import impact_time_mc
 from gprm.flight.joint import joint_impact_time
-from gprm.flight.predicted import ImpactGeometry, velocity_curves
-from gprm.flight.telemetry import AXES, AXIS_UNIT, release_velocities
+from gprm.flight.predicted import ImpactGeometry, VelocityCurves, velocity_curves
+from gprm.flight.telemetry import AXES, AXIS_CHANNEL, AXIS_UNIT, release_velocities
 from gprm.flight.tukey import tukey_range_test
+
+
+def _int(name: str, v, lo: int) -> None:
+    if isinstance(v, bool) or not isinstance(v, int) or v < lo:
+        raise GprmInputError(f"must be an integer, at least {lo}; got {v!r}", field=name)
+
+
+def _real(v) -> bool:
+    return not isinstance(v, bool) and isinstance(v, (int, float)) and math.isfinite(v)
 
 
 @dataclass(frozen=True)
 class AnalysisOptions:
+    """What defines a flight analysis (SI). Validated on construction (the one place these
+    are checked); a bad value raises :class:`GprmInputError` naming the option.
+
+    alpha: level of Tukey's test and of the joint chi-square check (0 < alpha < 1).
+    n_samples: joint parameter and geometry draws of the velocity-curve bands (>= 2).
+    n_times: grid times of the curves (>= 2). seed: seed of the draws.
+    window: impact-time window (start, end) in s, 0 <= start < end; None: t_c .. t_c + 0.2 ms.
+    fit_window: the release-velocity line fit over this long after the release (s, > 0);
+        None: all. min_samples: fewest telemetry samples for a release velocity (>= 2).
+    impact_model: ``"3d"`` (one contact) or ``"planar"`` (the paper's two planes).
+    """
+
     alpha: float = 0.01
     n_samples: int = 200
     n_times: int = 401
@@ -27,12 +53,134 @@ class AnalysisOptions:
     min_samples: int = 5
     impact_model: str = "3d"
 
+    def __post_init__(self):
+        if not _real(self.alpha) or not 0 < self.alpha < 1:
+            raise GprmInputError(f"must be a number between 0 and 1 (exclusive), got "
+                                 f"{self.alpha!r}", field="alpha")
+        _int("n_samples", self.n_samples, 2)
+        _int("n_times", self.n_times, 2)
+        _int("seed", self.seed, 0)
+        _int("min_samples", self.min_samples, 2)
+        if self.window is not None:
+            w = tuple(self.window)
+            if len(w) != 2 or not all(_real(x) for x in w) or not 0 <= w[0] < w[1]:
+                raise GprmInputError(f"expected 0 <= START < END (s), got {self.window!r}",
+                                     field="window")
+            object.__setattr__(self, "window", (float(w[0]), float(w[1])))
+        if self.fit_window is not None and (not _real(self.fit_window)
+                                            or self.fit_window <= 0):
+            raise GprmInputError(f"must be a time > 0 (s), got {self.fit_window!r}",
+                                 field="fit_window")
+        if self.impact_model not in ("3d", "planar"):
+            raise GprmInputError(f"must be 3d or planar, got {self.impact_model!r}",
+                                 field="impact_model")
+
+    def to_json(self) -> dict:
+        return {k: (list(v) if isinstance(v, tuple) else v) for k, v in self.__dict__.items()}
+
+
+@dataclass(frozen=True)
+class ImpactResult:
+    """The flight analysis of one telemetry file (``gprm impact``, ``impact.json``).
+
+    Per release (``releases``, JSON-able records): the release velocities, the impact time
+    of each of the six axes, their joint estimate and, for synthetic telemetry, the truth;
+    ``missing``: the (release, axis) pairs without an impact time and why; ``tukey``: Tukey's
+    range test over the axes; ``joint``: the joint estimates' chi-square check; ``curves``:
+    the predicted velocity-vs-impact-time curves used (:class:`VelocityCurves`);
+    ``multiple_impacts``: the second-impact report (``--multi``), ``notes``: sentences the
+    report shows, ``sidecar``: the curves' NetCDF file name once written.
+
+    ``to_json()`` is the impact document (docs/data-formats.md), ``to_xarray()`` the curves'
+    sidecar dataset; :meth:`from_json` reads a document back.
+    """
+
+    model_source: str
+    telemetry: str
+    piezo: int
+    impact_model: str
+    model_uncertainty: str
+    window: tuple[float, float]
+    releases: tuple[dict, ...]
+    missing: tuple[dict, ...]
+    tukey: dict
+    joint: dict
+    curves: VelocityCurves | None
+    n_samples: int
+    seed: int
+    options: Mapping[str, Any]
+    truth_impact_time: tuple[float, ...] | None = None
+    multiple_impacts: dict | None = None
+    notes: tuple[str, ...] = ()
+    sidecar: str | None = None
+
+    FORMAT = "gprm-impact"
+    FORMAT_VERSION = 1
+    TIME_BASE = "s from the start of the retraction record (retraction command at t_c)"
+
+    def to_json(self) -> dict:
+        """The impact document (JSON-able; a deep copy)."""
+        doc = {
+            "format": self.FORMAT, "format_version": self.FORMAT_VERSION,
+            "model_source": self.model_source, "telemetry": self.telemetry,
+            "piezo": self.piezo, "impact_model": self.impact_model,
+            "model_uncertainty": self.model_uncertainty, "time_base": self.TIME_BASE,
+            "window": [float(self.window[0]), float(self.window[1])],
+            "releases": [copy.deepcopy(r) for r in self.releases],
+            "missing": [dict(m) for m in self.missing],
+            "tukey": copy.deepcopy(self.tukey),
+            "joint": copy.deepcopy(self.joint),
+            "curves": {"sidecar": self.sidecar, "n_samples": self.n_samples,
+                       "seed": self.seed},
+            "options": dict(self.options),
+        }
+        if self.truth_impact_time is not None:
+            doc["truth"] = {"impact_time": [float(x) for x in self.truth_impact_time],
+                            "summary": truth_summary(doc)}
+        if self.multiple_impacts is not None:
+            doc["multiple_impacts"] = copy.deepcopy(self.multiple_impacts)
+        if self.notes:
+            doc["notes"] = list(self.notes)
+        return doc
+
+    def to_xarray(self) -> xr.Dataset:
+        """The velocity-vs-impact-time curves (the ``.nc`` sidecar of ``impact.json``)."""
+        if self.curves is None:
+            raise GprmInputError("this impact result was read without its curves",
+                                 field="curves")
+        return curves_dataset(self.curves)
+
+    @classmethod
+    def from_json(cls, doc: Mapping, curves: VelocityCurves | None = None) -> "ImpactResult":
+        """The result of an impact document (``to_json()``'s inverse; the curves are in the
+        sidecar and may be given)."""
+        if not isinstance(doc, Mapping) or doc.get("format") != cls.FORMAT:
+            raise GprmInputError(f"not a {cls.FORMAT} document", field="format")
+        try:
+            c = doc["curves"]
+            truth = doc.get("truth")
+            return cls(model_source=doc["model_source"], telemetry=doc["telemetry"],
+                       piezo=doc["piezo"], impact_model=doc["impact_model"],
+                       model_uncertainty=doc["model_uncertainty"],
+                       window=tuple(doc["window"]),
+                       releases=tuple(copy.deepcopy(doc["releases"])),
+                       missing=tuple(dict(m) for m in doc["missing"]),
+                       tukey=copy.deepcopy(doc["tukey"]), joint=copy.deepcopy(doc["joint"]),
+                       curves=curves, n_samples=c["n_samples"], seed=c["seed"],
+                       options=dict(doc["options"]),
+                       truth_impact_time=(None if truth is None
+                                          else tuple(truth["impact_time"])),
+                       multiple_impacts=copy.deepcopy(doc.get("multiple_impacts")),
+                       notes=tuple(doc.get("notes", ())), sidecar=c.get("sidecar"))
+        except KeyError as exc:
+            raise GprmInputError("missing in the impact document",
+                                 field=str(exc.args[0])) from None
+
 
 def _duplicate_axes(curves) -> set:
     """Axes that repeat an earlier axis: same telemetry channel and the same curves (both v_z
     axes of the one-contact 3D model). They keep their impact time (k = 6 for Tukey) but enter
     the joint estimate once."""
-    from gprm.flight.telemetry import AXIS_CHANNEL
 
     dup = set()
     for i, a in enumerate(AXES):
@@ -46,11 +194,15 @@ def _duplicate_axes(curves) -> set:
     return dup
 
 
-def analyze(model, tel, opts: AnalysisOptions = AnalysisOptions(), curves=None):
-    """Run the flight analysis; returns ``(doc, curves)``: the JSON document and the
-    :class:`~gprm.flight.predicted.VelocityCurves` used."""
-    if opts.impact_model not in ("3d", "planar"):
-        raise GprmInputError("must be 3d or planar", field="--impact-model")
+def analyze(model, tel, opts: AnalysisOptions = AnalysisOptions(),
+            curves: VelocityCurves | None = None) -> ImpactResult:
+    """Run the flight analysis of telemetry ``tel`` (a loaded
+    :class:`~gprm.flight.telemetry.Telemetry`) with a fitted model; ``curves``: velocity
+    curves already computed for this model (else computed here). See :class:`ImpactResult`.
+    """
+    if not isinstance(opts, AnalysisOptions):
+        raise GprmInputError(f"expected AnalysisOptions, got {type(opts).__name__}",
+                             field="opts")
     vel = release_velocities(tel, fit_window=opts.fit_window, min_samples=opts.min_samples)
     if curves is None:
         curves = velocity_curves(model, window=opts.window, n_times=opts.n_times,
@@ -102,31 +254,22 @@ def analyze(model, tel, opts: AnalysisOptions = AnalysisOptions(), curves=None):
         tk = tukey_range_test(groups, alpha=opts.alpha)
     except GprmInputError as exc:  # too few crossings: report, do not fail
         tukey_note = f"Tukey test not possible: {exc.problem}"
-    doc = {
-        "format": "gprm-impact", "format_version": 1,
-        "model_source": str(model.source), "telemetry": tel.source, "piezo": model.piezo,
-        "impact_model": curves.meta.get("impact_model", opts.impact_model),
-        "model_uncertainty": ("fit covariance and impact geometry" if has_unc else
-                              "best fit only (the fit has no usable covariance): the bands "
-                              "and error bars carry the impact geometry's uncertainty only"),
-        "time_base": "s from the start of the retraction record (retraction command at t_c)",
-        "window": [float(curves.time[0]), float(curves.time[-1])],
-        "releases": releases,
-        "missing": missing,
-        "tukey": (tk.to_json() if tk is not None
-                  else {"alpha": opts.alpha, "k": None, "df": None, "q_critical": None,
-                        "pairs": [], "note": tukey_note}),
-        "joint": _joint_summary(releases, opts.alpha),
-        "curves": {"sidecar": None, "n_samples": curves.n_samples, "seed": curves.seed},
-        "options": {k: (list(v) if isinstance(v, tuple) else v)
-                    for k, v in opts.__dict__.items()},
-    }
+    tukey = (tk.to_json() if tk is not None
+             else {"alpha": opts.alpha, "k": None, "df": None, "q_critical": None,
+                   "pairs": [], "note": tukey_note})
     if tk is not None:
-        doc["tukey"]["all_compatible"] = not any(p.reject for p in tk.pairs)
-    if truth_t is not None:
-        doc["truth"] = {"impact_time": [float(x) for x in truth_t],
-                        "summary": truth_summary(doc)}
-    return doc, curves
+        tukey["all_compatible"] = not any(p.reject for p in tk.pairs)
+    return ImpactResult(
+        model_source=str(model.source), telemetry=tel.source, piezo=model.piezo,
+        impact_model=curves.meta.get("impact_model", opts.impact_model),
+        model_uncertainty=("fit covariance and impact geometry" if has_unc else
+                           "best fit only (the fit has no usable covariance): the bands "
+                           "and error bars carry the impact geometry's uncertainty only"),
+        window=(float(curves.time[0]), float(curves.time[-1])),
+        releases=tuple(releases), missing=tuple(missing), tukey=tukey,
+        joint=_joint_summary(releases, opts.alpha), curves=curves,
+        n_samples=curves.n_samples, seed=curves.seed, options=opts.to_json(),
+        truth_impact_time=(None if truth_t is None else tuple(float(x) for x in truth_t)))
 
 
 def _joint_summary(releases, alpha) -> dict:
@@ -157,10 +300,9 @@ def truth_summary(doc) -> dict:
             "joint_releases": n_j, "joint_truth_in_ci95": int(n_jin)}
 
 
-def curves_dataset(curves, doc=None):
-    """The velocity-vs-impact-time curves as an :class:`xarray.Dataset` (the sidecar)."""
-    import xarray as xr
-
+def curves_dataset(curves: VelocityCurves, doc=None) -> xr.Dataset:
+    """The velocity-vs-impact-time curves as an :class:`xarray.Dataset` (the sidecar;
+    ``doc`` is not used and kept for older callers)."""
     dv = {}
     for name, d in (("nominal", curves.nominal), ("sigma", curves.sigma),
                     ("sigma_fit", curves.sigma_fit), ("sigma_geometry", curves.sigma_geometry),

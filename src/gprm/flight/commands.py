@@ -7,25 +7,16 @@ from typing import Optional
 
 import typer
 
+from gprm.console import cli_options, one_line_errors
+from gprm.options import Int, Number, Quantity, Window
 
-def _window(window):
-    from gprm.errors import GprmInputError
 
-    if window is None or isinstance(window, tuple):
-        return window          # parsed and checked by gprm.options.Window
-    try:
-        a, b = (float(x) for x in window.split(","))
-    except ValueError:
-        raise GprmInputError("expected 'START,END' in seconds", field="--window") from None
-    if not (0 <= a < b):
-        raise GprmInputError("expected 0 <= START < END", field="--window")
-    return (a, b)
+#: option fields -> the flags that set them, where the names differ
+_SYNTH_FLAGS = {"n_releases": "--releases", "truth_spread": "--no-spread"}
+_IMPACT_FLAGS = {"n_samples": "--samples"}
 
 
 def register(app: typer.Typer, synth_app: typer.Typer) -> None:
-    from gprm.cli import one_line_errors
-    from gprm.options import Int, Number, Quantity, Window
-
     @synth_app.command("telemetry")
     @one_line_errors
     def synth_telemetry_cmd(
@@ -57,35 +48,24 @@ def register(app: typer.Typer, synth_app: typer.Typer) -> None:
                                              "restitution and friction) or planar (paper)"),
     ):
         """Synthetic in-flight releases with known impact times (telemetry NetCDF)."""
-        from gprm._io import write_netcdf_atomic
-        from gprm.errors import GprmInputError
-        from gprm.flight.synth import SynthOptions, synth_telemetry
-
-        from gprm._io import check_outputs
+        from gprm._io import check_outputs, write_netcdf_atomic
+        from gprm.fit.files import load_model
+        from gprm.flight.api import TelemetryOptions, run_synth_telemetry
+        from gprm.flight.synth import SynthOptions
         from gprm.resources import check_memory
 
-        if truth_model not in ("3d", "planar"):
-            raise GprmInputError(f"must be 3d or planar, got {truth_model!r}",
-                                 field="--truth-model")
-        if z_from not in ("sum", "xz", "yz"):
-            raise GprmInputError(f"must be sum, xz or yz, got {z_from!r}", field="--z-from")
+        opts = cli_options(TelemetryOptions, piezo=piezo, synth=cli_options(
+            SynthOptions, _SYNTH_FLAGS, n_releases=releases, seed=seed, rate=rate, post=post,
+            pos_noise=pos_noise, att_noise=att_noise, truth_spread=not no_spread,
+            z_from=z_from, truth_model=truth_model))
         check_outputs({out: "--out"}, inputs=[None if fit == "paper" else fit])
         # 150 B per record sample (tracemalloc peak: 96 B per sample between 2 x 1e4 and
         # 2 x 4e4 samples; docs/README.md) plus a fixed 50 MB
         check_memory(releases * (post * rate + 1), 150.0, fixed=50e6, field="--rate",
                      unit="Hz", what=f"{releases} records of {post * rate + 1:.4g} samples",
                      unit_scale=releases * post)
-        if releases < 1:
-            raise GprmInputError("must be >= 1", field="--releases")
-        if rate <= 0 or post <= 0 or pos_noise <= 0 or att_noise <= 0:
-            raise GprmInputError("rate, post and noise levels must be > 0", field="--rate")
-        from gprm.fit.files import load_model
-
         m = load_model(fit, piezo=piezo)
-        ds = synth_telemetry(m, SynthOptions(n_releases=releases, seed=seed, rate=rate,
-                                             post=post, pos_noise=pos_noise,
-                                             att_noise=att_noise, truth_spread=not no_spread,
-                                             z_from=z_from, truth_model=truth_model))
+        ds = run_synth_telemetry(m, opts)
         write_netcdf_atomic(ds, out)
         tt = ds["truth_impact_time"].values * 1e3
         note = ("" if getattr(m, "has_uncertainty", True) or no_spread else
@@ -126,39 +106,24 @@ def register(app: typer.Typer, synth_app: typer.Typer) -> None:
                                         "at each estimated impact (second impacts)"),
     ):
         """Release velocities, impact times and Tukey's test from telemetry (JSON)."""
-        from gprm._io import write_json_atomic, write_netcdf_atomic
-        from gprm.errors import GprmInputError
-        from gprm.flight.analysis import AnalysisOptions, analyze, curves_dataset
-        from gprm.flight.telemetry import load_telemetry
-
         from gprm._io import check_outputs
+        from gprm.errors import GprmInputError
+        from gprm.flight.analysis import AnalysisOptions
+        from gprm.fit.files import load_model
+        from gprm.flight.api import (ImpactOptions, impact_sidecar, run_impact,
+                                     write_impact)
 
-        side = out.with_suffix(".nc")
-        if out.suffix == ".nc":
-            raise GprmInputError("must not end in .nc (that name is the sidecar's)",
-                                 source=str(out), field="--out")
+        opts = cli_options(ImpactOptions, piezo=piezo, multi=multi, analysis=cli_options(
+            AnalysisOptions, _IMPACT_FLAGS, alpha=alpha, n_samples=samples, seed=seed,
+            window=window, fit_window=fit_window, impact_model=impact_model))
+        try:
+            side = impact_sidecar(out)
+        except GprmInputError as exc:
+            raise GprmInputError(exc.problem, source=exc.source, field="--out") from None
         check_outputs({out: "--out", side: "--out (its .nc sidecar)"},
                       inputs=[None if fit == "paper" else fit, telemetry])
-        if samples < 2:
-            raise GprmInputError("must be >= 2", field="--samples")
-        if impact_model not in ("3d", "planar"):
-            raise GprmInputError(f"must be 3d or planar, got {impact_model!r}",
-                                 field="--impact-model")
-        from gprm.fit.files import load_model
-
         m = load_model(fit, piezo=piezo)
-        tel = load_telemetry(telemetry)
-        opts = AnalysisOptions(alpha=alpha, n_samples=samples, seed=seed,
-                               window=_window(window), fit_window=fit_window,
-                               impact_model=impact_model)
-        doc, curves = analyze(m, tel, opts)
-        if multi:
-            from gprm.flight.multi import multi_impact_report
-            doc["multiple_impacts"] = multi_impact_report(m, doc)
-        side = out.with_suffix(".nc")
-        doc["curves"]["sidecar"] = side.name
-        write_netcdf_atomic(curves_dataset(curves, doc), side)
-        write_json_atomic(out, doc)
+        doc = write_impact(run_impact(m, telemetry, opts), out).to_json()
         n_ok = sum(1 for r in doc["releases"] for a in r["impact_time"].values()
                    if a["value"] is not None)
         tk = doc["tukey"]

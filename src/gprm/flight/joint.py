@@ -28,6 +28,9 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.stats import chi2 as chi2_dist
+
+from gprm.flight.impact_time import _weighted_quantile, draw_weights
 
 Z95 = 1.959963984540054
 
@@ -78,7 +81,6 @@ def joint_impact_time(times: dict, stderrs: dict, draws: dict, slopes: dict | No
     """GLS combination of the per-axis impact times ``times`` {axis: t} with error bars
     ``stderrs`` and draws' crossing times ``draws`` {axis: (n,)} (see the module docstring).
     """
-    from scipy.stats import chi2 as chi2_dist
 
     axes = tuple(a for a in times if times[a] is not None and stderrs.get(a) is not None
                  and stderrs[a] > 0)
@@ -122,7 +124,6 @@ def joint_impact_time(times: dict, stderrs: dict, draws: dict, slopes: dict | No
         # interval (no Gaussian tail assumption). Centred, because the draws that reach the
         # measured velocity on every axis are biased to large amplitudes and early times
         # (a draw just reaching it near its peak rarely does so on all axes at once)
-        from gprm.flight.impact_time import _weighted_quantile, draw_weights
 
         tk = D[full] @ w
         wk = (np.full(tk.size, 1.0 / tk.size) if slopes is None else

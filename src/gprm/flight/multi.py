@@ -27,8 +27,12 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from gprm.flight.impact import _skew
-from gprm.model.linear import MECHANICAL
 from gprm.flight.predicted import ImpactGeometry
+from gprm.model.definition import MECHANICAL
+from gprm.model.linear import descriptor, state_space
+from gprm.params import batch
+from gprm.simulate.kinematics import (body_motion, motion_omega, named_points, point_motion,
+                                      rotation)
 
 MECH = MECHANICAL            # the model's mechanical coordinates (model.definition)
 
@@ -44,9 +48,6 @@ class ContactEvent:
 
 
 def _setup(model, geometry):
-    from gprm.params import batch
-    from gprm.predict.kinematics import named_points
-    from gprm.model.linear import descriptor, state_space
 
     pb = batch([model.params])
     geom = (geometry or ImpactGeometry()).resolved(pb)
@@ -73,7 +74,6 @@ def _with_perturbation(motion, dz_list, lam, V, Vinv):
     coords = {n: motion.coords[n] + dz[i][None] for i, n in enumerate(MECH)}
     rates = {f"{n}_dot": motion.rates[f"{n}_dot"] + dz[8 + i][None]
              for i, n in enumerate(MECH)}
-    from gprm.predict.kinematics import motion_omega, rotation
     R = rotation(coords["theta"], coords["eta"])
     return replace(motion, coords=coords, rates=rates, R=R, omega=motion_omega(coords, rates))
 
@@ -81,7 +81,6 @@ def _with_perturbation(motion, dz_list, lam, V, Vinv):
 def _point_jacobian(motion, r_body):
     """∂p/∂ξ (3, 8) of a plunger-fixed point at the single time of ``motion``: the point's
     velocity for a unit rate of each coordinate (velocity is linear in the rates)."""
-    from gprm.predict.kinematics import motion_omega, point_motion
 
     cols = []
     for n in MECH:
@@ -98,7 +97,6 @@ def simulate_contacts(model, t1: float, *, t_end: float | None = None,
                       max_events: int = 50, trace: bool = False) -> dict:
     """Integrate plunger and TM from the first impact at ``t1`` to ``t_end`` (default the end
     of the prediction window) and return the contact events and the final TM velocity."""
-    from gprm.predict.kinematics import body_motion, point_motion
 
     pb, geom, (E, lam, V, Vinv), pts = _setup(model, geometry)
     if t_end is None:

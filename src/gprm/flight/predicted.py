@@ -1,7 +1,7 @@
 """Test-mass velocity as a function of the impact time (Section 4, Fig. 11b).
 
 For every time t of a window, the plunger assembly's state at t (from the model's trajectory,
-``gprm.predict.kinematics``) strikes the test mass (TM), initially at rest, at the middle point
+``gprm.simulate.kinematics``) strikes the test mass (TM), initially at rest, at the middle point
 of the contact line (M_xz or M_yz) on an indent face; the planar impact of Appendix B
 (:func:`gprm.flight.impact.planar_impact`) gives the TM velocity after the impact. The x–z plane
 gives v_x, v_z, ω_y, the y–z plane v_y, v_z, ω_x: the six axes ``vx, vz_xz, wy, vy, vz_yz, wx``.
@@ -33,8 +33,10 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from gprm.errors import GprmInputError
-from gprm.flight.impact import _perp, planar_impact
+from gprm.flight.impact import _perp, impact_3d, planar_impact
 from gprm.flight.telemetry import AXES
+from gprm.params import batch
+from gprm.simulate.kinematics import body_motion, named_points, point_motion, static_position
 
 PLANES = ("xz", "yz")
 PLANE_AXES = {"xz": ("vx", "vz_xz", "wy"), "yz": ("vy", "vz_yz", "wx")}
@@ -88,13 +90,12 @@ class GeometryUncertainty:
 def tm_velocity_vs_time(motion, geometry: ImpactGeometry | list | None = None) -> dict:
     """Post-impact TM velocities if the impact happened at each time of ``motion``.
 
-    ``motion`` is a :class:`gprm.predict.kinematics.PlungerMotion` (B parameter sets, T times).
+    ``motion`` is a :class:`gprm.simulate.kinematics.PlungerMotion` (B parameter sets, T times).
     ``geometry`` is one :class:`ImpactGeometry` or a list of B of them (one per set). Returns
     ``{axis: (B, T)}`` for the six axes (NaN where no impact is possible), plus
     ``approaching_xz``, ``approaching_yz`` (B, T) booleans and ``impulse_xz``, ``impulse_yz``
     (B, T) normal impulses, N·s.
     """
-    from gprm.predict.kinematics import named_points, point_motion
 
     pb = motion.params
     B, T = motion.size, motion.time.size
@@ -134,7 +135,6 @@ def tm_velocity_vs_time(motion, geometry: ImpactGeometry | list | None = None) -
     # static positions do not depend on the plane
     use = np.array([g.plunger_inertia == "assembly" for g in geoms])
     if use.any():
-        from gprm.predict.kinematics import static_position
         gA = static_position(motion, asm)
         masses_at = tuple((m, static_position(motion, pts[n]))
                           for m, n in ((m2, "com"), (m3, "spacer"), (m4, "tip_edge")))
@@ -200,8 +200,6 @@ def _tm_velocity_3d(motion, geoms) -> dict:
     isotropic), so the in-plane quantities of each plane are the 3D components: both planes' v_z
     axes carry the one v_z, ω_y (x–z) and ω_x (y–z) are the 3D components (docs/flight.md §2).
     """
-    from gprm.flight.impact import impact_3d
-    from gprm.predict.kinematics import named_points, point_motion
 
     pb = motion.params
     B, T = motion.size, motion.time.size
@@ -228,7 +226,6 @@ def _tm_velocity_3d(motion, geoms) -> dict:
     IA = np.broadcast_to(pb["J2"], (B,)).astype(float)[:, None, None] * eye   # (B, 3, 3)
     use = np.array([g.plunger_inertia == "assembly" for g in geoms])
     if use.any():
-        from gprm.predict.kinematics import static_position
         gA = static_position(motion, asm)
         for m, nm in ((pb["m2"], "com"), (pb["m3"], "spacer"), (pb["m4"], "tip_edge")):
             d = static_position(motion, pts[nm]) - gA       # (B, 3)
@@ -363,8 +360,6 @@ def velocity_curves(model, *, window=None, n_times: int = 401, n_samples: int = 
     runs with geometry draws (:class:`GeometryUncertainty`), and ``n_samples`` joint draws
     (for the percentile band and the plausibility fraction).
     """
-    from gprm.params import batch
-    from gprm.predict.kinematics import body_motion
 
     geometry = geometry or ImpactGeometry()
     uncertainty = uncertainty or GeometryUncertainty()

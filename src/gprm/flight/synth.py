@@ -24,19 +24,34 @@ Per release (docs/flight.md):
 from __future__ import annotations
 
 import json
-from dataclasses import dataclass
+import math
+from dataclasses import dataclass, replace
 
 import numpy as np
 
+from gprm.errors import GprmInputError
 from gprm.flight.predicted import (GeometryUncertainty, ImpactGeometry, sample_geometries,
                                    tm_velocity_vs_time, default_window)
 from gprm.flight.telemetry import AXES, telemetry_dataset
+from gprm.params import batch
+from gprm.simulate.kinematics import body_motion
 
 TM_COMPONENTS = ("vx", "vy", "vz", "wx", "wy", "wz")
 
 
 @dataclass(frozen=True)
 class SynthOptions:
+    """What defines a synthetic telemetry file (SI). Validated on construction (the one place
+    these are checked); a bad value raises :class:`GprmInputError` naming the option.
+
+    n_releases (>= 1) releases drawn with ``seed``; samples at ``rate`` (Hz) from ``pre`` s
+    before to ``post`` s after each release; white noise ``pos_noise`` (m) and ``att_noise``
+    (rad); ``truth_spread``: truth parameters and geometry drawn per release (else the best
+    fit and nominal geometry); ``z_from``: the TM v_z with a planar truth (``sum``, ``xz``,
+    ``yz``); ``grid_step`` (s) of the impact-time grid; ``window_mode``: ``identifiable`` or
+    ``approach`` (:func:`plausible_window`); ``truth_model``: ``3d`` or ``planar``.
+    """
+
     n_releases: int = 11
     seed: int = 0
     rate: float = 10.0
@@ -50,6 +65,28 @@ class SynthOptions:
     window_mode: str = "identifiable"
     truth_model: str = "3d"
 
+    def __post_init__(self):
+        for name, lo in (("n_releases", 1), ("seed", 0)):
+            v = getattr(self, name)
+            if isinstance(v, bool) or not isinstance(v, int) or v < lo:
+                raise GprmInputError(f"must be an integer, at least {lo}; got {v!r}",
+                                     field=name)
+        for name, positive in (("rate", True), ("pre", False), ("post", True),
+                               ("pos_noise", True), ("att_noise", True), ("grid_step", True)):
+            v = getattr(self, name)
+            if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) \
+                    or v < 0 or (positive and v == 0):
+                raise GprmInputError(f"must be a finite number {'> 0' if positive else '>= 0'}"
+                                     f", got {v!r}", field=name)
+        if self.z_from not in ("sum", "xz", "yz"):
+            raise GprmInputError(f"must be sum, xz or yz, got {self.z_from!r}", field="z_from")
+        if self.truth_model not in ("3d", "planar"):
+            raise GprmInputError(f"must be 3d or planar, got {self.truth_model!r}",
+                                 field="truth_model")
+        if self.window_mode not in ("identifiable", "approach"):
+            raise GprmInputError(f"must be identifiable or approach, got "
+                                 f"{self.window_mode!r}", field="window_mode")
+
 
 def plausible_window(model, *, window=None, step: float = 1e-7, geometry=None,
                      mode: str = "identifiable"):
@@ -61,9 +98,6 @@ def plausible_window(model, *, window=None, step: float = 1e-7, geometry=None,
     peak of the six |velocity| curves, where every curve is monotone, so a first crossing is
     the true one (beyond the peak the first-crossing rule of Sec. 4.1 picks the rising branch).
     """
-    from gprm.errors import GprmInputError
-    from gprm.params import batch
-    from gprm.predict.kinematics import body_motion
 
     if mode not in ("identifiable", "approach"):
         raise GprmInputError("must be identifiable or approach", field="window_mode")
@@ -87,19 +121,10 @@ def plausible_window(model, *, window=None, step: float = 1e-7, geometry=None,
 def synth_telemetry(model, opts: SynthOptions = SynthOptions(), *, geometry=None,
                     uncertainty=None):
     """Generate the synthetic telemetry :class:`xarray.Dataset` (see the module docstring)."""
-    from gprm.params import batch
-    from gprm.predict.kinematics import body_motion
-
-    from dataclasses import replace
-
-    from gprm.errors import GprmInputError
-
-    if opts.truth_model not in ("3d", "planar"):
-        raise GprmInputError("must be 3d or planar", field="truth_model")
+    if not isinstance(opts, SynthOptions):
+        raise GprmInputError(f"expected SynthOptions, got {type(opts).__name__}", field="opts")
     geometry = replace(geometry or ImpactGeometry(), impact_model=opts.truth_model)
     uncertainty = uncertainty or GeometryUncertainty()
-    if opts.z_from not in ("sum", "xz", "yz"):
-        raise GprmInputError("must be sum, xz or yz", field="z_from")
     rng = np.random.default_rng(opts.seed)
     R = int(opts.n_releases)
     grid, win = plausible_window(model, step=opts.grid_step, geometry=geometry,

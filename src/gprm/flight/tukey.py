@@ -16,6 +16,7 @@ from itertools import combinations
 from typing import Mapping, Sequence
 
 import numpy as np
+from scipy.stats import studentized_range
 
 from gprm.errors import GprmInputError
 
@@ -64,7 +65,6 @@ def tukey_range_test(groups: Mapping[str, Sequence[float]], alpha: float = 0.01,
     drop missing crossings before calling). Needs k >= 2 treatments, each with at least one
     observation, and N − k >= 1 residual degrees of freedom.
     """
-    from scipy.stats import studentized_range
 
     if not (0.0 < alpha < 1.0):
         raise GprmInputError(f"alpha must be in (0, 1), got {alpha}", field="alpha")

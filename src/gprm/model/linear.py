@@ -18,22 +18,20 @@ from types import ModuleType
 
 import numpy as np
 
-from gprm.errors import GprmInputError
-from gprm.model.definition import COORDINATES
+from gprm.model.definition import MECHANICAL
+from gprm.model.piezo import check_piezo
 
-MECH = 8
+#: the eight mechanical coordinates (``MECHANICAL``, the model's COORDINATES without the
+#: charge q, defined once in model.definition) and the state size
+MECH = len(MECHANICAL)
 NSTATE = 17
-#: the eight mechanical coordinates (the model's COORDINATES without the charge q): the one
-#: definition the simulator, the body kinematics and the flight analysis use
-MECHANICAL: tuple[str, ...] = COORDINATES[:MECH]
 STATE_NAMES: tuple[str, ...] = (MECHANICAL + tuple(f"{c}_dot" for c in MECHANICAL)
                                 + ("q",))
 
 
 def generated(piezo: int) -> ModuleType:
     """The generated code for a piezo (1 or 2)."""
-    if piezo not in (1, 2):
-        raise GprmInputError(f"piezo must be 1 or 2, got {piezo}", field="piezo")
+    check_piezo(piezo)
     return importlib.import_module(f"gprm.model._generated_piezo{piezo}")
 
 

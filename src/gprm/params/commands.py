@@ -7,10 +7,10 @@ from typing import Optional
 
 import typer
 
+from gprm.console import one_line_errors
+
 
 def register(app: typer.Typer, synth_app: typer.Typer) -> None:
-    from gprm.cli import one_line_errors
-
     @app.command("params")
     @one_line_errors
     def params_cmd(

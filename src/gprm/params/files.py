@@ -15,7 +15,7 @@ from typing import Any
 
 import pint
 
-from gprm._io import write_text_atomic
+from gprm._io import check_input_file, write_text_atomic
 from gprm.errors import GprmInputError
 from gprm.params.core import ParameterSet, paper, validate_values
 from gprm.params.registry import REGISTRY
@@ -83,7 +83,6 @@ def load_params(path: str | os.PathLike | None = None, *, base: ParameterSet | N
         return base
     path = Path(path)
     src = str(path)
-    from gprm._io import check_input_file
 
     check_input_file(path, what="parameter file")
     try:

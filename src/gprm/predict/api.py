@@ -15,7 +15,8 @@ from gprm.errors import GprmInputError
 from gprm.fit.files import FittedModel, load_model
 from gprm.predict.core import Prediction, predict, prediction_times
 from gprm.predict.scenarios import Scenario, check_scenario
-from gprm.predict.whatif import whatif
+from gprm.predict.whatif import WhatIf, whatif
+from gprm.simulate.inputs import read_voltage_csv
 
 #: the what-if table draws at most this many parameter sets (its ranges are 2.5/97.5 %)
 WHATIF_MAX_SAMPLES = 100
@@ -97,7 +98,6 @@ class PredictOptions:
 def _voltage(opts: PredictOptions):
     if opts.voltage is None:
         return None
-    from gprm.simulate import read_voltage_csv
 
     return read_voltage_csv(Path(opts.voltage))
 
@@ -118,9 +118,9 @@ def run_predict(model: FittedModel | str | os.PathLike,
 
 
 def run_whatif(model: FittedModel | str | os.PathLike,
-               opts: PredictOptions = PredictOptions()) -> dict:
+               opts: PredictOptions = PredictOptions()) -> WhatIf:
     """The paper's what-if table (Piezo 2 vs Piezo 1 vs Piezo 1 with eccentricities / 10;
-    JSON-able) with ``min(opts.samples, 100)`` parameter sets for its ranges, ``opts.seed``
+    :class:`~gprm.predict.whatif.WhatIf`, its ``to_json()`` is ``whatif.json``) with ``min(opts.samples, 100)`` parameter sets for its ranges, ``opts.seed``
     and ``opts.voltage``; the scenario fields of ``opts`` are not used."""
     if not isinstance(opts, PredictOptions):
         raise GprmInputError(f"expected PredictOptions, got {type(opts).__name__}",

@@ -7,6 +7,9 @@ from typing import List, Optional
 
 import typer
 
+from gprm.console import one_line_errors
+from gprm.options import Int, Number, Quantity
+
 
 def parse_overrides(items) -> dict:
     """``NAME=VALUE_WITH_UNIT`` strings -> {name: SI value} (bare numbers are SI)."""
@@ -51,9 +54,6 @@ _FLAGS = {"piezo": "--piezo", "scale_eccentricity": "--scale-eccentricity",
 
 
 def register(app: typer.Typer, synth_app: typer.Typer) -> None:
-    from gprm.cli import one_line_errors
-    from gprm.options import Int, Number, Quantity
-
     @app.command("predict")
     @one_line_errors
     def predict_cmd(
@@ -147,5 +147,5 @@ def register(app: typer.Typer, synth_app: typer.Typer) -> None:
                                              zip(pred.risk.planes, pred.risk.p_cross))
         typer.echo(msg)
         if whatif_out is not None:
-            write_json_atomic(whatif_out, run_whatif(fm, opts))
+            write_json_atomic(whatif_out, run_whatif(fm, opts).to_json())
             typer.echo(f"wrote {whatif_out}")

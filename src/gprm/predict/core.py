@@ -16,7 +16,7 @@ from gprm.errors import GprmInputError
 from gprm.fit.files import FittedModel
 from gprm.predict.energy import DEFAULT_WINDOW as ENERGY_WINDOW
 from gprm.predict.energy import EnergyCheck, energy_check, read_means
-from gprm.predict.masses import mass_table
+from gprm.predict.masses import MassTable, mass_table
 from gprm.predict.risk import ImpactRisk, impact_risk
 from gprm.predict.scenarios import Scenario, apply_scenario
 from gprm.predict.trajectories import Trajectories, default_times, predict_trajectories
@@ -32,7 +32,7 @@ class Prediction:
     trajectories: Trajectories
     overshoot: np.ndarray         # (point, 3) best fit, over the trajectory span
     energy: EnergyCheck
-    masses: list
+    masses: MassTable             # Fig. 7
     risk: ImpactRisk | None
     seed: int
     means_source: str | None

@@ -5,7 +5,7 @@ from the measured mean signals (with error bars from their standard error).
 Two energies (docs/prediction.md gives the formulas):
 
 - ``model_total``: the model's full kinetic energy, every body (m1; m2 with J2; m3; m4),
-  exact velocities (:func:`gprm.predict.kinematics.kinetic_energy`);
+  exact velocities (:func:`gprm.simulate.kinematics.kinetic_energy`);
 - ``point_energy``: the energy that can be formed from the five measured points
   (x_base, x_head, y_base, y_head, z_bk), Eq. ``E_5`` of the docs. It is applied in the same way
   (same time grid, same differentiation) to the measured mean signals and to the model's
@@ -22,9 +22,12 @@ from typing import Mapping
 
 import numpy as np
 
+from gprm._io import open_netcdf
 from gprm.errors import GprmInputError
 from gprm.fit.files import FittedModel
 from gprm.params import batch
+from gprm.simulate.core import observe
+from gprm.simulate.kinematics import body_motion, kinetic_energy
 
 FIVE: tuple[str, ...] = ("x_base", "x_head", "y_base", "y_head", "z_bk")
 DEFAULT_WINDOW: tuple[float, float] = (0.97e-3, 1.2e-3)
@@ -133,7 +136,6 @@ class EnergyCheck:
 def read_means(path) -> tuple[np.ndarray, dict, dict]:
     """Times, mean and sem (name -> (T,)) of the five fitted points from a mean-signals file
     (contracts.md)."""
-    from gprm._io import open_netcdf
 
     src = str(path)
     ds = open_netcdf(path, what="mean signals")
@@ -167,8 +169,6 @@ def energy_check(fm: FittedModel, *, piezo: int = 2, times=None, means=None,
     means: ``(times, mean, sem)`` as returned by :func:`read_means` (optional). The model is
     simulated on the same time grid as the measurement (default 200 kHz over 0..window end).
     """
-    from gprm.predict.kinematics import body_motion, kinetic_energy
-    from gprm.simulate import observe
 
     if n_bins < 1:
         raise GprmInputError(f"must be >= 1, got {n_bins}", field="n_bins")

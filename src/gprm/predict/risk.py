@@ -27,6 +27,8 @@ from scipy.special import ndtr
 
 from gprm.errors import GprmInputError
 from gprm.fit.files import FittedModel
+from gprm.params import batch
+from gprm.predict.trajectories import default_times, sampled_points
 
 CONTACTS: dict[str, str] = {"xz": "M_xz", "yz": "M_yz"}
 
@@ -85,8 +87,6 @@ def impact_risk(fm: FittedModel, gap: float, gap_std: float = 0.0, *, times=None
                 piezo: int = 2, samples: int = 500, seed: int = 0, angle: float | None = None,
                 voltage=None) -> ImpactRisk:
     """Minimum clearance and crossing probability of M_xz (x-z) and M_yz (y-z)."""
-    from gprm.params import batch
-    from gprm.predict.trajectories import default_times, sampled_points
 
     if not (np.isfinite(gap) and gap > 0):
         raise GprmInputError(f"must be a finite gap > 0, got {gap:g} m", field="gap")

@@ -13,6 +13,7 @@ import numpy as np
 
 from gprm.errors import GprmInputError
 from gprm.fit.files import FittedModel
+from gprm.model.piezo import check_piezo
 from gprm.params import REGISTRY, ParameterSet
 
 ECCENTRICITIES: tuple[str, ...] = ("v2", "g2", "gamma", "rho")
@@ -47,8 +48,7 @@ def standard_scenarios() -> tuple[Scenario, ...]:
 
 
 def check_scenario(sc: Scenario) -> None:
-    if sc.piezo not in (1, 2):
-        raise GprmInputError(f"must be 1 or 2, got {sc.piezo}", field="piezo")
+    check_piezo(sc.piezo)
     f = sc.scale_eccentricity
     if not (np.isfinite(f) and f > 0):
         raise GprmInputError(f"must be a finite number > 0, got {f:g}",

@@ -17,10 +17,11 @@ from typing import Sequence
 
 import numpy as np
 
+from gprm.errors import GprmInputError
 from gprm.fit.files import FittedModel
 from gprm.params import batch
-from gprm.predict.kinematics import (MECH, RATES, _point_kinematics, body_motion,
-                                     linear_statics, named_points, point_motion)
+from gprm.simulate.kinematics import (MECH, RATES, _point_kinematics, body_motion,
+                                      check_times, linear_statics, named_points, point_motion)
 
 TRAJECTORY_POINTS: tuple[str, ...] = ("com", "M_xz", "M_yz", "tip_edge")
 AXES: tuple[str, ...] = ("x", "y", "z")
@@ -29,7 +30,6 @@ AXES: tuple[str, ...] = ("x", "y", "z")
 def default_times(t_start: float = 0.95e-3, t_end: float = 1.2e-3,
                   rate: float = 1e6) -> np.ndarray:
     """Prediction times: t_start..t_end at ``rate`` (default 1 us steps)."""
-    from gprm.errors import GprmInputError
 
     for v, f in ((t_start, "t_start"), (t_end, "t_end"), (rate, "rate")):
         if not np.isfinite(v):
@@ -141,7 +141,6 @@ def predict_trajectories(fm: FittedModel, times, *, piezo: int = 2, voltage=None
                          seed: int = 0, keep_samples: int = 20,
                          linear: bool = True) -> Trajectories:
     """Best-fit trajectories of ``points`` with sampled (and linear) uncertainty bands."""
-    from gprm.predict.kinematics import check_times
 
     t = check_times(times)
     points = tuple(points)

@@ -12,17 +12,20 @@ The paper's three ratios per comparison are x: M_xz, y: M_yz, z: M_xz (``HEADLIN
 
 from __future__ import annotations
 
-from dataclasses import replace
-from typing import Sequence
+import copy
+from dataclasses import dataclass, replace
+from typing import Mapping, Sequence
 
 import numpy as np
+import xarray as xr
 
 from gprm.errors import GprmInputError
 from gprm.fit.files import FittedModel
-from gprm.params import REGISTRY
+from gprm.params import REGISTRY, batch
 from gprm.params.files import from_si
-from gprm.predict.scenarios import Scenario, apply_scenario, standard_scenarios
-from gprm.predict.trajectories import AXES, sampled_points
+from gprm.predict.scenarios import (ECCENTRICITIES, Scenario, apply_scenario, check_scenario,
+                                    standard_scenarios)
+from gprm.predict.trajectories import AXES, default_times, sampled_points
 
 WHATIF_POINTS: tuple[str, ...] = ("M_xz", "M_yz", "tip_edge")
 HEADLINE: dict[str, str] = {"x": "M_xz", "y": "M_yz", "z": "M_xz"}
@@ -41,8 +44,115 @@ DEFINITION = ("overshoot = max over the window of |p_a(t) - p_a(t_start)| (m), t
               "initial equilibrium); ratio = overshoot(baseline) / overshoot(scenario)")
 
 
+@dataclass(frozen=True)
+class WhatIf:
+    """The what-if table (Sec. 4.2): overshoots of ``points`` per axis under each scenario
+    and their ratios to the first (the baseline).
+
+    ``scenarios``: per scenario its definition (name, piezo, scale_eccentricity, overrides)
+    and ``overshoot`` {point: {axis: m}}, with the 2.5/97.5 % sampled ranges
+    (``overshoot_p2_5``, ``overshoot_p97_5``) where parameter sets were drawn; ``ratios``:
+    per scenario ``ratio`` {point: {axis}} = baseline / scenario, the paper's ``headline``
+    {axis: ratio} (x: M_xz, y: M_yz, z: M_xz), sampled ranges and the ``paper``'s numbers.
+
+    ``to_json()`` is ``whatif.json`` (docs/prediction.md); ``to_xarray()`` the same numbers
+    along (scenario, point, axis), NaN where a range is absent; :meth:`from_json` reads a
+    document back.
+    """
+
+    window_s: tuple[float, float]
+    rate_hz: float
+    points: tuple[str, ...]
+    axes: tuple[str, ...]
+    source: str
+    samples: int
+    seed: int
+    scenarios: tuple[dict, ...]
+    ratios: tuple[dict, ...]
+    definition: str = DEFINITION
+    unit: str = "m"
+
+    def to_json(self) -> dict:
+        """The what-if document (JSON-able; a deep copy)."""
+        return {"definition": self.definition,
+                "window_s": [float(self.window_s[0]), float(self.window_s[1])],
+                "rate_hz": float(self.rate_hz), "points": list(self.points),
+                "axes": list(self.axes), "unit": self.unit, "source": self.source,
+                "samples": int(self.samples), "seed": int(self.seed),
+                "scenarios": copy.deepcopy(list(self.scenarios)),
+                "ratios": copy.deepcopy(list(self.ratios))}
+
+    @classmethod
+    def from_json(cls, doc: Mapping) -> "WhatIf":
+        """The table of a what-if document (``to_json()``'s inverse)."""
+        try:
+            return cls(window_s=tuple(doc["window_s"]), rate_hz=doc["rate_hz"],
+                       points=tuple(doc["points"]), axes=tuple(doc["axes"]),
+                       source=doc["source"], samples=doc["samples"], seed=doc["seed"],
+                       scenarios=tuple(copy.deepcopy(doc["scenarios"])),
+                       ratios=tuple(copy.deepcopy(doc["ratios"])),
+                       definition=doc["definition"], unit=doc["unit"])
+        except KeyError as exc:
+            raise GprmInputError("missing in the what-if document",
+                                 field=str(exc.args[0])) from None
+        except TypeError:
+            raise GprmInputError("not a what-if document (a JSON object)",
+                                 field="whatif") from None
+
+    def headline(self, name: str) -> dict:
+        """The paper's ratios {axis: baseline / scenario} of scenario ``name``."""
+        for r in self.ratios:
+            if r["name"] == name:
+                return dict(r.get("headline", {}))
+        raise GprmInputError(f"no scenario {name!r} (known: "
+                             f"{', '.join(r['name'] for r in self.ratios)})", field="name")
+
+    def to_xarray(self) -> xr.Dataset:
+        """The table along (scenario, point, axis) (ratios: baseline / scenario)."""
+        names = [s["name"] for s in self.scenarios]
+
+        def cube(entries, key):
+            out = np.full((len(entries), len(self.points), len(self.axes)), np.nan)
+            for i, e in enumerate(entries):
+                tab = e.get(key)
+                if tab is None:
+                    continue
+                for j, p in enumerate(self.points):
+                    for k, a in enumerate(self.axes):
+                        out[i, j, k] = tab[p][a]
+            return out
+
+        dims = ("scenario", "point", "axis")
+        dv = {}
+        for key, what in (("overshoot", "best-fit overshoot"),
+                          ("overshoot_p2_5", "2.5 % point of the sampled overshoot"),
+                          ("overshoot_p97_5", "97.5 % point of the sampled overshoot")):
+            dv[key] = (dims, cube(self.scenarios, key), {"units": "m", "long_name": what})
+        for key, what in (("ratio", "overshoot of the baseline / of the scenario"),
+                          ("ratio_p2_5", "2.5 % point of the sampled ratio"),
+                          ("ratio_p97_5", "97.5 % point of the sampled ratio")):
+            dv[key] = (dims, cube(self.ratios, key), {"units": "1", "long_name": what})
+        head = np.full((len(self.ratios), len(self.axes)), np.nan)
+        for i, r in enumerate(self.ratios):
+            for k, a in enumerate(self.axes):
+                v = r.get("headline", {}).get(a)
+                head[i, k] = np.nan if v is None else v
+        dv["headline"] = (("scenario", "axis"), head,
+                          {"units": "1", "long_name": "the paper's ratio per axis (x: M_xz, "
+                                                      "y: M_yz, z: M_xz)"})
+        ds = xr.Dataset(dv, coords={
+            "scenario": names, "point": list(self.points), "axis": list(self.axes),
+            "piezo": ("scenario", [int(s["piezo"]) for s in self.scenarios]),
+            "scale_eccentricity": ("scenario",
+                                   [float(s["scale_eccentricity"]) for s in self.scenarios])},
+            attrs={"definition": self.definition, "baseline": names[0] if names else "",
+                   "source": self.source, "samples": int(self.samples), "seed": int(self.seed),
+                   "window_start": float(self.window_s[0]),
+                   "window_end": float(self.window_s[1]), "rate_hz": float(self.rate_hz)})
+        return ds
+
+
 def window_times(window: tuple[float, float] = DEFAULT_WINDOW, rate: float = 1e6) -> np.ndarray:
-    from gprm.predict.trajectories import default_times
 
     return default_times(window[0], window[1], rate)
 
@@ -59,7 +169,6 @@ def scenario_overshoots(fm: FittedModel, sc: Scenario, times, *, points=WHATIF_P
 
     Samples are drawn from the baseline model and then transformed by the scenario (same
     seed across scenarios: common random numbers, so ratios are per parameter draw)."""
-    from gprm.params import batch
 
     fs = apply_scenario(fm, sc)
     best, _, ok = sampled_points(batch([fs.params]), times, points, piezo=sc.piezo,
@@ -78,7 +187,6 @@ def scenario_overshoots(fm: FittedModel, sc: Scenario, times, *, points=WHATIF_P
 
 def transform_batch(pb: dict, sc: Scenario) -> dict:
     """Apply a scenario (eccentricity scale, overrides) to a parameter batch."""
-    from gprm.predict.scenarios import ECCENTRICITIES, check_scenario
 
     check_scenario(sc)
     out = {k: np.array(v, float) for k, v in pb.items()}
@@ -96,9 +204,9 @@ def _table(os: np.ndarray, points) -> dict:
 def whatif(fm: FittedModel, scenarios: Sequence[Scenario] | None = None, *,
            window: tuple[float, float] = DEFAULT_WINDOW, rate: float = 1e6,
            points: Sequence[str] = WHATIF_POINTS, samples: int = 100, seed: int = 0,
-           voltage=None) -> dict:
+           voltage=None) -> WhatIf:
     """Overshoot table of ``scenarios`` (default: the paper's three) and their ratios to the
-    first one (the baseline), with 2.5/97.5 % sampled ranges; JSON-able."""
+    first one (the baseline), with 2.5/97.5 % sampled ranges (see :class:`WhatIf`)."""
     scenarios = tuple(standard_scenarios() if scenarios is None else scenarios)
     if not scenarios:
         raise GprmInputError("no scenario given", field="scenarios")
@@ -130,10 +238,9 @@ def whatif(fm: FittedModel, scenarios: Sequence[Scenario] | None = None, *,
         if sc.name in PAPER_RATIOS:
             r["paper"] = PAPER_RATIOS[sc.name]
         out_ratio.append(r)
-    return {"definition": DEFINITION, "window_s": [float(window[0]), float(window[1])],
-            "rate_hz": float(rate), "points": list(points), "axes": list(AXES), "unit": "m",
-            "source": fm.source, "samples": int(samples), "seed": int(seed),
-            "scenarios": out_sc, "ratios": out_ratio}
+    return WhatIf(window_s=(float(window[0]), float(window[1])), rate_hz=float(rate),
+                  points=points, axes=tuple(AXES), source=fm.source, samples=int(samples),
+                  seed=int(seed), scenarios=tuple(out_sc), ratios=tuple(out_ratio))
 
 
 def sweep(fm: FittedModel, name: str, values: Sequence[float], *,
@@ -141,8 +248,7 @@ def sweep(fm: FittedModel, name: str, values: Sequence[float], *,
           rate: float = 1e6, points: Sequence[str] = WHATIF_POINTS, voltage=None) -> dict:
     """Best-fit overshoot of ``points`` as parameter ``name`` takes ``values`` (SI), on top
     of scenario ``base`` (default Piezo 2). JSON-able table; plot with
-    :func:`gprm.predict.plots.plot_sweep`."""
-    from gprm.params import batch
+    :func:`gprm.report.figures.fig_sweep`."""
 
     if name not in REGISTRY:
         raise GprmInputError("unknown parameter", field=name)
@@ -188,4 +294,4 @@ def ratio_sensitivity(fm: FittedModel, names: Sequence[str] = ("h2", "dist_x", "
 
 def _headlines(fm: FittedModel, window, rate) -> dict:
     r = whatif(fm, window=window, rate=rate, samples=0)
-    return {x["name"]: x["headline"] for x in r["ratios"][1:]}
+    return {x["name"]: x["headline"] for x in r.ratios[1:]}

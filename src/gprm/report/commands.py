@@ -6,10 +6,10 @@ from pathlib import Path
 
 import typer
 
+from gprm.console import one_line_errors
+
 
 def register(app: typer.Typer, synth_app: typer.Typer) -> None:
-    from gprm.cli import one_line_errors
-
     @app.command("report")
     @one_line_errors
     def report_cmd(

@@ -1,6 +1,8 @@
-"""Figures of the report, one function per figure of the paper it mirrors. Each takes the
-stage's output (xarray Dataset or dict) and returns a matplotlib Figure; nothing is read
-from disk here. Displacements are shown in micrometres, times in milliseconds.
+"""The figures of gprm, one function per figure of the paper it mirrors, used by the report
+and by library users alike (the one home of the drawing code: the stages before the report
+draw nothing). Each takes a stage's output (xarray Dataset, result or dict) and returns a
+matplotlib Figure (Agg backend; save it with ``fig.savefig``); nothing is read from disk here.
+Displacements are shown in micrometres, times in milliseconds.
 """
 
 from __future__ import annotations
@@ -11,6 +13,9 @@ matplotlib.use("Agg")
 
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
+
+from gprm.flight.telemetry import fit_release_velocity  # noqa: E402
+from gprm.params import REGISTRY, from_si  # noqa: E402
 
 # One colour per quantity, used in every figure.
 COLORS = {
@@ -77,11 +82,59 @@ def fig_fit(side, signals=("x_base", "x_head", "y_base", "y_head", "z_bk")):
     return fig
 
 
-def fig_waterfall(side):
-    """Waterfall of the starts: sorted final chi-square of every start (the fit stage's
-    plot, :func:`gprm.fit.plots.waterfall`)."""
-    from gprm.fit.plots import waterfall
+def waterfall(chi2, *, ax=None, tol: float = 1.0, title: str | None = None):
+    """Waterfall plot of a multi-start fit: the final chi-square of every start, sorted
+    ascending (log scale), the best start marked, and the number of starts within
+    ``tol`` (Delta chi2 <= 1 by default) of the best -- the plateau at the left shows how
+    reliably the starts find the best minimum.
 
+    chi2: (n_starts,) final chi-square (NaN for failed starts, counted but not drawn), e.g.
+        ``FitResult.starts.chi2`` or the ``chi2`` variable of the fit's NetCDF sidecar.
+    ax: a matplotlib Axes to draw in; None makes a new figure.
+    Returns the matplotlib Figure.
+    """
+    c = np.asarray(chi2, float).ravel()
+    finite = np.sort(c[np.isfinite(c)])
+    n_failed = int(c.size - finite.size)
+    if ax is None:
+        fig, ax = plt.subplots(figsize=(6.0, 3.6), constrained_layout=True)
+    else:
+        fig = ax.figure
+    if finite.size == 0:
+        ax.text(0.5, 0.5, f"no start produced a finite chi-square ({c.size} failed)",
+                ha="center", va="center", transform=ax.transAxes)
+        return fig
+    best = finite[0]
+    n_best = int(np.sum(finite <= best + tol))
+    rank = np.arange(1, finite.size + 1)
+    ax.plot(rank, finite, ".", ms=3, color="0.35", label="starts (sorted)")
+    ax.plot(rank[:n_best], finite[:n_best], ".", ms=4, color="tab:orange",
+            label=f"within Δχ² ≤ {tol:g} of the best: {n_best}")
+    ax.plot([1], [best], "*", ms=12, color="tab:red", label=f"best χ² = {best:.6g}")
+    if np.all(finite > 0):
+        ax.set_yscale("log")
+    ax.set_xlabel("start (sorted by final χ²)")
+    ax.set_ylabel("final χ²")
+    t = title or f"{c.size} starts" + (f", {n_failed} failed" if n_failed else "")
+    ax.set_title(t)
+    ax.legend(loc="upper left", fontsize=8, frameon=False)
+    return fig
+
+
+def waterfall_counts(chi2, tol: float = 1.0) -> dict:
+    """The numbers the waterfall shows: starts, failed, best chi-square, and how many are
+    within ``tol`` of it."""
+    c = np.asarray(chi2, float).ravel()
+    f = c[np.isfinite(c)]
+    if f.size == 0:
+        return {"n_starts": int(c.size), "n_failed": int(c.size), "best": None, "n_at_best": 0}
+    return {"n_starts": int(c.size), "n_failed": int(c.size - f.size), "best": float(f.min()),
+            "n_at_best": int(np.sum(f <= f.min() + tol))}
+
+
+def fig_waterfall(side):
+    """Waterfall of the starts: sorted final chi-square of every start (:func:`waterfall`
+    on the ``chi2`` of the fit's NetCDF sidecar)."""
     fig, ax = plt.subplots(figsize=(8.0, 3.2))
     waterfall(side["chi2"].values, ax=ax,
               title=f"Waterfall of {side.sizes.get('start', side['chi2'].size)} starts")
@@ -92,7 +145,6 @@ def fig_waterfall(side):
 def fig_masses(fit: dict, truth: dict | None = None):
     """Fig. 7: fitted masses (± 1 sigma) against the CAD nominal, the initial value, the
     paper's 3D fit and, for synthetic data, the truth."""
-    from gprm.params import REGISTRY
 
     names = [n for n in ("m1", "m2", "m3", "m4") if n in fit["parameters"]]
     fig, axes = plt.subplots(1, len(names), figsize=(10.0, 3.0))
@@ -399,7 +451,6 @@ def fig_impact_times(imp: dict):
 def fig_release_fit(tele, imp: dict, release: int = 0):
     """Fig. 11a: the test mass's x displacement around the release (telemetry) and the line
     whose slope is the release velocity v_x (fitted after the release)."""
-    from gprm.flight.telemetry import fit_release_velocity
 
     if tele is None or "x" not in tele or "release_time" not in tele:
         return None
@@ -455,7 +506,6 @@ def fig_residuals(side, signals=("x_base", "x_head", "y_base", "y_head", "z_bk")
 def fig_profiles(fit: dict):
     """Profile likelihoods (``gprm fit --profile``): the statistic D against each parameter,
     with the 68 % and 95 % thresholds; None where the fit has no profiles."""
-    from gprm.params import REGISTRY, from_si
 
     profs = [p for p in fit.get("profiles") or [] if p.get("grid")]
     if not profs:
@@ -480,5 +530,22 @@ def fig_profiles(fit: dict):
         ax.axis("off")
     fig.suptitle("Profile likelihoods: D = (Φ − Φ_min)/s² (dotted 68 %, dashed 95 %); grey: "
                  "not determined", fontsize=8)
+    fig.tight_layout()
+    return fig
+
+
+def fig_sweep(sw: dict):
+    """Best-fit overshoot against a swept parameter (:func:`gprm.predict.whatif.sweep`): one
+    panel per axis, a line per point."""
+    x = np.asarray(sw["display_values"], float)
+    fig, axes = plt.subplots(1, len(sw["axes"]), figsize=(10.0, 3.4))
+    for ax, a in zip(np.atleast_1d(axes), sw["axes"]):
+        for p in sw["points"]:
+            ax.plot(x, np.asarray(sw["overshoot"][p][a], float) * UM, "o-",
+                    color=COLORS.get(p, COLORS["model"]), label=p)
+        ax.set_xlabel(f"{sw['parameter']} [{sw['display_unit']}]")
+        ax.set_ylabel(f"overshoot {a} [µm]")
+    np.atleast_1d(axes)[0].legend()
+    fig.suptitle(f"Overshoot against {sw['parameter']}")
     fig.tight_layout()
     return fig

@@ -10,12 +10,11 @@ from typing import Optional
 
 import typer
 
+from gprm.console import cli_options, one_line_errors
+from gprm.options import Int
 
 
 def register(app: typer.Typer, synth_app: typer.Typer) -> None:
-    from gprm.cli import one_line_errors
-    from gprm.options import Int
-
     @app.command("run")
     @one_line_errors
     def run_cmd(
@@ -53,15 +52,9 @@ def make_options(cls, *, quick, seed, starts, workers, **kw):
     """RunOptions from command-line values; a bad value is named as its flag."""
     import os
 
-    from gprm.errors import GprmInputError
-
     if workers is None:
         workers = 0 if quick else max(1, os.cpu_count() or 1)
-    try:
-        return cls.make(quick=quick, seed=seed, starts=starts, workers=workers, **kw)
-    except GprmInputError as exc:
-        flag = None if exc.field is None else "--" + exc.field.replace("_", "-")
-        raise GprmInputError(exc.problem, source=exc.source, field=flag) from None
+    return cli_options(cls.make, quick=quick, seed=seed, starts=starts, workers=workers, **kw)
 
 
 def run_and_print(out: Path, opts, *, demo: bool) -> None:

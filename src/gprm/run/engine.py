@@ -24,8 +24,14 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any, Callable
 
+import numpy
+import scipy
+import xarray
+
+from gprm import __version__
 from gprm._io import read_json, write_json_atomic
 from gprm.fit.engine import takes_keyword
+from gprm.errors import GprmInputError
 from gprm.report.build import write_report
 from gprm.report.summary import summarise
 
@@ -81,7 +87,6 @@ def sha256_file(path: Path) -> str:
 def input_key(run: Path, stage: Stage, opts) -> str:
     """Hash of everything a stage's output depends on: its input files, its settings, the
     gprm version."""
-    from gprm import __version__
 
     h = hashlib.sha256()
     h.update(json.dumps({"stage": stage.name, "settings": stage.settings(opts),
@@ -107,12 +112,6 @@ def up_to_date(run: Path, stage: Stage, key: str, previous: dict) -> bool:
 # ----------------------------------------------------------------------------- running
 
 def _versions() -> dict:
-    import numpy
-    import scipy
-    import xarray
-
-    from gprm import __version__
-
     return {"gprm": __version__, "python": platform.python_version(), "numpy": numpy.__version__,
             "scipy": scipy.__version__, "xarray": xarray.__version__,
             "platform": platform.platform()}
@@ -247,7 +246,6 @@ def run_stages(out: str | Path, opts, stages, *, progress: Progress | None = Non
 
 
 def _is_input_error(exc: Exception) -> bool:
-    from gprm.errors import GprmInputError
 
     return isinstance(exc, GprmInputError)
 

@@ -26,8 +26,10 @@ from gprm.campaign.data import load_campaign, write_campaign
 from gprm.campaign.synth import synth_campaign
 from gprm.fit.api import run_fit
 from gprm.fit.files import FittedModel, load_model
-from gprm.flight.analysis import AnalysisOptions, analyze, curves_dataset
-from gprm.flight.synth import SynthOptions, synth_telemetry
+from gprm.flight.analysis import AnalysisOptions
+from gprm.flight.api import (ImpactOptions, TelemetryOptions, run_impact, run_synth_telemetry,
+                             write_impact)
+from gprm.flight.synth import SynthOptions
 from gprm.flight.telemetry import load_telemetry, telemetry_csv_dataset
 from gprm.predict.api import PredictOptions, run_predict, run_whatif
 from gprm.predict.files import prediction_dataset
@@ -149,9 +151,9 @@ def _predict(run: Path, opts: RunOptions, step) -> dict:
         write_netcdf_atomic(prediction_dataset(pred), run / fname)
         step(k + 1, len(todo) + 1)
     table = run_whatif(fm, _predict_options(run, opts))
-    write_json_atomic(run / "whatif.json", table)
+    write_json_atomic(run / "whatif.json", table.to_json())
     step(len(todo) + 1, len(todo) + 1)
-    info = {"whatif": {r["name"]: r.get("headline", {}) for r in table.get("ratios", [])[1:]}}
+    info = {"whatif": {r["name"]: r.get("headline", {}) for r in table.ratios[1:]}}
     return _with_notes(info, notes)
 
 
@@ -176,7 +178,8 @@ def _telemetry(run: Path, opts: RunOptions, step) -> dict:
         return {"source": str(src), "releases": len(tel.releases)}
     fm = load_model(run)
     notes = model_notes(fm)
-    ds = synth_telemetry(fm, SynthOptions(n_releases=opts.releases, seed=opts.seed))
+    ds = run_synth_telemetry(fm, TelemetryOptions(SynthOptions(n_releases=opts.releases,
+                                                               seed=opts.seed)))
     write_netcdf_atomic(ds, dest)
     return _with_notes({"source": "synthetic", "releases": opts.releases}, notes)
 
@@ -189,15 +192,10 @@ def _telemetry_csv_dataset(path: Path):
 def _impact(run: Path, opts: RunOptions, step) -> dict:
     fm = load_model(run)
     notes = model_notes(fm)
-    tel = load_telemetry(run / "telemetry.nc")
-    aopts = AnalysisOptions(n_samples=opts.predict_samples, seed=opts.seed)
-    doc, curves = analyze(fm, tel, aopts)
-    if notes:
-        doc["notes"] = list(notes)
-    doc["curves"]["sidecar"] = "impact.nc"
-    write_netcdf_atomic(curves_dataset(curves, doc), run / "impact.nc")
-    write_json_atomic(run / "impact.json", doc)
-    rej = [p for p in doc.get("tukey", {}).get("pairs", []) if p.get("reject")]
+    iopts = ImpactOptions(AnalysisOptions(n_samples=opts.predict_samples, seed=opts.seed))
+    res = write_impact(run_impact(fm, run / "telemetry.nc", iopts, notes=notes),
+                       run / "impact.json")
+    rej = [p for p in res.tukey.get("pairs", []) if p.get("reject")]
     return _with_notes({"tukey_rejected_pairs": len(rej)}, notes)
 
 

@@ -7,11 +7,11 @@ from typing import Optional
 
 import typer
 
+from gprm.console import one_line_errors
+from gprm.options import Int, Quantity
+
 
 def register(app: typer.Typer, synth_app: typer.Typer) -> None:
-    from gprm.cli import one_line_errors
-    from gprm.options import Int, Quantity
-
     @app.command("simulate")
     @one_line_errors
     def simulate_cmd(
@@ -31,16 +31,15 @@ def register(app: typer.Typer, synth_app: typer.Typer) -> None:
     ):
         """Simulate the tip retraction (exact linear model) and write NetCDF."""
         from gprm._io import write_netcdf_atomic
-        from gprm.errors import GprmInputError
         from gprm.params import load_params
         from gprm.simulate import read_voltage_csv, simulate
         from gprm.simulate.files import simulation_dataset
 
         from gprm._io import check_outputs
+        from gprm.model.piezo import check_piezo
         from gprm.resources import check_memory
 
-        if piezo not in (1, 2):
-            raise GprmInputError(f"must be 1 or 2, got {piezo}", field="--piezo")
+        check_piezo(piezo, field="--piezo")
         check_outputs({out: "--out"}, inputs=[params, voltage])
         # about 1.6 kB per sample (the simulated states, their rates and outputs, the dataset;
         # measured with tracemalloc, docs/README.md) plus a fixed 50 MB

@@ -12,8 +12,8 @@ from typing import Mapping, Sequence
 import numpy as np
 
 from gprm.errors import GprmInputError
-from gprm.model.definition import COORDINATES
-from gprm.model.linear import NSTATE, STATE_NAMES
+from gprm.model.definition import COORDINATES, MECHANICAL
+from gprm.model.linear import NSTATE, STATE_NAMES, descriptor
 from gprm.params import ParameterSet, batch
 from gprm.params.registry import ALIGNMENT_OFFSETS
 from gprm.simulate import modal
@@ -23,7 +23,7 @@ OUTPUTS: tuple[str, ...] = ("x_base", "x_head", "y_base", "y_head", "z_bk")
 """The five measured points fitted (paper Eq. 3)."""
 
 COORDS: tuple[str, ...] = COORDINATES          # the model's coordinates (model.definition)
-RATES: tuple[str, ...] = tuple(f"{c}_dot" for c in COORDS[:8])
+RATES: tuple[str, ...] = tuple(f"{c}_dot" for c in MECHANICAL)   # the simulated rates
 _IDX = {n: i for i, n in enumerate(STATE_NAMES)}
 
 # Eq. 3 with the physically consistent sign for y (MODEL.md): name -> [(state, coef), ...]
@@ -154,7 +154,6 @@ def observe(pb: Mapping[str, np.ndarray], times, names: Sequence[str] = OUTPUTS,
 def _guard_singular(pb, piezo):
     """Detect sets whose mass matrix (the descriptor E) is singular or indefinite, and swap
     in a good set for them (their results are masked later). Returns the descriptor too."""
-    from gprm.model.linear import descriptor
 
     desc = descriptor(pb, piezo)
     Evv = desc[0][:, 8:16, 8:16]

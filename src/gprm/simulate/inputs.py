@@ -14,6 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
+from gprm._io import check_input_file
 from gprm.errors import GprmInputError
 
 
@@ -82,7 +83,6 @@ def read_voltage_csv(path: str | os.PathLike) -> VoltageTrace:
     allowed (any non-numeric first row); blank lines and lines starting with '#' are ignored."""
     path = Path(path)
     src = str(path)
-    from gprm._io import check_input_file
 
     check_input_file(path, what="voltage file")
     rows = []

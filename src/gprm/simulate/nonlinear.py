@@ -15,7 +15,8 @@ from scipy.optimize import fsolve
 from gprm.errors import GprmInputError
 from gprm.model.linear import generated
 from gprm.params import ParameterSet
-from gprm.simulate.core import COORDS, OUTPUTS, RATES, ROW_LAGS, SimulationResult
+from gprm.simulate.core import (COORDS, OUTPUTS, RATES, ROW_LAGS, SimulationResult,
+                                record_times)
 from gprm.simulate.inputs import VoltageTrace, default_voltage
 
 
@@ -65,7 +66,6 @@ def simulate_nonlinear(params: ParameterSet, *, piezo: int = 2, time=None,
 
     Returns a :class:`SimulationResult` with B = 1 (same layout as ``simulate``).
     """
-    from gprm.simulate.core import record_times
 
     p = dict(params.values)
     g = generated(piezo)

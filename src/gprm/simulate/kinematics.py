@@ -57,12 +57,14 @@ from typing import Mapping, Sequence
 import numpy as np
 
 from gprm.errors import GprmInputError
-from gprm.model.linear import MECHANICAL
+from gprm.model.definition import MECHANICAL
+from gprm.model.linear import generated
+from gprm.model.piezo import check_piezo
 from gprm.params import ParameterSet, batch
+from gprm.simulate.core import RATES, observe
 
 MECH: tuple[str, ...] = MECHANICAL
 """The eight mechanical coordinates (gprm.model.definition)."""
-RATES: tuple[str, ...] = tuple(f"{c}_dot" for c in MECH)
 
 POINTS: tuple[str, ...] = ("com", "M_xz", "M_yz", "tip_edge", "spacer", "assembly_com")
 
@@ -115,7 +117,6 @@ def motion_omega(coords: Mapping[str, np.ndarray],
 
 def linear_statics(pb: Mapping[str, np.ndarray], piezo: int) -> dict[str, np.ndarray]:
     """Equilibrium mu3, mu4 (B,) at V0 (linear model, K x = Q V0)."""
-    from gprm.model.linear import generated
 
     g = generated(piezo)
     M, C, K = g.linear_matrices({k: np.asarray(v) for k, v in pb.items()})
@@ -176,10 +177,8 @@ def check_times(times, *, t_max: float | None = None, field: str = "times") -> n
 def body_motion(source, times, *, piezo: int = 2, voltage=None,
                 sensitivities: Sequence[str] = ()) -> PlungerMotion:
     """Simulate and return the plunger assembly's motion (see module docstring)."""
-    from gprm.simulate import observe
 
-    if piezo not in (1, 2):
-        raise GprmInputError(f"must be 1 or 2, got {piezo}", field="piezo")
+    check_piezo(piezo)
     pb = as_batch(source)
     t_max = None
     if voltage is not None:

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from gprm.fit.plots import waterfall, waterfall_counts
+from gprm.report.figures import waterfall, waterfall_counts
 
 
 def test_waterfall_counts_and_draws(tmp_path):

@@ -2,14 +2,24 @@
 against finite differences; the tip edge and assembly CoM; kinetic energy against the
 model's own mass matrix M(x)."""
 
+from types import SimpleNamespace
+
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
 from gprm.errors import GprmInputError
 from gprm.model.linear import generated
-from gprm.predict.kinematics import (MECH, PlungerMotion, actuation_axis, body_motion,
-                                     kinetic_energy, named_points, point_motion, rotation)
+from gprm.params import paper
+from gprm.simulate.kinematics import (MECH, PlungerMotion, actuation_axis, body_motion,
+                                      kinetic_energy, named_points, point_motion, rotation)
+
+
+@pytest.fixture(scope="module")
+def fm():
+    """Table 3 carried as a fitted model carries its best fit (``.params``): the kinematics
+    take either (simulate does not import the fit stage)."""
+    return SimpleNamespace(params=paper())
 
 
 def synthetic_motion(fm, t, big=0.3):

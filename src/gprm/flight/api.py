@@ -1,0 +1,111 @@
+"""Library entry points of the flight stage, with their validated options:
+
+- :func:`run_impact` (``gprm impact``): release velocities, impact times, the joint estimates
+  and Tukey's test of a telemetry file, as an :class:`~gprm.flight.analysis.ImpactResult`;
+  :func:`write_impact` writes it (the JSON document and its curves' NetCDF sidecar);
+- :func:`run_synth_telemetry` (``gprm synth telemetry``): synthetic releases with known impact
+  times from a fitted model.
+
+``gprm impact``, ``gprm synth telemetry``, ``gprm run`` and ``gprm demo`` call exactly these,
+so the read -> compute -> write sequence and the checks of the options exist once.
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+
+import xarray as xr
+
+from gprm._io import write_json_atomic, write_netcdf_atomic
+from gprm.errors import GprmInputError
+from gprm.fit.files import FittedModel, load_model
+from gprm.flight.analysis import AnalysisOptions, ImpactResult, analyze
+from gprm.flight.multi import multi_impact_report
+from gprm.flight.synth import SynthOptions, synth_telemetry
+from gprm.flight.telemetry import Telemetry, load_telemetry
+from gprm.model.piezo import check_piezo
+
+
+@dataclass(frozen=True)
+class ImpactOptions:
+    """What defines ``gprm impact``: the analysis (:class:`AnalysisOptions`, validated
+    there), the driven ``piezo`` (1, 2 or None for the fit's own) and ``multi`` (also
+    integrate plunger and TM with contact detection at each estimated impact)."""
+
+    analysis: AnalysisOptions = field(default_factory=AnalysisOptions)
+    piezo: int | None = None
+    multi: bool = False
+
+    def __post_init__(self):
+        if not isinstance(self.analysis, AnalysisOptions):
+            raise GprmInputError(f"expected AnalysisOptions, got "
+                                 f"{type(self.analysis).__name__}", field="analysis")
+        check_piezo(self.piezo, optional=True)
+        if not isinstance(self.multi, bool):
+            raise GprmInputError(f"must be true or false, got {self.multi!r}", field="multi")
+
+
+@dataclass(frozen=True)
+class TelemetryOptions:
+    """What defines ``gprm synth telemetry``: the synthetic releases
+    (:class:`~gprm.flight.synth.SynthOptions`, validated there) and the driven ``piezo``
+    (1, 2 or None for the fit's own)."""
+
+    synth: SynthOptions = field(default_factory=SynthOptions)
+    piezo: int | None = None
+
+    def __post_init__(self):
+        if not isinstance(self.synth, SynthOptions):
+            raise GprmInputError(f"expected SynthOptions, got {type(self.synth).__name__}",
+                                 field="synth")
+        check_piezo(self.piezo, optional=True)
+
+
+def run_impact(model: FittedModel | str | os.PathLike, telemetry: Telemetry | str | os.PathLike,
+               opts: ImpactOptions = ImpactOptions(), *,
+               notes: tuple[str, ...] | list[str] = ()) -> ImpactResult:
+    """The flight analysis of ``telemetry`` (a loaded :class:`Telemetry` or a telemetry
+    NetCDF/CSV file) with ``model`` (see :func:`gprm.fit.files.load_model`). ``notes``: sentences the
+    result carries for the report (``gprm run``: the fit had no usable covariance)."""
+    if not isinstance(opts, ImpactOptions):
+        raise GprmInputError(f"expected ImpactOptions, got {type(opts).__name__}",
+                             field="opts")
+    fm = load_model(model, piezo=opts.piezo)
+    tel = telemetry if isinstance(telemetry, Telemetry) else load_telemetry(telemetry)
+    res = analyze(fm, tel, opts.analysis)
+    if opts.multi:
+        res = replace(res, multiple_impacts=multi_impact_report(fm, res.to_json()))
+    return replace(res, notes=tuple(notes)) if notes else res
+
+
+def impact_sidecar(out: str | os.PathLike) -> Path:
+    """The curves' NetCDF file next to an impact JSON ``out`` (``impact.json`` ->
+    ``impact.nc``)."""
+    out = Path(out)
+    if out.suffix == ".nc":
+        raise GprmInputError("must not end in .nc (that name is the sidecar's)",
+                             source=str(out), field="out")
+    return out.with_suffix(".nc")
+
+
+def write_impact(res: ImpactResult, out: str | os.PathLike) -> ImpactResult:
+    """Write ``res`` to ``out`` (JSON) and its curves to the sidecar
+    (:func:`impact_sidecar`), each atomically; the result as written (naming its sidecar)."""
+    side = impact_sidecar(out)
+    res = replace(res, sidecar=side.name)
+    write_netcdf_atomic(res.to_xarray(), side)
+    write_json_atomic(Path(out), res.to_json())
+    return res
+
+
+def run_synth_telemetry(model: FittedModel | str | os.PathLike,
+                        opts: TelemetryOptions = TelemetryOptions()) -> xr.Dataset:
+    """Synthetic in-flight releases with known impact times (the telemetry dataset; write it
+    with :func:`gprm._io.write_netcdf_atomic` or read it with
+    :func:`gprm.flight.telemetry.telemetry_from_dataset`)."""
+    if not isinstance(opts, TelemetryOptions):
+        raise GprmInputError(f"expected TelemetryOptions, got {type(opts).__name__}",
+                             field="opts")
+    return synth_telemetry(load_model(model, piezo=opts.piezo), opts.synth)

@@ -33,7 +33,7 @@ print("peak x_head: %.3f um" % (1e6 * np.abs(sim.outputs["x_head"]).max()))
 
 # %% 3. A synthetic ground-test campaign with known truth, and its mean signals (Sec. 2)
 from gprm.campaign import PreprocessOptions, run_preprocess
-from gprm.campaign.data import write_campaign
+from gprm.campaign.files import write_campaign
 from gprm.campaign.synth import SynthConfig, synth_campaign
 
 campaign = synth_campaign(seed=1, config=SynthConfig(nonlinear=False))   # faster variant
@@ -42,7 +42,7 @@ write_campaign(campaign, OUT / "campaign.nc")
 # lag t0 stays positive, as in the paper (docs/README.md, "One configuration")
 means = run_preprocess(campaign, PreprocessOptions())
 write_netcdf_atomic(means, OUT / "means.nc")
-from gprm.campaign.preprocess import read_tables
+from gprm.campaign.files import read_tables
 
 table1 = read_tables(means)[0]                     # Table 1 is stored as variables (ratio)
 print("Table 1 (this campaign):", {k: round(v["value"], 2) for k, v in table1.items()})

@@ -231,7 +231,7 @@ def files_read_from(folder: str | os.PathLike, *, suffixes=None) -> list[Path]:
     manifest = folder / "manifest.csv"
     out = [manifest]
     try:
-        from gprm.campaign.csvdir import read_manifest
+        from gprm.campaign.files import read_manifest
 
         out += [folder / row["file"] for row in read_manifest(manifest)]
     except GprmInputError:

@@ -11,7 +11,9 @@ length in an xarray Dataset, and the schema fixes which dimensions each variable
 
 The schemas here (``CAMPAIGN``, ``MEANS``) cover the type-level checks; the format readers
 (:func:`gprm.campaign.data.validate_campaign`, :func:`gprm.fit.objective.fit_data_from_means`)
-add the format's own rules (positions, runs, windows) on the checked data.
+add the format's own rules (positions, runs, windows) on the checked data. Each format's reader
+(``gprm.campaign.files``, ``gprm.simulate.files``, ``gprm.predict.files``,
+``gprm.flight.files``) applies its schema.
 """
 
 from __future__ import annotations
@@ -24,7 +26,8 @@ import xarray as xr
 
 from gprm.errors import GprmInputError
 
-__all__ = ["Var", "Attr", "Schema", "check_dataset", "CAMPAIGN", "MEANS", "SCHEMAS"]
+__all__ = ["Var", "Attr", "Schema", "check_dataset", "unit_factor", "CAMPAIGN", "MEANS",
+           "SCHEMAS"]
 
 
 @dataclass(frozen=True)
@@ -62,7 +65,9 @@ class Schema:
     attrs: tuple[Attr, ...] = ()
 
 
-def _unit_factor(unit: str, si: str, src: str, field: str) -> float:
+def unit_factor(unit: str, si: str, src: str, field: str) -> float:
+    """The factor converting ``unit`` (pint syntax: ``um``, ``ms``, ``mV``...) to the SI unit
+    ``si``; a unit that cannot be converted is a :class:`GprmInputError` naming ``field``."""
     from gprm.params.files import ureg
 
     try:
@@ -102,7 +107,7 @@ def _check_var(ds, v: Var, src: str) -> xr.Variable:
             raise GprmInputError(f"units attribute must be text, got {unit!r}", source=src,
                                  field=v.name)
         if unit not in (None, "", v.unit):
-            factor = _unit_factor(unit, v.unit, src, v.name)
+            factor = unit_factor(unit, v.unit, src, v.name)
     if v.finite and not np.all(np.isfinite(arr)):
         bad = int(np.size(arr) - np.count_nonzero(np.isfinite(arr)))
         raise GprmInputError(f"holds {bad} NaN or Inf value(s)", source=src, field=v.name)
@@ -194,7 +199,9 @@ SCHEMAS = {"campaign": CAMPAIGN, "means": MEANS}
 
 
 def read_means(path, *, what: str = "mean-signals file"):
-    """Read and check a mean-signals NetCDF (SI units)."""
+    """Read and check a mean-signals NetCDF (SI units). The format's home is
+    :mod:`gprm.campaign.files` (``read_means`` there also gives the truth and the tables); this
+    copy serves the callers in ``gprm.fit`` until they import it from there."""
     from gprm._io import open_netcdf
 
     ds = open_netcdf(path, what=what)

@@ -59,7 +59,7 @@ def _float_vars_without_units(ds) -> list[str]:
 
 @pytest.fixture(scope="module")
 def files(tmp_path_factory):
-    from gprm.campaign.data import write_campaign
+    from gprm.campaign.files import write_campaign
     from gprm.campaign.synth import SynthConfig, synth_campaign
     from gprm.cli import app
     from gprm.params import paper

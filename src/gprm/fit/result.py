@@ -16,6 +16,7 @@ import xarray as xr
 
 import gprm
 from gprm._io import write_json_atomic, write_netcdf_atomic
+from gprm.campaign.files import has_truth
 from gprm.errors import GprmInputError
 from gprm.fit.covariance import parameters_at_bounds, sample_normal
 from gprm.fit.files import FORMAT_VERSION, MODEL_NAME
@@ -236,7 +237,7 @@ class FitResult:
             "band_samples": 0 if self.bands is None else int(self.bands.n_samples),
             "timings_s": self.timings,
         }
-        if "truth_json" in self.data.attrs:
+        if has_truth(self.data.attrs):
             d["data"]["truth_available"] = True
         return d
 

@@ -119,7 +119,7 @@ def register(app: typer.Typer, synth_app: typer.Typer) -> None:
                          what=f"{samples} sets x {n_times:.4g} times", unit_scale=n_times,
                          integer=True)
         if means is not None:
-            from gprm.validate import read_means
+            from gprm.campaign.files import read_means
 
             read_means(means)         # refuse a bad file before the prediction runs
         try:

@@ -31,7 +31,7 @@ from gprm.fit.report_text import pretty_unit
 from gprm.report import figures as F
 from gprm.report.html import (Card, Section, fig_to_img, not_run, num, paragraph, pm, render,
                               table)
-from gprm.report.summary import (impact_times_found, json_attr, summarise, truth_for_fit,
+from gprm.report.summary import (impact_times_found, summarise, truth_for_fit,
                                  truth_from_means)
 
 # Figure id -> the paper's figure it mirrors.
@@ -70,7 +70,7 @@ def _not_run(s: Section, what: str, why: str) -> Section:
 # ----------------------------------------------------------------------------- campaign
 
 def _table1(means) -> list:
-    from gprm.campaign.preprocess import read_tables
+    from gprm.campaign.files import read_tables
 
     stored = read_tables(means)[0]
     sig = [str(s) for s in means["signal"].values]
@@ -127,7 +127,7 @@ def campaign_section(run: Path) -> Section:
                                    "move by a few per cent with the seed and the drawn truth "
                                    "(a small y motion divided by a small one moves most). On "
                                    "measured data they are the campaign's own."))
-    from gprm.campaign.preprocess import read_tables
+    from gprm.campaign.files import read_tables
 
     dropped = read_tables(means)[1]
     if dropped:

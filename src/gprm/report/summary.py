@@ -5,40 +5,27 @@ the report's summary cards. Every entry is present only when the file it comes f
 
 from __future__ import annotations
 
-import json
 import math
 from pathlib import Path
 
-from gprm._io import open_netcdf, read_json
-
-
-def json_attr(attrs, key: str, default=None):
-    """A JSON document stored in a NetCDF attribute, or ``default`` where the attribute is
-    missing or not valid JSON."""
-    raw = attrs.get(key)
-    if raw is None:
-        return default
-    try:
-        return json.loads(raw)
-    except (TypeError, json.JSONDecodeError):
-        return default
+from gprm._io import read_json
+from gprm.campaign.files import read_means, read_truth, read_truth_alignment
 
 
 def truth_from_means(run: Path) -> dict | None:
     """The synthetic truth (SI, name -> value) recorded in ``means.nc``, if any; t0 and t1 in
-    the aligned time base of the means (``truth_alignment_json``) where given."""
+    the aligned time base of the means (its truth after alignment) where given."""
     p = Path(run) / "means.nc"
     if not p.exists():
         return None
-    attrs = open_netcdf(p, what="mean-signals file").attrs
-    truth = json_attr(attrs, "truth_json")
+    means = read_means(p)
+    truth = read_truth(means)
     if truth is None:
         return None
-    truth = {k: float(v) for k, v in truth.items() if isinstance(v, (int, float))}
     # The aligned data's time base differs from the truth's (docs/data-formats.md, "The truth
     # after alignment"): the lags a fit of the aligned means should find are t0_expected_s
     # and t1_expected_s, not the truth's own t0, t1.
-    align = json_attr(attrs, "truth_alignment_json", {})
+    align = read_truth_alignment(means) or {}
     for name in ("t0", "t1"):
         v = align.get(f"{name}_expected_s")
         if isinstance(v, (int, float)):

@@ -22,7 +22,7 @@ from pathlib import Path
 
 from gprm._io import atomic_path, read_json, write_json_atomic, write_netcdf_atomic
 from gprm.campaign.api import run_preprocess
-from gprm.campaign.data import load_campaign, write_campaign
+from gprm.campaign.files import load_campaign, write_campaign, write_means
 from gprm.campaign.synth import synth_campaign
 from gprm.fit.api import run_fit
 from gprm.fit.files import FittedModel, load_fit
@@ -119,7 +119,7 @@ def _campaign(run: Path, opts: RunOptions, step) -> dict:
 
 def _preprocess(run: Path, opts: RunOptions, step) -> dict:
     means = run_preprocess(run / "campaign.nc", opts.preprocess)
-    write_netcdf_atomic(means, run / "means.nc")
+    write_means(means, run / "means.nc")
     return {"signals": int(means.sizes.get("signal", 0)), "samples": int(means.sizes["time"])}
 
 

@@ -19,6 +19,7 @@ add the format's own rules (positions, runs, windows) on the checked data. Each 
 from __future__ import annotations
 
 import math
+import re
 from dataclasses import dataclass
 
 import numpy as np
@@ -26,7 +27,7 @@ import xarray as xr
 
 from gprm.errors import GprmInputError
 
-__all__ = ["Var", "Attr", "Schema", "check_dataset", "unit_factor", "CAMPAIGN", "MEANS",
+__all__ = ["Var", "Attr", "Schema", "check_dataset", "pint_unit", "unit_factor", "CAMPAIGN", "MEANS",
            "SCHEMAS"]
 
 
@@ -65,13 +66,24 @@ class Schema:
     attrs: tuple[Attr, ...] = ()
 
 
+_UD_POWER = re.compile(r"(?<=[A-Za-z\u00b5\u03bc])\^?(-?\d+)(?!\d|\.\d)")
+_UD_DOT = re.compile(r"(?<=[A-Za-z\u00b5\u03bc\d)])\s*\.\s*(?=[A-Za-z\u00b5\u03bc(])")
+
+
+def pint_unit(unit: str) -> str:
+    """A UDUNITS unit string (as CF files carry: ``m s-1``, ``kg m2``, ``m.s-1``) in the
+    syntax of pint (``m s**-1``); pint's own syntax (``m/s``, ``um``) passes unchanged."""
+    u = _UD_POWER.sub(r"**\1", str(unit).strip())
+    return _UD_DOT.sub(" * ", u)
+
+
 def unit_factor(unit: str, si: str, src: str, field: str) -> float:
     """The factor converting ``unit`` (pint syntax: ``um``, ``ms``, ``mV``...) to the SI unit
     ``si``; a unit that cannot be converted is a :class:`GprmInputError` naming ``field``."""
     from gprm.params.files import ureg
 
     try:
-        f = float(ureg().Quantity(1.0, unit).to(si).magnitude)
+        f = float(ureg().Quantity(1.0, pint_unit(unit)).to(pint_unit(si)).magnitude)
     except Exception as exc:
         raise GprmInputError(f"units {unit!r} cannot be converted to {si} "
                              f"({type(exc).__name__})", source=src, field=field) from None

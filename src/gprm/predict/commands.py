@@ -100,11 +100,11 @@ def register(app: typer.Typer, synth_app: typer.Typer) -> None:
                                                        "table (JSON)"),
     ):
         """Predict trajectories, kinetic energy, masses, overshoot and impact risk."""
-        from gprm._io import write_json_atomic, write_netcdf_atomic
+        from gprm._io import write_json_atomic
         from gprm.errors import GprmInputError
         from gprm.predict.api import PredictOptions, run_predict, run_whatif
         from gprm.predict.core import load_model
-        from gprm.predict.files import prediction_dataset
+        from gprm.predict.files import write_prediction
 
         from gprm._io import check_outputs
         from gprm.resources import check_memory
@@ -135,7 +135,7 @@ def register(app: typer.Typer, synth_app: typer.Typer) -> None:
         if not fm.has_uncertainty:
             typer.echo(f"note: {fm.uncertainty_note}")
         pred = run_predict(fm, opts)
-        write_netcdf_atomic(prediction_dataset(pred), out)
+        write_prediction(pred, out)
         os_, tr = pred.overshoot, pred.trajectories
         pts = list(tr.points)
         msg = (f"wrote {out}: {tr.time.size} times, {tr.n_ok}/{samples} samples, "

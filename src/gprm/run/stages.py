@@ -30,7 +30,7 @@ from gprm.flight.analysis import AnalysisOptions, analyze, curves_dataset
 from gprm.flight.synth import SynthOptions, synth_telemetry
 from gprm.flight.telemetry import load_telemetry, telemetry_csv_dataset
 from gprm.predict.api import PredictOptions, run_predict, run_whatif
-from gprm.predict.files import prediction_dataset
+from gprm.predict.files import write_prediction
 from gprm.predict.scenarios import standard_scenarios
 from gprm.run.engine import Stage, sha256_file
 from gprm.run.options import RunOptions
@@ -148,7 +148,7 @@ def _predict(run: Path, opts: RunOptions, step) -> dict:
     step(0, len(todo) + 1)
     for k, (sc, fname) in enumerate(todo):
         pred = run_predict(fm, _predict_options(run, opts, sc))
-        write_netcdf_atomic(prediction_dataset(pred), run / fname)
+        write_prediction(pred, run / fname)
         step(k + 1, len(todo) + 1)
     table = run_whatif(fm, _predict_options(run, opts))
     write_json_atomic(run / "whatif.json", table)

@@ -11,7 +11,10 @@ the draws) -> :mod:`joint` (one time per release) and :mod:`tukey` -> :mod:`anal
 from gprm._lazy import attach
 
 __getattr__, __dir__, __all__ = attach(__name__, {
-    "analysis": ["AnalysisOptions", "analyze", "curves_dataset"],
+    "analysis": ["AnalysisOptions", "analyze"],
+    "files": ["impact_curves_dataset", "load_telemetry", "read_impact", "read_impact_curves",
+              "telemetry_csv_dataset", "telemetry_dataset", "telemetry_from_dataset",
+              "write_impact", "write_telemetry"],
     "impact": ["impact_3d", "kinetic_energy", "planar_impact"],
     "impact_time": ["first_crossing", "impact_time_mc"],
     "joint": ["joint_impact_time"],
@@ -19,7 +22,6 @@ __getattr__, __dir__, __all__ = attach(__name__, {
     "predicted": ["GeometryUncertainty", "ImpactGeometry", "tm_velocity_vs_time",
                   "velocity_curves"],
     "synth": ["SynthOptions", "synth_telemetry"],
-    "telemetry": ["AXES", "fit_release_velocity", "load_telemetry", "release_velocities",
-                  "telemetry_csv_dataset", "telemetry_dataset"],
+    "telemetry": ["AXES", "fit_release_velocity", "release_velocities"],
     "tukey": ["tukey_range_test"],
 })

@@ -72,8 +72,8 @@ def register(app: typer.Typer, synth_app: typer.Typer) -> None:
                                              "restitution and friction) or planar (paper)"),
     ):
         """Synthetic in-flight releases with known impact times (telemetry NetCDF)."""
-        from gprm._io import write_netcdf_atomic
         from gprm.errors import GprmInputError
+        from gprm.flight.files import write_telemetry
         from gprm.flight.synth import SynthOptions, synth_telemetry
 
         from gprm._io import check_outputs
@@ -99,7 +99,7 @@ def register(app: typer.Typer, synth_app: typer.Typer) -> None:
                                              post=post, pos_noise=pos_noise,
                                              att_noise=att_noise, truth_spread=not no_spread,
                                              z_from=z_from, truth_model=truth_model))
-        write_netcdf_atomic(ds, out)
+        write_telemetry(ds, out)
         tt = ds["truth_impact_time"].values * 1e3
         note = ("" if getattr(m, "has_uncertainty", True) or no_spread else
                 "; the fit has no usable covariance: truth parameters are the best fit "
@@ -139,10 +139,9 @@ def register(app: typer.Typer, synth_app: typer.Typer) -> None:
                                         "at each estimated impact (second impacts)"),
     ):
         """Release velocities, impact times and Tukey's test from telemetry (JSON)."""
-        from gprm._io import write_json_atomic, write_netcdf_atomic
         from gprm.errors import GprmInputError
-        from gprm.flight.analysis import AnalysisOptions, analyze, curves_dataset
-        from gprm.flight.telemetry import load_telemetry
+        from gprm.flight.analysis import AnalysisOptions, analyze
+        from gprm.flight.files import load_telemetry, write_impact
 
         from gprm._io import check_outputs
 
@@ -166,10 +165,7 @@ def register(app: typer.Typer, synth_app: typer.Typer) -> None:
         if multi:
             from gprm.flight.multi import multi_impact_report
             doc["multiple_impacts"] = multi_impact_report(m, doc)
-        side = out.with_suffix(".nc")
-        doc["curves"]["sidecar"] = side.name
-        write_netcdf_atomic(curves_dataset(curves, doc), side)
-        write_json_atomic(out, doc)
+        side = write_impact(doc, curves, out)
         n_ok = sum(1 for r in doc["releases"] for a in r["impact_time"].values()
                    if a["value"] is not None)
         tk = doc["tukey"]

@@ -50,14 +50,32 @@ _PAPER_T1 = {"x_head/x_lr": 3, "x_head/x_fl": 17, "y_head/y_lr": 3, "y_head/y_fl
              "z_bk/z_fl": 26}
 
 
+def _reader(name: str):
+    """The reader of a run directory's file in its format's home (None: read it plainly)."""
+    from gprm.campaign.files import load_campaign, read_means
+    from gprm.flight.files import read_impact, read_impact_curves, read_telemetry
+    from gprm.predict.files import read_prediction
+
+    if name.startswith("predict") and name.endswith(".nc"):
+        return read_prediction
+    return {"campaign.nc": load_campaign, "means.nc": read_means, "telemetry.nc": read_telemetry,
+            "impact.nc": read_impact_curves, "impact.json": read_impact}.get(name)
+
+
 def _load_nc(run: Path, name: str, what: str):
     p = run / name
-    return open_netcdf(p, what=what) if p.exists() else None
+    if not p.exists():
+        return None
+    read = _reader(name)
+    return read(p) if read is not None else open_netcdf(p, what=what)
 
 
 def _load_json(run: Path, name: str, what: str):
     p = run / name
-    return read_json(p, what=what) if p.exists() else None
+    if not p.exists():
+        return None
+    read = _reader(name)
+    return read(p) if read is not None else read_json(p, what=what)
 
 
 def _not_run(s: Section, what: str, why: str) -> Section:

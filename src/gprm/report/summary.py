@@ -10,6 +10,7 @@ from pathlib import Path
 
 from gprm._io import read_json
 from gprm.campaign.files import read_means, read_truth, read_truth_alignment
+from gprm.flight.files import read_impact
 
 
 def truth_from_means(run: Path) -> dict | None:
@@ -105,7 +106,7 @@ def summarise(run: str | Path) -> dict:
         s["whatif_paper"] = {r["name"]: r["paper"] for r in wi.get("ratios", [])
                              if r.get("paper")}
     if (run / "impact.json").exists():
-        imp = read_json(run / "impact.json", what="impact result")
+        imp = read_impact(run / "impact.json")
         tk = imp.get("tukey", {})
         pairs = tk.get("pairs", [])
         rejected = [f"{p['a']}–{p['b']}" for p in pairs if p.get("reject")]

@@ -20,15 +20,16 @@ import shutil
 from dataclasses import asdict
 from pathlib import Path
 
-from gprm._io import atomic_path, read_json, write_json_atomic, write_netcdf_atomic
+from gprm._io import atomic_path, read_json, write_json_atomic
 from gprm.campaign.api import run_preprocess
 from gprm.campaign.files import load_campaign, write_campaign, write_means
 from gprm.campaign.synth import synth_campaign
 from gprm.fit.api import run_fit
 from gprm.fit.files import FittedModel, load_fit
-from gprm.flight.analysis import AnalysisOptions, analyze, curves_dataset
+from gprm.flight.analysis import AnalysisOptions, analyze
+from gprm.flight.files import (load_telemetry, telemetry_csv_dataset, write_impact,
+                               write_telemetry)
 from gprm.flight.synth import SynthOptions, synth_telemetry
-from gprm.flight.telemetry import load_telemetry, telemetry_csv_dataset
 from gprm.predict.api import PredictOptions, run_predict, run_whatif
 from gprm.predict.files import write_prediction
 from gprm.predict.scenarios import standard_scenarios
@@ -171,20 +172,15 @@ def _telemetry(run: Path, opts: RunOptions, step) -> dict:
         src = Path(opts.telemetry)
         tel = load_telemetry(src)             # checks it before it enters the run directory
         if src.suffix.lower() in (".csv", ".txt"):
-            write_netcdf_atomic(_telemetry_csv_dataset(src), dest)
+            write_telemetry(telemetry_csv_dataset(src), dest)
         elif not _same_file(src, dest):       # a NetCDF file: taken as it is
             with atomic_path(dest) as tmp:
                 shutil.copyfile(src, tmp)
         return {"source": str(src), "releases": len(tel.releases)}
     fm, notes = load_model(run)
     ds = synth_telemetry(fm, SynthOptions(n_releases=opts.releases, seed=opts.seed))
-    write_netcdf_atomic(ds, dest)
+    write_telemetry(ds, dest)
     return _with_notes({"source": "synthetic", "releases": opts.releases}, notes)
-
-
-def _telemetry_csv_dataset(path: Path):
-    """The telemetry dataset of a CSV file (``gprm.flight.telemetry``)."""
-    return telemetry_csv_dataset(path)
 
 
 def _impact(run: Path, opts: RunOptions, step) -> dict:
@@ -194,9 +190,7 @@ def _impact(run: Path, opts: RunOptions, step) -> dict:
     doc, curves = analyze(fm, tel, aopts)
     if notes:
         doc["notes"] = list(notes)
-    doc["curves"]["sidecar"] = "impact.nc"
-    write_netcdf_atomic(curves_dataset(curves, doc), run / "impact.nc")
-    write_json_atomic(run / "impact.json", doc)
+    write_impact(doc, curves, run / "impact.json")
     rej = [p for p in doc.get("tukey", {}).get("pairs", []) if p.get("reject")]
     return _with_notes({"tukey_rejected_pairs": len(rej)}, notes)
 

@@ -164,7 +164,7 @@ PREDICTION = Schema("prediction NetCDF", (
     Var("point", ("point",), numeric=False, unique=True),
     Var("axis", ("axis",), numeric=False, unique=True),
     Var("pos", ("point", "axis", "time"), "m"),
-    Var("vel", ("point", "axis", "time"), "m/s"),
+    Var("vel", ("point", "axis", "time"), "m s-1"),
     Var("pos_initial", ("point", "axis"), "m"),
     Var("pos_p2_5", ("point", "axis", "time"), "m", finite=False),
     Var("pos_p97_5", ("point", "axis", "time"), "m", finite=False),

@@ -20,8 +20,8 @@ from gprm.errors import GprmInputError
 from gprm.params.netcdf import parameter_table, read_fitted, read_parameter_table
 from gprm.predict.core import Prediction
 from gprm.predict.masses import mass_arrays
-from gprm.predict.trajectories import AXES
 from gprm.predict.risk import CONTACTS
+from gprm.predict.trajectories import AXES
 from gprm.predict.whatif import DEFINITION
 from gprm.validate import Schema, Var, check_dataset
 

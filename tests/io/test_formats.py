@@ -13,19 +13,9 @@ import pytest
 import xarray as xr
 from typer.testing import CliRunner
 
-from gprm.campaign.files import (
-    has_truth,
-    load_campaign,
-    read_generator,
-    read_means,
-    read_no_crossing,
-    read_preprocess_settings,
-    read_tables,
-    read_truth,
-    read_truth_alignment,
-    write_campaign,
-    write_means,
-)
+from gprm.campaign.files import (has_truth, load_campaign, read_generator, read_means,
+                                 read_no_crossing, read_preprocess_settings, read_tables,
+                                 read_truth, read_truth_alignment, write_campaign, write_means)
 from gprm.campaign.preprocess import PreprocessConfig, preprocess
 from gprm.campaign.synth import SynthConfig, synth_campaign
 from gprm.cli import app

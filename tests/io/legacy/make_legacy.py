@@ -3,9 +3,10 @@ metadata became variables (JSON strings in attributes, velocities along one mixe
 ``axis``), written by gprm at commit 5a2516a and trimmed to keep them small. The readers'
 legacy fallback is tested on them (tests/io/test_formats.py). Not run by the tests:
 ``python make_legacy.py OUT_DIR`` with that version of gprm installed."""
-import sys, os
+import shutil
+import sys
 from pathlib import Path
-import numpy as np, xarray as xr
+import xarray as xr
 from typer.testing import CliRunner
 from gprm.cli import app
 d = Path(sys.argv[1]); d.mkdir(exist_ok=True, parents=True)
@@ -37,5 +38,5 @@ for name in ("sim", "predict", "telemetry", "impact"):
         if name == "predict":
             x = x.drop_vars(["pos_samples"])
         x.to_netcdf(d/f"{name}_v1.nc", encoding=enc(x))
-import shutil; shutil.rmtree(tmp)
+shutil.rmtree(tmp)
 for p in sorted(d.iterdir()): print(p.name, p.stat().st_size)

@@ -13,8 +13,6 @@ from pathlib import Path
 
 import numpy as np
 
-from gprm._io import write_json_atomic
-
 OUT = Path(sys.argv[1]) if len(sys.argv) > 1 else Path(tempfile.mkdtemp(prefix="gprm-example-"))
 OUT.mkdir(parents=True, exist_ok=True)
 print(f"writing to {OUT}")
@@ -59,7 +57,7 @@ print(fit.summary().splitlines()[2])
 
 # %% 5. Prediction: trajectories of the contact points, kinetic energy, what-ifs (Sec. 4.2)
 from gprm.predict import PredictOptions, run_predict, run_whatif
-from gprm.predict.files import write_prediction
+from gprm.predict.files import write_prediction, write_whatif
 from gprm.run import load_model
 
 # what later stages read: a FittedModel (gprm.fit.files.load_fit). It reads every fit, also
@@ -72,7 +70,7 @@ popts = PredictOptions(piezo=2, name="piezo2", samples=20, seed=1, means=str(OUT
 pred = run_predict(fm, popts)
 write_prediction(pred, OUT / "predict.nc")
 wi = run_whatif(fm, popts)
-write_json_atomic(OUT / "whatif.json", wi)
+write_whatif(wi, OUT / "whatif.json")
 for r in wi["ratios"][1:]:
     print(f"overshoot Piezo 2 / {r['name']}:",
           ", ".join(f"{a} {v:.2f}" for a, v in r["headline"].items()))

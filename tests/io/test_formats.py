@@ -205,6 +205,17 @@ def test_telemetry_truth_round_trip(tmp_path):
     np.testing.assert_array_equal(tel.truth_velocity[:, 0], truth["tm_velocity"]["vx"])
 
 
+def test_whatif_table_round_trip_and_refusal(tmp_path):
+    from gprm.errors import GprmInputError
+
+    table = {"scenarios": [{"name": "piezo2"}], "ratios": [{"name": "piezo2"}]}
+    pf.write_whatif(table, tmp_path / "w.json")
+    assert pf.read_whatif(tmp_path / "w.json") == table
+    (tmp_path / "x.json").write_text('{"ratios": 3}')
+    with pytest.raises(GprmInputError, match="scenarios"):
+        pf.read_whatif(tmp_path / "x.json")
+
+
 def test_readers_refuse_a_broken_legacy_attribute(tmp_path):
     from gprm.errors import GprmInputError
 

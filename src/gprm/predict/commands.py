@@ -100,11 +100,10 @@ def register(app: typer.Typer, synth_app: typer.Typer) -> None:
                                                        "table (JSON)"),
     ):
         """Predict trajectories, kinetic energy, masses, overshoot and impact risk."""
-        from gprm._io import write_json_atomic
         from gprm.errors import GprmInputError
         from gprm.predict.api import PredictOptions, run_predict, run_whatif
         from gprm.predict.core import load_model
-        from gprm.predict.files import write_prediction
+        from gprm.predict.files import write_prediction, write_whatif
 
         from gprm._io import check_outputs
         from gprm.resources import check_memory
@@ -147,5 +146,5 @@ def register(app: typer.Typer, synth_app: typer.Typer) -> None:
                                              zip(pred.risk.planes, pred.risk.p_cross))
         typer.echo(msg)
         if whatif_out is not None:
-            write_json_atomic(whatif_out, run_whatif(fm, opts))
+            write_whatif(run_whatif(fm, opts), whatif_out)
             typer.echo(f"wrote {whatif_out}")

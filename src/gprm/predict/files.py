@@ -2,7 +2,8 @@
 its layout (:func:`prediction_dataset`), writer (:func:`write_prediction`), reader
 (:func:`read_prediction`, checked against :data:`PREDICTION`) and typed accessors of its
 metadata (:func:`read_parameters`, :func:`read_scenario`, :func:`read_energy_window`,
-:func:`read_impact_risk`). Files written before the metadata became variables (the JSON
+:func:`read_impact_risk`); and the what-if table of ``gprm predict --whatif``
+(:func:`write_whatif`, :func:`read_whatif`). Files written before the metadata became variables (the JSON
 attributes ``parameters_json``, ``fitted_json``, ``scenario_json``, ``energy_window_s``,
 ``impact_risk_json``) read too."""
 
@@ -15,7 +16,7 @@ import numpy as np
 import xarray as xr
 
 import gprm
-from gprm._io import open_netcdf, write_netcdf_atomic
+from gprm._io import open_netcdf, read_json, write_json_atomic, write_netcdf_atomic
 from gprm.errors import GprmInputError
 from gprm.params.netcdf import parameter_table, read_fitted, read_parameter_table
 from gprm.predict.core import Prediction
@@ -256,3 +257,22 @@ def read_impact_risk(ds) -> dict | None:
             "window_s": [float(time[0]), float(time[-1])],
             "samples": int(ds.attrs["risk_samples"]),
             "samples_ok": int(ds.attrs["risk_samples_ok"]), "planes": planes}
+
+
+# ----------------------------------------------------------------------------- what-if table
+
+def write_whatif(table: dict, path: str | os.PathLike) -> None:
+    """Write a what-if table (:func:`gprm.predict.whatif.whatif`, ``gprm predict --whatif``)
+    as JSON, atomically."""
+    write_json_atomic(path, table)
+
+
+def read_whatif(path: str | os.PathLike) -> dict:
+    """A what-if table, checked to be one (an object with the lists ``scenarios`` and
+    ``ratios``)."""
+    doc = read_json(path, what="what-if table")
+    for key in ("scenarios", "ratios"):
+        if not isinstance(doc, dict) or not isinstance(doc.get(key), list):
+            raise GprmInputError(f"not a what-if table (no list {key!r})", source=str(path),
+                                 field=key)
+    return doc

@@ -54,12 +54,13 @@ def _reader(name: str):
     """The reader of a run directory's file in its format's home (None: read it plainly)."""
     from gprm.campaign.files import load_campaign, read_means
     from gprm.flight.files import read_impact, read_impact_curves, read_telemetry
-    from gprm.predict.files import read_prediction
+    from gprm.predict.files import read_prediction, read_whatif
 
     if name.startswith("predict") and name.endswith(".nc"):
         return read_prediction
     return {"campaign.nc": load_campaign, "means.nc": read_means, "telemetry.nc": read_telemetry,
-            "impact.nc": read_impact_curves, "impact.json": read_impact}.get(name)
+            "impact.nc": read_impact_curves, "impact.json": read_impact,
+            "whatif.json": read_whatif}.get(name)
 
 
 def _load_nc(run: Path, name: str, what: str):

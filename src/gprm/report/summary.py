@@ -11,6 +11,7 @@ from pathlib import Path
 from gprm._io import read_json
 from gprm.campaign.files import read_means, read_truth, read_truth_alignment
 from gprm.flight.files import read_impact
+from gprm.predict.files import read_whatif
 
 
 def truth_from_means(run: Path) -> dict | None:
@@ -100,7 +101,7 @@ def summarise(run: str | Path) -> dict:
         if truth:
             s["truth_recovery"] = truth_recovery(fit, truth_for_fit(truth, fit))
     if (run / "whatif.json").exists():
-        wi = read_json(run / "whatif.json", what="what-if table")
+        wi = read_whatif(run / "whatif.json")
         s["whatif"] = {r["name"]: r.get("headline", {}) for r in wi.get("ratios", [])
                        if r.get("name") != r.get("baseline")}
         s["whatif_paper"] = {r["name"]: r["paper"] for r in wi.get("ratios", [])

@@ -20,7 +20,7 @@ import shutil
 from dataclasses import asdict
 from pathlib import Path
 
-from gprm._io import atomic_path, read_json, write_json_atomic
+from gprm._io import atomic_path, read_json
 from gprm.campaign.api import run_preprocess
 from gprm.campaign.files import load_campaign, write_campaign, write_means
 from gprm.campaign.synth import synth_campaign
@@ -31,7 +31,7 @@ from gprm.flight.files import (load_telemetry, telemetry_csv_dataset, write_impa
                                write_telemetry)
 from gprm.flight.synth import SynthOptions, synth_telemetry
 from gprm.predict.api import PredictOptions, run_predict, run_whatif
-from gprm.predict.files import write_prediction
+from gprm.predict.files import write_prediction, write_whatif
 from gprm.predict.scenarios import standard_scenarios
 from gprm.run.engine import Stage, sha256_file
 from gprm.run.options import RunOptions
@@ -152,7 +152,7 @@ def _predict(run: Path, opts: RunOptions, step) -> dict:
         write_prediction(pred, run / fname)
         step(k + 1, len(todo) + 1)
     table = run_whatif(fm, _predict_options(run, opts))
-    write_json_atomic(run / "whatif.json", table)
+    write_whatif(table, run / "whatif.json")
     step(len(todo) + 1, len(todo) + 1)
     info = {"whatif": {r["name"]: r.get("headline", {}) for r in table.get("ratios", [])[1:]}}
     return _with_notes(info, notes)

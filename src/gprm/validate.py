@@ -27,8 +27,8 @@ import xarray as xr
 
 from gprm.errors import GprmInputError
 
-__all__ = ["Var", "Attr", "Schema", "check_dataset", "pint_unit", "unit_factor", "CAMPAIGN", "MEANS",
-           "SCHEMAS"]
+__all__ = ["Var", "Attr", "Schema", "check_dataset", "pint_unit", "unit_factor", "CAMPAIGN",
+           "MEANS", "SCHEMAS"]
 
 
 @dataclass(frozen=True)

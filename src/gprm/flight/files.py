@@ -61,8 +61,8 @@ KIND_SI = {"length": "m", "angle": "rad", "time": "s"}
 
 def unit_factor(unit, kind: str, *, source: str, field: str) -> float:
     """Factor converting ``unit`` (pint or UDUNITS syntax: ``mm``, ``um``, ``µrad``, ``deg``,
-    ``ms``, …; None or empty: SI) of a ``kind`` (length, angle, time) to SI. A unit that is not of that
-    kind, or not a unit: a GprmInputError naming the field."""
+    ``ms``, …; None or empty: SI) of a ``kind`` (length, angle, time) to SI. A unit that is
+    not of that kind, or not a unit: a GprmInputError naming the field."""
     import pint
 
     from gprm.params.files import ureg

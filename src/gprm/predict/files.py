@@ -3,9 +3,9 @@ its layout (:func:`prediction_dataset`), writer (:func:`write_prediction`), read
 (:func:`read_prediction`, checked against :data:`PREDICTION`) and typed accessors of its
 metadata (:func:`read_parameters`, :func:`read_scenario`, :func:`read_energy_window`,
 :func:`read_impact_risk`); and the what-if table of ``gprm predict --whatif``
-(:func:`write_whatif`, :func:`read_whatif`). Files written before the metadata became variables (the JSON
-attributes ``parameters_json``, ``fitted_json``, ``scenario_json``, ``energy_window_s``,
-``impact_risk_json``) read too."""
+(:func:`write_whatif`, :func:`read_whatif`). Files written before the metadata became
+variables (the JSON attributes ``parameters_json``, ``fitted_json``, ``scenario_json``,
+``energy_window_s``, ``impact_risk_json``) read too."""
 
 from __future__ import annotations
 

@@ -26,7 +26,7 @@ def recovery(fm, n_campaigns: int, releases: int, seed0: int, model: str,
     """Totals over campaigns of :func:`gprm.flight.analysis.truth_summary` and the tests
     (``models``: one model per campaign instead of ``fm`` for all)."""
     from gprm.flight import AnalysisOptions, SynthOptions, analyze, synth_telemetry
-    from gprm.flight.telemetry import telemetry_from_dataset
+    from gprm.flight.files import telemetry_from_dataset
 
     tot = {"campaigns": 0, "impact_times": 0, "found": 0, "within_2sigma": 0,
            "joint_releases": 0, "joint_truth_in_ci95": 0, "chi2_rejects": 0, "chi2_tests": 0,
@@ -131,7 +131,8 @@ def main() -> None:
     from gprm.flight import (AnalysisOptions, SynthOptions, analyze, impact_3d, planar_impact,
                              simulate_contacts, synth_telemetry, tukey_range_test,
                              velocity_curves)
-    from gprm.flight.telemetry import AXES, telemetry_from_dataset
+    from gprm.flight.files import telemetry_from_dataset
+    from gprm.flight.telemetry import AXES
 
     fm = paper_model()
     import sys

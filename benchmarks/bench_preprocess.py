@@ -39,8 +39,8 @@ def main() -> None:
     args = ap.parse_args()
     n = args.repeat or (2 if args.quick else 5)
 
-    from gprm.campaign.csvdir import write_campaign_dir
-    from gprm.campaign.data import load_campaign, write_campaign
+    from gprm.campaign.files import write_campaign_dir
+    from gprm.campaign.files import load_campaign, write_campaign
     from gprm.campaign.preprocess import preprocess
     from gprm.campaign.synth import SynthConfig, synth_campaign
 

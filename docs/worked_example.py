@@ -13,8 +13,6 @@ from pathlib import Path
 
 import numpy as np
 
-from gprm.io import write_json_atomic, write_netcdf_atomic
-
 OUT = Path(sys.argv[1]) if len(sys.argv) > 1 else Path(tempfile.mkdtemp(prefix="gprm-example-"))
 OUT.mkdir(parents=True, exist_ok=True)
 print(f"writing to {OUT}")
@@ -33,7 +31,7 @@ print("peak x_head: %.3f um" % (1e6 * np.abs(sim.outputs["x_head"]).max()))
 
 # %% 3. A synthetic ground-test campaign with known truth, and its mean signals (Sec. 2)
 from gprm.campaign import PreprocessOptions, run_preprocess
-from gprm.campaign.data import write_campaign
+from gprm.campaign.files import read_tables, write_campaign, write_means
 from gprm.campaign.synth import SynthConfig, synth_campaign
 
 campaign = synth_campaign(seed=1, config=SynthConfig(nonlinear=False))   # faster variant
@@ -41,8 +39,7 @@ write_campaign(campaign, OUT / "campaign.nc")
 # the stage's entry point with its default options: the 2-sigma crossing at 1.01 ms, so the
 # lag t0 stays positive, as in the paper (docs/README.md, "One configuration")
 means = run_preprocess(campaign, PreprocessOptions())
-write_netcdf_atomic(means, OUT / "means.nc")
-from gprm.campaign.preprocess import read_tables
+write_means(means, OUT / "means.nc")
 
 table1 = read_tables(means)[0]                     # Table 1 is stored as variables (ratio)
 print("Table 1 (this campaign):", {k: round(v["value"], 2) for k, v in table1.items()})
@@ -60,7 +57,7 @@ print(fit.summary().splitlines()[2])
 
 # %% 5. Prediction: trajectories of the contact points, kinetic energy, what-ifs (Sec. 4.2)
 from gprm.predict import PredictOptions, run_predict, run_whatif
-from gprm.predict.files import prediction_dataset
+from gprm.predict.files import write_prediction, write_whatif
 from gprm.fit import load_model
 from gprm.run import model_notes
 
@@ -74,21 +71,21 @@ popts = PredictOptions(piezo=2, name="piezo2", samples=20, seed=1, means=str(OUT
 # Bands come from 20 parameter sets of the fit's uncertainty method (FittedModel.sample:
 # the posterior draws stored with the fit; never a set that cannot be simulated)
 pred = run_predict(fm, popts)
-write_netcdf_atomic(prediction_dataset(pred), OUT / "predict.nc")
+write_prediction(pred, OUT / "predict.nc")
 wi = run_whatif(fm, popts)
-write_json_atomic(OUT / "whatif.json", wi.to_json())   # a WhatIf result (to_json/to_xarray)
+write_whatif(wi, OUT / "whatif.json")   # a WhatIf result (to_json/to_xarray)
 for r in wi.ratios[1:]:
     print(f"overshoot Piezo 2 / {r['name']}:",
           ", ".join(f"{a} {v:.2f}" for a, v in r["headline"].items()))
 
 # %% 6. Flight: synthetic releases, release velocities, impact times, Tukey test (Sec. 4.1)
 from gprm.flight import (AnalysisOptions, ImpactOptions, SynthOptions, TelemetryOptions,
-                         run_impact, run_synth_telemetry, write_impact)
+                         run_impact, run_synth_telemetry, write_impact, write_telemetry)
 
 # the entry points gprm synth telemetry, gprm impact and gprm run call; bad options raise
 # GprmInputError naming them
 tele = run_synth_telemetry(fm, TelemetryOptions(SynthOptions(n_releases=11, seed=1)))
-write_netcdf_atomic(tele, OUT / "telemetry.nc")
+write_telemetry(tele, OUT / "telemetry.nc")
 imp = run_impact(fm, OUT / "telemetry.nc", ImpactOptions(AnalysisOptions(n_samples=20, seed=1)),
                  notes=notes)
 print(*notes, sep="\n")

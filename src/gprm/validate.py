@@ -11,12 +11,15 @@ length in an xarray Dataset, and the schema fixes which dimensions each variable
 
 The schemas here (``CAMPAIGN``, ``MEANS``) cover the type-level checks; the format readers
 (:func:`gprm.campaign.data.validate_campaign`, :func:`gprm.fit.objective.fit_data_from_means`)
-add the format's own rules (positions, runs, windows) on the checked data.
+add the format's own rules (positions, runs, windows) on the checked data. Each format's reader
+(``gprm.campaign.files``, ``gprm.simulate.files``, ``gprm.predict.files``,
+``gprm.flight.files``) applies its schema.
 """
 
 from __future__ import annotations
 
 import math
+import re
 from dataclasses import dataclass
 
 import numpy as np
@@ -24,7 +27,8 @@ import xarray as xr
 
 from gprm.errors import GprmInputError
 
-__all__ = ["Var", "Attr", "Schema", "check_dataset", "CAMPAIGN", "MEANS", "SCHEMAS"]
+__all__ = ["Var", "Attr", "Schema", "check_dataset", "pint_unit", "unit_factor", "CAMPAIGN",
+           "MEANS", "SCHEMAS"]
 
 
 @dataclass(frozen=True)
@@ -62,11 +66,24 @@ class Schema:
     attrs: tuple[Attr, ...] = ()
 
 
-def _unit_factor(unit: str, si: str, src: str, field: str) -> float:
+_UD_POWER = re.compile(r"(?<=[A-Za-z\u00b5\u03bc])\^?(-?\d+)(?!\d|\.\d)")
+_UD_DOT = re.compile(r"(?<=[A-Za-z\u00b5\u03bc\d)])\s*\.\s*(?=[A-Za-z\u00b5\u03bc(])")
+
+
+def pint_unit(unit: str) -> str:
+    """A UDUNITS unit string (as CF files carry: ``m s-1``, ``kg m2``, ``m.s-1``) in the
+    syntax of pint (``m s**-1``); pint's own syntax (``m/s``, ``um``) passes unchanged."""
+    u = _UD_POWER.sub(r"**\1", str(unit).strip())
+    return _UD_DOT.sub(" * ", u)
+
+
+def unit_factor(unit: str, si: str, src: str, field: str) -> float:
+    """The factor converting ``unit`` (pint syntax: ``um``, ``ms``, ``mV``...) to the SI unit
+    ``si``; a unit that cannot be converted is a :class:`GprmInputError` naming ``field``."""
     from gprm.params.files import ureg
 
     try:
-        f = float(ureg().Quantity(1.0, unit).to(si).magnitude)
+        f = float(ureg().Quantity(1.0, pint_unit(unit)).to(pint_unit(si)).magnitude)
     except Exception as exc:
         raise GprmInputError(f"units {unit!r} cannot be converted to {si} "
                              f"({type(exc).__name__})", source=src, field=field) from None
@@ -102,7 +119,7 @@ def _check_var(ds, v: Var, src: str) -> xr.Variable:
             raise GprmInputError(f"units attribute must be text, got {unit!r}", source=src,
                                  field=v.name)
         if unit not in (None, "", v.unit):
-            factor = _unit_factor(unit, v.unit, src, v.name)
+            factor = unit_factor(unit, v.unit, src, v.name)
     if v.finite and not np.all(np.isfinite(arr)):
         bad = int(np.size(arr) - np.count_nonzero(np.isfinite(arr)))
         raise GprmInputError(f"holds {bad} NaN or Inf value(s)", source=src, field=v.name)
@@ -194,7 +211,9 @@ SCHEMAS = {"campaign": CAMPAIGN, "means": MEANS}
 
 
 def read_means(path, *, what: str = "mean-signals file"):
-    """Read and check a mean-signals NetCDF (SI units)."""
+    """Read and check a mean-signals NetCDF (SI units). The format's home is
+    :mod:`gprm.campaign.files` (``read_means`` there also gives the truth and the tables); this
+    copy serves the callers in ``gprm.fit`` until they import it from there."""
     from gprm._io import open_netcdf
 
     ds = open_netcdf(path, what=what)

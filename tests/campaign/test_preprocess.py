@@ -8,7 +8,9 @@ from scipy.interpolate import CubicSpline
 from scipy.optimize import minimize_scalar
 
 from gprm.campaign.data import MODEL_POSITIONS, POSITIONS
-from gprm.campaign.preprocess import first_crossing, noise_std, read_tables, synchronise
+from gprm.campaign.files import read_tables
+from gprm.campaign.preprocess import first_crossing, noise_std, synchronise
+from gprm.campaign.files import read_truth, read_truth_alignment
 
 GOOD_SNR = MODEL_POSITIONS + ("x_lr", "y_lr", "z_fl")
 WINDOW = (0.97e-3, 1.2e-3)
@@ -208,13 +210,14 @@ def test_mean_signals_contract(full_campaign, full_means):
     t = ds["time"].values
     assert t[0] <= WINDOW[0] and t[-1] >= WINDOW[1]
     np.testing.assert_allclose(np.diff(t), 5e-6, rtol=1e-9)
-    for a in ("source", "sample_rate", "campaign_sha256", "truth_json", "seed"):
+    for a in ("source", "sample_rate", "campaign_sha256", "truth_source", "seed",
+              "align_time", "threshold_factor", "max_lag", "hold", "generator_rate"):
         assert a in ds.attrs, a
     for v in ("table1_value", "table1_paper", "dropped_supported", "snr_peak_over_std"):
         assert v in ds and "units" in ds[v].attrs, v
-    assert json.loads(ds.attrs["truth_json"]) == json.loads(full_campaign.attrs["truth_json"])
+    assert read_truth(ds) == read_truth(full_campaign) and read_truth(ds)
     assert ds.attrs["seed"] == 7
-    ta = json.loads(ds.attrs["truth_alignment_json"])
+    ta = read_truth_alignment(ds)
     assert set(ta) >= {"t0_expected_s", "t1_expected_s", "truth_shift_s"}
 
 

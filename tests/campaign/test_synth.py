@@ -1,6 +1,5 @@
 """Synthetic campaigns: layout, truth, ingredients."""
 
-import json
 
 import numpy as np
 import pytest
@@ -8,6 +7,7 @@ import pytest
 from gprm.campaign.data import MODEL_POSITIONS, POSITIONS, validate_campaign
 from gprm.campaign.synth import TRUTH_OVERSAMPLE, SynthConfig, _mode, synth_campaign
 from gprm.params import FITTED_DEFAULT, REGISTRY, paper
+from gprm.campaign.files import read_truth
 
 
 def test_layout(full_campaign):
@@ -25,7 +25,7 @@ def test_layout(full_campaign):
 
 
 def test_truth_drawn_around_paper(full_campaign):
-    truth = json.loads(full_campaign.attrs["truth_json"])
+    truth = read_truth(full_campaign)
     base = paper()
     assert set(truth) == set(REGISTRY)
     for n in REGISTRY:
@@ -40,7 +40,7 @@ def test_truth_drawn_around_paper(full_campaign):
 def test_given_truth_is_stored():
     ps = paper().with_values(m2=0.0131, k_Ax=1.0e8)
     ds = synth_campaign(ps, seed=1, config=SynthConfig(n_runs=2, n_noise=1, nonlinear=False))
-    truth = json.loads(ds.attrs["truth_json"])
+    truth = read_truth(ds)
     assert truth == dict(ps.values)
 
 
@@ -66,7 +66,7 @@ def test_richer_than_the_fitted_model(full_campaign):
     from gprm.params import ParameterSet
     from gprm.simulate import simulate
 
-    truth = ParameterSet(json.loads(full_campaign.attrs["truth_json"]))
+    truth = ParameterSet(read_truth(full_campaign))
     tt = full_campaign["truth_time"].values
     assert tt[1] - tt[0] == pytest.approx(5e-6 / TRUTH_OVERSAMPLE)
     lin = simulate(truth, time=tt).outputs

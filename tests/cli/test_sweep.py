@@ -24,7 +24,7 @@ from means_factory import make_means  # noqa: E402
 @pytest.fixture(scope="module")
 def inputs(tmp_path_factory):
     """Valid and broken input files, made once; each test copies them into its own folder."""
-    from gprm.campaign.csvdir import write_campaign_dir
+    from gprm.campaign.files import write_campaign_dir
     from gprm.campaign.synth import SynthConfig, synth_campaign
     from gprm.params import paper
 

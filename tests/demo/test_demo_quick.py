@@ -78,8 +78,10 @@ def test_fit_recovers_the_synthetic_truth(demo_run):
         assert key in fit, key
     assert fit["starts"]["requested"] == 50
     assert np.isfinite(fit["chi2"]) and fit["dof"] > 0
-    means = xr.open_dataset(out / "means.nc")
-    truth = json.loads(means.attrs["truth_json"])
+    from gprm.campaign.files import read_means, read_truth, read_truth_alignment
+
+    means = read_means(out / "means.nc")
+    truth = read_truth(means)
     par = fit["parameters"]
     for m in ("m1", "m2", "m3", "m4"):
         assert abs(par[m]["value"] - truth[m]) <= 0.10 * truth[m], m
@@ -88,7 +90,7 @@ def test_fit_recovers_the_synthetic_truth(demo_run):
     # lags in the aligned time base: with the per-signal offsets fitted (the demo's default)
     # x_base is the reference, so t0 is its equivalent lag, dt_P = lag(P) - lag(x_base) and
     # t1 = lag(z_bk) - lag(x_base) (docs/model.md, docs/data-formats.md)
-    eq = json.loads(means.attrs["truth_alignment_json"])
+    eq = read_truth_alignment(means)
     lag = eq["t0_equivalent_s"]
     assert par["dt_x_head"]["fitted"] and par["dt_y_head"]["fitted"]
     expected = {"t0": lag["x_base"], "t1": eq["t0_plus_t1_equivalent_z_bk_s"] - lag["x_base"],

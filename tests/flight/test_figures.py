@@ -6,16 +6,20 @@ import pytest
 
 
 @pytest.fixture(scope="module")
-def result():
+def result(tmp_path_factory):
+    """The impact result as the report reads it: written and read back by its format's home."""
     from gprm.fit.files import paper_model
     from gprm.flight import AnalysisOptions, SynthOptions, analyze
     from gprm.flight import synth_telemetry
-    from gprm.flight.telemetry import telemetry_from_dataset
+    from gprm.flight.files import (read_impact, read_impact_curves, telemetry_from_dataset,
+                                   write_impact)
 
     m = paper_model()
     tel = telemetry_from_dataset(synth_telemetry(m, SynthOptions(n_releases=4, seed=2)))
     res = analyze(m, tel, AnalysisOptions(n_samples=40, n_times=201))
-    return res.to_json(), res.to_xarray()
+    out = tmp_path_factory.mktemp("impact") / "impact.json"
+    side = write_impact(res.to_json(), res.curves, out)
+    return read_impact(out), read_impact_curves(side)
 
 
 def test_fig11_titles_and_joint(result):

@@ -111,7 +111,7 @@ def test_analysis_reproducible():
     """Same telemetry, model and seed: the same impact document (draw seeds derive from it)."""
     from gprm.fit.files import paper_model
     from gprm.flight import AnalysisOptions, SynthOptions, analyze, synth_telemetry
-    from gprm.flight.telemetry import telemetry_from_dataset
+    from gprm.flight.files import telemetry_from_dataset
 
     m = paper_model()
     tel = telemetry_from_dataset(synth_telemetry(m, SynthOptions(n_releases=3, seed=9)))

@@ -12,7 +12,8 @@ import pytest
 from gprm.fit.files import paper_model
 from gprm.flight.analysis import AnalysisOptions, analyze
 from gprm.flight.synth import SynthOptions, synth_telemetry
-from gprm.flight.telemetry import telemetry_from_dataset
+from gprm.flight.files import read_truth, telemetry_from_dataset
+from gprm.flight.telemetry import AXES
 
 SCORED = ("vx", "vz_xz", "wy", "vy", "vz_yz", "wx")
 
@@ -92,7 +93,7 @@ def test_missing_crossings_reported_not_dropped(run):
 
 def test_release_velocities_match_truth(run):
     ds, tel, doc, _ = run
-    truth = json.loads(ds.attrs["truth_json"])["tm_velocity"]
+    truth = read_truth(ds)["tm_velocity"]
     comp = {"vx": "vx", "vy": "vy", "wy": "wy", "wx": "wx", "vz_xz": "vz", "vz_yz": "vz"}
     zs = []
     for i, r in enumerate(doc["releases"]):
@@ -126,9 +127,20 @@ def test_cli_end_to_end(tmp_path):
     assert tk["df"] == sum(tk["counts"].values()) - 6
     side = tmp_path / doc["curves"]["sidecar"]
     import xarray as xr
-    with xr.open_dataset(side) as c:
-        assert c["nominal"].dims == ("axis", "time")
-        assert list(c["axis"].values) == ["vx", "vz_xz", "wy", "vy", "vz_yz", "wx"]
+    with xr.open_dataset(side) as c:             # one unit per variable (CF)
+        assert c["velocity_nominal"].dims == ("velocity_axis", "time")
+        assert c["velocity_nominal"].attrs["units"] == "m s-1"
+        assert c["angular_velocity_nominal"].attrs["units"] == "rad s-1"
+        assert list(c["velocity_axis"].values) == ["vx", "vz_xz", "vy", "vz_yz"]
+        assert list(c["angular_axis"].values) == ["wy", "wx"]
+    from gprm.flight.files import read_impact_curves
+
+    c = read_impact_curves(side)                  # the reader gives the six axes together
+    assert c["nominal"].dims == ("axis", "time")
+    assert list(c["axis"].values) == ["vx", "vz_xz", "wy", "vy", "vz_yz", "wx"]
+    with xr.open_dataset(side) as raw:
+        np.testing.assert_array_equal(c["nominal"].sel(axis="wx").values,
+                                      raw["angular_velocity_nominal"].sel(angular_axis="wx"))
     # same seed -> same file content
     tel2 = tmp_path / "t2.nc"
     CliRunner().invoke(app, ["synth", "telemetry", "paper", "--releases", "11", "--seed", "2",
@@ -178,10 +190,10 @@ def test_synthetic_truth_is_the_3d_impact():
 
     m = paper_model()
     ds = synth_telemetry(m, SynthOptions(n_releases=5, seed=8, truth_spread=False))
-    truth = json.loads(ds.attrs["truth_json"])
+    truth = read_truth(ds)
     assert truth["truth_model"] == "3d" and truth["z_from"] is None
-    tv = ds["truth_velocity"].values
-    ax = list(ds["axis"].values)
+    tv = telemetry_from_dataset(ds).truth_velocity
+    ax = list(AXES)
     np.testing.assert_array_equal(tv[:, ax.index("vz_xz")], tv[:, ax.index("vz_yz")])
     np.testing.assert_array_equal(truth["tm_velocity"]["vz"], tv[:, ax.index("vz_xz")])
     assert np.all(np.abs(truth["tm_velocity"]["wz"]) > 0)
@@ -192,6 +204,6 @@ def test_synthetic_truth_is_the_3d_impact():
         np.testing.assert_allclose(tv[o, ax.index(a)], ref[a][0], rtol=1e-9)
     planar = synth_telemetry(m, SynthOptions(n_releases=5, seed=8, truth_spread=False,
                                              truth_model="planar"))
-    tp = json.loads(planar.attrs["truth_json"])["tm_velocity"]
-    pv = planar["truth_velocity"].values
+    tp = read_truth(planar)["tm_velocity"]
+    pv = telemetry_from_dataset(planar).truth_velocity
     np.testing.assert_allclose(tp["vz"], pv[:, ax.index("vz_xz")] + pv[:, ax.index("vz_yz")])

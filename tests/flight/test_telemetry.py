@@ -4,9 +4,8 @@ import numpy as np
 import pytest
 
 from gprm.errors import GprmInputError
-from gprm.flight.telemetry import (AXES, fit_release_velocity, load_telemetry,
-                                   release_velocities, telemetry_dataset,
-                                   telemetry_from_dataset)
+from gprm.flight.files import load_telemetry, telemetry_dataset, telemetry_from_dataset
+from gprm.flight.telemetry import AXES, fit_release_velocity, release_velocities
 
 
 def _tel(R=3, S=60, rate=10.0, seed=0, v=None):

@@ -130,7 +130,7 @@ def campaign_file(tmp_path_factory):
 def test_campaign_files(campaign_file, tmp_path, mutate, field):
     """Time in ms is honoured; time in ms without units disagrees with the sample rate;
     reversed time, a text or negative sample rate and swapped dimensions are refused."""
-    from gprm.campaign.data import load_campaign
+    from gprm.campaign.files import load_campaign
 
     with xr.open_dataset(campaign_file) as ds0:
         ds0 = ds0.load()
@@ -151,7 +151,7 @@ def test_campaign_files(campaign_file, tmp_path, mutate, field):
 
 def _readers():
     from gprm._io import read_json
-    from gprm.campaign.csvdir import read_campaign_dir
+    from gprm.campaign.files import read_campaign_dir
     from gprm.params import load_params
     from gprm.simulate import read_voltage_csv
 

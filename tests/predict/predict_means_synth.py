@@ -1,10 +1,10 @@
 """A synthetic mean-signals dataset (contracts.md layout) made from the model plus noise."""
 
-import json
 
 import numpy as np
 import xarray as xr
 
+from gprm.campaign.files import truth_dataset
 from gprm.params import batch
 from gprm.simulate import observe
 
@@ -35,5 +35,5 @@ def synthetic_means(params, *, seed=0, t_end=1.3e-3, rate=200e3, std=5e-9, n_run
          "n_runs": (("signal",), np.full(len(SIGNALS), n_runs))},
         coords={"signal": list(SIGNALS), "time": ("time", t, {"units": "s"})})
     ds.attrs = {"source": "tests/predict synthetic", "sample_rate": rate,
-                "truth_json": json.dumps(dict(params.values)), "seed": seed}
-    return ds
+                "truth_source": "tests/predict", "seed": seed}
+    return ds.merge(truth_dataset(dict(params.values)))

@@ -51,7 +51,9 @@ def test_predict_writes_documented_dataset(tmp_path):
     for v in ("pos_p2_5", "pos_p97_5", "pos_std_linear", "vel", "overshoot", "hist_measured",
               "hist_model_point", "mass_nominal", "clearance", "p_cross"):
         assert v in ds and "units" in ds[v].attrs, v
-    span = np.diff(json.loads(ds.attrs["energy_window_s"]))[0]
+    from gprm.predict.files import read_energy_window
+
+    span = np.diff(read_energy_window(ds))[0]
     for h in ("hist_model_point", "hist_measured", "hist_model_total"):
         assert float(ds[h].sum()) == pytest.approx(span, rel=1e-12)
     assert ds.attrs["samples_ok"] == 40 and ds.attrs["model"] == "gprm-3d"

@@ -4,13 +4,13 @@ few starts with the fit library, and an impact result in the INTERFACES.md forma
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 import numpy as np
 import xarray as xr
 
 from gprm._io import write_json_atomic, write_netcdf_atomic
+from gprm.campaign.files import truth_dataset
 from gprm.params import batch, paper
 from gprm.simulate import OUTPUTS, observe
 
@@ -30,8 +30,8 @@ def make_means(path: Path, *, seed: int = 0, rel: float = 0.02, floor: float = 2
                      "std": (("signal", "time"), sem * np.sqrt(10), {"units": "m"}),
                      "n_runs": (("signal",), np.full(len(OUTPUTS), 10))},
                     coords={"signal": list(OUTPUTS), "time": ("time", t, {"units": "s"})})
-    ds.attrs["truth_json"] = json.dumps(dict(truth.values))
-    ds.attrs["seed"] = seed
+    ds = ds.merge(truth_dataset(dict(truth.values)))
+    ds.attrs.update(truth_source="paper", seed=seed)
     write_netcdf_atomic(ds, path)
     return dict(truth.values)
 
@@ -39,8 +39,8 @@ def make_means(path: Path, *, seed: int = 0, rel: float = 0.02, floor: float = 2
 def make_fit(run: Path, *, starts: int = 40, seed: int = 0) -> None:
     """A fit result in the contract format (contracts.md), without running the fitter: the
     truth perturbed by its Table-3 error as the "fit", chi-square values of a waterfall."""
-    from gprm.fit.objective import fit_data_from_means
     from gprm._io import open_netcdf
+    from gprm.fit.objective import fit_data_from_means
     from gprm.params import REGISTRY
 
     rng = np.random.default_rng(seed)

@@ -9,9 +9,9 @@ from gprm._lazy import attach
 
 __getattr__, __dir__, __all__ = attach(__name__, {
     "api": ["PreprocessOptions", "preprocess_campaign", "run_preprocess"],
-    "csvdir": ["read_campaign_dir", "write_campaign_dir"],
-    "data": ["MODEL_POSITIONS", "POSITIONS", "campaign_dataset", "load_campaign",
-             "validate_campaign", "write_campaign"],
+    "data": ["MODEL_POSITIONS", "POSITIONS", "campaign_dataset", "validate_campaign"],
+    "files": ["load_campaign", "read_campaign_dir", "read_means", "read_tables", "read_truth",
+              "read_truth_alignment", "write_campaign", "write_campaign_dir", "write_means"],
     "preprocess": ["MeanSignals", "PreprocessConfig", "alignment_shift"],
     "synth": ["SynthConfig", "synth_campaign"],
 })

@@ -10,7 +10,7 @@ from dataclasses import dataclass
 
 import xarray as xr
 
-from gprm.campaign.data import load_campaign
+from gprm.campaign.files import load_campaign
 from gprm.campaign.preprocess import MeanSignals, PreprocessConfig, preprocess
 from gprm.errors import GprmInputError
 

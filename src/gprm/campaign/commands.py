@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 from typing import Optional
 
@@ -34,7 +33,7 @@ def register(app: typer.Typer, synth_app: typer.Typer) -> None:
                                           help="skip the nonlinear correction (faster)"),
     ):
         """Synthetic ground-test campaign with known truth (richer model than the fit's)."""
-        from gprm.campaign.data import write_campaign
+        from gprm.campaign.files import write_campaign
         from gprm.campaign.synth import SynthConfig, synth_campaign
         from gprm._io import check_outputs
         from gprm.params import load_params
@@ -71,14 +70,14 @@ def register(app: typer.Typer, synth_app: typer.Typer) -> None:
                                               "threshold, e.g. 1ms (bare: s)"),
     ):
         """Synchronise, average and align a campaign (Sec. 2); prints Table 1."""
-        from gprm._io import check_outputs, files_read_from, write_netcdf_atomic
+        from gprm._io import check_outputs, files_read_from
         from gprm.campaign.api import PreprocessOptions, preprocess_campaign
-        from gprm.campaign.csvdir import read_manifest
+        from gprm.campaign.files import read_manifest, write_means
 
         check_outputs({out: "--out"}, inputs=[campaign, *files_read_from(
             campaign, listed=lambda m: [row["file"] for row in read_manifest(m)])])
         ms = preprocess_campaign(campaign, PreprocessOptions(align_time=align_time))
-        write_netcdf_atomic(ms.to_dataset(), out)
+        write_means(ms, out)
         typer.echo(f"wrote {out}: {len(ms.signals)} mean signals x {ms.time.size} samples "
                    f"({ms.time[0] * 1e3:.3f}..{ms.time[-1] * 1e3:.3f} ms)")
         typer.echo(format_summary(ms))
@@ -97,8 +96,8 @@ def format_summary(ms) -> str:
     for i, n in enumerate(ms.signals):
         lines.append(f"  {n:7s} noise {ms.noise_std[i] * 1e6:.2e} um  shift "
                      f"{ms.shift[i] * 1e6:+8.2f} us  peak/std {ms.snr[n]['peak_over_std']:6.1f}")
-    if "truth_alignment_json" in ms.attrs:
-        ta = json.loads(ms.attrs["truth_alignment_json"])
+    if ms.truth_alignment is not None:
+        ta = ms.truth_alignment
         lines.append(f"Truth after alignment: t0 equivalent {ta['t0_expected_s'] * 1e6:.2f} us,"
                      f" t1 equivalent {ta['t1_expected_s'] * 1e6:.2f} us")
     return "\n".join(lines)

@@ -6,21 +6,19 @@
 
 ``position`` holding the ten laser positions by name (Sec. 2, Fig. 2), ``time`` in s from the
 start of the record, and attributes ``sample_rate`` (Hz) and, for synthetic
-campaigns, ``truth_json`` and ``seed``. :func:`validate_campaign` checks everything a later
-stage relies on and raises a one-line :class:`GprmInputError` naming file and field;
-:func:`load_campaign` reads a NetCDF file or a CSV directory (see :mod:`gprm.campaign.csvdir`).
+campaigns, ``seed`` and the truth (``truth_value(parameter)``). :func:`validate_campaign`
+checks everything a later stage relies on and raises a one-line :class:`GprmInputError`
+naming file and field. The files (NetCDF, CSV folder) are read and written in
+:mod:`gprm.campaign.files`.
 """
 
 from __future__ import annotations
-
-import hashlib
-import os
-from pathlib import Path
 
 import numpy as np
 import xarray as xr
 
 from gprm.errors import GprmInputError
+from gprm.validate import unit_factor
 
 POSITIONS: tuple[str, ...] = ("x_lr", "x_fl", "x_base", "x_head", "z_bk", "z_fl", "y_fl",
                               "y_lr", "y_base", "y_head")
@@ -50,9 +48,12 @@ def campaign_dataset(displacement: np.ndarray, noise: np.ndarray, time: np.ndarr
                    "actuation"}),
     }
     coords = {
-        "position": ("position", np.array(list(positions), dtype=object)),
-        "run": ("run", np.arange(np.shape(displacement)[1])),
-        "noise_run": ("noise_run", np.arange(np.shape(noise)[1])),
+        "position": ("position", np.array(list(positions), dtype=object),
+                     {"long_name": "laser position"}),
+        "run": ("run", np.arange(np.shape(displacement)[1]),
+                {"long_name": "index of the actuated run"}),
+        "noise_run": ("noise_run", np.arange(np.shape(noise)[1]),
+                      {"long_name": "index of the run without actuation"}),
         "time": ("time", np.asarray(time, float), {"units": "s",
                                                    "long_name": "time from the start of the "
                                                    "record"}),
@@ -60,7 +61,8 @@ def campaign_dataset(displacement: np.ndarray, noise: np.ndarray, time: np.ndarr
     if voltage is not None:
         data["voltage"] = (("vrun", "vtime"), np.asarray(voltage, float),
                            {"units": "V", "long_name": "piezo voltage of retraction runs"})
-        coords["vrun"] = ("vrun", np.arange(np.shape(voltage)[0]))
+        coords["vrun"] = ("vrun", np.arange(np.shape(voltage)[0]),
+                          {"long_name": "index of the voltage run"})
         coords["vtime"] = ("vtime", np.asarray(vtime, float),
                            {"units": "s", "long_name": "time from the start of the voltage "
                             "record"})
@@ -113,7 +115,7 @@ def validate_campaign(ds: xr.Dataset, source: str = "campaign") -> xr.Dataset:
         if var in ds.variables:
             unit = str(ds[var].attrs.get("units", dim))
             if unit != dim:
-                ds[var] = ds[var] * _unit_factor(unit, dim, src, var)
+                ds[var] = ds[var] * unit_factor(unit, dim, src, var)
                 ds[var].attrs["units"] = dim
     # time base and sample rate
     t = np.asarray(ds["time"].values, float)
@@ -167,58 +169,3 @@ def validate_campaign(ds: xr.Dataset, source: str = "campaign") -> xr.Dataset:
             raise GprmInputError("vtime is not strictly increasing", source=src, field="vtime")
     # canonical position order
     return ds.sel(position=list(POSITIONS))
-
-
-def _unit_factor(unit: str, si: str, src: str, field: str) -> float:
-    import pint
-
-    from gprm.params.files import ureg
-
-    try:
-        q = ureg().Quantity(1.0, unit)
-        return float(q.to(si).magnitude)
-    except (pint.errors.PintError, AttributeError, ValueError, TypeError) as exc:
-        raise GprmInputError(f"unit {unit!r} cannot be converted to {si} ({exc})", source=src,
-                             field=field) from None
-
-
-def write_campaign(ds: xr.Dataset, path: str | os.PathLike) -> None:
-    """Validate and write a campaign NetCDF atomically."""
-    from gprm._io import write_netcdf_atomic
-
-    validate_campaign(ds, source=str(path))
-    write_netcdf_atomic(ds, path)
-
-
-def load_campaign(path: str | os.PathLike) -> xr.Dataset:
-    """Read and validate a campaign: a NetCDF file or a CSV directory with ``manifest.csv``.
-
-    The input is only read. The returned Dataset carries ``source`` and ``campaign_sha256``
-    attributes (the hash of the file, or of the manifest and data files of a directory).
-    """
-    from gprm._io import open_netcdf
-
-    path = Path(path)
-    if path.is_dir():
-        from gprm.campaign.csvdir import read_campaign_dir
-
-        return read_campaign_dir(path)
-    if not path.exists():
-        raise GprmInputError("campaign file does not exist", source=str(path))
-    from gprm.validate import CAMPAIGN, check_dataset
-
-    ds = open_netcdf(path, what="campaign NetCDF")
-    ds = check_dataset(ds, CAMPAIGN, str(path))          # types, units, finiteness, order
-    ds = validate_campaign(ds, source=str(path))
-    ds.attrs["source"] = str(path)
-    ds.attrs["campaign_sha256"] = sha256_files([path])
-    return ds
-
-
-def sha256_files(paths) -> str:
-    h = hashlib.sha256()
-    for p in paths:
-        with open(p, "rb") as fh:
-            for chunk in iter(lambda: fh.read(1 << 20), b""):
-                h.update(chunk)
-    return h.hexdigest()

@@ -32,7 +32,6 @@ with it, and the fit's lags can be compared with the truth (docs/data-formats.md
 
 from __future__ import annotations
 
-import json
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -41,7 +40,9 @@ from scipy.interpolate import CubicSpline
 from scipy.optimize import brentq, minimize_scalar
 
 import gprm
-from gprm.campaign.data import MODEL_POSITIONS, POSITIONS
+from gprm.campaign.data import MODEL_POSITIONS, POSITIONS, validate_campaign
+from gprm.campaign.files import (generator_attrs, means_dataset, preprocess_attrs, read_generator,
+                                 read_truth, truth_alignment)
 from gprm.errors import GprmInputError
 
 TABLE1 = (("x_head", "x_lr", 3.0), ("x_head", "x_fl", 17.0), ("y_head", "y_lr", 3.0),
@@ -98,123 +99,13 @@ class MeanSignals:
     truth_mean: np.ndarray | None = None
     truth_shift_spread: np.ndarray | None = None
 
+    no_crossing: tuple[str, ...] = ()
+    truth: dict | None = None             # the campaign's truth (synthetic), name -> SI
+    truth_alignment: dict | None = None   # files.truth_alignment (synthetic)
+
     def to_dataset(self) -> xr.Dataset:
-        """The mean-signals NetCDF layout of contracts.md."""
-        sig = np.array(self.signals, dtype=object)
-        ds = xr.Dataset(
-            {
-                "mean": (("signal", "time"), self.mean, {
-                    "units": "m", "long_name": "mean over the synchronised actuated runs"}),
-                "std": (("signal", "time"), self.std, {
-                    "units": "m", "long_name": "standard deviation across runs (ddof 1), "
-                    "sigma(t)"}),
-                "sem": (("signal", "time"), self.sem, {
-                    "units": "m", "long_name": "standard error of the mean, std/sqrt(n_runs)"}),
-                "noise_std": (("signal",), self.noise_std, {
-                    "units": "m", "long_name": "noise standard deviation from the noise runs"}),
-                "shift": (("signal",), self.shift, {
-                    "units": "s", "long_name": "alignment shift (new time = old time + "
-                    "shift; old time is the reference run's record time)"}),
-                "n_runs": (("signal",), self.n_runs.astype(np.int32), {
-                    "units": "1", "long_name": "runs averaged"}),
-                "sync_shift": (("signal", "run"), self.sync_shift, {
-                    "units": "s", "long_name": "synchronisation shift of each run relative "
-                    "to the reference run (run r at t + sync_shift matches the reference "
-                    "at t)"}),
-                "reference_run": (("signal",), self.reference_run.astype(np.int32), {
-                    "units": "1", "long_name": "index of the reference run"}),
-            },
-            coords={"signal": ("signal", sig),
-                    "time": ("time", self.time, {
-                        "units": "s", "long_name": "aligned time: each signal crosses "
-                        "threshold_factor x noise_std at align_time"}),
-                    "run": ("run", np.arange(self.sync_shift.shape[1]))})
-        if self.truth_shift is not None:
-            ds["truth_shift"] = (("signal",), self.truth_shift, {
-                "units": "s", "long_name": "shift the same alignment rule gives the noise-free "
-                "truth response (synthetic campaigns)"})
-            ds["truth_shift_spread"] = (("signal",), self.truth_shift_spread, {
-                "units": "s", "long_name": "range of the truth's alignment shift over ten "
-                "sampling phases (the rule's inherent jitter at this sample rate)"})
-            ds["truth_mean"] = (("signal", "time"), self.truth_mean, {
-                "units": "m", "long_name": "noise-free truth response aligned by the same "
-                "rule (synthetic campaigns)"})
-        ds.attrs = dict(self.attrs)
-        return ds.merge(tables_dataset(self.table1, self.dropped, self.snr))
-
-
-# Table 1, the dropped positions and the signal-to-noise summary are tables: in the file they
-# are variables along their own key dimension (CF, docs/data-formats.md), not JSON strings.
-_T1_FIELDS = (("value", "table1_value", "1", "ratio of the maxima (this campaign)"),
-              ("paper", "table1_paper", "1", "ratio of the maxima in the paper's Table 1"),
-              ("numerator_m", "table1_numerator", "m", "max |mean| of the numerator"),
-              ("denominator_m", "table1_denominator", "m", "max |mean| of the denominator"))
-_DROP_FIELDS = (("hypothesis", "dropped_hypothesis", None, "hypothesis of Sec. 2"),
-                ("ratio", "dropped_ratio", None, "Table 1 ratio that is the evidence"),
-                ("value", "dropped_value", "1", "value of that ratio"),
-                ("paper", "dropped_paper", "1", "the paper's value of that ratio"),
-                ("supported", "dropped_supported", "1", "1 if value >= support_threshold"),
-                ("support_threshold", "dropped_support_threshold", "1",
-                 "ratio needed to support the hypothesis"))
-_SNR_FIELDS = (("peak_m", "snr_peak", "m", "max |mean|"),
-               ("std_at_peak_m", "snr_std_at_peak", "m", "across-run std at the peak"),
-               ("peak_over_std", "snr_peak_over_std", "1", "peak / std at the peak"),
-               ("time_of_peak_s", "snr_time_of_peak", "s", "time of the peak"))
-
-
-def _table_vars(rows: dict, dim: str, fields) -> dict:
-    keys = list(rows)
-    out = {}
-    for field, var, unit, long_name in fields:
-        vals = [rows[k][field] for k in keys]
-        if unit is None:
-            arr = np.array(vals, dtype=str)
-        elif field == "supported":
-            arr = np.array(vals, dtype=np.int8)
-        else:
-            arr = np.array(vals, dtype=float)
-        attrs = {"long_name": long_name} | ({} if unit is None else {"units": unit})
-        out[var] = ((dim,), arr, attrs)
-    return out
-
-
-def tables_dataset(table1: dict, dropped: dict, snr: dict):
-    """The mean-signals file's tables as variables: ``table1_*(ratio)``,
-    ``dropped_*(dropped_position)``, ``snr_*(snr_position)``."""
-    data = {}
-    for rows, dim, fields in ((table1, "ratio", _T1_FIELDS),
-                              (dropped, "dropped_position", _DROP_FIELDS),
-                              (snr, "snr_position", _SNR_FIELDS)):
-        data.update(_table_vars(rows, dim, fields))
-    coords = {"ratio": ("ratio", list(table1)),
-              "dropped_position": ("dropped_position", list(dropped)),
-              "snr_position": ("snr_position", list(snr))}
-    return xr.Dataset(data, coords=coords)
-
-
-def read_tables(ds) -> tuple[dict, dict, dict]:
-    """``(table1, dropped, snr)`` of a mean-signals dataset, as the dicts ``MeanSignals``
-    holds; files written before the tables became variables (``*_json`` attributes) read
-    too."""
-    def table(dim, fields, legacy):
-        if dim in ds.coords or dim in ds.dims:
-            rows = {}
-            for i, key in enumerate(ds[dim].values.astype(str)):
-                row = {}
-                for field, var, unit, _ in fields:
-                    if var not in ds:
-                        continue
-                    x = ds[var].values[i]
-                    row[field] = (str(x) if unit is None else bool(x) if field == "supported"
-                                  else float(x))
-                rows[str(key)] = row
-            return rows
-        raw = ds.attrs.get(legacy)
-        return json.loads(raw) if isinstance(raw, str) and raw else {}
-
-    return (table("ratio", _T1_FIELDS, "table1_json"),
-            table("dropped_position", _DROP_FIELDS, "dropped_json"),
-            table("snr_position", _SNR_FIELDS, "snr_json"))
+        """The mean-signals NetCDF layout (:func:`gprm.campaign.files.means_dataset`)."""
+        return means_dataset(self)
 
 
 def noise_std(noise: np.ndarray, time: np.ndarray) -> float:
@@ -342,8 +233,6 @@ def _position(Y, N, time, cfg: PreprocessConfig, name: str, src: str,
 
 def preprocess(campaign: xr.Dataset, config: PreprocessConfig | None = None) -> MeanSignals:
     """Synchronise, average and align a validated campaign (see the module docstring)."""
-    from gprm.campaign.data import validate_campaign
-
     cfg = PreprocessConfig() if config is None else config
     src = str(campaign.attrs.get("source", "campaign"))
     campaign = validate_campaign(campaign, source=src)
@@ -435,18 +324,18 @@ def preprocess(campaign: xr.Dataset, config: PreprocessConfig | None = None) -> 
         "title": "GPRM mean signals (gprm preprocess)",
         "source": src, "sample_rate": float(campaign.attrs.get("sample_rate", 1.0 / dt)),
         "campaign_sha256": str(campaign.attrs.get("campaign_sha256", "")),
-        "align_time": cfg.align_time, "threshold_factor": cfg.threshold_factor,
+        **preprocess_attrs(cfg),
         "gprm_version": gprm.__version__,
-        "preprocess_json": json.dumps(cfg.__dict__),
-        "no_crossing_json": json.dumps(no_cross),
         # the record's length (the parametric bootstrap synthesises campaigns like this one)
         "record_duration": float(time[-1] - time[0] + dt),
     }
-    if "generator_json" in campaign.attrs:
-        attrs["generator_json"] = campaign.attrs["generator_json"]
+    generator = read_generator(campaign.attrs)
+    if generator is not None:
+        attrs.update(generator_attrs(generator))
     truth_shift = truth_mean = None
-    if "truth_json" in campaign.attrs:
-        attrs["truth_json"] = campaign.attrs["truth_json"]
+    truth = read_truth(campaign)
+    if truth is not None:
+        attrs["truth_source"] = str(campaign.attrs.get("truth_source", "synthetic campaign"))
         attrs["seed"] = int(campaign.attrs.get("seed", -1))
     truth_spread = None
     if "truth_displacement" in campaign.variables:
@@ -472,18 +361,9 @@ def preprocess(campaign: xr.Dataset, config: PreprocessConfig | None = None) -> 
             truth_spread[i] = float(np.ptp(phases)) if phases else np.nan
             ts_ = tgrid - (0.0 if tx is None else truth_shift[i])
             truth_mean[i] = np.where(ts_ < tt[0], 0.0, cs(np.clip(ts_, tt[0], tt[-1])))
-        if "truth_json" in campaign.attrs:
-            tr = json.loads(campaign.attrs["truth_json"])
-            ts = dict(zip(POSITIONS, truth_shift))
-            xy = [ts[n] for n in ("x_base", "x_head", "y_base", "y_head")]
-            attrs["truth_alignment_json"] = json.dumps({
-                "truth_shift_s": {n: float(v) for n, v in ts.items()},
-                "t0_equivalent_s": {n: tr["t0"] + float(ts[n])
-                                    for n in ("x_base", "x_head", "y_base", "y_head")},
-                "t0_expected_s": tr["t0"] + float(np.mean(xy)),
-                "t0_plus_t1_equivalent_z_bk_s": tr["t0"] + tr["t1"] + float(ts["z_bk"]),
-                "t1_expected_s": tr["t1"] + float(ts["z_bk"]) - float(np.mean(xy)),
-            })
+    alignment = None
+    if truth is not None and truth_shift is not None:
+        alignment = truth_alignment(truth, dict(zip(POSITIONS, truth_shift)))
     return MeanSignals(POSITIONS, tgrid, mean, std, sem, nstd, shift,
                        np.full(P, R), sync, ref, table1, dropped, snr, attrs,
-                       truth_shift, truth_mean, truth_spread)
+                       truth_shift, truth_mean, truth_spread, tuple(no_cross), truth, alignment)

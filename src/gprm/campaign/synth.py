@@ -20,8 +20,7 @@ Everything is drawn from one ``numpy.random.default_rng(seed)``: same seed, same
 
 from __future__ import annotations
 
-import json
-from dataclasses import asdict, dataclass, field
+from dataclasses import dataclass, field
 
 import numpy as np
 import xarray as xr
@@ -30,6 +29,7 @@ from scipy.signal import cont2discrete, lfilter
 
 import gprm
 from gprm.campaign.data import MODEL_POSITIONS, POSITIONS, campaign_dataset
+from gprm.campaign.files import generator_attrs, truth_dataset
 from gprm.errors import GprmInputError
 from gprm.params import FITTED_DEFAULT, ParameterSet, batch, paper
 from gprm.simulate import observe
@@ -293,13 +293,11 @@ def synth_campaign(truth: ParameterSet | None = None, *, seed: int = 0,
                     v0[:, None] * np.exp(-np.clip(s, 0, None) / tau[:, None]))
     volt = volt + cfg.voltage_noise * rng.standard_normal(volt.shape)
 
-    cfg_json = json.dumps(asdict(cfg))
     attrs = {
         "title": "synthetic GPRM ground-test campaign (gprm synth campaign)",
         "source": "gprm synth campaign", "synthetic": 1, "seed": int(seed),
-        "truth_json": json.dumps(dict(truth.values)),
         "truth_source": truth.source if truth_given else f"drawn around paper (seed {seed})",
-        "generator_json": cfg_json, "noise_std_injected": cfg.noise_std,
+        **generator_attrs(cfg), "noise_std_injected": cfg.noise_std,
         "t_c": float(truth["t_c"]), "gprm_version": gprm.__version__,
         "voltage_sample_rate": float(cfg.vrate),
     }
@@ -316,4 +314,4 @@ def synth_campaign(truth: ParameterSet | None = None, *, seed: int = 0,
     ds = ds.assign_coords(truth_time=("truth_time", fine, {
         "units": "s", "long_name": f"time of the noise-free truth ({TRUTH_OVERSAMPLE}x the "
         "record's sample rate)"}))
-    return ds
+    return ds.merge(truth_dataset(dict(truth.values)))

@@ -18,12 +18,12 @@ into intervals and draws.
 
 from __future__ import annotations
 
-import json
 from dataclasses import fields, replace
 
 import numpy as np
 import xarray as xr
 
+from gprm.campaign.files import read_generator, read_preprocess_settings
 from gprm.campaign.preprocess import PreprocessConfig, preprocess
 from gprm.campaign.synth import Support, SynthConfig, nonlinear_correction, synth_campaign
 from gprm.fit.engine import polish_best
@@ -33,26 +33,24 @@ from gprm.params.registry import ALIGNMENT_OFFSETS
 
 
 def preprocess_config(attrs: dict) -> PreprocessConfig:
-    """The preprocessing settings a mean-signals file was made with (its ``preprocess_json``),
-    defaults where absent."""
-    try:
-        d = json.loads(attrs.get("preprocess_json", "{}"))
-    except (TypeError, ValueError):
-        d = {}
+    """The preprocessing settings a mean-signals file was made with (its attributes,
+    :func:`gprm.campaign.files.read_preprocess_settings`), defaults where absent."""
+    d = read_preprocess_settings(attrs)
     names = {f.name for f in fields(PreprocessConfig)}
     return PreprocessConfig(**{k: v for k, v in d.items() if k in names})
 
 
 def synth_config(data: FitData) -> SynthConfig:
     """Generator settings for campaigns like the measured one: the generator's own settings
-    where the campaign was synthetic (``generator_json``), else the defaults with the
-    measured campaign's number of runs, sample rate, record length and noise level."""
+    where the campaign was synthetic (:func:`gprm.campaign.files.read_generator`), else the
+    defaults with the measured campaign's number of runs, sample rate, record length and noise
+    level."""
     attrs = data.attrs
     names = {f.name for f in fields(SynthConfig)}
-    if "generator_json" in attrs:
+    d = read_generator(attrs)
+    if d is not None:
         try:
-            d = json.loads(attrs["generator_json"])
-            kw = {k: (Support(**v) if isinstance(v, dict) else v) for k, v in d.items()
+            kw = {k: (Support(*v) if isinstance(v, list) else v) for k, v in d.items()
                   if k in names}
             return SynthConfig(**kw)
         except (TypeError, ValueError):

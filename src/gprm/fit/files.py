@@ -27,6 +27,7 @@ import xarray as xr
 
 import gprm
 from gprm._io import open_netcdf, read_json, write_json_atomic, write_netcdf_atomic
+from gprm.campaign.files import has_truth
 from gprm.errors import GprmInputError
 from gprm.fit.covariance import sample_normal
 from gprm.model.linear import admissible
@@ -428,7 +429,7 @@ def fit_document(res: FitResult) -> dict:
         "band_samples": 0 if res.bands is None else int(res.bands.n_samples),
         "timings_s": res.timings,
     }
-    if "truth_json" in res.data.attrs:
+    if has_truth(res.data.attrs):
         d["data"]["truth_available"] = True
     return d
 

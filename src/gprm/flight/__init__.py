@@ -14,9 +14,12 @@ See docs/flight.md.
 from gprm._lazy import attach
 
 __getattr__, __dir__, __all__ = attach(__name__, {
-    "analysis": ["AnalysisOptions", "ImpactResult", "analyze", "curves_dataset"],
+    "analysis": ["AnalysisOptions", "ImpactResult", "analyze"],
     "api": ["ImpactOptions", "TelemetryOptions",
             "impact_sidecar", "run_impact", "run_synth_telemetry", "write_impact"],
+    "files": ["impact_curves_dataset", "load_telemetry", "read_impact", "read_impact_curves",
+              "telemetry_csv_dataset", "telemetry_dataset", "telemetry_from_dataset",
+              "write_telemetry"],
     "impact": ["impact_3d", "kinetic_energy", "planar_impact"],
     "impact_time": ["first_crossing", "impact_time_mc"],
     "joint": ["joint_impact_time"],
@@ -24,7 +27,6 @@ __getattr__, __dir__, __all__ = attach(__name__, {
     "predicted": ["GeometryUncertainty", "ImpactGeometry", "tm_velocity_vs_time",
                   "velocity_curves"],
     "synth": ["SynthOptions", "synth_telemetry"],
-    "telemetry": ["AXES", "fit_release_velocity", "load_telemetry", "release_velocities",
-                  "telemetry_csv_dataset", "telemetry_dataset"],
+    "telemetry": ["AXES", "fit_release_velocity", "release_velocities"],
     "tukey": ["tukey_range_test"],
 })

@@ -148,7 +148,7 @@ class ImpactResult:
         if self.curves is None:
             raise GprmInputError("this impact result was read without its curves",
                                  field="curves")
-        return curves_dataset(self.curves)
+        return impact_curves_dataset(self.curves)
 
     @classmethod
     def from_json(cls, doc: Mapping, curves: VelocityCurves | None = None) -> "ImpactResult":
@@ -298,23 +298,3 @@ def truth_summary(doc) -> dict:
             n_jin += r["joint"]["truth_in_ci95"]
     return {"impact_times": n_tot, "found": n_found, "within_2sigma": int(n_2s),
             "joint_releases": n_j, "joint_truth_in_ci95": int(n_jin)}
-
-
-def curves_dataset(curves: VelocityCurves, doc=None) -> xr.Dataset:
-    """The velocity-vs-impact-time curves as an :class:`xarray.Dataset` (the sidecar;
-    ``doc`` is not used and kept for older callers)."""
-    dv = {}
-    for name, d in (("nominal", curves.nominal), ("sigma", curves.sigma),
-                    ("sigma_fit", curves.sigma_fit), ("sigma_geometry", curves.sigma_geometry),
-                    ("lo", curves.lo), ("hi", curves.hi)):
-        dv[name] = (("axis", "time"), np.stack([d[a] for a in AXES]),
-                    {"units": "m/s (vx, vz_xz, vy, vz_yz) or rad/s (wy, wx)"})
-    dv["approaching"] = (("plane", "time"),
-                         np.stack([curves.approaching[p] for p in ("xz", "yz")]).astype("i1"))
-    dv["plausible"] = (("time",), curves.plausible,
-                       {"long_name": "fraction of joint samples approaching in both planes"})
-    ds = xr.Dataset(dv, coords={"axis": list(AXES), "plane": ["xz", "yz"],
-                                "time": ("time", curves.time, {"units": "s"})},
-                    attrs={"format": "gprm-impact-curves", "n_samples": curves.n_samples,
-                           "seed": curves.seed, "source": str(curves.meta.get("source", ""))})
-    return ds

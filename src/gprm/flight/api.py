@@ -21,6 +21,7 @@ import xarray as xr
 from gprm._io import write_json_atomic, write_netcdf_atomic
 from gprm.errors import GprmInputError
 from gprm.fit.files import FittedModel, load_model
+from gprm.flight import files
 from gprm.flight.analysis import AnalysisOptions, ImpactResult, analyze
 from gprm.flight.multi import multi_impact_report
 from gprm.flight.synth import SynthOptions, synth_telemetry
@@ -95,8 +96,9 @@ def write_impact(res: ImpactResult, out: str | os.PathLike) -> ImpactResult:
     (:func:`impact_sidecar`), each atomically; the result as written (naming its sidecar)."""
     side = impact_sidecar(out)
     res = replace(res, sidecar=side.name)
-    write_netcdf_atomic(res.to_xarray(), side)
-    write_json_atomic(Path(out), res.to_json())
+    if res.curves is None:
+        raise GprmInputError("this impact result was read without its curves", field="curves")
+    files.write_impact(res.to_json(), res.curves, out)
     return res
 
 

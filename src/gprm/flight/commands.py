@@ -48,9 +48,10 @@ def register(app: typer.Typer, synth_app: typer.Typer) -> None:
                                              "restitution and friction) or planar (paper)"),
     ):
         """Synthetic in-flight releases with known impact times (telemetry NetCDF)."""
-        from gprm._io import check_outputs, write_netcdf_atomic
+        from gprm._io import check_outputs
         from gprm.fit.files import load_model
         from gprm.flight.api import TelemetryOptions, run_synth_telemetry
+        from gprm.flight.files import write_telemetry
         from gprm.flight.synth import SynthOptions
         from gprm.resources import check_memory
 
@@ -66,7 +67,7 @@ def register(app: typer.Typer, synth_app: typer.Typer) -> None:
                      unit_scale=releases * post)
         m = load_model(fit, piezo=piezo)
         ds = run_synth_telemetry(m, opts)
-        write_netcdf_atomic(ds, out)
+        write_telemetry(ds, out)
         tt = ds["truth_impact_time"].values * 1e3
         note = ("" if getattr(m, "has_uncertainty", True) or no_spread else
                 "; the fit has no usable covariance: truth parameters are the best fit "

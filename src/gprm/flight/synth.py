@@ -32,7 +32,8 @@ import numpy as np
 from gprm.errors import GprmInputError
 from gprm.flight.predicted import (GeometryUncertainty, ImpactGeometry, sample_geometries,
                                    tm_velocity_vs_time, default_window)
-from gprm.flight.telemetry import AXES, telemetry_dataset
+from gprm.flight.files import synth_option_attrs, telemetry_dataset
+from gprm.flight.telemetry import AXES
 from gprm.params import batch
 from gprm.simulate.kinematics import body_motion
 
@@ -186,11 +187,12 @@ def synth_telemetry(model, opts: SynthOptions = SynthOptions(), *, geometry=None
              "tm_velocity": {c: tm[:, i].tolist() for i, c in enumerate(TM_COMPONENTS)},
              "z_from": z_from, "truth_model": opts.truth_model,
              "truth_spread": opts.truth_spread}
-    attrs = {"source": f"synthetic from {model.source}", "seed": int(opts.seed),
+    attrs = {"title": "synthetic GPRM release telemetry (gprm synth telemetry)",
+             "source": f"synthetic from {model.source}", "seed": int(opts.seed),
              "sample_rate": float(opts.rate), "piezo": int(model.piezo),
-             "truth_json": json.dumps(truth),
-             "options_json": json.dumps(opts.__dict__)}
+             **synth_option_attrs(opts)}
     ds = telemetry_dataset([f"R{i + 1:02d}" for i in range(R)], time, t_rel, data,
                            noise_std={c: chan[c][1] for c in chan}, attrs=attrs,
-                           truth_impact_time=np.array(chosen_t), truth_velocity=tv)
+                           truth_impact_time=np.array(chosen_t), truth_velocity=tv,
+                           truth=truth)
     return ds

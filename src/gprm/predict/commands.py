@@ -100,11 +100,10 @@ def register(app: typer.Typer, synth_app: typer.Typer) -> None:
                                                        "table (JSON)"),
     ):
         """Predict trajectories, kinetic energy, masses, overshoot and impact risk."""
-        from gprm._io import write_json_atomic, write_netcdf_atomic
         from gprm.errors import GprmInputError
         from gprm.predict.api import PredictOptions, run_predict, run_whatif
         from gprm.fit.files import load_model
-        from gprm.predict.files import prediction_dataset
+        from gprm.predict.files import write_prediction, write_whatif
 
         from gprm._io import check_outputs
         from gprm.resources import check_memory
@@ -119,7 +118,7 @@ def register(app: typer.Typer, synth_app: typer.Typer) -> None:
                          what=f"{samples} sets x {n_times:.4g} times", unit_scale=n_times,
                          integer=True)
         if means is not None:
-            from gprm.validate import read_means
+            from gprm.campaign.files import read_means
 
             read_means(means)         # refuse a bad file before the prediction runs
         try:
@@ -135,7 +134,7 @@ def register(app: typer.Typer, synth_app: typer.Typer) -> None:
         if not fm.has_uncertainty:
             typer.echo(f"note: {fm.uncertainty_note}")
         pred = run_predict(fm, opts)
-        write_netcdf_atomic(prediction_dataset(pred), out)
+        write_prediction(pred, out)
         os_, tr = pred.overshoot, pred.trajectories
         pts = list(tr.points)
         msg = (f"wrote {out}: {tr.time.size} times, {tr.n_ok}/{samples} samples, "
@@ -147,5 +146,5 @@ def register(app: typer.Typer, synth_app: typer.Typer) -> None:
                                              zip(pred.risk.planes, pred.risk.p_cross))
         typer.echo(msg)
         if whatif_out is not None:
-            write_json_atomic(whatif_out, run_whatif(fm, opts).to_json())
+            write_whatif(run_whatif(fm, opts), whatif_out)
             typer.echo(f"wrote {whatif_out}")

@@ -135,10 +135,11 @@ class EnergyCheck:
 
 def read_means(path) -> tuple[np.ndarray, dict, dict]:
     """Times, mean and sem (name -> (T,)) of the five fitted points from a mean-signals file
-    (contracts.md)."""
+    (docs/data-formats.md), read by its format's reader."""
+    from gprm.campaign.files import read_means as read_means_file
 
     src = str(path)
-    ds = open_netcdf(path, what="mean signals")
+    ds = read_means_file(path, what="mean signals")
     for v in ("mean", "sem"):
         if v not in ds:
             raise GprmInputError("missing variable", source=src, field=v)

@@ -32,7 +32,7 @@ from gprm.fit.report_text import pretty_unit
 from gprm.report import figures as F
 from gprm.report.html import (Card, Section, fig_to_img, not_run, num, paragraph, pm, render,
                               table)
-from gprm.report.summary import (impact_times_found, json_attr, summarise, truth_for_fit,
+from gprm.report.summary import (impact_times_found, summarise, truth_for_fit,
                                  truth_from_means)
 
 # Figure id -> the paper's figure it mirrors.
@@ -51,14 +51,33 @@ _PAPER_T1 = {"x_head/x_lr": 3, "x_head/x_fl": 17, "y_head/y_lr": 3, "y_head/y_fl
              "z_bk/z_fl": 26}
 
 
+def _reader(name: str):
+    """The reader of a run directory's file in its format's home (None: read it plainly)."""
+    from gprm.campaign.files import load_campaign, read_means
+    from gprm.flight.files import read_impact, read_impact_curves, read_telemetry
+    from gprm.predict.files import read_prediction, read_whatif
+
+    if name.startswith("predict") and name.endswith(".nc"):
+        return read_prediction
+    return {"campaign.nc": load_campaign, "means.nc": read_means, "telemetry.nc": read_telemetry,
+            "impact.nc": read_impact_curves, "impact.json": read_impact,
+            "whatif.json": read_whatif}.get(name)
+
+
 def _load_nc(run: Path, name: str, what: str):
     p = run / name
-    return open_netcdf(p, what=what) if p.exists() else None
+    if not p.exists():
+        return None
+    read = _reader(name)
+    return read(p) if read is not None else open_netcdf(p, what=what)
 
 
 def _load_json(run: Path, name: str, what: str):
     p = run / name
-    return read_json(p, what=what) if p.exists() else None
+    if not p.exists():
+        return None
+    read = _reader(name)
+    return read(p) if read is not None else read_json(p, what=what)
 
 
 def _not_run(s: Section, what: str, why: str) -> Section:
@@ -71,7 +90,7 @@ def _not_run(s: Section, what: str, why: str) -> Section:
 # ----------------------------------------------------------------------------- campaign
 
 def _table1(means) -> list:
-    from gprm.campaign.preprocess import read_tables
+    from gprm.campaign.files import read_tables
 
     stored = read_tables(means)[0]
     sig = [str(s) for s in means["signal"].values]
@@ -128,7 +147,7 @@ def campaign_section(run: Path) -> Section:
                                    "move by a few per cent with the seed and the drawn truth "
                                    "(a small y motion divided by a small one moves most). On "
                                    "measured data they are the campaign's own."))
-    from gprm.campaign.preprocess import read_tables
+    from gprm.campaign.files import read_tables
 
     dropped = read_tables(means)[1]
     if dropped:

@@ -5,41 +5,30 @@ the report's summary cards. Every entry is present only when the file it comes f
 
 from __future__ import annotations
 
-import json
 import math
 from pathlib import Path
 
-from gprm._io import open_netcdf, read_json
+from gprm._io import read_json
+from gprm.campaign.files import read_means, read_truth, read_truth_alignment
+from gprm.flight.files import read_impact
+from gprm.predict.files import read_whatif
 from gprm.fit.files import read_fit_document
-
-
-def json_attr(attrs, key: str, default=None):
-    """A JSON document stored in a NetCDF attribute, or ``default`` where the attribute is
-    missing or not valid JSON."""
-    raw = attrs.get(key)
-    if raw is None:
-        return default
-    try:
-        return json.loads(raw)
-    except (TypeError, json.JSONDecodeError):
-        return default
 
 
 def truth_from_means(run: Path) -> dict | None:
     """The synthetic truth (SI, name -> value) recorded in ``means.nc``, if any; t0 and t1 in
-    the aligned time base of the means (``truth_alignment_json``) where given."""
+    the aligned time base of the means (its truth after alignment) where given."""
     p = Path(run) / "means.nc"
     if not p.exists():
         return None
-    attrs = open_netcdf(p, what="mean-signals file").attrs
-    truth = json_attr(attrs, "truth_json")
+    means = read_means(p)
+    truth = read_truth(means)
     if truth is None:
         return None
-    truth = {k: float(v) for k, v in truth.items() if isinstance(v, (int, float))}
     # The aligned data's time base differs from the truth's (docs/data-formats.md, "The truth
     # after alignment"): the lags a fit of the aligned means should find are t0_expected_s
     # and t1_expected_s, not the truth's own t0, t1.
-    align = json_attr(attrs, "truth_alignment_json", {})
+    align = read_truth_alignment(means) or {}
     for name in ("t0", "t1"):
         v = align.get(f"{name}_expected_s")
         if isinstance(v, (int, float)):
@@ -113,13 +102,13 @@ def summarise(run: str | Path) -> dict:
         if truth:
             s["truth_recovery"] = truth_recovery(fit, truth_for_fit(truth, fit))
     if (run / "whatif.json").exists():
-        wi = read_json(run / "whatif.json", what="what-if table")
+        wi = read_whatif(run / "whatif.json")
         s["whatif"] = {r["name"]: r.get("headline", {}) for r in wi.get("ratios", [])
                        if r.get("name") != r.get("baseline")}
         s["whatif_paper"] = {r["name"]: r["paper"] for r in wi.get("ratios", [])
                              if r.get("paper")}
     if (run / "impact.json").exists():
-        imp = read_json(run / "impact.json", what="impact result")
+        imp = read_impact(run / "impact.json")
         tk = imp.get("tukey", {})
         pairs = tk.get("pairs", [])
         rejected = [f"{p['a']}–{p['b']}" for p in pairs if p.get("reject")]

@@ -20,9 +20,9 @@ import shutil
 from dataclasses import asdict
 from pathlib import Path
 
-from gprm._io import atomic_path, write_json_atomic, write_netcdf_atomic
+from gprm._io import atomic_path, read_json, write_json_atomic, write_netcdf_atomic
 from gprm.campaign.api import run_preprocess
-from gprm.campaign.data import load_campaign, write_campaign
+from gprm.campaign.files import load_campaign, write_campaign, write_means
 from gprm.campaign.synth import synth_campaign
 from gprm.fit.api import run_fit
 from gprm.fit.files import FittedModel, load_model
@@ -30,9 +30,9 @@ from gprm.flight.analysis import AnalysisOptions
 from gprm.flight.api import (ImpactOptions, TelemetryOptions, run_impact, run_synth_telemetry,
                              write_impact)
 from gprm.flight.synth import SynthOptions
-from gprm.flight.telemetry import load_telemetry, telemetry_csv_dataset
+from gprm.flight.files import load_telemetry, telemetry_csv_dataset, write_telemetry
 from gprm.predict.api import PredictOptions, run_predict, run_whatif
-from gprm.predict.files import prediction_dataset
+from gprm.predict.files import write_prediction, write_whatif
 from gprm.predict.scenarios import standard_scenarios
 from gprm.run.engine import Stage, sha256_file
 from gprm.run.options import RunOptions
@@ -118,7 +118,7 @@ def _campaign(run: Path, opts: RunOptions, step) -> dict:
 
 def _preprocess(run: Path, opts: RunOptions, step) -> dict:
     means = run_preprocess(run / "campaign.nc", opts.preprocess)
-    write_netcdf_atomic(means, run / "means.nc")
+    write_means(means, run / "means.nc")
     return {"signals": int(means.sizes.get("signal", 0)), "samples": int(means.sizes["time"])}
 
 
@@ -148,10 +148,10 @@ def _predict(run: Path, opts: RunOptions, step) -> dict:
     step(0, len(todo) + 1)
     for k, (sc, fname) in enumerate(todo):
         pred = run_predict(fm, _predict_options(run, opts, sc))
-        write_netcdf_atomic(prediction_dataset(pred), run / fname)
+        write_prediction(pred, run / fname)
         step(k + 1, len(todo) + 1)
     table = run_whatif(fm, _predict_options(run, opts))
-    write_json_atomic(run / "whatif.json", table.to_json())
+    write_whatif(table, run / "whatif.json")
     step(len(todo) + 1, len(todo) + 1)
     info = {"whatif": {r["name"]: r.get("headline", {}) for r in table.ratios[1:]}}
     return _with_notes(info, notes)
@@ -171,7 +171,7 @@ def _telemetry(run: Path, opts: RunOptions, step) -> dict:
         src = Path(opts.telemetry)
         tel = load_telemetry(src)             # checks it before it enters the run directory
         if src.suffix.lower() in (".csv", ".txt"):
-            write_netcdf_atomic(_telemetry_csv_dataset(src), dest)
+            write_telemetry(telemetry_csv_dataset(src), dest)
         elif not _same_file(src, dest):       # a NetCDF file: taken as it is
             with atomic_path(dest) as tmp:
                 shutil.copyfile(src, tmp)
@@ -180,13 +180,8 @@ def _telemetry(run: Path, opts: RunOptions, step) -> dict:
     notes = model_notes(fm)
     ds = run_synth_telemetry(fm, TelemetryOptions(SynthOptions(n_releases=opts.releases,
                                                                seed=opts.seed)))
-    write_netcdf_atomic(ds, dest)
+    write_telemetry(ds, dest)
     return _with_notes({"source": "synthetic", "releases": opts.releases}, notes)
-
-
-def _telemetry_csv_dataset(path: Path):
-    """The telemetry dataset of a CSV file (``gprm.flight.telemetry``)."""
-    return telemetry_csv_dataset(path)
 
 
 def _impact(run: Path, opts: RunOptions, step) -> dict:

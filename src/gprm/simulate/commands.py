@@ -30,10 +30,10 @@ def register(app: typer.Typer, synth_app: typer.Typer) -> None:
                                                 "back sees both) instead of Eq. 3's z_A"),
     ):
         """Simulate the tip retraction (exact linear model) and write NetCDF."""
-        from gprm._io import write_netcdf_atomic
+        from gprm.errors import GprmInputError
         from gprm.params import load_params
         from gprm.simulate import read_voltage_csv, simulate
-        from gprm.simulate.files import simulation_dataset
+        from gprm.simulate.files import simulation_dataset, write_simulation
 
         from gprm._io import check_outputs
         from gprm.model.piezo import check_piezo
@@ -51,7 +51,7 @@ def register(app: typer.Typer, synth_app: typer.Typer) -> None:
                        z_bk_absolute=z_bk_absolute)
         ds = simulation_dataset(res, ps, source=str(voltage) if voltage else "",
                                 z_bk_absolute=z_bk_absolute)
-        write_netcdf_atomic(ds, out)
+        write_simulation(ds, out)
         peak = {k: float(abs(ds[k]).max()) for k in ("x_head", "y_head", "z_bk")}
         typer.echo(f"wrote {out}: {ds.sizes['time']} samples, piezo {piezo}; peaks "
                    + ", ".join(f"{k} {v * 1e6:.3f} um" for k, v in peak.items()))

@@ -1,15 +1,23 @@
-"""The simulation NetCDF of INTERFACES.md (``gprm simulate``)."""
+"""The simulation NetCDF (``gprm simulate``; docs/data-formats.md): its layout
+(:func:`simulation_dataset`), writer (:func:`write_simulation`) and reader
+(:func:`read_simulation`, checked against :data:`SIMULATION`), and the parameter set it was
+made with (:func:`read_parameters`)."""
 
 from __future__ import annotations
 
 import json
+import os
 
 import numpy as np
 import xarray as xr
 
 import gprm
+from gprm._io import open_netcdf, write_netcdf_atomic
+from gprm.errors import GprmInputError
 from gprm.params import ParameterSet
+from gprm.params.netcdf import parameter_table, read_parameter_table
 from gprm.simulate.core import COORDS, OUTPUTS, SimulationResult
+from gprm.validate import Schema, Var, check_dataset
 
 UNITS = {"z_lr": "m", "z_A": "m", "x_A": "m", "y_A": "m", "eta": "rad", "theta": "rad",
          "mu3": "m", "mu4": "m", "q": "C", "x_base": "m", "x_head": "m", "y_base": "m",
@@ -44,7 +52,43 @@ def simulation_dataset(res: SimulationResult, params: ParameterSet, *, index: in
         "title": "gprm simulation of the GPRM tip retraction",
         "model": "gprm-3d", "piezo": int(res.piezo), "gprm_version": gprm.__version__,
         "convention": "changes from the initial static equilibrium at V(0)",
-        "parameters_json": json.dumps(dict(params.values)),
         "parameter_source": params.source, "input": source or "default profile (MODEL.md)",
     }
-    return ds
+    return ds.merge(parameter_table(dict(params.values), var="parameter_value",
+                                    long_name="parameter value of the simulation (SI)"))
+
+
+#: the simulation NetCDF: every coordinate and output of the model on ``time``
+SIMULATION = Schema("simulation NetCDF", (
+    Var("time", ("time",), "s", increasing=True, min_size=2),
+    *(Var(n, ("time",), UNITS[n]) for n in (*COORDS, *OUTPUTS, "voltage")),
+))
+
+
+def write_simulation(ds: xr.Dataset, path: str | os.PathLike) -> None:
+    """Write a simulation dataset (:func:`simulation_dataset`) atomically."""
+    write_netcdf_atomic(ds, path)
+
+
+def read_simulation(path: str | os.PathLike) -> xr.Dataset:
+    """Read and check a simulation NetCDF (SI units; schema :data:`SIMULATION`)."""
+    ds = open_netcdf(path, what="simulation NetCDF")
+    return check_dataset(ds, SIMULATION, str(path))
+
+
+def read_parameters(ds) -> dict:
+    """The parameter set (name -> SI value) a simulation file was made with; files written
+    before it became the variable ``parameter_value`` stored it as ``parameters_json``."""
+    values = read_parameter_table(ds, "parameter_value")
+    if values is not None:
+        return values
+    raw = ds.attrs.get("parameters_json")
+    try:
+        doc = json.loads(raw) if raw is not None else None
+    except (TypeError, ValueError, RecursionError):
+        doc = None
+    if not isinstance(doc, dict):
+        raise GprmInputError("no parameter set (parameter_value)",
+                             source=str(ds.attrs.get("source", "simulation NetCDF")),
+                             field="parameter_value")
+    return {str(k): float(v) for k, v in doc.items() if isinstance(v, (int, float))}

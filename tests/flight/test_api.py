@@ -13,8 +13,8 @@ from gprm.fit.files import load_model, paper_model
 from gprm.flight import (AnalysisOptions, ImpactOptions, ImpactResult, SynthOptions,
                          TelemetryOptions, analyze, run_impact,
                          run_synth_telemetry, write_impact)
-from gprm.flight.analysis import curves_dataset
-from gprm.flight.telemetry import load_telemetry, telemetry_from_dataset
+
+from gprm.flight.files import impact_curves_dataset, load_telemetry, telemetry_from_dataset
 
 
 @pytest.fixture(scope="module")
@@ -109,9 +109,11 @@ def test_result_is_frozen_and_round_trips_through_json(result):
 
 def test_to_xarray_is_the_curves_sidecar(result):
     ds = result.to_xarray()
-    assert ds.identical(curves_dataset(result.curves))
-    np.testing.assert_array_equal(ds["nominal"].sel(axis="vx").values,
+    assert ds.identical(impact_curves_dataset(result.curves))
+    np.testing.assert_array_equal(ds["velocity_nominal"].sel(velocity_axis="vx").values,
                                   result.curves.nominal["vx"])
+    np.testing.assert_array_equal(ds["angular_velocity_nominal"].sel(angular_axis="wy").values,
+                                  result.curves.nominal["wy"])
 
 
 def test_run_impact_is_analyze_on_the_loaded_inputs(telemetry, result):
@@ -134,8 +136,8 @@ def test_write_impact_writes_the_document_and_its_sidecar(result, tmp_path):
     assert written.sidecar == "impact.nc"
     assert json.loads(out.read_text()) == written.to_json()
     with xr.open_dataset(tmp_path / "impact.nc") as ds:
-        np.testing.assert_array_equal(ds["nominal"].values,
-                                      result.to_xarray()["nominal"].values)
+        np.testing.assert_array_equal(ds["velocity_nominal"].values,
+                                      result.to_xarray()["velocity_nominal"].values)
     with pytest.raises(GprmInputError, match=r"\.nc"):
         write_impact(result, tmp_path / "impact.nc")
 

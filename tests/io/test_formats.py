@@ -161,7 +161,7 @@ def test_means_metadata_round_trip(tmp_path):
 
 def test_prediction_metadata_round_trip(tmp_path):
     from gprm.predict.api import PredictOptions, run_predict
-    from gprm.predict.core import load_model
+    from gprm.fit.files import load_model
 
     pred = run_predict(load_model("paper"),
                        PredictOptions(piezo=1, scale_eccentricity=0.5, name="half",

@@ -14,6 +14,7 @@ import numpy as np
 import xarray as xr
 
 from gprm.errors import GprmInputError
+from gprm.flight.files import impact_curves_dataset
 from gprm.flight.impact_time import impact_time_mc
 from gprm.flight.joint import joint_impact_time
 from gprm.flight.predicted import ImpactGeometry, VelocityCurves, velocity_curves

@@ -25,7 +25,8 @@ from gprm.flight import files
 from gprm.flight.analysis import AnalysisOptions, ImpactResult, analyze
 from gprm.flight.multi import multi_impact_report
 from gprm.flight.synth import SynthOptions, synth_telemetry
-from gprm.flight.telemetry import Telemetry, load_telemetry
+from gprm.flight.files import load_telemetry
+from gprm.flight.telemetry import Telemetry
 from gprm.model.piezo import check_piezo
 
 

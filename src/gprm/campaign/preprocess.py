@@ -165,11 +165,11 @@ _SNR_FIELDS = (("peak_m", "snr_peak", "m", "max |mean|"),
 def _table_vars(rows: dict, dim: str, fields) -> dict:
     keys = list(rows)
     out = {}
-    for field, var, unit, long_name in fields:
-        vals = [rows[k][field] for k in keys]
+    for key, var, unit, long_name in fields:
+        vals = [rows[k][key] for k in keys]
         if unit is None:
             arr = np.array(vals, dtype=str)
-        elif field == "supported":
+        elif key == "supported":
             arr = np.array(vals, dtype=np.int8)
         else:
             arr = np.array(vals, dtype=float)
@@ -299,7 +299,7 @@ def synchronise(Y: np.ndarray, ref: int, win: np.ndarray, max_lag: int):
         cost = [np.mean((Y[r, win + k] - target) ** 2) for k in lags]
         k = int(lags[int(np.argmin(cost))])
         sp = splines[r]
-        res = minimize_scalar(lambda s: np.mean((sp(win + s) - target) ** 2),
+        res = minimize_scalar(lambda s: np.mean((sp(win + s) - target) ** 2),  # noqa: B023 (used in this iteration)
                               bounds=(k - 1.0, k + 1.0), method="bounded",
                               options={"xatol": 1e-5})
         shifts[r] = float(res.x)

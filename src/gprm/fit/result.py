@@ -6,7 +6,6 @@ chi-square, uncertainty bands on the fitted signals, profile likelihoods, and th
 from __future__ import annotations
 
 import hashlib
-import json
 import time
 from dataclasses import dataclass, field
 from pathlib import Path

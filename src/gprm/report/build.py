@@ -31,7 +31,7 @@ from gprm.fit.report_text import pretty_unit
 from gprm.report import figures as F
 from gprm.report.html import (Card, Section, fig_to_img, not_run, num, paragraph, pm, render,
                               table)
-from gprm.report.summary import (impact_times_found, json_attr, summarise, truth_for_fit,
+from gprm.report.summary import (impact_times_found, summarise, truth_for_fit,
                                  truth_from_means)
 
 # Figure id -> the paper's figure it mirrors.

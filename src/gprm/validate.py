@@ -63,7 +63,7 @@ class Schema:
 
 
 def _unit_factor(unit: str, si: str, src: str, field: str) -> float:
-    from gprm.params.files import ureg
+    from gprm.units import ureg
 
     try:
         f = float(ureg().Quantity(1.0, unit).to(si).magnitude)

@@ -101,7 +101,7 @@ def _check_var(ds, v: Var, src: str) -> xr.Variable:
         if unit is not None and not isinstance(unit, str):
             raise GprmInputError(f"units attribute must be text, got {unit!r}", source=src,
                                  field=v.name)
-        if unit not in (None, "", v.unit):
+        if unit is not None and unit not in ("", v.unit):
             factor = _unit_factor(unit, v.unit, src, v.name)
     if v.finite and not np.all(np.isfinite(arr)):
         bad = int(np.size(arr) - np.count_nonzero(np.isfinite(arr)))

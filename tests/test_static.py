@@ -116,8 +116,8 @@ def test_import_contracts_catch_a_violation(case, tmp_path):
     target = src / "gprm" / rel
     text = target.read_text() if target.exists() else '"""Injected by a test."""\n'
     target.write_text(text + f"\n{line}  # injected by the test\n")
-    proc = _run(["-c", LINT_IMPORTS, "--no-cache", "--config", str(ROOT / "pyproject.toml")],
-                cwd=tmp_path, src=src)
+    shutil.copy(ROOT / "pyproject.toml", tmp_path)   # the contracts, found in the cwd
+    proc = _run(["-c", LINT_IMPORTS, "--no-cache"], cwd=tmp_path, src=src)
     out = proc.stdout + proc.stderr
     assert proc.returncode != 0, out
     assert re.search(re.escape(_contract(kind)) + r"\s*BROKEN", out), out

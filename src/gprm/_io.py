@@ -179,7 +179,8 @@ def _probe_writable(folder: Path) -> str | None:
     return None
 
 
-def check_outputs(outputs: dict, inputs=(), *, folders: dict | None = None) -> None:
+def check_outputs(outputs: dict | list[tuple[Any, str]], inputs=(), *,
+                  folders: dict | None = None) -> None:
     """Refuse, before any work, outputs that cannot be written or would destroy data.
 
     ``outputs`` maps each file to be written to the option it comes from (a sidecar names its

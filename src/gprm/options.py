@@ -116,14 +116,16 @@ def parse_quantity(text, unit: str) -> float:
         try:
             v = float(s)
         except ValueError:
-            from gprm.params.files import ureg
+            import pint
+
+            from gprm.units import ureg
 
             try:
-                q = ureg().Quantity(s)
+                q: pint.Quantity | float = ureg().Quantity(s)
             except Exception:
                 raise ValueError(f"cannot read {s!r} as a number with a unit (e.g. "
                                  f"'1.2 m{unit}' or '1.2e-3')") from None
-            if not hasattr(q, "dimensionality"):
+            if not isinstance(q, pint.Quantity):  # a bare number in a string
                 v = float(q)
             elif q.dimensionless:
                 v = float(q.to("").magnitude)
@@ -194,7 +196,7 @@ class Window(_Parser):
             except ValueError:
                 bare_last = False
             if bare_first and not bare_last:   # '0.97,1.2 ms': the unit applies to both
-                from gprm.params.files import ureg
+                from gprm.units import ureg
 
                 try:
                     unit = str(ureg().Quantity(last).units)

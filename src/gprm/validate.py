@@ -80,7 +80,7 @@ def pint_unit(unit: str) -> str:
 def unit_factor(unit: str, si: str, src: str, field: str) -> float:
     """The factor converting ``unit`` (pint syntax: ``um``, ``ms``, ``mV``...) to the SI unit
     ``si``; a unit that cannot be converted is a :class:`GprmInputError` naming ``field``."""
-    from gprm.params.files import ureg
+    from gprm.units import ureg
 
     try:
         f = float(ureg().Quantity(1.0, pint_unit(unit)).to(pint_unit(si)).magnitude)
@@ -118,7 +118,7 @@ def _check_var(ds, v: Var, src: str) -> xr.Variable:
         if unit is not None and not isinstance(unit, str):
             raise GprmInputError(f"units attribute must be text, got {unit!r}", source=src,
                                  field=v.name)
-        if unit not in (None, "", v.unit):
+        if unit is not None and unit not in ("", v.unit):
             factor = unit_factor(unit, v.unit, src, v.name)
     if v.finite and not np.all(np.isfinite(arr)):
         bad = int(np.size(arr) - np.count_nonzero(np.isfinite(arr)))

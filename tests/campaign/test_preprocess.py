@@ -42,7 +42,10 @@ def test_trigger_offsets_with_full_variability(full_campaign, full_means):
 def test_synchronise_band_limited_signal():
     """Independent check: a smooth decaying sine, shifted by known sub-sample amounts."""
     i = np.arange(300.0)
-    f = lambda x: np.exp(-((x - 150) / 40) ** 2) * np.sin(2 * np.pi * x / 17.0)
+
+    def f(x):
+        return np.exp(-((x - 150) / 40) ** 2) * np.sin(2 * np.pi * x / 17.0)
+
     true = np.array([0.0, 0.37, -1.61, 2.25, -3.9])
     Y = np.stack([f(i - s) for s in true])   # run r delayed by true[r] samples
     shifts, _ = synchronise(Y, 0, np.arange(60, 240), 8)
@@ -89,8 +92,8 @@ def test_aligned_means_match_truth_within_sigma(request, which):
         cs = CubicSpline(t, ms.mean[i])
         S, tr = ms.std[i, sel], ms.truth_mean[i, sel]
 
-        def chi(d):
-            return np.mean(((cs(t[sel] + d * dt) - tr) / S) ** 2)
+        def chi(d):  # minimised in this iteration, so the loop variables are current
+            return np.mean(((cs(t[sel] + d * dt) - tr) / S) ** 2)  # noqa: B023
 
         r = minimize_scalar(chi, bounds=(-2.0, 2.0), method="bounded")
         assert abs(r.x) < 0.5, (p, r.x)

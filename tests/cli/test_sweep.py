@@ -7,11 +7,9 @@ working folder, and every input byte-for-byte unchanged.
 
 from __future__ import annotations
 
-import os
 import sys
 from pathlib import Path
 
-import numpy as np
 import pytest
 from typer.testing import CliRunner
 

@@ -17,7 +17,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from gprm.errors import GprmInputError
-from gprm.validate import CAMPAIGN, MEANS, check_dataset
+from gprm.validate import MEANS, check_dataset
 
 SETTINGS = settings(max_examples=40, deadline=None,
                     suppress_health_check=[HealthCheck.function_scoped_fixture])

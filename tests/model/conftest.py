@@ -4,7 +4,6 @@ Lagrange derivation of ``gprm.model.derive`` (about 25 s per piezo)."""
 
 import functools
 
-import numpy as np
 import pytest
 import sympy as sp
 

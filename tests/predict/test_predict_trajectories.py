@@ -52,3 +52,15 @@ def test_band_brackets_best_and_is_reproducible(fm, times):
     assert inside.mean() > 0.8
     assert a.samples_pos.shape[0] == 20
     np.testing.assert_allclose(a.static[0], [fm.params["v2"], fm.params["g2"], fm.params["h2"]])
+
+
+def test_no_covariance_leaves_the_linear_band_empty(fm, times):
+    """A fit saved without a covariance still predicts; the linear band is NaN, not an error
+    (the command used to guard this itself; the library call now does)."""
+    bare = replace(fm, covariance=None)
+    tr = predict_trajectories(bare, times, samples=0)
+    assert np.all(np.isfinite(tr.pos))
+    assert np.all(np.isnan(tr.pos_std_lin)) and np.all(np.isnan(tr.vel_std_lin))
+    full = predict_trajectories(fm, times, samples=0)
+    np.testing.assert_array_equal(tr.pos, full.pos)
+    assert np.all(np.isfinite(full.pos_std_lin))

@@ -190,7 +190,7 @@ def synchronise(Y: np.ndarray, ref: int, win: np.ndarray, max_lag: int):
         cost = [np.mean((Y[r, win + k] - target) ** 2) for k in lags]
         k = int(lags[int(np.argmin(cost))])
         sp = splines[r]
-        res = minimize_scalar(lambda s: np.mean((sp(win + s) - target) ** 2),
+        res = minimize_scalar(lambda s: np.mean((sp(win + s) - target) ** 2),  # noqa: B023 (used in this iteration)
                               bounds=(k - 1.0, k + 1.0), method="bounded",
                               options={"xatol": 1e-5})
         shifts[r] = float(res.x)

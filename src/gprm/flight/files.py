@@ -65,7 +65,7 @@ def unit_factor(unit, kind: str, *, source: str, field: str) -> float:
     not of that kind, or not a unit: a GprmInputError naming the field."""
     import pint
 
-    from gprm.params.files import ureg
+    from gprm.units import ureg
 
     if unit is None or str(unit).strip() == "":
         return 1.0

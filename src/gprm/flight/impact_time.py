@@ -10,6 +10,7 @@ A release/axis without a crossing gets ``value = None`` with a reason.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -23,7 +24,7 @@ class ImpactTime:
     reason: str | None = None
 
     def to_json(self) -> dict:
-        d = {"value": self.value, "stderr": self.stderr}
+        d: dict[str, Any] = {"value": self.value, "stderr": self.stderr}
         if self.value is not None:
             d["slope"] = self.slope
             d["sigma_curve"] = self.sigma_curve
@@ -171,7 +172,7 @@ class ImpactTimeMC:
     draw_slopes: np.ndarray | None = None
 
     def to_json(self) -> dict:
-        d = {"value": self.value, "stderr": self.stderr}
+        d: dict[str, Any] = {"value": self.value, "stderr": self.stderr}
         if self.value is not None:
             d.update(method=self.method, stderr_linear=self.stderr_linear,
                      draws_crossing=self.n_cross, draws=self.n_draws)

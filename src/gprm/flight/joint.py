@@ -26,6 +26,7 @@ the same curve (both v_z axes of the one-contact 3D model) are used once.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 from scipy.stats import chi2 as chi2_dist
@@ -49,7 +50,7 @@ class JointEstimate:
     reason: str | None = None
 
     def to_json(self) -> dict:
-        d = {"value": self.value, "stderr": self.stderr,
+        d: dict[str, Any] = {"value": self.value, "stderr": self.stderr,
              "ci95": list(self.ci95) if self.ci95 is not None else None,
              "chi2": self.chi2, "df": self.df, "p": self.p, "axes": list(self.axes),
              "weights": list(self.weights), "draws_used": self.n_draws}

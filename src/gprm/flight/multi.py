@@ -116,7 +116,7 @@ def simulate_contacts(model, t1: float, *, t_end: float | None = None,
     C0 = np.array([com0[0], com0[1], pts["M_xz"].r[0][2] + geom.tm_com_height])
     # Mass matrix (rows 8..16 of E hold M and C_sf); mechanical block:
     Mmat = E[8:16, 8:16]
-    dz_list = []
+    dz_list: list[tuple[float, np.ndarray]] = []
     tm_v = np.zeros(3)
     tm_w = np.zeros(3)
     t_imp = t1                       # TM at rest until t1; positions relative to C0 at t1

@@ -253,6 +253,7 @@ def _tm_velocity_3d(motion, geoms) -> dict:
     zero3 = np.zeros((B, T, 3))
     res = impact_3d(Mp[:, None], IA[:, None], rhoA, vA, w, m_tm[:, None], I_tm[:, None],
                     rhoB, zero3, zero3, n[:, None, :], e[:, None], mu[:, None])
+    assert res.mode is not None  # impact_3d always says how each impact resolved
     un = np.sum(res.u_before * n[:, None, :], axis=-1)
     ok = (un < 0) & (res.Jn > 0) & motion.ok[:, None]
     vB = np.where(ok[..., None], res.vB, np.nan)
@@ -271,6 +272,7 @@ def sample_geometries(geometry: ImpactGeometry, unc: GeometryUncertainty, n: int
     The indent angle is kept in (0, 90°), the restitution in [0, 1] and the friction
     coefficient >= 0 by clipping."""
     g0 = geometry.resolved(pb)
+    assert g0.indent_angle is not None and g0.tm_com_height is not None  # resolved
     rng = np.random.default_rng(seed)
     out = []
     for _ in range(n):

@@ -70,9 +70,9 @@ def tukey_range_test(groups: Mapping[str, Sequence[float]], alpha: float = 0.01,
         raise GprmInputError(f"alpha must be in (0, 1), got {alpha}", field="alpha")
     names = list(groups)
     data = {k: np.asarray(groups[k], float).ravel() for k in names}
-    for k, v in data.items():
+    for name, v in data.items():
         if not np.all(np.isfinite(v)):
-            raise GprmInputError("non-finite observation", source=source, field=k)
+            raise GprmInputError("non-finite observation", source=source, field=name)
     names = [k for k in names if data[k].size > 0]
     k = len(names)
     N = sum(data[n].size for n in names)

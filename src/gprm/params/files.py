@@ -6,7 +6,6 @@ A value is a string with a unit (``"2.7 mm"``), a bare number in SI, or an inlin
 
 from __future__ import annotations
 
-import functools
 import math
 import os
 import tomllib
@@ -19,11 +18,7 @@ from gprm._io import check_input_file, write_text_atomic
 from gprm.errors import GprmInputError
 from gprm.params.core import ParameterSet, paper, validate_values
 from gprm.params.registry import REGISTRY
-
-
-@functools.lru_cache(maxsize=1)
-def ureg() -> pint.UnitRegistry:
-    return pint.UnitRegistry()
+from gprm.units import ureg  # re-exported: gprm.params.files.ureg
 
 
 def to_si(text_or_number: Any, name: str, *, source: str = "parameters") -> float:
@@ -40,7 +35,7 @@ def to_si(text_or_number: Any, name: str, *, source: str = "parameters") -> floa
         raise GprmInputError(f"expected a number or a quantity string, got {text_or_number!r}",
                              source=source, field=name)
     try:
-        q = u.Quantity(text_or_number)
+        q: pint.Quantity | float = u.Quantity(text_or_number)
     except Exception as exc:
         raise GprmInputError(f"cannot parse quantity {text_or_number!r} ({exc})",
                              source=source, field=name) from None

@@ -55,7 +55,9 @@ class ParamSpec:
 def _s(name, unit, scale, desc, group, default, initial=None, stderr=None, nominal=None,
        lower=-INF, upper=INF):
     """Build a spec from values quoted in ``unit`` (``scale`` converts them to SI)."""
-    f = (lambda v: None if v is None else v * scale)
+    def f(v):
+        return None if v is None else v * scale
+
     lo = lower if lower in (-INF, 0.0) else lower * scale
     hi = upper if upper == INF else upper * scale
     return ParamSpec(name, unit, desc, group, default * scale, f(initial), f(stderr), f(nominal),

@@ -31,7 +31,7 @@ def parse_overrides(items) -> dict:
 def parse_length(text: str, field: str) -> float:
     """A length such as ``2um`` or ``2e-6`` (bare numbers are metres) -> m."""
     from gprm.errors import GprmInputError
-    from gprm.params.files import ureg
+    from gprm.units import ureg
 
     try:
         q = ureg().Quantity(text)

@@ -99,6 +99,7 @@ def linear_point_jacobians(fm: FittedModel, times, points: Sequence[str], *, pie
     names = fm.names
     P = len(names)
     m = body_motion(fm, times, piezo=piezo, voltage=voltage, sensitivities=names)
+    assert m.sens is not None  # asked for above
     h = 1e-20
     pb = {k: np.full(P, v[0], dtype=complex) for k, v in m.params.items()}
     for j, n in enumerate(names):
@@ -167,7 +168,7 @@ def predict_trajectories(fm: FittedModel, times, *, piezo: int = 2, voltage=None
             vsd = sv.std(axis=0, ddof=1) if n_ok > 1 else nan
             keep = sp[:keep_samples]
     lin_p = lin_v = nan
-    if linear and len(fm.names):
+    if linear and len(fm.names) and fm.covariance is not None:
         Jp, Jv = linear_point_jacobians(fm, t, points, piezo=piezo, voltage=voltage)
         lin_p, lin_v = _lin_std(Jp, fm.covariance), _lin_std(Jv, fm.covariance)
     return Trajectories(time=t, points=points, piezo=piezo, pos=best_p[0], vel=best_v[0],

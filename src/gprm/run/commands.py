@@ -74,7 +74,7 @@ def run_and_print(out: Path, opts, *, demo: bool) -> None:
     print_summary(Console(), res, titles, name)
     failed = [r for r in res.records if r.status == "failed"]
     if failed:
-        typer.echo(f"gprm: error: stage(s) failed: "
+        typer.echo("gprm: error: stage(s) failed: "
                    + "; ".join(f"{r.name}: {r.detail}" for r in failed)
                    + f" (details in {out / 'run.json'})", err=True)
         raise typer.Exit(code=1)

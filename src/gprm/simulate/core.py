@@ -111,7 +111,7 @@ class Prepared:
         return Prepared(pb, self.singular[rows], self.spectrum.take(rows))
 
 
-def observe(pb: Mapping[str, np.ndarray], times, names: Sequence[str] = OUTPUTS, *,
+def observe(pb: dict[str, np.ndarray], times, names: Sequence[str] = OUTPUTS, *,
             piezo: int = 2, voltage: VoltageTrace | None = None,
             sensitivities: Sequence[str] = (), z_bk_absolute: bool = False,
             prepared: Prepared | None = None) -> Observation:
@@ -147,6 +147,7 @@ def observe(pb: Mapping[str, np.ndarray], times, names: Sequence[str] = OUTPUTS,
         if dy is not None:
             dy[singular] = np.nan
     dy_out = dy
+    assert sol.spectrum is not None  # solve() always hands back the batch's spectrum
     return Observation(tuple(names), times, y, dy_out, tuple(sensitivities), ok, reason,
                        Prepared(pb, singular, sol.spectrum))
 
@@ -232,6 +233,7 @@ def simulate(params, *, piezo: int = 2, time=None, t_end: float = 1.2e-3,
         v = voltage(times[None, :] - t0)
     sens = None
     if sensitivities:
+        assert obs.dy is not None  # observe() returns dy when sensitivities are asked for
         sens = {n: obs.dy[:, k[n]] for n in names}
     return SimulationResult(
         time=times,

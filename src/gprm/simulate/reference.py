@@ -12,7 +12,7 @@ from scipy.integrate import solve_ivp
 
 from gprm.model.linear import state_space
 from gprm.params import ParameterSet, batch
-from gprm.simulate.core import COORDS, OUTPUTS, observation_rows
+from gprm.simulate.core import OUTPUTS, observation_rows
 from gprm.simulate.inputs import VoltageTrace
 
 
@@ -29,10 +29,10 @@ def _input_change(p: dict, trace: VoltageTrace | None):
         return u, [ts]
     kt, ku = trace.knots(t0)
 
-    def u(t):
+    def u_trace(t):
         return float(np.interp(t, kt, ku))
 
-    return u, list(kt)
+    return u_trace, list(kt)
 
 
 def reference_linear(params: ParameterSet, times, *, piezo: int = 2,

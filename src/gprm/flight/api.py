@@ -18,7 +18,6 @@ from pathlib import Path
 
 import xarray as xr
 
-from gprm._io import write_json_atomic, write_netcdf_atomic
 from gprm.errors import GprmInputError
 from gprm.fit.files import FittedModel, load_model
 from gprm.flight import files

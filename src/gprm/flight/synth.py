@@ -23,7 +23,6 @@ Per release (docs/flight.md):
 
 from __future__ import annotations
 
-import json
 import math
 from dataclasses import dataclass, replace
 

@@ -22,7 +22,6 @@ from typing import Mapping
 
 import numpy as np
 
-from gprm._io import open_netcdf
 from gprm.errors import GprmInputError
 from gprm.fit.files import FittedModel
 from gprm.params import batch

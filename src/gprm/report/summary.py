@@ -8,7 +8,6 @@ from __future__ import annotations
 import math
 from pathlib import Path
 
-from gprm._io import read_json
 from gprm.campaign.files import read_means, read_truth, read_truth_alignment
 from gprm.flight.files import read_impact
 from gprm.predict.files import read_whatif

@@ -20,7 +20,7 @@ import shutil
 from dataclasses import asdict
 from pathlib import Path
 
-from gprm._io import atomic_path, read_json, write_json_atomic, write_netcdf_atomic
+from gprm._io import atomic_path
 from gprm.campaign.api import run_preprocess
 from gprm.campaign.files import load_campaign, write_campaign, write_means
 from gprm.campaign.synth import synth_campaign

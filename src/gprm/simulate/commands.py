@@ -30,7 +30,6 @@ def register(app: typer.Typer, synth_app: typer.Typer) -> None:
                                                 "back sees both) instead of Eq. 3's z_A"),
     ):
         """Simulate the tip retraction (exact linear model) and write NetCDF."""
-        from gprm.errors import GprmInputError
         from gprm.params import load_params
         from gprm.simulate import read_voltage_csv, simulate
         from gprm.simulate.files import simulation_dataset, write_simulation

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import math
 
-from gprm.report.summary import truth_for_fit, truth_recovery
+from gprm.report.summary import truth_for_fit, truth_recovery, truth_recovery_text
 
 
 def _fit(**params):
@@ -39,3 +39,26 @@ def test_lag_truth_follows_the_fitted_offsets():
     off = truth_for_fit(truth, _fit(t0=(0, 1), t1=(0, 1), dt_x_head=(0, 1)))
     assert off["t0"] == 1e-6 and off["t1"] == 7e-6 and off["dt_x_head"] == 4.8e-6
     assert not any(k.endswith("_with_offsets") for k in off)
+
+
+def test_undetermined_parameters_get_no_z_and_intervals_are_counted():
+    """A parameter the data do not determine has a meaningless standard error: it is counted
+    apart, by whether its (wide) interval holds the truth; identified ones by theirs."""
+    def p(value, stderr, lo95, hi95, lo68, hi68, identified):
+        return {"value": value, "stderr": stderr, "fitted": True, "identified": identified,
+                "interval": {"lower": lo95, "upper": hi95},
+                "interval68": {"lower": lo68, "upper": hi68}}
+    fit = {"parameters": {
+        "m2": p(12.0e-3, 0.5e-3, 11e-3, 13e-3, 11.5e-3, 12.5e-3, True),    # in 68 and 95
+        "k_lr": p(1.7e6, 0.1e6, 1.5e6, 1.9e6, 1.65e6, 1.75e6, True),       # in 95 only
+        "c_Ax": p(0.1, 0.15, 0.01, 1.4, 0.05, 0.5, False),                 # z would be 6.6
+        "c_Bx": p(20.0, 1.0, 15.0, 25.0, 18.0, 22.0, False)}}              # outside
+    truth = {"m2": 12.4e-3, "k_lr": 1.6e6, "c_Ax": 1.09, "c_Bx": 30.0}
+    tr = truth_recovery(fit, truth)
+    assert set(tr["z"]) == {"m2", "k_lr"} and tr["n"] == 2
+    assert (tr["n_interval"], tr["in95"], tr["in68"]) == (2, 2, 1)
+    assert (tr["undetermined"], tr["undetermined_in95"]) == (2, 1)
+    assert math.isclose(tr["max_abs_z"], 1.0)
+    line = truth_recovery_text(tr)
+    assert "2/2 identified" in line and "1/2 inside 68 %" in line
+    assert "2 not determined" in line and "1 with the truth inside" in line

@@ -555,7 +555,16 @@ def summary_cards(run: Path, fit: dict | None, prov: dict) -> list[Card]:
         tr = s["truth_recovery"]
         mrel = tr.get("mass_max_relative_error")
         mtxt = "" if mrel is None else f"masses within {100 * mrel:.1f} % of the truth"
-        if tr["n"]:
+        if tr.get("n_interval"):
+            tone = "ok" if tr["in95"] >= 0.9 * tr["n_interval"] else "warn"
+            und = ("" if not tr.get("undetermined") else
+                   f"{tr['undetermined']} not determined "
+                   f"({tr['undetermined_in95']} inside their wide interval); ")
+            cards.append(Card("truth recovered",
+                              f"{tr['in95']} / {tr['n_interval']} in their 95 % interval",
+                              f"identified parameters ({tr['in68']} / {tr['n_interval']} in "
+                              f"68 %); " + und + mtxt, tone))
+        elif tr["n"]:
             tone = "ok" if tr["within_3sigma"] == tr["n"] else "warn"
             cards.append(Card("truth recovered", f"{tr['within_2sigma']} / {tr['n']} within 2σ",
                               f"{tr['within_3sigma']} / {tr['n']} within 3σ; " + mtxt, tone))

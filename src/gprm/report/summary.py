@@ -63,16 +63,45 @@ def truth_for_fit(truth: dict, fit: dict) -> dict:
 
 
 def truth_recovery(fit: dict, truth: dict) -> dict:
-    """Per fitted parameter z = (fit - truth) / stderr, and how many lie within 1, 2, 3 sigma."""
+    """How well a fit of a synthetic campaign recovered its truth.
+
+    For the *identified* fitted parameters (all fitted ones in a fit that does not say):
+    z = (fit - truth) / stderr and how many lie within 1, 2, 3 sigma (``n`` of them), and how
+    many of the truths lie inside their 68 % and 95 % intervals (``in68``, ``in95`` of
+    ``n_interval``). Parameters the data do not determine get no z (their standard error
+    says nothing about them): ``undetermined`` counts them and ``undetermined_in95`` those
+    whose truth lies inside their (wide) 95 % interval. ``relative_error`` for all."""
     z, rel = {}, {}
+    n_int = in68 = in95 = und = und95 = 0
+
+    def inside(iv, value) -> bool | None:
+        if not isinstance(iv, dict):
+            return None
+        lo, hi = iv.get("lower"), iv.get("upper")
+        lo = -math.inf if lo is None else lo
+        hi = math.inf if hi is None else hi
+        return bool(lo <= value <= hi)
+
     for name, p in fit["parameters"].items():
-        if p.get("fitted") and name in truth:
-            if truth[name]:
-                rel[name] = (p["value"] - truth[name]) / abs(truth[name])
-            if p.get("stderr"):
-                z[name] = (p["value"] - truth[name]) / p["stderr"]
+        if not (p.get("fitted") and name in truth):
+            continue
+        tv = truth[name]
+        if tv:
+            rel[name] = (p["value"] - tv) / abs(tv)
+        i95 = inside(p.get("interval"), tv)
+        if not p.get("identified", True):
+            und += 1
+            und95 += bool(i95)
+            continue
+        if p.get("stderr"):
+            z[name] = (p["value"] - tv) / p["stderr"]
+        if i95 is not None:
+            n_int += 1
+            in95 += i95
+            in68 += bool(inside(p.get("interval68"), tv))
     n = len(z)
-    out = {"n": n, "z": z, "relative_error": rel}
+    out = {"n": n, "z": z, "relative_error": rel, "n_interval": n_int, "in68": in68,
+           "in95": in95, "undetermined": und, "undetermined_in95": und95}
     masses = [abs(rel[m]) for m in ("m1", "m2", "m3", "m4") if m in rel]
     out["mass_max_relative_error"] = max(masses) if masses else None
     for k in (1, 2, 3):
@@ -120,3 +149,20 @@ def summarise(run: str | Path) -> dict:
         s["releases"] = len(imp.get("releases", []))
         s["impact_times_found"] = impact_times_found(imp)
     return s
+
+
+def truth_recovery_text(tr: dict) -> str:
+    """One line of :func:`truth_recovery` for the console and the report."""
+    if tr.get("n_interval"):
+        txt = (f"truth inside the 95 % interval for {tr['in95']}/{tr['n_interval']} identified "
+               f"parameters ({tr['in68']}/{tr['n_interval']} inside 68 %)")
+    else:
+        txt = (f"{tr['within_2sigma']}/{tr['n']} identified parameters within 2σ")
+    if tr["n"]:
+        txt += f"; max |z| {tr['max_abs_z']:.2f}"
+    if tr.get("undetermined"):
+        txt += (f"; {tr['undetermined']} not determined by the data "
+                f"({tr['undetermined_in95']} with the truth inside their wide interval)")
+    if tr.get("mass_max_relative_error") is not None:
+        txt += f"; masses within {100 * tr['mass_max_relative_error']:.1f} %"
+    return txt

@@ -171,17 +171,15 @@ def print_summary(console, res, titles: dict[str, str], name: str = "gprm run") 
     if "fit" in s and any(NO_UNCERTAINTY in n for r in res.records
                           for n in (r.info or {}).get("notes", [])):
         k.add_row("[yellow]uncertainty", f"{NO_UNCERTAINTY} (see the notes in run.json)")
-    if "truth_recovery" in s and not s["truth_recovery"]["n"]:
-        mrel = s["truth_recovery"].get("mass_max_relative_error")
+    tr = s.get("truth_recovery")
+    if tr is not None and not (tr["n"] or tr.get("n_interval") or tr.get("undetermined")):
+        mrel = tr.get("mass_max_relative_error")
         k.add_row("truth recovery", "no standard errors (the fit has no covariance)" + (
             "" if mrel is None else f"; masses m1–m4 within {100 * mrel:.1f} % of the truth"))
-    elif "truth_recovery" in s:
-        tr = s["truth_recovery"]
-        k.add_row("truth recovery", f"{tr['within_1sigma']}/{tr['n']} parameters within 1σ, "
-                  f"{tr['within_2sigma']}/{tr['n']} within 2σ, {tr['within_3sigma']}/{tr['n']}"
-                  f" within 3σ (max |z| = {_f(tr['max_abs_z'], '{:.2f}')})" + (
-                      "" if tr.get("mass_max_relative_error") is None else
-                      f"; masses within {100 * tr['mass_max_relative_error']:.1f} %"))
+    elif tr is not None:
+        from gprm.report.summary import truth_recovery_text   # xarray: only for a summary
+
+        k.add_row("truth recovery", truth_recovery_text(tr))
     if "whatif" in s and s["whatif"]:
         for name, ratios in s["whatif"].items():
             if isinstance(ratios, dict):

@@ -29,13 +29,14 @@ try:                                   # typer >= 0.2x ships its own click; its 
     from typer import _click as click
     from typer._click.exceptions import NoArgsIsHelpError
 except ImportError:                    # older typer (the lower bound) uses the click package
-    import click
-    from click.exceptions import NoArgsIsHelpError
+    # mypy sees the newer typer: click's classes differ from typer._click's there, not here
+    import click  # type: ignore[no-redef]
+    from click.exceptions import NoArgsIsHelpError  # type: ignore[assignment]
 from typer.core import TyperGroup
 try:
     from typer.exceptions import Abort
 except ImportError:                    # older typer: click's
-    from click.exceptions import Abort
+    from click.exceptions import Abort  # type: ignore[assignment]  # as above
 
 from gprm.campaign import commands as campaign_commands
 from gprm.console import one_line as _one_line, one_line_errors
@@ -156,4 +157,4 @@ def main() -> None:  # console-script entry point
 
 
 if __name__ == "__main__":  # pragma: no cover
-    sys.exit(main())
+    main()

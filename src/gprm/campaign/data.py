@@ -39,7 +39,7 @@ def campaign_dataset(displacement: np.ndarray, noise: np.ndarray, time: np.ndarr
                      vtime: np.ndarray | None = None, attrs: dict | None = None,
                      extra: dict | None = None) -> xr.Dataset:
     """Assemble a campaign Dataset (SI arrays in, conventions and units attached)."""
-    data = {
+    data: dict[str, tuple] = {
         "displacement": (("position", "run", "time"), np.asarray(displacement, float),
                          {"units": "m", "long_name": "interferometer displacement, actuated "
                           "runs (tip retraction)"}),

@@ -159,7 +159,8 @@ def generator_attrs(config) -> dict:
     """The settings of a synthetic campaign (a ``SynthConfig`` or its ``asdict``) as plain
     global attributes ``generator_<field>``: numbers (booleans as 0/1); a support
     (``Support(k, f, zeta)``) as a number array ``[k, f, zeta]`` (N/m, Hz, 1)."""
-    d = dataclasses.asdict(config) if dataclasses.is_dataclass(config) else dict(config)
+    is_instance = dataclasses.is_dataclass(config) and not isinstance(config, type)
+    d = dataclasses.asdict(config) if is_instance else dict(config)
     out = {}
     for k, v in d.items():
         if isinstance(v, dict):
@@ -335,7 +336,7 @@ def read_truth_alignment(ds) -> dict | None:
     if "truth_t0_expected" in ds.variables:
         truth = read_truth(ds) or {}
         ts = {str(k): float(v) for k, v in zip(ds["signal"].values, ds["truth_shift"].values)}
-        out = {"truth_shift_s": ts}
+        out: dict[str, float | dict[str, float]] = {"truth_shift_s": ts}
         if "t0" in truth:
             out["t0_equivalent_s"] = {n: truth["t0"] + ts[n] for n in XY_SIGNALS if n in ts}
         for key, var, _ in _ALIGN_SCALARS:
@@ -598,12 +599,12 @@ def read_campaign_dir(path: str | os.PathLike) -> xr.Dataset:
                              source=src, field="noise")
     disp = np.stack([np.stack([act[p][k] for k in sorted(act[p])]) for p in POSITIONS])
     noise = np.stack([np.stack([noi[p][k] for k in sorted(noi[p])]) for p in POSITIONS])
+    assert ref_t is not None  # set by the first actuated run, and every position has one
     fs = (ref_t.size - 1) / (ref_t[-1] - ref_t[0])
-    vkw = {}
-    if volt:
-        vkw = {"voltage": np.stack([volt[k] for k in sorted(volt)]), "vtime": vref_t}
+    voltage = np.stack([volt[k] for k in sorted(volt)]) if volt else None
+    # without voltage runs vref_t is still None
     ds = campaign_dataset(disp, noise, ref_t, sample_rate=fs, attrs={"source": str(root)},
-                          **vkw)
+                          voltage=voltage, vtime=vref_t)
     ds = validate_campaign(ds, source=str(root))
     ds.attrs["source"] = str(root)
     ds.attrs["campaign_sha256"] = sha256_files(files)

@@ -248,7 +248,7 @@ def preprocess(campaign: xr.Dataset, config: PreprocessConfig | None = None) -> 
     # the fitted positions first: a position outside the model that shows no motion above
     # its noise (a flange that barely moves) then takes their median onset
     order = sorted(range(len(POSITIONS)), key=lambda i: POSITIONS[i] not in MODEL_POSITIONS)
-    onsets = []
+    onsets: list[int] = []
     for i in order:
         name = POSITIONS[i]
         fallback = int(np.median(onsets)) if name not in MODEL_POSITIONS and onsets else None
@@ -355,9 +355,9 @@ def preprocess(campaign: xr.Dataset, config: PreprocessConfig | None = None) -> 
             d_ref = offs[i, ref[i]]
             tx = _sampled_crossing(cs, time, d_ref, thr, cfg.hold)
             truth_shift[i] = np.nan if tx is None else cfg.align_time - tx
-            phases = [_sampled_crossing(cs, time, ph * dt / 10, thr, cfg.hold)
-                      for ph in range(10)]
-            phases = [x for x in phases if x is not None]
+            crossings = [_sampled_crossing(cs, time, ph * dt / 10, thr, cfg.hold)
+                         for ph in range(10)]
+            phases = [x for x in crossings if x is not None]
             truth_spread[i] = float(np.ptp(phases)) if phases else np.nan
             ts_ = tgrid - (0.0 if tx is None else truth_shift[i])
             truth_mean[i] = np.where(ts_ < tt[0], 0.0, cs(np.clip(ts_, tt[0], tt[-1])))

@@ -19,6 +19,7 @@ into intervals and draws.
 from __future__ import annotations
 
 from dataclasses import fields, replace
+from typing import Any
 
 import numpy as np
 import xarray as xr
@@ -50,8 +51,9 @@ def synth_config(data: FitData) -> SynthConfig:
     d = read_generator(attrs)
     if d is not None:
         try:
-            kw = {k: (Support(*v) if isinstance(v, list) else v) for k, v in d.items()
-                  if k in names}
+            # the file's settings: their types are known only at run time
+            kw: dict[str, Any] = {k: (Support(*v) if isinstance(v, list) else v)
+                                  for k, v in d.items() if k in names}
             return SynthConfig(**kw)
         except (TypeError, ValueError):
             pass

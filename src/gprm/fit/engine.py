@@ -18,7 +18,7 @@ import os
 import re
 from dataclasses import asdict, dataclass
 from pathlib import Path
-from typing import Callable
+from typing import Any, Callable
 
 import numpy as np
 
@@ -32,9 +32,9 @@ from gprm.fit.starts import (LMOptions, MultiStartOptions, StartsOutcome, draw_s
 
 # ----------------------------------------------------------------------------- one chunk
 
-def _openblas_thread_setters() -> list:
+def _openblas_thread_setters() -> list[tuple[Any, Any]]:
     """(set, get) functions of every OpenBLAS loaded in this process (numpy's, scipy's)."""
-    out = []
+    out: list[tuple[Any, Any]] = []
     try:
         with open("/proc/self/maps") as fh:
             paths = {ln.split()[-1] for ln in fh if "openblas" in ln.lower() and "/" in ln}
@@ -174,6 +174,7 @@ class Checkpoints:
             write_text_atomic(meta, fingerprint + "\n")
 
     def path(self, index: int) -> Path:
+        assert self.folder is not None, "path() of a Checkpoints without a folder"
         return self.folder / f"chunk_{index:05d}.npz"
 
     def load(self, index: int, start_ids: np.ndarray | None = None) -> dict | None:

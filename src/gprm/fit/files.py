@@ -20,7 +20,7 @@ import hashlib
 import os
 from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import xarray as xr
@@ -302,7 +302,8 @@ def load_fit(path: str | os.PathLike) -> FittedModel:
             raise GprmInputError(f"negative standard error {se[k]:g}", source=src,
                                  field=f"parameters.{names[k]}.stderr")
         cov = (R * np.outer(se, se))[np.ix_(order, order)]
-    unc = doc.get("uncertainty") if isinstance(doc.get("uncertainty"), dict) else {}
+    unc = doc.get("uncertainty")
+    unc = unc if isinstance(unc, dict) else {}
     ident = doc.get("identified")
     ident = tuple(n for n in ident if n in names) if isinstance(ident, list) else None
     draws = _read_draws(Path(src).with_suffix(".nc"), ps.fitted)
@@ -362,7 +363,7 @@ def fit_document(res: FitResult) -> dict:
     for name in REGISTRY:
         fitted = name in res.names
         err = None
-        entry = {}
+        entry: dict[str, Any] = {}
         if fitted:
             k = res.names.index(name)
             e = res.stderr[k]
@@ -386,7 +387,7 @@ def fit_document(res: FitResult) -> dict:
                         "display_unit": REGISTRY[name].unit,
                         "display_value": float(from_si(res.params[name], name)), **entry}
     best = res.starts.best_index
-    d = {
+    d: dict[str, Any] = {
         "model": MODEL_NAME, "format_version": FORMAT_VERSION, "piezo": res.piezo,
         "version": gprm.__version__, "seed": res.options.seed,
         "window": [float(res.data.window[0]), float(res.data.window[1])],

@@ -18,8 +18,8 @@ from gprm.fit.objective import FitData, Objective
 from gprm.fit.prior import DEFAULT_WIDTH, default_prior
 from gprm.fit.result import FitResult
 from gprm.fit.starts import MultiStartOptions
-from gprm.fit.uncertainty import (DEFAULT_METHOD, compute_bands, estimate, from_mcmc,
-                                  profile_likelihood, time_correlation_factor)
+from gprm.fit.uncertainty import (DEFAULT_METHOD, Profile, compute_bands, estimate,
+                                  from_mcmc, profile_likelihood, time_correlation_factor)
 from gprm.params import ParameterSet
 
 
@@ -71,6 +71,7 @@ def identify(data: FitData, base: ParameterSet, opts: MultiStartOptions = MultiS
         unc = bootstrap_uncertainty(obj, x, unc, prior, uncertainty, n_boot=n_boot,
                                     seed=opts.seed, lm=opts.lm, n_draws=n_draws)
     elif uncertainty == "mcmc":
+        assert prior is not None  # an mcmc uncertainty without a prior is refused above
         unc = from_mcmc(obj, x, unc, prior, seed=opts.seed, n_draws=n_draws)
     cov, msg = unc.covariance, unc.message
     lo, hi = obj.bounds_normalised()
@@ -81,7 +82,7 @@ def identify(data: FitData, base: ParameterSet, opts: MultiStartOptions = MultiS
     params = base.with_values(**dict(zip(obj.names, map(float, x))))
     bands = compute_bands(obj, x, cov, n_samples=band_samples, seed=opts.seed,
                           draws=unc.draws)
-    profiles = ()
+    profiles: tuple[Profile, ...] = ()
     if profile:
         s2p = unc.s2 if np.isfinite(unc.s2) else 1.0
         sdu = (unc.contraction * prior.sd if prior is not None and unc.method == "laplace-prior"

@@ -168,7 +168,9 @@ def reduce_jacobian(J: np.ndarray, r: np.ndarray):
     B, N, P = J.shape
     k = min(N, P)
     # R of [J, r] is [[R1, Q1^T r], [0, rho]]: one factorisation without forming Q
-    R = np.linalg.qr(np.concatenate([J, r[:, :, None]], axis=2), mode="r")
+    # numpy's stubs type every mode as a QRResult; mode="r" returns the array R alone
+    R: np.ndarray = np.linalg.qr(  # type: ignore[assignment]
+        np.concatenate([J, r[:, :, None]], axis=2), mode="r")
     return R[:, :k, :P], R[:, :k, P], np.einsum("bnp,bnp->bp", J, J)
 
 

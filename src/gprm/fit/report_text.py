@@ -9,11 +9,13 @@ present; older files print without them.
 from __future__ import annotations
 
 import math
+from typing import TypeGuard
 
 DEFAULT_MIN_CORREL = 0.9
 
 
-def _finite(x) -> bool:
+def _finite(x) -> TypeGuard[float]:
+    """True for a finite int or float (not a bool): the values a fit file may hold as numbers."""
     return isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x)
 
 

@@ -15,7 +15,7 @@ import xarray as xr
 
 from gprm.errors import GprmInputError
 from gprm.flight.files import impact_curves_dataset
-from gprm.flight.impact_time import impact_time_mc
+from gprm.flight.impact_time import ImpactTimeMC, impact_time_mc
 from gprm.flight.joint import joint_impact_time
 from gprm.flight.predicted import ImpactGeometry, VelocityCurves, velocity_curves
 from gprm.flight.telemetry import AXES, AXIS_CHANNEL, AXIS_UNIT, release_velocities
@@ -195,6 +195,13 @@ def _duplicate_axes(curves) -> set:
     return dup
 
 
+def _error_sigma(est: ImpactTimeMC, truth: float) -> float | None:
+    """(estimate - truth) / stderr; None without an estimate or a nonzero stderr."""
+    if est.value is None or not est.stderr:
+        return None
+    return (est.value - truth) / est.stderr
+
+
 def analyze(model, tel, opts: AnalysisOptions = AnalysisOptions(),
             curves: VelocityCurves | None = None) -> ImpactResult:
     """Run the flight analysis of telemetry ``tel`` (a loaded
@@ -215,7 +222,7 @@ def analyze(model, tel, opts: AnalysisOptions = AnalysisOptions(),
     dup = _duplicate_axes(curves)
     truth_t = tel.truth_impact_time
     releases = []
-    groups = {a: [] for a in AXES}
+    groups: dict[str, list[float]] = {a: [] for a in AXES}
     missing = []
     for ir, r in enumerate(tel.releases):
         v = vel[r.id]
@@ -243,9 +250,7 @@ def analyze(model, tel, opts: AnalysisOptions = AnalysisOptions(),
         if truth_t is not None:
             tt = float(truth_t[ir])
             rec["truth_impact_time"] = tt
-            rec["error_sigma"] = {a: ((it[a].value - tt) / it[a].stderr
-                                      if it[a].value is not None and it[a].stderr else None)
-                                  for a in AXES}
+            rec["error_sigma"] = {a: _error_sigma(it[a], tt) for a in AXES}
             rec["joint"]["truth_in_ci95"] = (None if jt.ci95 is None
                                              else bool(jt.ci95[0] <= tt <= jt.ci95[1]))
         releases.append(rec)

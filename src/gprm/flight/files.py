@@ -125,9 +125,9 @@ def telemetry_csv_dataset(path: str | os.PathLike):
         if len(r) != len(header):
             raise GprmInputError(f"line {lineno[k]}: {len(r)} fields, the header has "
                                  f"{len(header)}", source=src)
-    cols = {}
-    for j, c in enumerate(header):
-        name, unit = _csv_header(str(c))
+    cols: dict[str, tuple[int, str | None]] = {}      # name -> (column index, unit)
+    for j, h in enumerate(header):
+        name, unit = _csv_header(str(h))
         if name in cols:
             raise GprmInputError("column given twice", source=src, field=name)
         cols[name] = (j, unit)
@@ -309,13 +309,15 @@ def telemetry_dataset(ids, time, release_time, data: dict, *, noise_std: dict | 
     truth_velocity: (R, 6) in AXES order (synthetic); truth: the rest of the synthetic truth
     (:func:`truth_attrs_and_vars`)."""
     ids = [str(i) for i in ids]
-    dv = {"time": (("release", "sample"), np.asarray(time, float),
-                   {"units": "s", "long_name": "sample time (NaN: padding after the end of a "
-                    "shorter release)"}),
-          "release_time": (("release",), np.asarray(release_time, float),
-                           {"units": "s", "long_name": "test-mass release time"})}
+    dv: dict[str, tuple] = {
+        "time": (("release", "sample"), np.asarray(time, float),
+                 {"units": "s", "long_name": "sample time (NaN: padding after the end of a "
+                  "shorter release)"}),
+        "release_time": (("release",), np.asarray(release_time, float),
+                         {"units": "s", "long_name": "test-mass release time"})}
     for c, y in data.items():
-        a = {"units": CHANNEL_UNIT[c], "long_name": CHANNEL_LONG_NAME[c]}
+        a: dict[str, str | float] = {"units": CHANNEL_UNIT[c],
+                                     "long_name": CHANNEL_LONG_NAME[c]}
         if noise_std and c in noise_std:
             a["noise_std"] = float(noise_std[c])
         dv[c] = (("release", "sample"), np.asarray(y, float), a)
@@ -460,7 +462,7 @@ def impact_curves_dataset(curves) -> xr.Dataset:
     (``VelocityCurves``), split by unit into ``velocity_<q>(velocity_axis, time)`` (m s-1)
     and ``angular_velocity_<q>(angular_axis, time)`` (rad s-1) for q in nominal, sigma,
     sigma_fit, sigma_geometry, lo, hi."""
-    dv = {}
+    dv: dict[str, tuple] = {}
     for q, long_name in CURVE_QUANTITIES.items():
         d = getattr(curves, q)
         dv[f"velocity_{q}"] = (("velocity_axis", "time"),

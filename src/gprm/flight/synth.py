@@ -132,8 +132,9 @@ def synth_telemetry(model, opts: SynthOptions = SynthOptions(), *, geometry=None
     pb0 = batch([model.params])
     if not opts.truth_spread:   # every candidate is the best fit: simulate it once
         vel0 = tm_velocity_vs_time(body_motion(pb0, grid, piezo=model.piezo), geometry)
-    chosen_t, chosen_v = [], []
-    chosen_idx = []
+    chosen_t: list[float] = []
+    chosen_v: list[list[float]] = []
+    chosen_idx: list[int] = []
     attempt = 0
     while len(chosen_t) < R and attempt < 20:
         nc = max(4 * (R - len(chosen_t)), 8)

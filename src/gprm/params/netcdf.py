@@ -23,7 +23,7 @@ def parameter_table(values: dict, *, var: str, long_name: str,
     """``values`` (name -> SI value) as ``var(parameter)`` with ``parameter_units``; with
     ``fitted`` (names) also ``parameter_fitted(parameter)`` (1 if fitted)."""
     names = list(values)
-    data = {
+    data: dict[str, tuple] = {
         var: ("parameter", np.array([float(values[n]) for n in names], float),
               {"long_name": long_name, "comment": UNITS_COMMENT}),
         "parameter_units": ("parameter", np.array(si_unit_strings(names), dtype=object),

@@ -30,14 +30,16 @@ def parse_overrides(items) -> dict:
 
 def parse_length(text: str, field: str) -> float:
     """A length such as ``2um`` or ``2e-6`` (bare numbers are metres) -> m."""
+    import pint
+
     from gprm.errors import GprmInputError
     from gprm.units import ureg
 
     try:
-        q = ureg().Quantity(text)
+        q: pint.Quantity | float = ureg().Quantity(text)
     except Exception as exc:
         raise GprmInputError(f"cannot parse length {text!r} ({exc})", field=field) from None
-    if not hasattr(q, "dimensionality"):
+    if not isinstance(q, pint.Quantity):    # a bare number
         return float(q)
     if q.dimensionless:
         return float(q.magnitude)
@@ -128,8 +130,8 @@ def register(app: typer.Typer, synth_app: typer.Typer) -> None:
                                   means=means, bins=bins, ke_window=(ke_start, ke_end), gap=gap,
                                   gap_std=gap_std, voltage=voltage)
         except GprmInputError as exc:
-            raise GprmInputError(exc.problem, source=exc.source,
-                                 field=_FLAGS.get(exc.field, exc.field)) from None
+            flag = None if exc.field is None else _FLAGS.get(exc.field, exc.field)
+            raise GprmInputError(exc.problem, source=exc.source, field=flag) from None
         fm = load_model(fit)
         if not fm.has_uncertainty:
             typer.echo(f"note: {fm.uncertainty_note}")

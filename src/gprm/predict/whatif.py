@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import copy
 from dataclasses import dataclass, replace
-from typing import Mapping, Sequence
+from typing import Any, Mapping, Sequence
 
 import numpy as np
 import xarray as xr
@@ -123,7 +123,7 @@ class WhatIf:
             return out
 
         dims = ("scenario", "point", "axis")
-        dv = {}
+        dv: dict[str, tuple] = {}
         for key, what in (("overshoot", "best-fit overshoot"),
                           ("overshoot_p2_5", "2.5 % point of the sampled overshoot"),
                           ("overshoot_p97_5", "97.5 % point of the sampled overshoot")):
@@ -283,7 +283,7 @@ def ratio_sensitivity(fm: FittedModel, names: Sequence[str] = ("h2", "dist_x", "
                       rate: float = 1e6) -> dict:
     """Headline ratios (Piezo 2 / Piezo 1 and Piezo 2 / Piezo 1 + eccentricities / 10) with
     each of ``names`` scaled by 1 - rel and 1 + rel: which assumed geometry values matter."""
-    out = {"rel_change": rel, "nominal": _headlines(fm, window, rate)}
+    out: dict[str, Any] = {"rel_change": rel, "nominal": _headlines(fm, window, rate)}
     for n in names:
         out[n] = {}
         for f in (1 - rel, 1 + rel):

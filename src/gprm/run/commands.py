@@ -6,12 +6,15 @@ from __future__ import annotations
 
 import math
 from pathlib import Path
-from typing import Optional
+from typing import TYPE_CHECKING, Optional
 
 import typer
 
 from gprm.console import cli_options, one_line_errors
 from gprm.options import Int
+
+if TYPE_CHECKING:
+    from rich.progress import TaskID
 
 
 def register(app: typer.Typer, synth_app: typer.Typer) -> None:
@@ -94,7 +97,7 @@ class _Progress:
                             BarColumn(), MofNCompleteColumn(), TextColumn("{task.fields[info]}"),
                             TimeElapsedColumn(), TextColumn("eta"), TimeRemainingColumn(),
                             console=console)
-        self.tasks = {}
+        self.tasks: dict[str, TaskID] = {}     # stage -> its line
 
     def __enter__(self):
         self.bar.__enter__()

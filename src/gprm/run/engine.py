@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import os
 import platform
 import sys
 import time
@@ -131,7 +132,7 @@ def _events(progress: Progress | None) -> Callable[..., None]:
     return lambda stage, event, done=None, total=None, **_: progress(stage, event, done, total)
 
 
-def run_stages(out: str | Path, opts, stages, *, progress: Progress | None = None,
+def run_stages(out: str | os.PathLike, opts, stages, *, progress: Progress | None = None,
                command: str | None = None, report_html: bool = True) -> RunResult:
     """Run ``stages`` into ``out`` (created if needed), resuming what is up to date.
 
@@ -152,7 +153,7 @@ def run_stages(out: str | Path, opts, stages, *, progress: Progress | None = Non
             previous = {}
     report = _events(progress)
     seed = getattr(opts, "seed", None)
-    state = {
+    state: dict[str, Any] = {           # the run record (run.json)
         "format_version": FORMAT_VERSION,
         "command": command or " ".join(sys.argv),
         "started": time.strftime("%Y-%m-%dT%H:%M:%S%z"),

@@ -19,6 +19,7 @@ import os
 import shutil
 from dataclasses import asdict
 from pathlib import Path
+from typing import Any
 
 from gprm._io import atomic_path
 from gprm.campaign.api import run_preprocess
@@ -135,8 +136,8 @@ def _fit(run: Path, opts: RunOptions, step) -> dict:
 # ----------------------------------------------------------------------------- predict
 
 def _predict_options(run: Path, opts: RunOptions, sc=None) -> PredictOptions:
-    kw = dict(PREDICT_SPAN, samples=opts.predict_samples, seed=opts.seed,
-              means=str(run / "means.nc"))
+    kw: dict[str, Any] = dict(PREDICT_SPAN, samples=opts.predict_samples, seed=opts.seed,
+                              means=str(run / "means.nc"))
     return PredictOptions(**kw) if sc is None else PredictOptions.for_scenario(sc, **kw)
 
 

@@ -44,7 +44,7 @@ def simulation_dataset(res: SimulationResult, params: ParameterSet, *, index: in
     data["voltage"] = ("time", np.asarray(res.voltage)[index])
     ds = xr.Dataset(data, coords={"time": ("time", res.time)})
     ds["time"].attrs = {"units": "s", "long_name": "time from the start of the record"}
-    for name in ds.data_vars:
+    for name in data:                                  # the data variables, by name
         ds[name].attrs = {"units": UNITS[name], "long_name": DESCRIPTIONS[name]}
     if z_bk_absolute:
         ds["z_bk"].attrs["long_name"] = "(z_lr + z_A)(t - t1), absolute plunger back"

@@ -192,6 +192,7 @@ def body_motion(source, times, *, piezo: int = 2, voltage=None,
     rates = {n: obs.y[:, k[n]] for n in RATES}
     sens = None
     if sensitivities:
+        assert obs.dy is not None  # observe() hands back dy whenever sensitivities are asked
         sens = {n: obs.dy[:, k[n]] for n in names}
     R = rotation(coords["theta"], coords["eta"])                       # (B, T, 3, 3)
     return PlungerMotion(time=t, params=pb, piezo=piezo, coords=coords, rates=rates,

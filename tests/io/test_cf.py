@@ -66,9 +66,8 @@ def _float_vars_without_units(ds) -> list[str]:
 #: every NetCDF kind gprm writes, and the command or function that wrote it in the fixture
 KINDS = ("campaign.nc", "means.nc", "sim.nc", "predict.nc", "telemetry.nc", "impact.nc",
          "fit.nc")
-#: the kinds whose layout this test holds to every CF recommendation (fit.nc: the fit stage's
-#: own layout, checked for what every file shares)
-FULL = KINDS[:-1]
+#: the kinds whose layout this test holds to every CF recommendation: all of them
+FULL = KINDS
 
 
 @pytest.fixture(scope="module")

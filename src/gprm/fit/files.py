@@ -481,14 +481,36 @@ def fit_sidecar(res: FitResult) -> xr.Dataset:
             "long_name": f"parameter sets from the uncertainty method "
             f"({res.uncertainty.method}), SI; later stages propagate these",
             "comment": "units vary along param: param_units[param]"})
+    for v, long_name in _SIDECAR_LONG_NAMES.items():
+        if v in ds.variables:
+            ds[v].attrs.setdefault("long_name", long_name)
     for v in ("data_mean", "data_sigma", "model_best", "band_linear_std",
               "band_sample_std", "band_sample_lo", "band_sample_hi"):
         if v in ds:
             ds[v].attrs["units"] = "m"
     ds["time"].attrs["units"] = "s"
-    ds.attrs.update({"model": MODEL_NAME, "gprm_version": gprm.__version__,
-                     "seed": res.options.seed})
+    ds.attrs.update({"title": "GPRM model identification: every start, the data, bands and "
+                     "uncertainty (gprm fit)", "model": MODEL_NAME,
+                     "gprm_version": gprm.__version__, "seed": res.options.seed})
     return ds
+
+
+_SIDECAR_LONG_NAMES = {
+    "iterations": "Levenberg-Marquardt iterations of the start",
+    "resampled": "times the start was redrawn before it could be simulated",
+    "data_mean": "mean signal fitted (aligned)",
+    "data_sigma": "standard deviation the residuals are weighted by (Eq. 6)",
+    "model_best": "model signal at the best fit",
+    "band_linear_std": "linear propagation of the covariance to the signal",
+    "band_sample_std": "standard deviation of the signal over the method's draws",
+    "band_sample_lo": "2.5 % quantile of the signal over the method's draws",
+    "band_sample_hi": "97.5 % quantile of the signal over the method's draws",
+    "start": "index of the random start",
+    "param": "fitted parameter",
+    "param2": "fitted parameter (second index of the covariance)",
+    "signal": "measured point and axis",
+    "time": "aligned time (s from the start of the record)",
+}
 
 def write_fit(res: FitResult, out: str | os.PathLike) -> Path:
     """Write a fit result: the JSON ``out`` and its sidecar (same name, ``.nc``), each
@@ -512,8 +534,9 @@ def starts_dataset(out: StartsOutcome) -> xr.Dataset:
          "resampled": ("start", out.resampled)},
         coords={"start": np.arange(out.chi2.size), "param": list(out.names)})
     units = si_unit_strings(out.names)
-    ds = ds.assign_coords(param_units=("param", units))
-    ds["param_units"].attrs["long_name"] = "SI unit of each parameter"
+    # a data variable, not a coordinate: as a coordinate it lands in every variable's
+    # `coordinates` attribute, which CF (2.7.1) reads as an auxiliary coordinate
+    ds["param_units"] = ("param", units, {"long_name": "SI unit of each parameter"})
     for v, what in (("x0", "initial"), ("x", "final")):
         ds[v].attrs["long_name"] = f"{what} parameter values (SI)"
         # CF has one unit string per variable; these differ along param

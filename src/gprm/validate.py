@@ -208,13 +208,3 @@ MEANS = Schema("mean-signals NetCDF", (
 ))
 
 SCHEMAS = {"campaign": CAMPAIGN, "means": MEANS}
-
-
-def read_means(path, *, what: str = "mean-signals file"):
-    """Read and check a mean-signals NetCDF (SI units). The format's home is
-    :mod:`gprm.campaign.files` (``read_means`` there also gives the truth and the tables); this
-    copy serves the callers in ``gprm.fit`` until they import it from there."""
-    from gprm._io import open_netcdf
-
-    ds = open_netcdf(path, what=what)
-    return check_dataset(ds, MEANS, str(path))

@@ -17,6 +17,7 @@ from typing import Callable
 
 import xarray as xr
 
+from gprm.campaign.files import read_means
 from gprm.errors import GprmInputError
 from gprm.fit.identify import identify
 from gprm.fit.objective import fit_data_from_means
@@ -133,8 +134,6 @@ def run_fit(means: str | os.PathLike | xr.Dataset, opts: FitOptions = FitOptions
     also gets the smallest chi-square reached so far (nan before the first chunk): the one
     progress callback of ``gprm fit``, ``gprm run`` and ``gprm demo``.
     """
-    from gprm.validate import read_means
-
     if not isinstance(opts, FitOptions):
         raise GprmInputError(f"expected FitOptions, got {type(opts).__name__}", field="opts")
     if isinstance(workers, bool) or not isinstance(workers, int) or workers < 0:

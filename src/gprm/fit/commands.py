@@ -106,7 +106,7 @@ def register(app: typer.Typer, synth_app: typer.Typer) -> None:
         from gprm.fit.engine import check_checkpoint_folder, remove_checkpoints, starts_memory
         from gprm.params import load_params
         from gprm.resources import check_memory
-        from gprm.validate import read_means
+        from gprm.campaign.files import read_means
 
         if scheduler is not None and not re.fullmatch(
                 r"(tcp|tls|inproc|ucx|ws|wss)://\S+|[\w.\-]+:\d+|\[[0-9a-fA-F:]+\]:\d+",

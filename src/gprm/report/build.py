@@ -24,10 +24,15 @@ from pathlib import Path
 
 import numpy as np
 
+from gprm import __version__
 from gprm._io import open_netcdf, read_json, write_text_atomic
+from gprm.campaign.files import load_campaign, read_means, read_tables
 from gprm.errors import GprmInputError
 from gprm.fit.files import read_fit_document, read_fit_sidecar
 from gprm.fit.uncertainty import COVERAGE_HEADLINE
+from gprm.flight.files import read_impact, read_impact_curves, read_telemetry
+from gprm.params import REGISTRY, from_si
+from gprm.predict.files import read_prediction, read_whatif
 from gprm.fit.report_text import pretty_unit
 from gprm.report import figures as F
 from gprm.report.html import (Card, Section, fig_to_img, not_run, num, paragraph, pm, render,
@@ -53,10 +58,6 @@ _PAPER_T1 = {"x_head/x_lr": 3, "x_head/x_fl": 17, "y_head/y_lr": 3, "y_head/y_fl
 
 def _reader(name: str):
     """The reader of a run directory's file in its format's home (None: read it plainly)."""
-    from gprm.campaign.files import load_campaign, read_means
-    from gprm.flight.files import read_impact, read_impact_curves, read_telemetry
-    from gprm.predict.files import read_prediction, read_whatif
-
     if name.startswith("predict") and name.endswith(".nc"):
         return read_prediction
     return {"campaign.nc": load_campaign, "means.nc": read_means, "telemetry.nc": read_telemetry,
@@ -90,7 +91,6 @@ def _not_run(s: Section, what: str, why: str) -> Section:
 # ----------------------------------------------------------------------------- campaign
 
 def _table1(means) -> list:
-    from gprm.campaign.files import read_tables
 
     stored = read_tables(means)[0]
     sig = [str(s) for s in means["signal"].values]
@@ -147,7 +147,6 @@ def campaign_section(run: Path) -> Section:
                                    "move by a few per cent with the seed and the drawn truth "
                                    "(a small y motion divided by a small one moves most). On "
                                    "measured data they are the campaign's own."))
-    from gprm.campaign.files import read_tables
 
     dropped = read_tables(means)[1]
     if dropped:
@@ -181,7 +180,6 @@ def table3_rows(fit: dict, truth: dict | None) -> list:
     """Table 3: best fit, its 95 % interval from the fit's uncertainty method and whether the
     data determine it, the synthetic truth (and whether the interval holds it), the paper's
     value ± its error, the initial value and the CAD nominal, in the paper's display units."""
-    from gprm.params import REGISTRY, from_si
 
     rows = []
     for name, p in fit["parameters"].items():
@@ -222,7 +220,6 @@ def strong_correlations(fit: dict, threshold: float = 0.99) -> list:
 
 
 def combination_rows(fit: dict) -> list:
-    from gprm.params import REGISTRY
 
     rows = []
     for c in fit.get("identifiable_combinations") or []:
@@ -610,8 +607,6 @@ def build_report(run_dir: str | Path) -> str:
                 flight_section(run)]
     prov = _load_json(run, "run.json", "run record") or {}
     sections.append(provenance_section(run, prov))
-    from gprm import __version__
-
     sub = f"gprm {__version__} · run directory {run.resolve().name}"
     if "seed" in prov:
         sub += f" · seed {prov['seed']}"

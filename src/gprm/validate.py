@@ -18,6 +18,7 @@ add the format's own rules (positions, runs, windows) on the checked data. Each 
 
 from __future__ import annotations
 
+import json
 import math
 import re
 from dataclasses import dataclass
@@ -208,3 +209,23 @@ MEANS = Schema("mean-signals NetCDF", (
 ))
 
 SCHEMAS = {"campaign": CAMPAIGN, "means": MEANS}
+
+
+_MISSING = object()
+
+
+def legacy_json_attr(attrs, key: str, *, source: str, default=None, strict: bool = True):
+    """The JSON document an older gprm file stored in the attribute ``key`` (tabular metadata
+    are variables now, docs/data-formats.md), or ``default`` where the attribute is absent.
+    Text that is not valid JSON is a :class:`GprmInputError` naming ``key`` (``strict``) or
+    gives ``default`` (for optional settings a reader can do without)."""
+    raw = attrs.get(key, _MISSING)
+    if raw is _MISSING or raw is None:
+        return default
+    try:
+        return json.loads(raw)
+    except (TypeError, ValueError, RecursionError):
+        if not strict:
+            return default
+        raise GprmInputError("attribute is not valid JSON", source=source,
+                             field=key) from None

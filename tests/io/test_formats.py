@@ -227,3 +227,18 @@ def test_readers_refuse_a_broken_legacy_attribute(tmp_path):
     bad.to_netcdf(tmp_path / "c.nc")
     with pytest.raises(GprmInputError, match="format"):
         ff.read_impact_curves(tmp_path / "c.nc")
+
+
+def test_legacy_json_attributes_are_read_by_one_helper():
+    """Older files' JSON attributes: absent -> default; valid -> the document; invalid ->
+    an input error naming the attribute (or the default, for optional settings)."""
+    from gprm.errors import GprmInputError
+    from gprm.validate import legacy_json_attr
+
+    attrs = {"truth_json": '{"m2": 0.0124}', "options_json": "{not json"}
+    assert legacy_json_attr(attrs, "truth_json", source="f.nc") == {"m2": 0.0124}
+    assert legacy_json_attr(attrs, "absent_json", source="f.nc", default=[]) == []
+    assert legacy_json_attr(attrs, "options_json", source="f.nc", strict=False) is None
+    with pytest.raises(GprmInputError) as e:
+        legacy_json_attr(attrs, "options_json", source="f.nc")
+    assert e.value.field == "options_json" and e.value.source == "f.nc"

@@ -41,7 +41,6 @@ import contextlib
 import csv
 import dataclasses
 import hashlib
-import json
 import os
 import shutil
 import tempfile
@@ -53,7 +52,7 @@ import xarray as xr
 from gprm._io import open_netcdf, write_netcdf_atomic
 from gprm.campaign.data import POSITIONS, RATE_RTOL, campaign_dataset, validate_campaign
 from gprm.errors import GprmInputError
-from gprm.validate import CAMPAIGN, MEANS, check_dataset, unit_factor
+from gprm.validate import CAMPAIGN, MEANS, check_dataset, legacy_json_attr, unit_factor
 
 
 # ============================================================================ campaign NetCDF
@@ -134,11 +133,7 @@ def _src(ds) -> str:
 
 
 def _legacy_json(raw, ds, field: str):
-    try:
-        return json.loads(raw)
-    except (TypeError, ValueError, RecursionError):
-        raise GprmInputError("attribute is not valid JSON", source=_src(ds),
-                             field=field) from None
+    return legacy_json_attr({field: raw}, field, source=_src(ds))
 
 
 def _plain(v):
@@ -181,13 +176,7 @@ def read_generator(attrs) -> dict | None:
            if k.startswith(GENERATOR_PREFIX) and k != "generator_json"}
     if out:
         return out
-    raw = attrs.get("generator_json")
-    if raw is None:
-        return None
-    try:
-        d = json.loads(raw)
-    except (TypeError, ValueError, RecursionError):
-        return None
+    d = legacy_json_attr(attrs, "generator_json", source="", strict=False)
     if not isinstance(d, dict):
         return None
     return {k: (list(v.values()) if isinstance(v, dict) else v) for k, v in d.items()}
@@ -210,14 +199,8 @@ def preprocess_attrs(config) -> dict:
 def read_preprocess_settings(attrs) -> dict:
     """The preprocessing settings a mean-signals file was made with (``{field: value}``,
     only those recorded; older files: the JSON attribute ``preprocess_json``)."""
-    raw = attrs.get("preprocess_json")
-    out = {}
-    if raw is not None:
-        try:
-            d = json.loads(raw)
-            out = dict(d) if isinstance(d, dict) else {}
-        except (TypeError, ValueError, RecursionError):
-            out = {}
+    d = legacy_json_attr(attrs, "preprocess_json", source="", strict=False)
+    out = dict(d) if isinstance(d, dict) else {}
     for k in PREPROCESS_FIELDS:
         if k in attrs:
             out[k] = _plain(attrs[k])

@@ -19,7 +19,6 @@ from __future__ import annotations
 
 import csv
 import dataclasses
-import json
 import os
 import re
 from pathlib import Path
@@ -31,7 +30,7 @@ from gprm._io import open_netcdf, read_json, write_json_atomic, write_netcdf_ato
 from gprm.errors import GprmInputError
 from gprm.flight.telemetry import (ANGULAR_AXES, AXES, CHANNEL_KIND, CHANNEL_UNIT, CHANNELS,
                                    LINEAR_AXES, REQUIRED, Release, Telemetry)
-from gprm.validate import pint_unit
+from gprm.validate import legacy_json_attr, pint_unit
 
 FORMAT = "gprm-telemetry"
 FORMAT_VERSION = 1
@@ -409,15 +408,8 @@ def read_truth(ds) -> dict | None:
                 "z_from": None if z == "none" else z,
                 "truth_model": str(ds.attrs["truth_model"]),
                 "truth_spread": bool(int(ds.attrs["truth_spread"]))}
-    raw = ds.attrs.get("truth_json")
-    if raw is None:
-        return None
-    try:
-        return json.loads(raw)
-    except (TypeError, ValueError, RecursionError):
-        raise GprmInputError("attribute is not valid JSON",
-                             source=str(ds.attrs.get("source", "telemetry")),
-                             field="truth_json") from None
+    return legacy_json_attr(ds.attrs, "truth_json",
+                            source=str(ds.attrs.get("source", "telemetry")))
 
 
 SYNTH_PREFIX = "synth_"
@@ -437,11 +429,8 @@ def read_synth_options(attrs) -> dict | None:
            for k, v in attrs.items() if k.startswith(SYNTH_PREFIX)}
     if out:
         return out
-    raw = attrs.get("options_json")
-    try:
-        return None if raw is None else dict(json.loads(raw))
-    except (TypeError, ValueError, RecursionError):
-        return None
+    d = legacy_json_attr(attrs, "options_json", source="", strict=False)
+    return dict(d) if isinstance(d, dict) else None
 
 
 # ============================================================================ impact result

@@ -9,7 +9,6 @@ variables (the JSON attributes ``parameters_json``, ``fitted_json``, ``scenario_
 
 from __future__ import annotations
 
-import json
 import os
 
 import numpy as np
@@ -24,7 +23,7 @@ from gprm.predict.masses import mass_arrays
 from gprm.predict.risk import CONTACTS
 from gprm.predict.trajectories import AXES
 from gprm.predict.whatif import DEFINITION
-from gprm.validate import Schema, Var, check_dataset
+from gprm.validate import Schema, Var, check_dataset, legacy_json_attr
 
 FORMAT_VERSION = 1
 
@@ -189,15 +188,8 @@ def read_prediction(path: str | os.PathLike, *, what: str = "prediction NetCDF")
 
 
 def _legacy(ds, key: str, default):
-    raw = ds.attrs.get(key)
-    if raw is None:
-        return default
-    try:
-        return json.loads(raw)
-    except (TypeError, ValueError, RecursionError):
-        raise GprmInputError("attribute is not valid JSON",
-                             source=str(ds.attrs.get("source", "prediction NetCDF")),
-                             field=key) from None
+    return legacy_json_attr(ds.attrs, key, default=default,
+                            source=str(ds.attrs.get("source", "prediction NetCDF")))
 
 
 def read_parameters(ds) -> tuple[dict, list]:

@@ -5,7 +5,6 @@ made with (:func:`read_parameters`)."""
 
 from __future__ import annotations
 
-import json
 import os
 
 import numpy as np
@@ -17,7 +16,7 @@ from gprm.errors import GprmInputError
 from gprm.params import ParameterSet
 from gprm.params.netcdf import parameter_table, read_parameter_table
 from gprm.simulate.core import COORDS, OUTPUTS, SimulationResult
-from gprm.validate import Schema, Var, check_dataset
+from gprm.validate import Schema, Var, check_dataset, legacy_json_attr
 
 UNITS = {"z_lr": "m", "z_A": "m", "x_A": "m", "y_A": "m", "eta": "rad", "theta": "rad",
          "mu3": "m", "mu4": "m", "q": "C", "x_base": "m", "x_head": "m", "y_base": "m",
@@ -82,11 +81,7 @@ def read_parameters(ds) -> dict:
     values = read_parameter_table(ds, "parameter_value")
     if values is not None:
         return values
-    raw = ds.attrs.get("parameters_json")
-    try:
-        doc = json.loads(raw) if raw is not None else None
-    except (TypeError, ValueError, RecursionError):
-        doc = None
+    doc = legacy_json_attr(ds.attrs, "parameters_json", source="", strict=False)
     if not isinstance(doc, dict):
         raise GprmInputError("no parameter set (parameter_value)",
                              source=str(ds.attrs.get("source", "simulation NetCDF")),

@@ -88,3 +88,26 @@ def test_mass_table(fm):
         assert m2.z_vs_nominal == pytest.approx((m2.fitted - m2.nominal) / m2.stderr)
     with pytest.raises(GprmInputError):
         MassTable.from_json([{"name": "m1"}])
+
+
+def test_prediction_to_xarray_is_its_file_and_to_json_its_headline(fm, tmp_path):
+    """Prediction: to_xarray() is exactly what predict.nc holds; to_json() carries the
+    overshoots of that file (point x axis) and is JSON-able."""
+    import xarray as xr
+
+    from gprm.predict.api import PredictOptions, run_predict
+    from gprm.predict.files import write_prediction
+
+    pred = run_predict(fm, PredictOptions(samples=4, seed=2, t_start=1e-3, t_end=1.02e-3))
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        pred.seed = 3
+    write_prediction(pred, tmp_path / "p.nc")
+    with xr.open_dataset(tmp_path / "p.nc") as ds:
+        ds = ds.load()
+    mine = pred.to_xarray()
+    np.testing.assert_array_equal(ds["overshoot"].values, mine["overshoot"].values)
+    doc = json.loads(json.dumps(pred.to_json(), allow_nan=False))
+    for i, point in enumerate(ds["point"].values.astype(str)):
+        for j, axis in enumerate("xyz"):
+            assert doc["overshoot_m"][point][axis] == float(ds["overshoot"].values[i, j])
+    assert doc["scenario"] == pred.scenario.to_json() and doc["seed"] == 2

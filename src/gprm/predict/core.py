@@ -16,6 +16,7 @@ from gprm.errors import GprmInputError
 from gprm.fit.files import FittedModel
 from gprm.predict.energy import DEFAULT_WINDOW as ENERGY_WINDOW
 from gprm.predict.energy import EnergyCheck, energy_check, read_means
+from gprm.predict.files import prediction_dataset
 from gprm.predict.masses import MassTable, mass_table
 from gprm.predict.risk import ImpactRisk, impact_risk
 from gprm.predict.scenarios import Scenario, apply_scenario
@@ -36,6 +37,28 @@ class Prediction:
     risk: ImpactRisk | None
     seed: int
     means_source: str | None
+
+    def to_xarray(self):
+        """The prediction as the dataset of its file (``predict.nc``, docs/prediction.md;
+        :func:`gprm.predict.files.prediction_dataset`)."""
+        return prediction_dataset(self)
+
+    def to_json(self) -> dict:
+        """The prediction's headline numbers, JSON-able: the scenario, the best-fit overshoot
+        of each point on each axis (m), the masses (Fig. 7), the impact risk where a gap was
+        given, and what uncertainty the bands carry. The time series are in
+        :meth:`to_xarray`."""
+        tr = self.trajectories
+        return {
+            "scenario": self.scenario.to_json(),
+            "overshoot_m": {p: dict(zip(("x", "y", "z"), map(float, self.overshoot[i])))
+                            for i, p in enumerate(tr.points)},
+            "masses": self.masses.to_json(),
+            "impact_risk": None if self.risk is None else self.risk.to_json(),
+            "uncertainty": self.fm.uncertainty_note,
+            "seed": int(self.seed),
+            "means_source": self.means_source,
+        }
 
 
 def prediction_times(t_start: float, t_end: float, rate: float) -> np.ndarray:

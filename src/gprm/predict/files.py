@@ -10,6 +10,7 @@ variables (the JSON attributes ``parameters_json``, ``fitted_json``, ``scenario_
 from __future__ import annotations
 
 import os
+from typing import TYPE_CHECKING
 
 import numpy as np
 import xarray as xr
@@ -18,12 +19,14 @@ import gprm
 from gprm._io import open_netcdf, read_json, write_json_atomic, write_netcdf_atomic
 from gprm.errors import GprmInputError
 from gprm.params.netcdf import parameter_table, read_fitted, read_parameter_table
-from gprm.predict.core import Prediction
 from gprm.predict.masses import mass_arrays
 from gprm.predict.risk import CONTACTS
 from gprm.predict.trajectories import AXES
 from gprm.predict.whatif import DEFINITION
 from gprm.validate import Schema, Var, check_dataset, legacy_json_attr
+
+if TYPE_CHECKING:                      # the type only: core builds its dataset from here
+    from gprm.predict.core import Prediction
 
 FORMAT_VERSION = 1
 

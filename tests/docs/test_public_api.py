@@ -49,3 +49,20 @@ def test_the_check_sees_private_imports():
 @pytest.mark.parametrize("name, text", list(_sources()))
 def test_worked_example_imports_no_private_module(name, text):
     assert private_gprm_imports(text) == [], name
+
+
+@pytest.mark.parametrize("stage", ["params", "model", "simulate", "campaign", "fit", "predict",
+                                   "flight", "report", "run"])
+def test_every_exported_name_resolves(stage):
+    """Each stage's lazily exported names (``__all__``) exist where they point: a name that
+    moved to another module must leave the export list with it."""
+    import importlib
+
+    pkg = importlib.import_module(f"gprm.{stage}")
+    missing = []
+    for name in getattr(pkg, "__all__", ()):
+        try:
+            getattr(pkg, name)
+        except AttributeError as exc:
+            missing.append(f"{name}: {exc}")
+    assert missing == []

@@ -1,5 +1,7 @@
 """What-ifs (Sec. 4.2): overshoot definition, scenario transforms, the paper's ratios."""
 
+import dataclasses
+import json
 from dataclasses import replace
 
 import numpy as np
@@ -9,7 +11,8 @@ from gprm.errors import GprmInputError
 from gprm.simulate.kinematics import body_motion, named_points, point_motion
 from gprm.report.figures import fig_sweep
 from gprm.predict.scenarios import ECCENTRICITIES, Scenario, apply_scenario
-from gprm.predict.whatif import PAPER_RATIOS, overshoot, sweep, whatif, window_times
+from gprm.predict.whatif import (PAPER_RATIOS, RatioSensitivity, overshoot, ratio_sensitivity,
+                                 sweep, whatif, window_times)
 
 
 @pytest.fixture(scope="module")
@@ -90,7 +93,6 @@ def test_paper_ratios_reported(table):
 
 
 def test_table_is_json(table):
-    import json
 
     s = json.dumps(table, allow_nan=False)
     assert "definition" in json.loads(s)
@@ -98,13 +100,19 @@ def test_table_is_json(table):
 
 
 def test_sweep_and_plot(fm, table, tmp_path):
-    sw = sweep(fm, "h2", [0.025, fm.params["h2"], 0.035])
+    res = sweep(fm, "h2", [0.025, fm.params["h2"], 0.035])
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        res.parameter = "m2"
+    sw = json.loads(json.dumps(res.to_json(), allow_nan=False))
+    ds = res.to_xarray()
+    np.testing.assert_array_equal(ds["overshoot"].sel(point=sw["points"][0]).values[:, 0],
+                                  sw["overshoot"][sw["points"][0]][sw["axes"][0]])
     base = table["scenarios"][0]["overshoot"]
     for p in sw["points"]:
         for a in sw["axes"]:
             assert np.isclose(sw["overshoot"][p][a][1], base[p][a], rtol=1e-12)
     assert sw["display_values"][1] == pytest.approx(30.0)
-    fig = fig_sweep(sw)
+    fig = fig_sweep(res)
     drawn = fig.axes[0].lines[0].get_ydata()      # first axis, first point, in um
     np.testing.assert_allclose(drawn, np.asarray(sw["overshoot"][sw["points"][0]][
         sw["axes"][0]]) * 1e6)
@@ -120,3 +128,19 @@ def test_scenario_of_a_changed_model(fm):
     f2 = replace(fm, params=fm.params.with_values(h2=0.02))
     b = whatif(f2, samples=0).scenarios[0]["overshoot"]["M_yz"]["y"]
     assert a != b
+
+
+def test_ratio_sensitivity_is_a_frozen_table(fm):
+    """Nominal headlines equal whatif's; each changed geometry value gives its own table."""
+    rs = ratio_sensitivity(fm, ("h2",), rel=0.25)
+    assert isinstance(rs, RatioSensitivity)
+    nominal = whatif(fm, samples=0)
+    assert rs.nominal == {r["name"]: r["headline"] for r in nominal.ratios[1:]}
+    doc = json.loads(json.dumps(rs.to_json(), allow_nan=False))
+    assert set(doc) == {"rel_change", "nominal", "h2"} and set(doc["h2"]) == {"x0.75", "x1.25"}
+    ds = rs.to_xarray()
+    assert list(ds["case"].values) == ["nominal", "h2 x0.75", "h2 x1.25"]
+    s0, a0 = str(ds["scenario"].values[0]), str(ds["axis"].values[0])
+    assert float(ds["ratio"].sel(case="h2 x1.25", scenario=s0, axis=a0)) == \
+        doc["h2"]["x1.25"][s0][a0]
+    assert doc["h2"]["x0.75"] != doc["nominal"]          # h2 matters (docs/prediction.md)

@@ -11,9 +11,9 @@ from gprm._lazy import attach
 
 __getattr__, __dir__, __all__ = attach(__name__, {
     "api": ["PredictOptions", "run_predict", "run_whatif"],
-    "core": ["Prediction", "load_model", "predict"],
+    "core": ["Prediction", "predict"],
     "files": ["prediction_dataset"],
     "masses": ["MassRow", "MassTable", "mass_table"],
     "scenarios": ["Scenario", "standard_scenarios"],
-    "whatif": ["WhatIf", "sweep"],
+    "whatif": ["RatioSensitivity", "Sweep", "WhatIf", "ratio_sensitivity", "sweep"],
 })

@@ -243,12 +243,55 @@ def whatif(fm: FittedModel, scenarios: Sequence[Scenario] | None = None, *,
                   seed=int(seed), scenarios=tuple(out_sc), ratios=tuple(out_ratio))
 
 
+@dataclass(frozen=True)
+class Sweep:
+    """Best-fit overshoot as one parameter takes several values (:func:`sweep`).
+
+    ``overshoot`` (value, point, axis) in m (NaN where the set could not be simulated,
+    ``ok`` False); ``values`` in SI, ``display_values`` in the registry's unit."""
+
+    parameter: str
+    display_unit: str
+    values: tuple[float, ...]
+    display_values: tuple[float, ...]
+    scenario: Scenario
+    window: tuple[float, float]
+    points: tuple[str, ...]
+    axes: tuple[str, ...]
+    ok: tuple[bool, ...]
+    overshoot: np.ndarray
+
+    def to_json(self) -> dict:
+        """The sweep as a JSON-able table (``overshoot[point][axis]`` a list over values)."""
+        os = self.overshoot
+        return {"parameter": self.parameter, "unit": "SI", "display_unit": self.display_unit,
+                "values": list(self.values), "display_values": list(self.display_values),
+                "scenario": self.scenario.to_json(), "window_s": list(self.window),
+                "definition": DEFINITION, "points": list(self.points),
+                "axes": list(self.axes), "ok": list(self.ok),
+                "overshoot": {p: {a: [float(x) for x in os[:, i, j]]
+                                  for j, a in enumerate(self.axes)}
+                              for i, p in enumerate(self.points)}}
+
+    def to_xarray(self) -> xr.Dataset:
+        """The overshoot along (value, point, axis), the swept values as coordinate."""
+        return xr.Dataset(
+            {"overshoot": (("value", "point", "axis"), self.overshoot,
+                           {"units": "m", "long_name": "best-fit overshoot"}),
+             "ok": (("value",), np.asarray(self.ok, np.int8),
+                    {"units": "1", "long_name": "1 if the set could be simulated"})},
+            coords={"value": ("value", np.asarray(self.values, float),
+                              {"long_name": f"{self.parameter} (SI)"}),
+                    "point": list(self.points), "axis": list(self.axes)},
+            attrs={"parameter": self.parameter, "scenario": self.scenario.name,
+                   "definition": DEFINITION})
+
+
 def sweep(fm: FittedModel, name: str, values: Sequence[float], *,
           base: Scenario | None = None, window: tuple[float, float] = DEFAULT_WINDOW,
-          rate: float = 1e6, points: Sequence[str] = WHATIF_POINTS, voltage=None) -> dict:
+          rate: float = 1e6, points: Sequence[str] = WHATIF_POINTS, voltage=None) -> Sweep:
     """Best-fit overshoot of ``points`` as parameter ``name`` takes ``values`` (SI), on top
-    of scenario ``base`` (default Piezo 2). JSON-able table; plot with
-    :func:`gprm.report.figures.fig_sweep`."""
+    of scenario ``base`` (default Piezo 2); plot with :func:`gprm.report.figures.fig_sweep`."""
 
     if name not in REGISTRY:
         raise GprmInputError("unknown parameter", field=name)
@@ -266,30 +309,64 @@ def sweep(fm: FittedModel, name: str, values: Sequence[float], *,
     disp, _, ok = sampled_points(pb, t, points, piezo=base.piezo, voltage=voltage)
     os = overshoot(disp)
     os[~ok] = np.nan
-    spec = REGISTRY[name]
-    return {"parameter": name, "unit": "SI", "display_unit": spec.unit,
-            "values": [float(v) for v in vals],
-            "display_values": [float(from_si(v, name)) for v in vals],
-            "scenario": base.to_json(), "window_s": [float(window[0]), float(window[1])],
-            "definition": DEFINITION, "points": list(points), "axes": list(AXES),
-            "ok": [bool(x) for x in ok],
-            "overshoot": {p: {a: [float(x) for x in os[:, i, j]] for j, a in enumerate(AXES)}
-                          for i, p in enumerate(points)}}
+    return Sweep(parameter=name, display_unit=REGISTRY[name].unit,
+                 values=tuple(float(v) for v in vals),
+                 display_values=tuple(float(from_si(v, name)) for v in vals),
+                 scenario=base, window=(float(window[0]), float(window[1])), points=points,
+                 axes=tuple(AXES), ok=tuple(bool(x) for x in ok), overshoot=os)
+
+
+@dataclass(frozen=True)
+class RatioSensitivity:
+    """The headline ratios of :func:`whatif` (per scenario and axis) for the nominal model
+    and with each assumed geometry value scaled by 1 - rel and 1 + rel
+    (:func:`ratio_sensitivity`). ``changed[name][factor]`` is a headline table like
+    ``nominal``: {scenario: {axis: ratio}}."""
+
+    rel_change: float
+    nominal: Mapping[str, Any]
+    changed: Mapping[str, Mapping[str, Any]]
+
+    def to_json(self) -> dict:
+        """The JSON table: ``rel_change``, ``nominal`` and one entry per changed name, keyed
+        by the factor (``x0.75``, ``x1.25``)."""
+        out: dict[str, Any] = {"rel_change": self.rel_change,
+                               "nominal": copy.deepcopy(dict(self.nominal))}
+        out.update({n: copy.deepcopy(dict(v)) for n, v in self.changed.items()})
+        return out
+
+    def to_xarray(self) -> xr.Dataset:
+        """The ratios along (case, scenario, axis); case ``nominal`` then ``<name> x<f>``."""
+        cases = [("nominal", self.nominal)] + [(f"{n} {k}", tab) for n, d in
+                                               self.changed.items() for k, tab in d.items()]
+        scen = list(self.nominal)
+        axes = sorted({a for tab in self.nominal.values() for a in tab})
+        cube = np.full((len(cases), len(scen), len(axes)), np.nan)
+        for i, (_, tab) in enumerate(cases):
+            for j, sname in enumerate(scen):
+                for k, a in enumerate(axes):
+                    v = tab.get(sname, {}).get(a)
+                    cube[i, j, k] = np.nan if v is None else float(v)
+        return xr.Dataset({"ratio": (("case", "scenario", "axis"), cube,
+                                     {"units": "1", "long_name": "headline overshoot ratio"})},
+                          coords={"case": [c for c, _ in cases], "scenario": scen,
+                                  "axis": axes},
+                          attrs={"rel_change": self.rel_change})
 
 
 def ratio_sensitivity(fm: FittedModel, names: Sequence[str] = ("h2", "dist_x", "dist_y",
                                                                "dist_z"), *,
                       rel: float = 0.25, window: tuple[float, float] = DEFAULT_WINDOW,
-                      rate: float = 1e6) -> dict:
+                      rate: float = 1e6) -> RatioSensitivity:
     """Headline ratios (Piezo 2 / Piezo 1 and Piezo 2 / Piezo 1 + eccentricities / 10) with
     each of ``names`` scaled by 1 - rel and 1 + rel: which assumed geometry values matter."""
-    out: dict[str, Any] = {"rel_change": rel, "nominal": _headlines(fm, window, rate)}
+    changed: dict[str, dict[str, Any]] = {}
     for n in names:
-        out[n] = {}
+        changed[n] = {}
         for f in (1 - rel, 1 + rel):
             f_fm = replace(fm, params=fm.params.with_values(**{n: fm.params[n] * f}))
-            out[n][f"x{f:g}"] = _headlines(f_fm, window, rate)
-    return out
+            changed[n][f"x{f:g}"] = _headlines(f_fm, window, rate)
+    return RatioSensitivity(rel, _headlines(fm, window, rate), changed)
 
 
 def _headlines(fm: FittedModel, window, rate) -> dict:

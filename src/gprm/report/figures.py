@@ -534,9 +534,11 @@ def fig_profiles(fit: dict):
     return fig
 
 
-def fig_sweep(sw: dict):
-    """Best-fit overshoot against a swept parameter (:func:`gprm.predict.whatif.sweep`): one
-    panel per axis, a line per point."""
+def fig_sweep(sw):
+    """Best-fit overshoot against a swept parameter (the :class:`~gprm.predict.whatif.Sweep`
+    of :func:`gprm.predict.whatif.sweep`, or its ``to_json()``): one panel per axis, a line
+    per point."""
+    sw = sw.to_json() if hasattr(sw, "to_json") else sw
     x = np.asarray(sw["display_values"], float)
     fig, axes = plt.subplots(1, len(sw["axes"]), figsize=(10.0, 3.4))
     for ax, a in zip(np.atleast_1d(axes), sw["axes"]):

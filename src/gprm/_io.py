@@ -7,6 +7,7 @@ interrupted or failed run never leaves a half-written file behind and never touc
 from __future__ import annotations
 
 import contextlib
+import csv
 import json
 import os
 import tempfile
@@ -248,3 +249,31 @@ def _is_inside(child: Path, folder: Path) -> bool:
         return True
     except ValueError:
         return False
+
+
+def two_column_rows(path: Path, src: str, columns: str, field: str
+                    ) -> tuple[list[tuple[float, float]], list[int]]:
+    """The numeric rows of a two-column CSV text file (time and one value: a campaign's data
+    file, a voltage trace) and the line number of each. Blank lines and lines starting with
+    ``#`` are skipped, and so are non-numeric rows before the first number (a header); a row
+    with fewer than two fields, or a non-numeric one after the data began, is a
+    :class:`GprmInputError` naming ``field`` and the line (``columns`` names the two
+    columns in that message). Decoding errors propagate to the caller, who names them."""
+    rows: list[tuple[float, float]] = []
+    lines: list[int] = []
+    with path.open(newline="", encoding="utf-8") as fh:
+        for lineno, row in enumerate(csv.reader(fh), start=1):
+            if not row or not "".join(row).strip() or row[0].lstrip().startswith("#"):
+                continue
+            if len(row) < 2:
+                raise GprmInputError(f"line {lineno}: expected 2 columns ({columns})",
+                                     source=src, field=field)
+            try:
+                rows.append((float(row[0]), float(row[1])))
+                lines.append(lineno)
+            except ValueError:
+                if rows:            # a non-numeric row after the data began
+                    raise GprmInputError(f"line {lineno}: not a number: {row[:2]}",
+                                         source=src, field=field) from None
+                continue            # a header row
+    return rows, lines

@@ -49,7 +49,7 @@ from pathlib import Path
 import numpy as np
 import xarray as xr
 
-from gprm._io import open_netcdf, write_netcdf_atomic
+from gprm._io import open_netcdf, two_column_rows, write_netcdf_atomic
 from gprm.campaign.data import POSITIONS, RATE_RTOL, campaign_dataset, validate_campaign
 from gprm.errors import GprmInputError
 from gprm.validate import CAMPAIGN, MEANS, check_dataset, legacy_json_attr, unit_factor
@@ -438,23 +438,8 @@ def _read_two_columns(path: Path) -> tuple[np.ndarray, np.ndarray]:
     if not path.is_file():
         raise GprmInputError("data file listed in the manifest does not exist", source=src,
                              field="file")
-    rows = []
-    lines = []
-    with _text_errors(src, "value"), path.open(newline="", encoding="utf-8") as fh:
-        for lineno, row in enumerate(csv.reader(fh), start=1):
-            if not row or not "".join(row).strip() or row[0].lstrip().startswith("#"):
-                continue
-            if len(row) < 2:
-                raise GprmInputError(f"line {lineno}: expected 2 columns (time_s, value)",
-                                     source=src, field="value")
-            try:
-                rows.append((float(row[0]), float(row[1])))
-                lines.append(lineno)
-            except ValueError:
-                if rows:
-                    raise GprmInputError(f"line {lineno}: not a number: {row[:2]}",
-                                         source=src, field="value") from None
-                continue  # header row
+    with _text_errors(src, "value"):
+        rows, lines = two_column_rows(path, src, "time_s, value", "value")
     if not rows:
         raise GprmInputError("holds no samples (empty)", source=src, field="value")
     a = np.array(rows, float)

@@ -14,7 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
-from gprm._io import check_input_file
+from gprm._io import check_input_file, two_column_rows
 from gprm.errors import GprmInputError
 
 
@@ -85,9 +85,8 @@ def read_voltage_csv(path: str | os.PathLike) -> VoltageTrace:
     src = str(path)
 
     check_input_file(path, what="voltage file")
-    rows = []
     try:
-        rows = _voltage_rows(path, src)
+        rows, _ = two_column_rows(path, src, "time, voltage", "voltage")
     except UnicodeDecodeError as exc:
         raise GprmInputError(f"is not UTF-8 text (byte {exc.start}: {exc.reason})",
                              source=src, field="voltage") from None
@@ -100,20 +99,3 @@ def read_voltage_csv(path: str | os.PathLike) -> VoltageTrace:
     return VoltageTrace(arr[:, 0], arr[:, 1], source=src)
 
 
-def _voltage_rows(path: Path, src: str) -> list:
-    rows = []
-    with path.open(newline="", encoding="utf-8") as fh:
-        for lineno, row in enumerate(csv.reader(fh), start=1):
-            if not row or not "".join(row).strip() or row[0].lstrip().startswith("#"):
-                continue
-            if len(row) < 2:
-                raise GprmInputError(f"line {lineno}: expected 2 columns (time, voltage)",
-                                     source=src, field="voltage")
-            try:
-                rows.append((float(row[0]), float(row[1])))
-            except ValueError:
-                if rows:  # a non-numeric row after data
-                    raise GprmInputError(f"line {lineno}: not a number: {row[:2]}",
-                                         source=src, field="voltage") from None
-                continue  # header
-    return rows

@@ -419,8 +419,6 @@ class Factors:
 class Algorithm1Damping:
     """Algorithm 1's damping: lambda diag(J^T J) at the current point (``damping="current"``)."""
 
-    name: str = "current"
-
     def init(self, J: np.ndarray) -> np.ndarray | None:
         return None
 
@@ -435,8 +433,6 @@ class Algorithm1Damping:
 class MinpackDamping:
     """MINPACK's scale: lambda times the largest diag(J^T J) seen so far along the row's path
     (``damping="max"``); its state is that running maximum (B, P)."""
-
-    name: str = "max"
 
     def init(self, J: np.ndarray) -> np.ndarray:
         return np.einsum("bnp,bnp->bp", J, J)
@@ -821,8 +817,9 @@ def accept(state: LMState, prop: Proposal, trial: Trial, settings: Settings, dam
             flat = active & (before - chi2 <= settings.stall_tol)
             status[flat] = "stalled"
             active &= ~flat
-    return LMState(it, X, r, J, chi2, state.chi2_0, lam, status, active, iters, nfev, njev,
-                   stale, factors, scale, delta, ring)
+    return replace(state, it=it, x=X, r=r, J=J, chi2=chi2, lam=lam, status=status,
+                   active=active, iterations=iters, nfev=nfev, njev=njev, stale=stale,
+                   factors=factors, scale=scale, delta=delta, ring=ring)
 
 
 def lm_step(state: LMState, problem: Problem, box: Box, settings: Settings, damping, control,
@@ -916,8 +913,9 @@ def levenberg_marquardt_batch(fun: Callable, X0: np.ndarray, *, residuals: Calla
     damp, control, accel = select_plugins(damping=damping, geodesic=geodesic, geo_h=geo_h,
                                           geo_alpha=geo_alpha, step_bound=step_bound,
                                           xtol=xtol, lambda_max=lambda_max)
-    settings = Settings(int(max_iter), lambda0, ftol, ftol_abs, chi2_tol, int(stall_window),
-                        stall_tol, keep_jacobian)
+    settings = Settings(max_iter=int(max_iter), lambda0=lambda0, ftol=ftol, ftol_abs=ftol_abs,
+                        chi2_tol=chi2_tol, stall_window=int(stall_window), stall_tol=stall_tol,
+                        keep_jacobian=keep_jacobian)
     return minimize_batch(Problem(fun, residuals), X0, settings, damping=damp, control=control,
                           acceleration=accel, lower=lower, upper=upper, prune=prune)
 

@@ -211,16 +211,13 @@ MEANS = Schema("mean-signals NetCDF", (
 SCHEMAS = {"campaign": CAMPAIGN, "means": MEANS}
 
 
-_MISSING = object()
-
-
 def legacy_json_attr(attrs, key: str, *, source: str, default=None, strict: bool = True):
     """The JSON document an older gprm file stored in the attribute ``key`` (tabular metadata
     are variables now, docs/data-formats.md), or ``default`` where the attribute is absent.
     Text that is not valid JSON is a :class:`GprmInputError` naming ``key`` (``strict``) or
     gives ``default`` (for optional settings a reader can do without)."""
-    raw = attrs.get(key, _MISSING)
-    if raw is _MISSING or raw is None:
+    raw = attrs.get(key)
+    if raw is None:
         return default
     try:
         return json.loads(raw)
@@ -229,3 +226,18 @@ def legacy_json_attr(attrs, key: str, *, source: str, default=None, strict: bool
             return default
         raise GprmInputError("attribute is not valid JSON", source=source,
                              field=key) from None
+
+
+def check_int(name: str, v, lo: int) -> None:
+    """An option that must be an integer (not a bool) of at least ``lo``; else a
+    :class:`GprmInputError` naming ``name`` (the option dataclasses' ``__post_init__``)."""
+    if isinstance(v, bool) or not isinstance(v, int) or v < lo:
+        raise GprmInputError(f"must be an integer, at least {lo}; got {v!r}", field=name)
+
+
+def check_number(name: str, v, *, positive: bool = False) -> None:
+    """An option that must be a finite number >= 0 (> 0 with ``positive``), not a bool."""
+    if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) \
+            or v < 0 or (positive and v == 0):
+        raise GprmInputError(f"must be a finite number {'> 0' if positive else '>= 0'}, "
+                             f"got {v!r}", field=name)

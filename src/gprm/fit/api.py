@@ -26,18 +26,7 @@ from gprm.fit.result import FitResult
 from gprm.fit.starts import LMOptions, MultiStartOptions
 from gprm.fit.uncertainty import DEFAULT_METHOD, METHODS
 from gprm.params import ALIGNMENT_OFFSETS, ParameterSet, load_params
-
-
-def _int(name: str, v, lo: int) -> None:
-    if isinstance(v, bool) or not isinstance(v, int) or v < lo:
-        raise GprmInputError(f"must be an integer, at least {lo}; got {v!r}", field=name)
-
-
-def _num(name: str, v, *, positive: bool = False) -> None:
-    if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) \
-            or v < 0 or (positive and v == 0):
-        raise GprmInputError(f"must be a finite number {'> 0' if positive else '>= 0'}, "
-                             f"got {v!r}", field=name)
+from gprm.validate import check_int, check_number
 
 
 @dataclass(frozen=True)
@@ -67,9 +56,9 @@ class FitOptions:
     boot: int = 30                            # campaigns of the parametric bootstrap
 
     def __post_init__(self):
-        _int("starts", self.starts, 1)
-        _int("seed", self.seed, 0)
-        _num("spread", self.spread, positive=True)
+        check_int("starts", self.starts, 1)
+        check_int("seed", self.seed, 0)
+        check_number("spread", self.spread, positive=True)
         if self.sampling not in ("uniform", "lhs"):
             raise GprmInputError(f"must be uniform or lhs, got {self.sampling!r}",
                                  field="sampling")
@@ -87,21 +76,21 @@ class FitOptions:
                                      field=name)
         if self.piezo not in (1, 2) or isinstance(self.piezo, bool):
             raise GprmInputError(f"must be 1 or 2, got {self.piezo!r}", field="piezo")
-        _int("chunk", self.chunk, 1)
-        _int("max_iter", self.max_iter, 1)
-        _int("stall_window", self.stall_window, 0)
-        _num("stall_tol", self.stall_tol)
-        _int("prune_after", self.prune_after, 0)
-        _num("prune_factor", self.prune_factor, positive=True)
-        _int("band_samples", self.band_samples, 0)
+        check_int("chunk", self.chunk, 1)
+        check_int("max_iter", self.max_iter, 1)
+        check_int("stall_window", self.stall_window, 0)
+        check_number("stall_tol", self.stall_tol)
+        check_int("prune_after", self.prune_after, 0)
+        check_number("prune_factor", self.prune_factor, positive=True)
+        check_int("band_samples", self.band_samples, 0)
         if self.uncertainty not in METHODS:
             raise GprmInputError(f"must be one of {', '.join(METHODS)}, got "
                                  f"{self.uncertainty!r}", field="uncertainty")
-        _num("prior_width", self.prior_width)
+        check_number("prior_width", self.prior_width)
         if self.prior_width == 0 and self.uncertainty not in ("eq7", "eq7-corr"):
             raise GprmInputError("0 (no prior) needs the uncertainty eq7 or eq7-corr",
                                  field="prior_width")
-        _int("boot", self.boot, 5)
+        check_int("boot", self.boot, 5)
 
     def multistart(self) -> MultiStartOptions:
         return MultiStartOptions(n_starts=self.starts, seed=self.seed, spread=self.spread,

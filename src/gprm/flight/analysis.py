@@ -14,17 +14,13 @@ import numpy as np
 import xarray as xr
 
 from gprm.errors import GprmInputError
-from gprm.flight.files import impact_curves_dataset
+from gprm.flight.files import IMPACT_FORMAT, impact_curves_dataset
 from gprm.flight.impact_time import ImpactTimeMC, impact_time_mc
 from gprm.flight.joint import joint_impact_time
 from gprm.flight.predicted import ImpactGeometry, VelocityCurves, velocity_curves
 from gprm.flight.telemetry import AXES, AXIS_CHANNEL, AXIS_UNIT, release_velocities
 from gprm.flight.tukey import tukey_range_test
-
-
-def _int(name: str, v, lo: int) -> None:
-    if isinstance(v, bool) or not isinstance(v, int) or v < lo:
-        raise GprmInputError(f"must be an integer, at least {lo}; got {v!r}", field=name)
+from gprm.validate import check_int
 
 
 def _real(v) -> bool:
@@ -58,10 +54,10 @@ class AnalysisOptions:
         if not _real(self.alpha) or not 0 < self.alpha < 1:
             raise GprmInputError(f"must be a number between 0 and 1 (exclusive), got "
                                  f"{self.alpha!r}", field="alpha")
-        _int("n_samples", self.n_samples, 2)
-        _int("n_times", self.n_times, 2)
-        _int("seed", self.seed, 0)
-        _int("min_samples", self.min_samples, 2)
+        check_int("n_samples", self.n_samples, 2)
+        check_int("n_times", self.n_times, 2)
+        check_int("seed", self.seed, 0)
+        check_int("min_samples", self.min_samples, 2)
         if self.window is not None:
             w = tuple(self.window)
             if len(w) != 2 or not all(_real(x) for x in w) or not 0 <= w[0] < w[1]:
@@ -115,7 +111,7 @@ class ImpactResult:
     notes: tuple[str, ...] = ()
     sidecar: str | None = None
 
-    FORMAT = "gprm-impact"
+    FORMAT = IMPACT_FORMAT
     FORMAT_VERSION = 1
     TIME_BASE = "s from the start of the retraction record (retraction command at t_c)"
 

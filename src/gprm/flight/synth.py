@@ -23,7 +23,6 @@ Per release (docs/flight.md):
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -35,6 +34,7 @@ from gprm.flight.files import synth_option_attrs, telemetry_dataset
 from gprm.flight.telemetry import AXES
 from gprm.params import batch
 from gprm.simulate.kinematics import body_motion
+from gprm.validate import check_int, check_number
 
 TM_COMPONENTS = ("vx", "vy", "vz", "wx", "wy", "wz")
 
@@ -67,17 +67,10 @@ class SynthOptions:
 
     def __post_init__(self):
         for name, lo in (("n_releases", 1), ("seed", 0)):
-            v = getattr(self, name)
-            if isinstance(v, bool) or not isinstance(v, int) or v < lo:
-                raise GprmInputError(f"must be an integer, at least {lo}; got {v!r}",
-                                     field=name)
+            check_int(name, getattr(self, name), lo)
         for name, positive in (("rate", True), ("pre", False), ("post", True),
                                ("pos_noise", True), ("att_noise", True), ("grid_step", True)):
-            v = getattr(self, name)
-            if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) \
-                    or v < 0 or (positive and v == 0):
-                raise GprmInputError(f"must be a finite number {'> 0' if positive else '>= 0'}"
-                                     f", got {v!r}", field=name)
+            check_number(name, getattr(self, name), positive=positive)
         if self.z_from not in ("sum", "xz", "yz"):
             raise GprmInputError(f"must be sum, xz or yz, got {self.z_from!r}", field="z_from")
         if self.truth_model not in ("3d", "planar"):

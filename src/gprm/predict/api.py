@@ -17,6 +17,7 @@ from gprm.predict.core import Prediction, predict, prediction_times
 from gprm.predict.scenarios import Scenario, check_scenario
 from gprm.predict.whatif import WhatIf, whatif
 from gprm.simulate.inputs import read_voltage_csv
+from gprm.validate import check_int
 
 #: the what-if table draws at most this many parameter sets (its ranges are 2.5/97.5 %)
 WHATIF_MAX_SAMPLES = 100
@@ -68,10 +69,7 @@ class PredictOptions:
                                  f"{self.t_end:g} s", field="t_end")
         _finite("rate", self.rate, positive=True)
         for name, lo in (("samples", 0), ("seed", 0), ("bins", 1)):
-            v = getattr(self, name)
-            if isinstance(v, bool) or not isinstance(v, int) or v < lo:
-                raise GprmInputError(f"must be an integer, at least {lo}; got {v!r}",
-                                     field=name)
+            check_int(name, getattr(self, name), lo)
         w = tuple(self.ke_window)
         if len(w) != 2:
             raise GprmInputError(f"must be two times start < end, got {self.ke_window!r}",

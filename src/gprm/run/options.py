@@ -9,6 +9,7 @@ from dataclasses import dataclass, field
 from gprm.campaign.api import PreprocessOptions
 from gprm.errors import GprmInputError
 from gprm.fit.api import FitOptions
+from gprm.validate import check_int
 
 QUICK_STARTS = 50
 QUICK_SAMPLES = 40
@@ -46,10 +47,7 @@ class RunOptions:
                     raise GprmInputError(f"must be a path, got {v!r}", field=name)
                 object.__setattr__(self, name, os.fspath(v))
         for name, lo in (("seed", 0), ("predict_samples", 0), ("releases", 2), ("workers", 0)):
-            v = getattr(self, name)
-            if isinstance(v, bool) or not isinstance(v, int) or v < lo:
-                raise GprmInputError(f"must be an integer, at least {lo}; got {v!r}",
-                                     field=name)
+            check_int(name, getattr(self, name), lo)
         if not isinstance(self.preprocess, PreprocessOptions):
             raise GprmInputError("expected PreprocessOptions", field="preprocess")
         if not isinstance(self.fit, FitOptions):

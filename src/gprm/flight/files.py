@@ -280,6 +280,14 @@ def telemetry_from_dataset(ds, *, source: str = "telemetry", min_releases: int =
     return Telemetry(tuple(releases), source, dict(ds.attrs), truth_t, _truth_velocity(ds))
 
 
+def _join_axes(lin: xr.DataArray, ang: xr.DataArray, *, axis: int) -> np.ndarray:
+    """The linear (``velocity_axis``) and angular (``angular_axis``) components of a file
+    joined back into one array along ``axis``, in the order of ``AXES``."""
+    rows = [lin.sel(velocity_axis=a).values if a in LINEAR_AXES
+            else ang.sel(angular_axis=a).values for a in AXES]
+    return np.stack([np.asarray(r, float) for r in rows], axis=axis)
+
+
 def _truth_velocity(ds) -> np.ndarray | None:
     """(R, 6) true velocities in AXES order: from ``truth_velocity(release, velocity_axis)``
     and ``truth_angular_velocity(release, angular_axis)``, or (older files) from
@@ -289,11 +297,7 @@ def _truth_velocity(ds) -> np.ndarray | None:
     tv = ds["truth_velocity"]
     if "axis" in tv.dims:
         return np.asarray(tv.transpose("release", "axis").values, float)
-    lin = tv.transpose("release", "velocity_axis")
-    ang = ds["truth_angular_velocity"].transpose("release", "angular_axis")
-    cols = [lin.sel(velocity_axis=a).values if a in LINEAR_AXES
-            else ang.sel(angular_axis=a).values for a in AXES]
-    return np.stack([np.asarray(c, float) for c in cols], axis=1)
+    return _join_axes(tv, ds["truth_angular_velocity"], axis=1)
 
 
 
@@ -502,9 +506,7 @@ def read_impact_curves(path: str | os.PathLike) -> xr.Dataset:
     out = {}
     for q in CURVE_QUANTITIES:
         lin, ang = ds[f"velocity_{q}"], ds[f"angular_velocity_{q}"]
-        rows = [lin.sel(velocity_axis=a).values if a in LINEAR_AXES
-                else ang.sel(angular_axis=a).values for a in AXES]
-        out[q] = (("axis", "time"), np.stack([np.asarray(r, float) for r in rows]),
+        out[q] = (("axis", "time"), _join_axes(lin, ang, axis=0),
                   {"long_name": CURVE_QUANTITIES[q],
                    "comment": "SI: m s-1 for vx, vz_xz, vy, vz_yz; rad s-1 for wy, wx"})
     for v in ("approaching", "plausible"):

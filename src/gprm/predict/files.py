@@ -210,9 +210,9 @@ def read_scenario(ds) -> dict:
     if "scenario_name" in ds.attrs:
         over = {}
         if "parameter_overridden" in ds.variables:
-            names = [str(n) for n in ds["parameter"].values]
-            over = {n: float(v) for n, v, f in zip(names, ds["parameter_value"].values,
-                                                   ds["parameter_overridden"].values) if f}
+            values = read_parameter_table(ds, "parameter_value") or {}
+            over = {n: v for (n, v), f in zip(values.items(), ds["parameter_overridden"].values)
+                    if f}
         return {"name": str(ds.attrs["scenario_name"]), "piezo": int(ds.attrs["piezo"]),
                 "scale_eccentricity": float(ds.attrs["scale_eccentricity"]),
                 "overrides": over}

@@ -95,7 +95,8 @@ def waterfall(chi2, *, ax=None, tol: float = 1.0, title: str | None = None):
     """
     c = np.asarray(chi2, float).ravel()
     finite = np.sort(c[np.isfinite(c)])
-    n_failed = int(c.size - finite.size)
+    counts = waterfall_counts(c, tol)
+    n_failed = counts["n_failed"]
     if ax is None:
         fig, ax = plt.subplots(figsize=(6.0, 3.6), constrained_layout=True)
     else:
@@ -104,8 +105,7 @@ def waterfall(chi2, *, ax=None, tol: float = 1.0, title: str | None = None):
         ax.text(0.5, 0.5, f"no start produced a finite chi-square ({c.size} failed)",
                 ha="center", va="center", transform=ax.transAxes)
         return fig
-    best = finite[0]
-    n_best = int(np.sum(finite <= best + tol))
+    best, n_best = counts["best"], counts["n_at_best"]
     rank = np.arange(1, finite.size + 1)
     ax.plot(rank, finite, ".", ms=3, color="0.35", label="starts (sorted)")
     ax.plot(rank[:n_best], finite[:n_best], ".", ms=4, color="tab:orange",

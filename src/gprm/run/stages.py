@@ -31,7 +31,8 @@ from gprm.flight.analysis import AnalysisOptions
 from gprm.flight.api import (ImpactOptions, TelemetryOptions, run_impact, run_synth_telemetry,
                              write_impact)
 from gprm.flight.synth import SynthOptions
-from gprm.flight.files import load_telemetry, telemetry_csv_dataset, write_telemetry
+from gprm.flight.files import (load_telemetry, telemetry_csv_dataset, telemetry_from_dataset,
+                               write_telemetry)
 from gprm.predict.api import PredictOptions, run_predict, run_whatif
 from gprm.predict.files import write_prediction, write_whatif
 from gprm.predict.scenarios import standard_scenarios
@@ -170,12 +171,15 @@ def _telemetry(run: Path, opts: RunOptions, step) -> dict:
     dest = run / "telemetry.nc"
     if opts.telemetry is not None:
         src = Path(opts.telemetry)
-        tel = load_telemetry(src)             # checks it before it enters the run directory
-        if src.suffix.lower() in (".csv", ".txt"):
-            write_telemetry(telemetry_csv_dataset(src), dest)
-        elif not _same_file(src, dest):       # a NetCDF file: taken as it is
-            with atomic_path(dest) as tmp:
-                shutil.copyfile(src, tmp)
+        if src.suffix.lower() in (".csv", ".txt"):   # parsed once, checked, then written
+            ds = telemetry_csv_dataset(src)
+            tel = telemetry_from_dataset(ds, source=str(src))
+            write_telemetry(ds, dest)
+        else:                                 # checked before it enters the run directory
+            tel = load_telemetry(src)
+            if not _same_file(src, dest):     # a NetCDF file: taken as it is
+                with atomic_path(dest) as tmp:
+                    shutil.copyfile(src, tmp)
         return {"source": str(src), "releases": len(tel.releases)}
     fm = load_model(run)
     notes = model_notes(fm)

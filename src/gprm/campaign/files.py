@@ -111,10 +111,9 @@ def read_truth(ds) -> dict | None:
     values = read_parameter_table(ds, "truth_value")
     if values is not None:
         return values
-    raw = ds.attrs.get("truth_json")
-    if raw is None:
+    doc = legacy_json_attr(ds.attrs, "truth_json", source=_src(ds))
+    if doc is None:
         return None
-    doc = _legacy_json(raw, ds, "truth_json")
     if not isinstance(doc, dict):
         raise GprmInputError("attribute must hold a JSON object", source=_src(ds),
                              field="truth_json")
@@ -130,10 +129,6 @@ def has_truth(attrs) -> bool:
 
 def _src(ds) -> str:
     return str(getattr(ds, "attrs", {}).get("source", "NetCDF file"))
-
-
-def _legacy_json(raw, ds, field: str):
-    return legacy_json_attr({field: raw}, field, source=_src(ds))
 
 
 def _plain(v):
@@ -277,7 +272,8 @@ def read_tables(ds) -> tuple[dict, dict, dict]:
                 rows[str(key)] = row
             return rows
         raw = ds.attrs.get(legacy)
-        return _legacy_json(raw, ds, legacy) if isinstance(raw, str) and raw else {}
+        return (legacy_json_attr(ds.attrs, legacy, source=_src(ds))
+                if isinstance(raw, str) and raw else {})
 
     return (table("ratio", _T1_FIELDS, "table1_json"),
             table("dropped_position", _DROP_FIELDS, "dropped_json"),
@@ -325,8 +321,7 @@ def read_truth_alignment(ds) -> dict | None:
         for key, var, _ in _ALIGN_SCALARS:
             out[key] = float(ds[var].values)
         return out
-    raw = ds.attrs.get("truth_alignment_json")
-    return None if raw is None else _legacy_json(raw, ds, "truth_alignment_json")
+    return legacy_json_attr(ds.attrs, "truth_alignment_json", source=_src(ds))
 
 
 def read_no_crossing(ds) -> list[str]:
@@ -334,8 +329,7 @@ def read_no_crossing(ds) -> list[str]:
     others); older files: the JSON attribute ``no_crossing_json``."""
     if "no_crossing" in ds.variables:
         return [str(s) for s, f in zip(ds["signal"].values, ds["no_crossing"].values) if f]
-    raw = ds.attrs.get("no_crossing_json")
-    return [] if raw is None else list(_legacy_json(raw, ds, "no_crossing_json"))
+    return list(legacy_json_attr(ds.attrs, "no_crossing_json", source=_src(ds), default=[]))
 
 
 def means_dataset(ms) -> xr.Dataset:

@@ -221,26 +221,14 @@ def check_outputs(outputs: dict | list[tuple[Any, str]], inputs=(), *,
             raise GprmInputError(f"cannot be written: {why}", source=str(path), field=opt)
 
 
-def files_read_from(folder: str | os.PathLike, *, suffixes=None,
-                    listed=None) -> list[Path]:
-    """The files of an input folder a command may read: with ``suffixes``, every file with
-    those endings (a run directory); with ``listed`` (a function of the manifest's path
-    returning the file names it lists; the campaign stage passes its manifest reader, so this
-    module imports no stage), ``manifest.csv`` and the files it lists (as far as the manifest
-    can be read; a bad one is refused later)."""
+def files_read_from(folder: str | os.PathLike, suffixes) -> list[Path]:
+    """The files of an input folder a command may read: every file with one of the endings
+    ``suffixes`` (a run directory). A campaign folder lists its own
+    (:func:`gprm.campaign.files.campaign_inputs`)."""
     folder = Path(folder)
     if not folder.is_dir():
         return []
-    if suffixes is not None:
-        return [p for p in folder.iterdir() if p.is_file() and p.suffix in suffixes]
-    manifest = folder / "manifest.csv"
-    out = [manifest]
-    if listed is not None:
-        try:
-            out += [folder / name for name in listed(manifest)]
-        except GprmInputError:
-            pass
-    return out
+    return [p for p in folder.iterdir() if p.is_file() and p.suffix in suffixes]
 
 
 def _is_inside(child: Path, folder: Path) -> bool:
@@ -251,17 +239,33 @@ def _is_inside(child: Path, folder: Path) -> bool:
         return False
 
 
+@contextlib.contextmanager
+def text_errors(src: str, field: str):
+    """Turn undecodable, binary or unreadable CSV text files into one-line input errors."""
+    try:
+        yield
+    except UnicodeDecodeError as exc:
+        raise GprmInputError(f"is not UTF-8 text (byte {exc.start}: {exc.reason}); save the "
+                             "CSV as UTF-8", source=src, field=field) from None
+    except csv.Error as exc:
+        raise GprmInputError(f"is not a readable CSV file ({exc})", source=src,
+                             field=field) from None
+    except OSError as exc:
+        raise GprmInputError(f"cannot be read ({exc.strerror or exc})", source=src,
+                             field=field) from None
+
+
 def two_column_rows(path: Path, src: str, columns: str, field: str
                     ) -> tuple[list[tuple[float, float]], list[int]]:
     """The numeric rows of a two-column CSV text file (time and one value: a campaign's data
     file, a voltage trace) and the line number of each. Blank lines and lines starting with
-    ``#`` are skipped, and so are non-numeric rows before the first number (a header); a row
-    with fewer than two fields, or a non-numeric one after the data began, is a
-    :class:`GprmInputError` naming ``field`` and the line (``columns`` names the two
-    columns in that message). Decoding errors propagate to the caller, who names them."""
+    ``#`` are skipped, and so are non-numeric rows before the first number (a header). A row
+    with fewer than two fields, a non-numeric one after the data began, no numeric row at
+    all, or a file that is not readable UTF-8 CSV text is a :class:`GprmInputError` naming
+    ``field`` (``columns`` names the two columns in the message)."""
     rows: list[tuple[float, float]] = []
     lines: list[int] = []
-    with path.open(newline="", encoding="utf-8") as fh:
+    with text_errors(src, field), path.open(newline="", encoding="utf-8") as fh:
         for lineno, row in enumerate(csv.reader(fh), start=1):
             if not row or not "".join(row).strip() or row[0].lstrip().startswith("#"):
                 continue
@@ -276,4 +280,6 @@ def two_column_rows(path: Path, src: str, columns: str, field: str
                     raise GprmInputError(f"line {lineno}: not a number: {row[:2]}",
                                          source=src, field=field) from None
                 continue            # a header row
+    if not rows:
+        raise GprmInputError("holds no samples (empty)", source=src, field=field)
     return rows, lines

@@ -70,12 +70,11 @@ def register(app: typer.Typer, synth_app: typer.Typer) -> None:
                                               "threshold, e.g. 1ms (bare: s)"),
     ):
         """Synchronise, average and align a campaign (Sec. 2); prints Table 1."""
-        from gprm._io import check_outputs, files_read_from
+        from gprm._io import check_outputs
         from gprm.campaign.api import PreprocessOptions, preprocess_campaign
-        from gprm.campaign.files import read_manifest, write_means
+        from gprm.campaign.files import campaign_inputs, write_means
 
-        check_outputs({out: "--out"}, inputs=[campaign, *files_read_from(
-            campaign, listed=lambda m: [row["file"] for row in read_manifest(m)])])
+        check_outputs({out: "--out"}, inputs=campaign_inputs(campaign))
         ms = preprocess_campaign(campaign, PreprocessOptions(align_time=align_time))
         write_means(ms, out)
         typer.echo(f"wrote {out}: {len(ms.signals)} mean signals x {ms.time.size} samples "

@@ -37,7 +37,6 @@ CSV folder layout::
 
 from __future__ import annotations
 
-import contextlib
 import csv
 import dataclasses
 import hashlib
@@ -49,7 +48,7 @@ from pathlib import Path
 import numpy as np
 import xarray as xr
 
-from gprm._io import open_netcdf, two_column_rows, write_netcdf_atomic
+from gprm._io import open_netcdf, text_errors, two_column_rows, write_netcdf_atomic
 from gprm.campaign.data import POSITIONS, RATE_RTOL, campaign_dataset, validate_campaign
 from gprm.errors import GprmInputError
 from gprm.validate import CAMPAIGN, MEANS, check_dataset, legacy_json_attr, unit_factor
@@ -411,31 +410,12 @@ def read_means(path: str | os.PathLike, *, what: str = "mean-signals file") -> x
 KINDS = ("actuated", "noise", "voltage")
 
 
-@contextlib.contextmanager
-def _text_errors(src: str, field: str):
-    """Turn undecodable, binary or unreadable CSV files into one-line input errors."""
-    try:
-        yield
-    except UnicodeDecodeError as exc:
-        raise GprmInputError(f"is not UTF-8 text (byte {exc.start}: {exc.reason}); save the "
-                             "CSV as UTF-8", source=src, field=field) from None
-    except csv.Error as exc:
-        raise GprmInputError(f"is not a readable CSV file ({exc})", source=src,
-                             field=field) from None
-    except OSError as exc:
-        raise GprmInputError(f"cannot be read ({exc.strerror or exc})", source=src,
-                             field=field) from None
-
-
 def _read_two_columns(path: Path) -> tuple[np.ndarray, np.ndarray]:
     src = str(path)
     if not path.is_file():
         raise GprmInputError("data file listed in the manifest does not exist", source=src,
                              field="file")
-    with _text_errors(src, "value"):
-        rows, lines = two_column_rows(path, src, "time_s, value", "value")
-    if not rows:
-        raise GprmInputError("holds no samples (empty)", source=src, field="value")
+    rows, lines = two_column_rows(path, src, "time_s, value", "value")
     a = np.array(rows, float)
     t, v = a[:, 0], a[:, 1]
     if not np.all(np.isfinite(t)):
@@ -452,12 +432,28 @@ def _read_two_columns(path: Path) -> tuple[np.ndarray, np.ndarray]:
     return t, v
 
 
+def campaign_inputs(path: str | os.PathLike) -> list[Path]:
+    """The files a command reads from a campaign (for :func:`gprm._io.check_outputs`): a
+    NetCDF file itself, or a CSV folder with its ``manifest.csv`` and the files the manifest
+    lists (as far as it can be read; a bad manifest is refused when the campaign is read)."""
+    path = Path(path)
+    if not path.is_dir():
+        return [path]
+    manifest = path / "manifest.csv"
+    out = [path, manifest]
+    try:
+        out += [path / row["file"] for row in read_manifest(manifest)]
+    except GprmInputError:
+        pass
+    return out
+
+
 def read_manifest(path: Path) -> list[dict]:
     src = str(path)
     if not path.is_file():
         raise GprmInputError("campaign directory has no manifest.csv", source=src,
                              field="manifest")
-    with _text_errors(src, "manifest"), path.open(newline="", encoding="utf-8") as fh:
+    with text_errors(src, "manifest"), path.open(newline="", encoding="utf-8") as fh:
         lines = [ln for ln in fh if ln.strip() and not ln.lstrip().startswith("#")]
     if any("\0" in ln for ln in lines):
         raise GprmInputError("is not a text CSV file (holds NUL bytes)", source=src,

@@ -4,7 +4,7 @@ attributes of docs/data-formats.md; a missing or unreadable input is a
 :class:`~gprm.errors.GprmInputError` naming the file).
 
 The implementation lives in the package-internal ``gprm._io``; this module is its public
-face (docs/worked_example.py uses it), so scripts and notebooks need no private module.
+face, so scripts and notebooks need no private module.
 """
 
 from gprm._io import (atomic_path, open_netcdf, read_json, write_json_atomic,

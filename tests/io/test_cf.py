@@ -11,6 +11,7 @@ import xarray as xr
 from typer.testing import CliRunner
 
 from gprm._io import cf_dataset, write_netcdf_atomic
+from gprm.params.netcdf import UNITS_COMMENT
 
 sys.path.insert(0, str(Path(__file__).parents[1] / "fit"))
 from means_factory import make_means  # noqa: E402
@@ -52,9 +53,6 @@ def test_written_file_reads_back_with_the_attributes(tmp_path):
         assert back["n"].attrs["units"] == "1"
 
 
-UNITS_COMMENT = "units vary along parameter: see parameter_units"
-
-
 def _float_vars_without_units(ds) -> list[str]:
     """Float variables without ``units``, less the parameter tables (their units vary along
     ``parameter``/``param`` and are given by ``parameter_units``/``param_units``)."""
@@ -63,11 +61,10 @@ def _float_vars_without_units(ds) -> list[str]:
             and ds[v].attrs.get("comment") != UNITS_COMMENT]
 
 
-#: every NetCDF kind gprm writes, and the command or function that wrote it in the fixture
+#: every NetCDF kind gprm writes (the fixture writes each), all held to every CF
+#: recommendation below
 KINDS = ("campaign.nc", "means.nc", "sim.nc", "predict.nc", "telemetry.nc", "impact.nc",
          "fit.nc")
-#: the kinds whose layout this test holds to every CF recommendation: all of them
-FULL = KINDS
 
 
 @pytest.fixture(scope="module")
@@ -111,7 +108,7 @@ def test_gprm_files_follow_cf(files, name):
                 assert "units" in ds[v].attrs, v
 
 
-@pytest.mark.parametrize("name", FULL)
+@pytest.mark.parametrize("name", KINDS)
 def test_every_variable_is_described_and_units_are_udunits(files, name):
     """long_name on every variable; every units string parses in UDUNITS (cf-units), with
     velocities in m s-1 or rad s-1 (never m/s or um/s)."""
@@ -177,7 +174,7 @@ def test_cf_checker_finds_no_problem_the_conventions_step_owns(files, name):
     assert any(r.name.startswith("§3.1 ") for r in results)     # the checks did run
 
 
-@pytest.mark.parametrize("name", FULL)
+@pytest.mark.parametrize("name", KINDS)
 def test_cf_checker_has_no_remark_but_the_record_time(files, name):
     """Every remark of the checker is answered, but one: it recommends ``standard_name =
     time`` on ``time``, which CF ties to units with a reference date ("s since ..."). The record

@@ -221,24 +221,6 @@ def test_bounds_are_respected():
         levenberg_marquardt_batch(lambda X: (X, X), np.zeros(3))
 
 
-def test_batch_rows_are_independent_of_each_other():
-    """Lock-step: a batch of starts gives, row by row, exactly what each start gives alone."""
-    p = nist.load("Chwirut2")
-
-    def fun(X):
-        return (np.stack([p.residuals(x) for x in X]), np.stack([p.jacobian(x) for x in X]))
-
-    X0 = np.stack([p.starts[0], p.starts[1], 0.5 * (p.starts[0] + p.starts[1])])
-    together = levenberg_marquardt_batch(fun, X0, max_iter=200, ftol=1e-12)
-    for i in range(3):
-        alone = levenberg_marquardt_batch(fun, X0[i:i + 1], max_iter=200, ftol=1e-12)
-        np.testing.assert_array_equal(alone.x[0], together.x[i])
-        assert alone.iterations[0] == together.iterations[i]
-        single = levenberg_marquardt(p.residuals, X0[i], p.jacobian, max_iter=200, ftol=1e-12,
-                                     **PLAIN)
-        np.testing.assert_array_equal(single.x, together.x[i])
-
-
 def test_stall_window_stops_when_chi2_falls_less_than_the_tolerance_over_the_window():
     """The window rule stops a row at the first iteration k >= W where chi2 fell by at most
     ``stall_tol`` over the last W iterations, and never earlier."""
@@ -355,8 +337,9 @@ def test_unknown_damping_is_refused():
 
 @pytest.mark.parametrize("variant", VARIANTS)
 def test_batched_lm_equals_the_single_problem_lm(variant):
-    """Every variant: a batch of starts gives, row by row, the bits, chi-square, iterations
-    and status of the single-problem optimizer (no fallback) from that start alone."""
+    """Lock-step, every variant: a batch of starts gives, row by row, the bits, chi-square,
+    iterations and status of that start run alone, as a batch of one and by the
+    single-problem optimizer (no fallback)."""
     p = nist.load("Chwirut2")
 
     def fun(X):
@@ -369,6 +352,9 @@ def test_batched_lm_equals_the_single_problem_lm(variant):
     kw = dict(VARIANTS[variant], max_iter=200, ftol=1e-12, lambda_max=1e16)
     together = levenberg_marquardt_batch(fun, X0, residuals=res, **kw)
     for i in range(3):
+        alone = levenberg_marquardt_batch(fun, X0[i:i + 1], residuals=res, **kw)
+        np.testing.assert_array_equal(alone.x[0], together.x[i])
+        assert alone.iterations[0] == together.iterations[i]
         single = levenberg_marquardt(p.residuals, X0[i], p.jacobian, fallback=False, **kw)
         np.testing.assert_array_equal(single.x, together.x[i])
         assert single.chi2 == together.chi2[i]
@@ -376,11 +362,12 @@ def test_batched_lm_equals_the_single_problem_lm(variant):
         assert single.status == together.status[i]
 
 
-def test_a_step_leaves_its_input_state_unchanged():
+@pytest.mark.parametrize("variant", VARIANTS)
+def test_a_step_leaves_its_input_state_unchanged(variant):
     """The state is advanced by pure functions: a step returns a new state and the old one
-    still holds the values it had."""
-    from gprm.fit.lm import (Algorithm1Damping, Algorithm1Lambda, Box, NoAcceleration, Problem,
-                             Settings, lm_init, lm_step)
+    still holds the values it had, the plug-ins' own state (damping scale, trust-region
+    bound) included."""
+    from gprm.fit.lm import Box, Problem, Settings, lm_init, lm_step, select_plugins
 
     p = nist.load("Misra1a")
 
@@ -388,15 +375,18 @@ def test_a_step_leaves_its_input_state_unchanged():
         return (np.stack([p.residuals(x) for x in X]), np.stack([p.jacobian(x) for x in X]))
 
     settings = Settings(stall_window=2)
-    damp, control = Algorithm1Damping(), Algorithm1Lambda()
+    damp, control, accel = select_plugins(**VARIANTS[variant])
     s0 = lm_init(Problem(fun), np.stack(p.starts), settings, damp, control)
-    before = {k: np.copy(getattr(s0, k)) for k in ("x", "r", "J", "chi2", "lam", "status",
-                                                    "active", "iterations", "nfev", "ring")}
+    keys = ("x", "r", "J", "chi2", "lam", "status", "active", "iterations", "nfev", "ring",
+            "scale", "delta")
+    before = {k: None if getattr(s0, k) is None else np.copy(getattr(s0, k)) for k in keys}
     s1 = s0
     for _ in range(3):
-        s1 = lm_step(s1, Problem(fun), Box.of(None, None, 2), settings, damp, control,
-                     NoAcceleration())
+        s1 = lm_step(s1, Problem(fun), Box.of(None, None, 2), settings, damp, control, accel)
     assert s1.it == 3 and s0.it == 0 and np.all(s1.chi2 <= s0.chi2)
     assert not np.array_equal(s1.x, s0.x)
     for k, v in before.items():
-        np.testing.assert_array_equal(getattr(s0, k), v)
+        if v is None:
+            assert getattr(s0, k) is None
+        else:
+            np.testing.assert_array_equal(getattr(s0, k), v)

@@ -298,11 +298,12 @@ def _trust_region_update(better, chi_t, chi2, dx, R1, qtr, dd, lam, delta, idx, 
     """Trust-region bookkeeping for the rows ``idx`` of one iteration: the ratio of the actual
     to the predicted decrease of chi-square (predicted by the linear model, ``|Q1^T r|^2 -
     |Q1^T r + R1 dx|^2``), acceptance (chi-square decreases by at least 1e-4 of the
-    prediction) and the update of the step bound ``delta`` (in place), after More (1978):
+    prediction) and the updated step bound ``delta`` (a new array), after More (1978):
     shrink it when the ratio is below 1/4 (by 1/2, or by the factor a quadratic along the
     step suggests, never below 1/10), double it when the ratio is above 3/4 or the step was
-    a Gauss-Newton step. Returns the accepted rows and, per row, whether both the actual
-    and the predicted decrease are within ``ftol`` of chi-square (MINPACK's ftol test)."""
+    a Gauss-Newton step. Returns the accepted rows, per row whether both the actual and the
+    predicted decrease are within ``ftol`` of chi-square (MINPACK's ftol test), and the new
+    ``delta``."""
     pnorm = np.sqrt(np.sum(dd * dx * dx, axis=1))
     with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
         lin = qtr + np.einsum("bkp,bp->bk", R1, dx)
@@ -321,10 +322,11 @@ def _trust_region_update(better, chi_t, chi2, dx, R1, qtr, dd, lam, delta, idx, 
     grow = ~low & ((lam == 0) | (ratio >= 0.75))
     d = np.where(low, shrink * np.minimum(d, 10.0 * pnorm), d)
     d = np.where(grow, 2.0 * pnorm, d)
-    delta[idx] = np.where(np.isfinite(d) & (d > 0), d, delta[idx] * 0.1)
+    new = delta.copy()
+    new[idx] = np.where(np.isfinite(d) & (d > 0), d, delta[idx] * 0.1)
     accepted = better & (ratio >= 1e-4)
     small_pred = (np.abs(act) <= ftol * chi2) & (pred <= ftol * chi2) & (ratio <= 2.0)
-    return accepted, small_pred
+    return accepted, small_pred, new
 
 
 # ----------------------------------------------------------------------------- the pieces
@@ -500,10 +502,7 @@ class TrustRegion:
         return -np.einsum("bpm,bm->bp", W, c)
 
     def judge(self, better, chi_t, chi2, dx, R1, qtr, dd, lam, delta, idx, ftol):
-        delta = delta.copy()
-        accepted, small_pred = _trust_region_update(better, chi_t, chi2, dx, R1, qtr, dd, lam,
-                                                    delta, idx, ftol)
-        return accepted, small_pred, delta
+        return _trust_region_update(better, chi_t, chi2, dx, R1, qtr, dd, lam, delta, idx, ftol)
 
     def next_lambda(self, lam: np.ndarray, idx, lam_idx, acc, rej) -> np.ndarray:
         lam = lam.copy()

@@ -15,9 +15,9 @@ from gprm._lazy import attach
 
 __getattr__, __dir__, __all__ = attach(__name__, {
     "analysis": ["AnalysisOptions", "ImpactResult", "analyze"],
-    "api": ["ImpactOptions", "TelemetryOptions",
-            "impact_sidecar", "run_impact", "run_synth_telemetry", "write_impact"],
-    "files": ["impact_curves_dataset", "load_telemetry", "read_impact", "read_impact_curves",
+    "api": ["ImpactOptions", "TelemetryOptions", "run_impact", "run_synth_telemetry",
+            "write_impact"],
+    "files": ["impact_curves_dataset", "impact_sidecar", "load_telemetry", "read_impact", "read_impact_curves",
               "telemetry_csv_dataset", "telemetry_dataset", "telemetry_from_dataset",
               "write_telemetry"],
     "impact": ["impact_3d", "kinetic_energy", "planar_impact"],

@@ -14,7 +14,6 @@ from __future__ import annotations
 
 import os
 from dataclasses import dataclass, field, replace
-from pathlib import Path
 
 import xarray as xr
 
@@ -81,20 +80,10 @@ def run_impact(model: FittedModel | str | os.PathLike, telemetry: Telemetry | st
     return replace(res, notes=tuple(notes)) if notes else res
 
 
-def impact_sidecar(out: str | os.PathLike) -> Path:
-    """The curves' NetCDF file next to an impact JSON ``out`` (``impact.json`` ->
-    ``impact.nc``)."""
-    out = Path(out)
-    if out.suffix == ".nc":
-        raise GprmInputError("must not end in .nc (that name is the sidecar's)",
-                             source=str(out), field="out")
-    return out.with_suffix(".nc")
-
-
 def write_impact(res: ImpactResult, out: str | os.PathLike) -> ImpactResult:
     """Write ``res`` to ``out`` (JSON) and its curves to the sidecar
-    (:func:`impact_sidecar`), each atomically; the result as written (naming its sidecar)."""
-    side = impact_sidecar(out)
+    (:func:`gprm.flight.files.impact_sidecar`), each atomically; the result as written (naming its sidecar)."""
+    side = files.impact_sidecar(out)
     res = replace(res, sidecar=side.name)
     if res.curves is None:
         raise GprmInputError("this impact result was read without its curves", field="curves")

@@ -30,7 +30,8 @@ from gprm._io import open_netcdf, read_json, write_json_atomic, write_netcdf_ato
 from gprm.errors import GprmInputError
 from gprm.flight.telemetry import (ANGULAR_AXES, AXES, CHANNEL_KIND, CHANNEL_UNIT, CHANNELS,
                                    LINEAR_AXES, REQUIRED, Release, Telemetry)
-from gprm.validate import legacy_json_attr, pint_unit
+from gprm import validate
+from gprm.validate import legacy_json_attr
 
 FORMAT = "gprm-telemetry"
 FORMAT_VERSION = 1
@@ -60,19 +61,16 @@ KIND_SI = {"length": "m", "angle": "rad", "time": "s"}
 
 def unit_factor(unit, kind: str, *, source: str, field: str) -> float:
     """Factor converting ``unit`` (pint or UDUNITS syntax: ``mm``, ``um``, ``µrad``, ``deg``,
-    ``ms``, …; None or empty: SI) of a ``kind`` (length, angle, time) to SI. A unit that is
-    not of that kind, or not a unit: a GprmInputError naming the field."""
-    import pint
-
-    from gprm.units import ureg
-
+    ``ms``, …; None or empty: SI) of a ``kind`` (length, angle, time) to SI
+    (:func:`gprm.validate.unit_factor`). A unit that is not of that kind, or not a unit: a
+    GprmInputError naming the field and the kind."""
     if unit is None or str(unit).strip() == "":
         return 1.0
     u = str(unit).strip()
     art = "an" if kind[0] in "aeiou" else "a"
     try:
-        return float(ureg().Quantity(1.0, pint_unit(u)).to(KIND_SI[kind]).magnitude)
-    except (pint.errors.PintError, AttributeError, ValueError, TypeError, KeyError):
+        return validate.unit_factor(u, KIND_SI[kind], source, field)
+    except GprmInputError:
         raise GprmInputError(f"unit {u!r} is not {art} {kind} unit (convertible to "
                              f"{KIND_SI[kind]})", source=source, field=field) from None
 
@@ -518,11 +516,21 @@ def read_impact_curves(path: str | os.PathLike) -> xr.Dataset:
     return xr.Dataset(out, coords=coords, attrs=dict(ds.attrs))
 
 
+def impact_sidecar(out: str | os.PathLike) -> Path:
+    """The curves' NetCDF file next to an impact JSON ``out`` (``impact.json`` ->
+    ``impact.nc``); an ``out`` ending in ``.nc`` is refused (it would be its own sidecar)."""
+    out = Path(out)
+    if out.suffix == ".nc":
+        raise GprmInputError("must not end in .nc (that name is the sidecar's)",
+                             source=str(out), field="out")
+    return out.with_suffix(".nc")
+
+
 def write_impact(doc: dict, curves, out: str | os.PathLike) -> Path:
-    """Write an impact result: the JSON ``out`` and its sidecar, ``out`` with ``.nc`` (the
+    """Write an impact result: the JSON ``out`` and its sidecar (:func:`impact_sidecar`: the
     velocity curves), each atomically; ``doc["curves"]["sidecar"]`` names the sidecar."""
     out = Path(out)
-    side = out.with_suffix(".nc")
+    side = impact_sidecar(out)
     doc["curves"]["sidecar"] = side.name
     write_netcdf_atomic(impact_curves_dataset(curves), side)
     write_json_atomic(out, doc)

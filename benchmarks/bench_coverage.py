@@ -79,7 +79,7 @@ def prediction_cover(fm: FittedModel, truth, times, n: int, seed: int) -> dict:
     return res
 
 
-def energy_cover(fm: FittedModel, truth, n: int, seed: int) -> dict:
+def energy_cover(fm: FittedModel, truth, n: int, seed: int, n_points: int = 6001) -> dict:
     """Per-bin coverage of the kinetic-energy histogram (time per energy bin of the total
     kinetic energy over the energy window, Fig. 8) of the truth by the draws' bands; bins
     where the truth spends time."""
@@ -87,10 +87,10 @@ def energy_cover(fm: FittedModel, truth, n: int, seed: int) -> dict:
     from gprm.predict.energy import histogram, window_weights
     from gprm.simulate.kinematics import body_motion, kinetic_energy
 
-    # 0.05 us steps: the histogram of the continuous-time energy. Coarser grids alias the
-    # fastest modes into lumpy bin occupancies that the bands cover too easily (measured on
-    # 30 campaigns, 68 % coverage: 92 / 82 / 75 / 74 % with 301 / 1201 / 3001 / 6001 points)
-    t = np.linspace(0.95e-3, 1.25e-3, 6001)
+    # 0.05 us steps by default: the histogram of the continuous-time energy. Coarser grids
+    # alias the fastest modes into lumpy bin occupancies that the bands cover too easily
+    # (benchmarks/bench_bootstrap_rules.py --energy-points compares grids)
+    t = np.linspace(0.95e-3, 1.25e-3, n_points)
     w = window_weights(t, ENERGY_WINDOW)
     e_t = kinetic_energy(body_motion(batch([truth]), t, piezo=2))["total"]
     m = body_motion(fm.sample(n, seed), t, piezo=2)

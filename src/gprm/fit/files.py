@@ -339,8 +339,8 @@ def _read_draws(side: Path, names: tuple[str, ...]) -> np.ndarray | None:
     documented result, and the covariance then stands in."""
     if not side.is_file():
         return None
-    try:
-        ds = read_fit_sidecar(side)
+    try:                        # this variable only: the rest of the sidecar is not needed
+        ds = open_netcdf(side, what="fit sidecar")
         if "posterior_draws" not in ds:
             return None
         da = ds["posterior_draws"]

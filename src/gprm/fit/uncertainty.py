@@ -37,6 +37,7 @@ and profile likelihoods of a parameter (:func:`profile_likelihood`) or of a pred
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Sequence
 
 import numpy as np
 from scipy.stats import norm
@@ -181,7 +182,8 @@ def estimate(method: str, x: np.ndarray, J: np.ndarray, r: np.ndarray, dof: int,
 
 
 def from_bootstrap(method: str, x: np.ndarray, refits: np.ndarray, laplace: Uncertainty,
-                   prior: Prior, *, n_draws: int = 400, seed: int = 0) -> Uncertainty:
+                   prior: Prior, *, n_draws: int = 400, seed: int = 0,
+                   widen: Sequence[str] = LAG_PARAMETERS) -> Uncertainty:
     """Bootstrap-corrected posterior (methods ``parametric-bootstrap``, ``bootstrap-runs``).
 
     In the prior's coordinates u, with u^ the best fit and u_b the refits (B, P): the bias
@@ -196,9 +198,10 @@ def from_bootstrap(method: str, x: np.ndarray, refits: np.ndarray, laplace: Unce
       The exception are the lags (t0, t1 and the alignment offsets, ``LAG_PARAMETERS``):
       each mean signal is aligned at its own noisy threshold crossing, a timing error the
       fit's likelihood (on a fixed time base) cannot see and the refits, which preprocess
-      their campaign again, do (their spread is 2-5 times the posterior's on the lags).
+      their campaign again, do (their spread is 2-4 times the posterior's on the lags).
       There S = max(1, sd_b / sd_C) widens the posterior; it is what brings the velocity
-      curves of Fig. 11, which hinge on t0, to their nominal coverage.
+      curves of Fig. 11, which hinge on t0, to their nominal coverage. ``widen`` names the
+      parameters this applies to (``benchmarks/bench_bootstrap_rules.py`` compares choices).
     - ``bootstrap-runs``: the basic bootstrap, N(u^ - b, S C S) with S = diag(sd_b / sd_C)
       on the identified parameters (1 elsewhere: the refits of a prior-dominated parameter
       barely move, so their spread says nothing about it).
@@ -220,8 +223,8 @@ def from_bootstrap(method: str, x: np.ndarray, refits: np.ndarray, laplace: Unce
     if method == "bootstrap-runs":
         s = np.where(laplace.identified, sd_b / sd_l, 1.0)
     else:
-        lag = np.isin(np.asarray(names), LAG_PARAMETERS)
-        s = np.where(lag, np.maximum(1.0, sd_b / sd_l), 1.0)
+        wide = np.isin(np.asarray(names), list(widen))
+        s = np.where(wide, np.maximum(1.0, sd_b / sd_l), 1.0)
     centre = u - bias
     Cu = cov_u * np.outer(s, s)
     sd = np.sqrt(np.diag(Cu))

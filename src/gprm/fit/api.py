@@ -26,6 +26,7 @@ from gprm.fit.result import FitResult
 from gprm.fit.starts import LMOptions, MultiStartOptions
 from gprm.fit.uncertainty import DEFAULT_METHOD, METHODS
 from gprm.params import ALIGNMENT_OFFSETS, ParameterSet, load_params
+from gprm.model.piezo import check_piezo
 from gprm.validate import check_int, check_number
 
 
@@ -74,8 +75,7 @@ class FitOptions:
             if not isinstance(getattr(self, name), bool):
                 raise GprmInputError(f"must be true or false, got {getattr(self, name)!r}",
                                      field=name)
-        if self.piezo not in (1, 2) or isinstance(self.piezo, bool):
-            raise GprmInputError(f"must be 1 or 2, got {self.piezo!r}", field="piezo")
+        check_piezo(self.piezo)
         check_int("chunk", self.chunk, 1)
         check_int("max_iter", self.max_iter, 1)
         check_int("stall_window", self.stall_window, 0)

@@ -213,8 +213,7 @@ def read_fit_document(path: str | os.PathLike) -> dict:
         raise GprmInputError(f"format version {fv}, this gprm reads {FORMAT_VERSION}",
                              source=src, field="format_version")
     piezo = doc.get("piezo", 2)
-    if piezo not in (1, 2) or isinstance(piezo, bool):
-        raise GprmInputError(f"must be 1 or 2, got {piezo!r}", source=src, field="piezo")
+    check_piezo(piezo, source=src)
     table = doc.get("parameters")
     if not isinstance(table, dict) or not table:
         raise GprmInputError("missing parameter table", source=src, field="parameters")

@@ -9,7 +9,6 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
-import xarray as xr
 
 from gprm.fit import files
 from gprm.fit.files import MODEL_NAME
@@ -116,10 +115,6 @@ class FitResult:
     def to_json_dict(self) -> dict:
         """The fit file's JSON content (:func:`gprm.fit.files.fit_document`)."""
         return files.fit_document(self)
-
-    def sidecar_dataset(self) -> xr.Dataset:
-        """The fit file's NetCDF sidecar (:func:`gprm.fit.files.fit_sidecar`)."""
-        return files.fit_sidecar(self)
 
     def write(self, out: str | Path) -> Path:
         """Write the JSON and its sidecar (same name, ``.nc``): :func:`gprm.fit.files.write_fit`.

@@ -19,7 +19,9 @@ Methods: ``eq7`` and ``eq7-corr`` on the paper's unregularised fit; ``laplace-pr
 
     .venv/bin/python benchmarks/bench_coverage.py [--campaigns 20] [--starts 200] [--seed 1000] [--boot 30]
 
-Prints the table docs/fitting.md quotes; --json F also writes every campaign's numbers.
+Prints the table docs/fitting.md quotes and, for the default method, each column's Monte
+Carlo 95 % interval (campaigns resampled); --json F also writes every campaign's numbers,
+and --from-json F [F ...] prints the tables of earlier runs, pooled, without running.
 """
 
 from __future__ import annotations
@@ -227,6 +229,44 @@ def table(results: list[dict]) -> str:
     return "\n".join(lines)
 
 
+def campaign_counts(results: list[dict], method: str) -> dict[str, np.ndarray]:
+    """Per campaign (C, 2) hits and trials of each column of the table, for ``method``."""
+    cols: dict[str, list] = {k: [] for k in ("identified 95", "identified 68", "all 95",
+                                             "all 68", "overshoots 95", "overshoots 68",
+                                             "KE 95", "KE 68", "curves 95", "curves 68")}
+    for r in results:
+        mm = r["methods"][method]
+        rows = list(mm["params"].values())
+        idn = [row for row in rows if row["identified"]]
+        for lvl in ("95", "68"):
+            cols[f"identified {lvl}"].append((sum(row[f"in{lvl}"] for row in idn), len(idn)))
+            cols[f"all {lvl}"].append((sum(row[f"in{lvl}"] for row in rows), len(rows)))
+            for key, name in (("pred", "overshoots"), ("energy", "KE"), ("curves", "curves")):
+                q = mm.get(key) or {}
+                cols[f"{name} {lvl}"].append((q.get(f"in{lvl}", 0), q.get("n", 0)))
+    return {k: np.array(v, float) for k, v in cols.items()}
+
+
+def coverage_intervals(results: list[dict], method: str, n_resamples: int = 4000,
+                       seed: int = 0) -> str:
+    """The coverage's own Monte Carlo uncertainty: 95 % percentile intervals over the
+    campaigns resampled with replacement (a campaign's parameters and bins are correlated,
+    so the campaign, not the bin, is the independent unit)."""
+    rng = np.random.default_rng(seed)
+    counts = campaign_counts(results, method)
+    idx = rng.integers(0, len(results), (n_resamples, len(results)))
+    lines = [f"Coverage of `{method}` with its Monte Carlo 95 % interval (campaigns "
+             f"resampled {n_resamples} times):", "",
+             "| column | coverage | 95 % interval |", "|---|---|---|"]
+    for k, c in counts.items():
+        if c[:, 1].sum() == 0:
+            continue
+        ratio = c[idx, 0].sum(axis=1) / np.maximum(c[idx, 1].sum(axis=1), 1)
+        lo, hi = np.percentile(ratio, [2.5, 97.5])
+        lines.append(f"| {k} | {c[:, 0].sum() / c[:, 1].sum():.1%} | {lo:.1%} - {hi:.1%} |")
+    return "\n".join(lines)
+
+
 def main(argv=None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--campaigns", type=int, default=20)
@@ -235,12 +275,25 @@ def main(argv=None) -> None:
     ap.add_argument("--samples", type=int, default=200, help="parameter sets per prediction")
     ap.add_argument("--json", help="write every campaign's numbers here")
     ap.add_argument("--boot", type=int, default=30, help="refits per bootstrap")
+    ap.add_argument("--from-json", nargs="+", help="print the tables of earlier --json "
+                    "files (pooled) instead of running")
     ap.add_argument("--methods", default="eq7,eq7-corr,laplace-prior,parametric-bootstrap,"
                     "bootstrap-runs,mcmc", help="comma-separated methods")
     a = ap.parse_args(argv)
     sys.path.insert(0, "benchmarks")
     from _machine import machine
 
+    if a.from_json:
+        results = []
+        for f in a.from_json:
+            with open(f) as fh:
+                results += json.load(fh)
+        print(f"{len(results)} campaigns from {', '.join(a.from_json)}")
+        print(table(results))
+        if "parametric-bootstrap" in results[0]["methods"]:
+            print()
+            print(coverage_intervals(results, "parametric-bootstrap"))
+        return
     t0 = time.perf_counter()
     results = []
     for c in range(a.campaigns):
@@ -254,6 +307,9 @@ def main(argv=None) -> None:
     print(f"{a.campaigns} campaigns, {a.starts} starts, seeds {a.seed}..{a.seed + a.campaigns - 1}"
           f" ({time.perf_counter() - t0:.0f} s; {machine()})")
     print(table(results))
+    if "parametric-bootstrap" in results[0]["methods"]:
+        print()
+        print(coverage_intervals(results, "parametric-bootstrap"))
 
 
 if __name__ == "__main__":

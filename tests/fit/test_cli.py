@@ -43,6 +43,9 @@ def test_gprm_fit_writes_json_and_sidecar(means_file, tmp_path):
     fm = load_fit(out)
     assert len(fm.names) == 26 and fm.has_uncertainty and fm.draws.shape == (400, 26)
     assert d["uncertainty"]["method"] == "parametric-bootstrap"
+    # the default method says which mismatch calibration factors widened its intervals
+    from gprm.fit.calibration import MISMATCH_CALIBRATION
+    assert d["uncertainty"]["calibration"]["factors"] == dict(MISMATCH_CALIBRATION)
     assert set(d["identified"]) | set(d["not_determined"]) == set(fm.names)
     for name in fm.names:
         e = d["parameters"][name]

@@ -105,3 +105,41 @@ def test_parametric_bootstrap_widens_only_the_lags_by_the_refits_spread():
     assert half[0] == pytest.approx(3.0 * sd_u[0], rel=1e-6)      # lag: the refits' spread
     assert half[1] == pytest.approx(sd_u[1], rel=1e-6)            # not a lag: posterior's
     assert half[2] == pytest.approx(sd_u[2], rel=1e-6)            # never narrower
+
+
+def test_mismatch_calibration_widens_named_parameters_and_can_undo_identified():
+    """The calibration multiplies a parameter's standard deviation by its factor (never by a
+    factor below 1), and a parameter whose widened interval reaches CONTRACTION of the prior's
+    is reported as not determined; without calibration the posterior stands."""
+    from gprm.fit.calibration import MISMATCH_CALIBRATION
+    from gprm.fit.uncertainty import CONTRACTION
+
+    p = paper()
+    names = ("k_Bx", "d2", "m2")
+    prior = default_prior(p, names)
+    x = np.array([2.2e5, 0.04, 0.0125])
+    D = prior.dx_du(x)
+    # k_Bx identified just below the threshold, d2 well below it, m2 not in the table
+    sd_u = prior.sd * np.array([0.9 * CONTRACTION, 0.02, 0.01])
+    cov = np.diag((sd_u * D) ** 2)
+    lap = Uncertainty("laplace-prior", names, cov, *(np.full(3, np.nan),) * 4,
+                      np.array([True, True, True]), sd_u / prior.sd, None, 10.0, 1.2)
+    refits = prior.from_u(prior.to_u(x) + 0.1 * sd_u * np.random.default_rng(3)
+                          .standard_normal((200, 3)))
+    table = {"k_Bx": 2.0, "d2": 3.0, "m2": 0.5}
+    u = from_bootstrap("parametric-bootstrap", x, refits, lap, prior, n_draws=0,
+                       calibration=table)
+    plain = from_bootstrap("parametric-bootstrap", x, refits, lap, prior, n_draws=0,
+                           calibration=None)
+    width = prior.to_u(u.upper95) - prior.to_u(u.lower95)
+    width0 = prior.to_u(plain.upper95) - prior.to_u(plain.lower95)
+    np.testing.assert_allclose(width / width0, [2.0, 3.0, 1.0], rtol=1e-9)
+    np.testing.assert_allclose(width0, 2 * 1.959964 * sd_u, rtol=1e-6)
+    assert u.identified.tolist() == [False, True, True]
+    assert plain.identified.tolist() == [True, True, True]
+    assert dict(u.calibration) == {"k_Bx": 2.0, "d2": 3.0} and plain.calibration == ()
+    # the package's table names physical parameters only, each with a factor above 1
+    from gprm.params import REGISTRY
+
+    assert MISMATCH_CALIBRATION and all(n in REGISTRY and f > 1.0
+                                        for n, f in MISMATCH_CALIBRATION.items())

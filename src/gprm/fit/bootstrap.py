@@ -19,7 +19,7 @@ into intervals and draws.
 from __future__ import annotations
 
 from dataclasses import fields, replace
-from typing import Any
+from typing import Any, Mapping
 
 import numpy as np
 import xarray as xr
@@ -27,6 +27,7 @@ import xarray as xr
 from gprm.campaign.files import read_generator, read_preprocess_settings
 from gprm.campaign.preprocess import PreprocessConfig, preprocess
 from gprm.campaign.synth import Support, SynthConfig, nonlinear_correction, synth_campaign
+from gprm.fit.calibration import MISMATCH_CALIBRATION
 from gprm.fit.engine import polish_best
 from gprm.fit.objective import FitData, Objective, fit_data_from_means
 from gprm.fit.starts import LMOptions
@@ -151,10 +152,12 @@ def run_bootstrap(campaign: xr.Dataset, obj: Objective, x_hat: np.ndarray, *,
 
 def bootstrap_uncertainty(obj: Objective, x: np.ndarray, laplace, prior, method: str, *,
                           n_boot: int = 40, seed: int = 0, lm: LMOptions = LMOptions(),
-                          campaign: xr.Dataset | None = None, n_draws: int = 400):
+                          campaign: xr.Dataset | None = None, n_draws: int = 400,
+                          calibration: Mapping[str, float] | None = MISMATCH_CALIBRATION):
     """The ``parametric-bootstrap`` or ``bootstrap-runs`` (needs ``campaign``) uncertainty of
     a fit at ``x`` with objective ``obj`` (the fit's, weighted prior included) and its
-    Laplace posterior ``laplace`` (:func:`gprm.fit.uncertainty.from_bootstrap`)."""
+    Laplace posterior ``laplace`` (:func:`gprm.fit.uncertainty.from_bootstrap`, which applies
+    ``calibration``)."""
     from gprm.fit.uncertainty import from_bootstrap
 
     if method == "parametric-bootstrap":
@@ -165,4 +168,5 @@ def bootstrap_uncertainty(obj: Objective, x: np.ndarray, laplace, prior, method:
         refits = run_bootstrap(campaign, obj, x, n_boot=n_boot, seed=seed, lm=lm)
     else:
         raise ValueError(f"not a bootstrap method: {method!r}")
-    return from_bootstrap(method, x, refits, laplace, prior, n_draws=n_draws, seed=seed)
+    return from_bootstrap(method, x, refits, laplace, prior, n_draws=n_draws, seed=seed,
+                          calibration=calibration)

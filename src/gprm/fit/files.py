@@ -440,16 +440,24 @@ def _uncertainty_document(res: FitResult) -> dict:
     u = res.uncertainty
     if u is None:
         return {"method": "eq7", "note": res.covariance_message}
+    notes = {"laplace-prior": "posterior of the prior-regularised fit (Laplace); identified "
+                              f"= posterior sd below {CONTRACTION} of the prior's",
+             "parametric-bootstrap": "Laplace posterior re-centred by the parametric "
+                                     "bootstrap's bias, lags widened by the refits' spread, "
+                                     "mismatch calibration applied; identified = interval sd "
+                                     f"below {CONTRACTION} of the prior's (docs/fitting.md)"}
     d = {"method": u.method, "note": u.message if u.message != "ok" else
-         ("posterior of the prior-regularised fit (Laplace); identified = posterior sd "
-          f"below {CONTRACTION} of the prior's" if u.method == "laplace-prior" else
-          "linearised covariance"),
+         notes.get(u.method, "linearised covariance"),
          "s2": _num(u.s2), "tau": _num(u.tau), "identified_threshold": CONTRACTION,
          "draws": 0 if u.draws is None else int(len(u.draws))}
     if res.prior is not None:
         d["prior"] = {"width": float(res.prior.sd[res.prior.log][0])
                       if res.prior.log.any() else None,
                       "centre": "initial values (Table 3)", "docs": "docs/fitting.md"}
+    if u.calibration:
+        d["calibration"] = {"factors": {n: f for n, f in u.calibration},
+                            "note": "standard deviations multiplied by these factors, measured "
+                                    "on synthetic campaigns (gprm.fit.calibration)"}
     if res.eq7 is not None:
         d["eq7_message"] = res.eq7.message
     return d

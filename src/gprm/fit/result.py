@@ -105,6 +105,9 @@ class FitResult:
                          f"{from_si(u.upper95[k], name):.4g}]")
                 line += "" if u.identified[k] else "   (not determined)"
             lines.append(line)
+        if u is not None and u.calibration:
+            lines.append("    intervals widened by the mismatch calibration (gprm.fit.calibration): "
+                         + ", ".join(f"{n} x{f:.2f}" for n, f in u.calibration))
         if self.covariance is None:
             lines.append(f"    (no covariance: {self.covariance_message})")
         if self.at_bounds:

@@ -236,6 +236,16 @@ def combination_rows(fit: dict) -> list:
     return rows
 
 
+def _calibration_sentence(unc: dict) -> str:
+    """The mismatch calibration factors the uncertainty applied, in words ('' if none)."""
+    factors = (unc.get("calibration") or {}).get("factors") or {}
+    if not factors:
+        return ""
+    listed = ", ".join(f"{n} ×{f:.2f}" for n, f in factors.items())
+    return (f" Intervals widened by the mismatch calibration measured on synthetic campaigns "
+            f"(gprm.fit.calibration): {listed}.")
+
+
 def fit_section(run: Path) -> tuple[Section, dict | None]:
     s = Section("Identification", "fit")
     if not (run / "fit.json").exists():
@@ -260,7 +270,8 @@ def fit_section(run: Path) -> tuple[Section, dict | None]:
             f"{len(ident)} of the {len(phys)} physical parameters ({', '.join(ident)}); the "
             "others are reported as not determined, with the interval the posterior gives "
             "(close to the weak prior's), never with a small error. "
-            f"{COVERAGE_HEADLINE} (docs/fitting.md, benchmarks/bench_coverage.py)."))
+            f"{COVERAGE_HEADLINE} (docs/fitting.md, benchmarks/bench_coverage.py)."
+            + _calibration_sentence(unc)))
     if side is not None:
         s.blocks.append(fig_to_img(F.fig_fit(side), "Best fit over the mean signals with "
                                    "±σ and the 95 % model band from the parameter covariance "

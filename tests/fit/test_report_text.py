@@ -109,6 +109,11 @@ def test_gprm_fit_ends_with_the_text_gprm_show_prints(fitted):
     assert r.output.strip() in fit_output
     assert "[[Parameters]]" in r.output and "starts: 4" in r.output
     d = json.loads(before)
+    # the default method's calibration factors are shown, each as fit.json holds it
+    factors = d["uncertainty"]["calibration"]["factors"]
+    flat = " ".join(r.output.split())            # the console may wrap the long line
+    assert "mismatch calibration (sd x factor):" in flat
+    assert all(f"{n} x{f:.3g}" in flat for n, f in factors.items())
     assert sum(1 for p in d["parameters"].values() if p["fitted"]) == \
         sum(1 for ln in r.output.splitlines() if " = " in ln and "+/-" in ln)
     assert out.read_bytes() == before                      # input not modified

@@ -79,6 +79,10 @@ def fit_report(d: dict, *, min_correl: float = DEFAULT_MIN_CORREL) -> str:
     if isinstance(unc, dict) and unc.get("method"):
         lines.append(f"    uncertainty: {unc['method']}"
                      + (f" ({unc['note']})" if unc.get("note") else ""))
+        factors = (unc.get("calibration") or {}).get("factors") or {}
+        if isinstance(factors, dict) and factors:
+            lines.append("    mismatch calibration (sd x factor): "
+                         + ", ".join(f"{n} x{_g(f, '.3g')}" for n, f in factors.items()))
     lines.append("[[Parameters]]  (value +/- stderr (relative), initial; "
                  "* at a bound; ? not identified)")
     params = d.get("parameters") or {}

@@ -159,7 +159,10 @@ def register(app: typer.Typer, synth_app: typer.Typer) -> None:
                 raise
         side = res.write(out)
         remove_checkpoints(ckpt)          # only what gprm wrote there, never other files
-        typer.echo(fit_report(res.to_json_dict()))
+        from gprm.fit.files import read_fit_document
+
+        # the file just written, read as `gprm show` reads it (the document is built once)
+        typer.echo(fit_report(read_fit_document(out)))
         typer.echo(f"wrote {out} and {side} ({res.timings['total']:.1f} s)")
 
     @app.command("show")

@@ -48,11 +48,7 @@ from gprm.fit.lm import levenberg_marquardt_batch
 from gprm.fit.objective import Objective
 from gprm.fit.prior import Prior
 from gprm.fit.starts import LMOptions
-from gprm.params.registry import ALIGNMENT_OFFSETS
-
-LAG_PARAMETERS: tuple[str, ...] = ("t0", "t1", *ALIGNMENT_OFFSETS.values())
-"""The signed lags of the aligned time base (Eq. 3's t0, t1 and the per-signal alignment
-offsets): the parametric bootstrap widens their posterior by the refits' spread."""
+from gprm.params.registry import LAG_PARAMETERS
 
 METHODS = ("eq7", "eq7-corr", "laplace-prior", "parametric-bootstrap", "mcmc")
 DEFAULT_METHOD = "parametric-bootstrap"

@@ -165,6 +165,12 @@ ALIGNMENT_OFFSETS: dict[str, str] = {"x_head": "dt_x_head", "y_base": "dt_y_base
                                      "y_head": "dt_y_head"}
 """Measured point -> its alignment offset (x_base is the reference; z_bk has t1)."""
 
+LAG_PARAMETERS: tuple[str, ...] = ("t0", "t1", *ALIGNMENT_OFFSETS.values())
+"""The signed lags of the aligned time base: Eq. 3's t0 (x_base) and t1 (z_bk against x_base)
+and the per-signal alignment offsets. Preprocessing a campaign moves them all
+(gprm.fit.bootstrap.time_base_shift); the parametric bootstrap widens them by the refits'
+spread (gprm.fit.uncertainty.from_bootstrap)."""
+
 # Quantities that must be strictly positive for the model to make sense (an input error if not).
 STRICTLY_POSITIVE = frozenset({"m1", "m2", "m3", "m4", "J2", "C_a", "R", "tau_v", "m_tm", "s_tm",
                                "k_lr", "k_Az", "k3", "k4"})

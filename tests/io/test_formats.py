@@ -171,6 +171,9 @@ def test_means_metadata_round_trip(tmp_path):
     assert read_truth(ds) == ms.truth == read_truth(camp)
     assert read_truth_alignment(ds) == ms.truth_alignment
     assert PreprocessConfig(**read_preprocess_settings(ds.attrs)) == cfg
+    # every setting is recorded (the file's list of fields follows PreprocessConfig's)
+    assert set(read_preprocess_settings(ds.attrs)) == \
+        {f.name for f in dataclasses.fields(PreprocessConfig)}
     gen = read_generator(ds.attrs)
     assert gen == _lists(dataclasses.asdict(SynthConfig(n_runs=3, n_noise=2, nonlinear=False)))
     assert ds["truth_value"].dims == ("parameter",)

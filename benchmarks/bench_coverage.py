@@ -32,30 +32,64 @@ import json
 import sys
 import time
 
+from dataclasses import dataclass
+
 import numpy as np
+import xarray as xr
 
 from gprm.campaign.preprocess import PreprocessConfig, preprocess
 from gprm.campaign.synth import synth_campaign
+from gprm.fit.api import FitOptions
 from gprm.fit.bootstrap import bootstrap_uncertainty
 from gprm.fit.files import FittedModel
 from gprm.fit.identify import identify
+from gprm.fit.result import FitResult
 from gprm.fit.objective import fit_data_from_means
 from gprm.fit.starts import MultiStartOptions
 from gprm.fit.uncertainty import from_mcmc
-from gprm.params import ALIGNMENT_OFFSETS, batch, paper
+from gprm.params import FITTED_DEFAULT, LAG_PARAMETERS, ParameterSet, batch, paper
 from gprm.predict.scenarios import Scenario, apply_scenario, standard_scenarios
 from gprm.predict.trajectories import TRAJECTORY_POINTS, default_times, sampled_points
 from gprm.predict.whatif import transform_batch
 
-PHYSICAL = ("v2", "g2", "gamma", "rho", "k_lr", "k_Ax", "k_Bx", "c_Ax", "c_Bx", "k_Cy", "k_Dy",
-            "c_Cy", "c_Dy", "m1", "m2", "m3", "m4", "d1", "d2", "b1", "b2")
-ALIGN_TIME = 1.01e-3
+#: the 21 physical parameters of Table 3 (its 23 less the lags t0, t1), in Table 3's order
+PHYSICAL = tuple(n for n in FITTED_DEFAULT if n not in LAG_PARAMETERS)
 
 
 def draw_truth(seed: int):
     rng = np.random.default_rng([seed, 77])
     base = paper()
     return base.with_values(**{n: base[n] * rng.uniform(0.9, 1.1) for n in PHYSICAL})
+
+
+@dataclass(frozen=True)
+class SyntheticFit:
+    """One campaign of the coverage studies: its truth (and the truth in the fit's time base,
+    t0 plus the preprocessing's shift of x_base), the campaign, its mean signals, and the fit
+    with the CLI's defaults (preprocessing, fitted set with the alignment offsets, prior) and
+    the Laplace posterior, on which the bootstrap methods build."""
+
+    truth: ParameterSet
+    truth_t: ParameterSet
+    campaign: xr.Dataset
+    means: xr.Dataset
+    fit: FitResult
+
+
+def synthetic_fit(seed: int, starts: int) -> SyntheticFit:
+    truth = draw_truth(seed)
+    camp = synth_campaign(truth, seed=seed)
+    means = preprocess(camp, PreprocessConfig()).to_dataset()
+    fit = identify(fit_data_from_means(means), fit_parameters(),
+                   MultiStartOptions(n_starts=starts, seed=seed), band_samples=0,
+                   uncertainty="laplace-prior")
+    shift = float(means["truth_shift"].sel(signal="x_base"))
+    return SyntheticFit(truth, truth.with_values(t0=truth["t0"] + shift), camp, means, fit)
+
+
+def fit_parameters() -> ParameterSet:
+    """The parameter set the CLI fits by default: Table 3's and the alignment offsets."""
+    return FitOptions().parameters(paper())
 
 
 def overshoots(pb: dict, sc: Scenario, times) -> tuple[np.ndarray, np.ndarray]:
@@ -160,32 +194,30 @@ def curve_cover(fm: FittedModel, truth, n: int, seed: int) -> dict:
 
 
 def one_campaign(seed: int, starts: int, samples: int, n_boot: int, methods) -> dict:
-    truth = draw_truth(seed)
-    camp = synth_campaign(truth, seed=seed)
-    means = preprocess(camp, PreprocessConfig(align_time=ALIGN_TIME)).to_dataset()
-    data = fit_data_from_means(means)
-    base = paper()
-    base = base.with_fitted(tuple(base.fitted) + tuple(ALIGNMENT_OFFSETS.values()))
-    ms = MultiStartOptions(n_starts=starts, seed=seed)
     times = default_times()
-    out = {"seed": seed, "methods": {}}
+    out: dict = {"seed": seed, "methods": {}}
     t = time.perf_counter()
-    paper_fit = identify(data, base, ms, band_samples=0, uncertainty="eq7-corr",
-                         prior_width=None)
-    prior_fit = identify(data, base, ms, band_samples=0, uncertainty="laplace-prior")
-    # the truth in the fit's time base: preprocessing moved x_base's time by truth_shift, so
-    # a fit's lag t0 is the truth's plus that shift (time-resolved predictions compare there)
-    shift = float(means["truth_shift"].sel(signal="x_base"))
-    truth_t = truth.with_values(t0=truth["t0"] + shift)
+    # the truth in the fit's time base (truth_t): preprocessing moved x_base's time by
+    # truth_shift, so a fit's lag t0 is the truth's plus that shift (time-resolved
+    # predictions compare there)
+    sf = synthetic_fit(seed, starts)
+    truth, truth_t, camp, prior_fit = sf.truth, sf.truth_t, sf.campaign, sf.fit
+    paper_fit = identify(prior_fit.data, fit_parameters(),
+                         MultiStartOptions(n_starts=starts, seed=seed), band_samples=0,
+                         uncertainty="eq7-corr", prior_width=None)
     out["fit_s"] = round(time.perf_counter() - t, 2)
     cands = [("eq7", paper_fit, paper_fit.eq7), ("eq7-corr", paper_fit, paper_fit.uncertainty),
              ("laplace-prior", prior_fit, prior_fit.uncertainty)]
-    for method in ("parametric-bootstrap", "bootstrap-runs"):
+    # "uncalibrated": the default method with the mismatch calibration off (the same refits)
+    for method in ("parametric-bootstrap", "bootstrap-runs", "uncalibrated"):
         if method in methods:
             t = time.perf_counter()
             u = bootstrap_uncertainty(prior_fit.objective(), prior_fit.x, prior_fit.uncertainty,
-                                      prior_fit.prior, method, n_boot=n_boot, seed=seed,
-                                      campaign=camp)
+                                      prior_fit.prior, method.replace(
+                                          "uncalibrated", "parametric-bootstrap"),
+                                      n_boot=n_boot, seed=seed, campaign=camp,
+                                      **({"calibration": None} if method == "uncalibrated"
+                                         else {}))
             out[f"{method}_s"] = round(time.perf_counter() - t, 2)
             cands.append((method, prior_fit, u))
     if "mcmc" in methods:
@@ -222,35 +254,17 @@ def table(results: list[dict]) -> str:
              "KE histogram 95 % | KE histogram 68 % | velocity curves 95 % | "
              "velocity curves 68 % | undefined |",
              "|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
-    for m in results[0]["methods"]:
-        a95 = a68 = an = i95 = i68 = ni = p95 = p68 = pn = undef = 0
-        ek, ck = [0, 0, 0], [0, 0, 0]
-        for r in results:
-            mm = r["methods"][m]
-            undef += not mm["message"].startswith("ok")
-            for row in mm["params"].values():
-                an += 1
-                a95 += row["in95"]
-                a68 += row["in68"]
-                if row["identified"]:
-                    ni += 1
-                    i95 += row["in95"]
-                    i68 += row["in68"]
-            p95 += mm["pred"]["in95"]
-            p68 += mm["pred"]["in68"]
-            pn += mm["pred"]["n"]
-            for key, acc in (("energy", ek), ("curves", ck)):
-                q = mm.get(key) or {}
-                acc[0] += q.get("in95", 0)
-                acc[1] += q.get("in68", 0)
-                acc[2] += q.get("n", 0)
+    cols = ("all 95", "all 68", None, "identified 95", "identified 68", "overshoots 95",
+            "overshoots 68", "KE 95", "KE 68", "curves 95", "curves 68")
 
-        def f(a, b):
-            return f"{a / b:.1%} ({a}/{b})" if b else "-"
-        lines.append(f"| {m} | {f(a95, an)} | {f(a68, an)} | {ni / len(results):.1f} | "
-                     f"{f(i95, ni)} | {f(i68, ni)} | {f(p95, pn)} | {f(p68, pn)} | "
-                     f"{f(ek[0], ek[2])} | {f(ek[1], ek[2])} | {f(ck[0], ck[2])} | "
-                     f"{f(ck[1], ck[2])} | {undef}/{len(results)} |")
+    def f(a, b):
+        return f"{a / b:.1%} ({a}/{b})" if b else "-"
+    for m in results[0]["methods"]:
+        tot = {k: c.sum(axis=0).astype(int) for k, c in campaign_counts(results, m).items()}
+        undef = sum(not r["methods"][m]["message"].startswith("ok") for r in results)
+        cells = [f"{tot['identified 95'][1] / len(results):.1f}" if k is None
+                 else f(*tot[k]) for k in cols]
+        lines.append(f"| {m} | " + " | ".join(cells) + f" | {undef}/{len(results)} |")
     return "\n".join(lines)
 
 
@@ -269,10 +283,9 @@ def campaign_counts(results: list[dict], method: str) -> dict[str, np.ndarray]:
             for key, name in (("pred", "overshoots"), ("energy", "KE"), ("curves", "curves")):
                 q = mm.get(key) or {}
                 cols[f"{name} {lvl}"].append((q.get(f"in{lvl}", 0), q.get("n", 0)))
-            q = mm.get("energy") or {}
-            if "band_n" in q:
-                cols.setdefault(f"KE, closed band over the truth's bins {lvl}", []).append(
-                    (q[f"band{lvl}"], q["band_n"]))
+            q = mm.get("energy") or {}      # (0, 0) in files made before the band was kept
+            cols.setdefault(f"KE, closed band over the truth's bins {lvl}", []).append(
+                (q.get(f"band{lvl}", 0), q.get("band_n", 0)))
     return {k: np.array(v, float) for k, v in cols.items()}
 
 
@@ -296,6 +309,14 @@ def coverage_intervals(results: list[dict], method: str, n_resamples: int = 4000
     return "\n".join(lines)
 
 
+def tables(results: list[dict]) -> str:
+    """The method table and, for the default method, its Monte Carlo intervals."""
+    out = table(results)
+    if "parametric-bootstrap" in results[0]["methods"]:
+        out += "\n\n" + coverage_intervals(results, "parametric-bootstrap")
+    return out
+
+
 def main(argv=None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--campaigns", type=int, default=20)
@@ -307,7 +328,8 @@ def main(argv=None) -> None:
     ap.add_argument("--from-json", nargs="+", help="print the tables of earlier --json "
                     "files (pooled) instead of running")
     ap.add_argument("--methods", default="eq7,eq7-corr,laplace-prior,parametric-bootstrap,"
-                    "bootstrap-runs,mcmc", help="comma-separated methods")
+                    "bootstrap-runs,mcmc", help="comma-separated methods (also "
+                    "'uncalibrated': the default without the mismatch calibration)")
     a = ap.parse_args(argv)
     sys.path.insert(0, "benchmarks")
     from _machine import machine
@@ -318,10 +340,7 @@ def main(argv=None) -> None:
             with open(f) as fh:
                 results += json.load(fh)
         print(f"{len(results)} campaigns from {', '.join(a.from_json)}")
-        print(table(results))
-        if "parametric-bootstrap" in results[0]["methods"]:
-            print()
-            print(coverage_intervals(results, "parametric-bootstrap"))
+        print(tables(results))
         return
     t0 = time.perf_counter()
     results = []
@@ -335,10 +354,7 @@ def main(argv=None) -> None:
             json.dump(results, fh, indent=1)
     print(f"{a.campaigns} campaigns, {a.starts} starts, seeds {a.seed}..{a.seed + a.campaigns - 1}"
           f" ({time.perf_counter() - t0:.0f} s; {machine()})")
-    print(table(results))
-    if "parametric-bootstrap" in results[0]["methods"]:
-        print()
-        print(coverage_intervals(results, "parametric-bootstrap"))
+    print(tables(results))
 
 
 if __name__ == "__main__":

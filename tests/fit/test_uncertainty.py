@@ -138,8 +138,10 @@ def test_mismatch_calibration_widens_named_parameters_and_can_undo_identified():
     assert u.identified.tolist() == [False, True, True]
     assert plain.identified.tolist() == [True, True, True]
     assert dict(u.calibration) == {"k_Bx": 2.0, "d2": 3.0} and plain.calibration == ()
-    # the package's table names physical parameters only, each with a factor above 1
-    from gprm.params import REGISTRY
+    # the package's table names physical parameters only (Table 3's, not the lags), each
+    # with a factor above 1
+    from gprm.params import FITTED_DEFAULT, LAG_PARAMETERS
 
-    assert MISMATCH_CALIBRATION and all(n in REGISTRY and f > 1.0
+    physical = set(FITTED_DEFAULT) - set(LAG_PARAMETERS)
+    assert MISMATCH_CALIBRATION and all(n in physical and f > 1.0
                                         for n, f in MISMATCH_CALIBRATION.items())

@@ -6,11 +6,10 @@ mismatch (nonlinear correction, unmodelled 28 kHz mode, flange and runner motion
 *at the best fit*. For most parameters that bias changes little between the best fit and the
 truth and the re-centred intervals cover. For the x plane's second spring and its damper and
 the spacer length (k_Bx, c_Bx, d2) it does not: their estimates move with the x signals'
-mutual disagreement (a refit without x_base moves them back towards the truth by 1-5 posterior
-standard deviations), which the bootstrap refits, all started from the best fit and
-synthesised from it, do not reproduce. Measured on 40 campaigns: refits spread 0.1-0.4 of the
-posterior there, while the re-centred estimate lies 2-5 posterior sd from the truth in a
-quarter of the campaigns.
+mutual disagreement, which the bootstrap refits, all started from the best fit and
+synthesised from it, do not reproduce. Their refits spread 0.12-0.36 of the posterior
+(``benchmarks/bench_bootstrap_rules.py``), while their uncalibrated errors are 2.1-2.4
+posterior sd in root mean square (``benchmarks/bench_calibration.py``).
 
 What. For parameter k, F_k is the root mean square over campaigns of the standardised error
 z = (centre_k - truth_k) / sd_k of the uncalibrated method (in the prior's coordinates u, the
@@ -20,9 +19,9 @@ whose widened interval is no longer well inside its prior's is then reported as 
 determined. Factors below 1 (parameters the prior dominates) are never applied: intervals are
 only ever widened.
 
-Where from. ``.venv/bin/python benchmarks/bench_calibration.py --campaigns 20 --seed 1000``
-and ``--seed 2000`` pooled (40 campaigns, truths within +-10 % of Table 3, every mismatch
-ingredient of ``gprm synth campaign`` on, 200 starts, 30 refits), rounded to two decimals.
+Where from. ``.venv/bin/python benchmarks/bench_calibration.py --campaigns 20 --seeds
+1000,2000`` (40 campaigns, truths within +-10 % of Table 3, every mismatch ingredient of
+``gprm synth campaign`` on, 200 starts, 30 refits), rounded to two decimals.
 The factors were checked on campaigns not used to make them (seeds 3000-3019) and
 cross-validated (made on one set of 20, tested on the other): docs/fitting.md.
 

@@ -1,6 +1,6 @@
 """The text fit report (lmfit-like) built from a saved fit's JSON dictionary.
 
-One builder serves ``gprm fit`` (from ``FitResult.to_json_dict()``) and ``gprm show FIT.json``
+One builder serves ``gprm fit`` (on the fit file it just wrote) and ``gprm show FIT.json``
 (from the file), so both print the same text. Fields added in later format versions
 (``initial``, ``at_bound``, ``identified``, ``interval``, ``uncertainty``) are shown when
 present; older files print without them.

@@ -238,7 +238,7 @@ def from_bootstrap(method: str, x: np.ndarray, refits: np.ndarray, laplace: Unce
         s = s * f
         applied = tuple((n, float(v)) for n, v in zip(names, f) if v > 1.0)
     contraction = laplace.contraction * s
-    identified = np.asarray(laplace.identified) & ~(contraction >= CONTRACTION)
+    identified = np.asarray(laplace.identified) & (contraction < CONTRACTION)
     centre = u - bias
     Cu = cov_u * np.outer(s, s)
     sd = np.sqrt(np.diag(Cu))

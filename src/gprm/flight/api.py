@@ -82,7 +82,8 @@ def run_impact(model: FittedModel | str | os.PathLike, telemetry: Telemetry | st
 
 def write_impact(res: ImpactResult, out: str | os.PathLike) -> ImpactResult:
     """Write ``res`` to ``out`` (JSON) and its curves to the sidecar
-    (:func:`gprm.flight.files.impact_sidecar`), each atomically; the result as written (naming its sidecar)."""
+    (:func:`gprm.flight.files.impact_sidecar`), each atomically; the result as written
+    (naming its sidecar)."""
     side = files.impact_sidecar(out)
     res = replace(res, sidecar=side.name)
     if res.curves is None:

@@ -111,9 +111,8 @@ def register(app: typer.Typer, synth_app: typer.Typer) -> None:
         from gprm.errors import GprmInputError
         from gprm.flight.analysis import AnalysisOptions
         from gprm.fit.files import load_model
+        from gprm.flight.api import ImpactOptions, run_impact, write_impact
         from gprm.flight.files import impact_sidecar
-        from gprm.flight.api import (ImpactOptions, run_impact,
-                                     write_impact)
 
         opts = cli_options(ImpactOptions, piezo=piezo, multi=multi, analysis=cli_options(
             AnalysisOptions, _IMPACT_FLAGS, alpha=alpha, n_samples=samples, seed=seed,

@@ -7,6 +7,8 @@ Displacements are shown in micrometres, times in milliseconds.
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import matplotlib
 
 matplotlib.use("Agg")
@@ -16,6 +18,9 @@ import numpy as np  # noqa: E402
 
 from gprm.flight.telemetry import fit_release_velocity  # noqa: E402
 from gprm.params import REGISTRY, from_si  # noqa: E402
+
+if TYPE_CHECKING:
+    from gprm.predict.whatif import Sweep
 
 # One colour per quantity, used in every figure.
 COLORS = {
@@ -534,20 +539,18 @@ def fig_profiles(fit: dict):
     return fig
 
 
-def fig_sweep(sw):
+def fig_sweep(sw: Sweep):
     """Best-fit overshoot against a swept parameter (the :class:`~gprm.predict.whatif.Sweep`
-    of :func:`gprm.predict.whatif.sweep`, or its ``to_json()``): one panel per axis, a line
-    per point."""
-    sw = sw.to_json() if hasattr(sw, "to_json") else sw
-    x = np.asarray(sw["display_values"], float)
-    fig, axes = plt.subplots(1, len(sw["axes"]), figsize=(10.0, 3.4))
-    for ax, a in zip(np.atleast_1d(axes), sw["axes"]):
-        for p in sw["points"]:
-            ax.plot(x, np.asarray(sw["overshoot"][p][a], float) * UM, "o-",
+    of :func:`gprm.predict.whatif.sweep`): one panel per axis, a line per point."""
+    x = np.asarray(sw.display_values, float)
+    fig, axes = plt.subplots(1, len(sw.axes), figsize=(10.0, 3.4))
+    for j, (ax, a) in enumerate(zip(np.atleast_1d(axes), sw.axes)):
+        for i, p in enumerate(sw.points):
+            ax.plot(x, sw.overshoot[:, i, j] * UM, "o-",
                     color=COLORS.get(p, COLORS["model"]), label=p)
-        ax.set_xlabel(f"{sw['parameter']} [{sw['display_unit']}]")
+        ax.set_xlabel(f"{sw.parameter} [{sw.display_unit}]")
         ax.set_ylabel(f"overshoot {a} [µm]")
     np.atleast_1d(axes)[0].legend()
-    fig.suptitle(f"Overshoot against {sw['parameter']}")
+    fig.suptitle(f"Overshoot against {sw.parameter}")
     fig.tight_layout()
     return fig

@@ -35,7 +35,7 @@ import bench_coverage as bc  # noqa: E402
 
 from gprm.fit.bootstrap import parametric_bootstrap  # noqa: E402
 from gprm.fit.files import FittedModel  # noqa: E402
-from gprm.fit.uncertainty import from_bootstrap  # noqa: E402
+from gprm.fit.bootstrap import from_bootstrap  # noqa: E402
 from gprm.params import LAG_PARAMETERS  # noqa: E402
 from gprm.predict.trajectories import default_times  # noqa: E402
 
@@ -66,7 +66,7 @@ def one_campaign(seed: int, starts: int, n_boot: int, grids, acc, diag) -> None:
     for rule, widen in (("none", ()), ("lags", LAG_PARAMETERS), ("identified", identified)):
         # the rules as they were chosen: before the mismatch calibration (which
         # bench_calibration.py measures on top of the chosen rule)
-        un = from_bootstrap("parametric-bootstrap", x, refits, lap, prior, seed=seed,
+        un = from_bootstrap("generator-bootstrap", x, refits, lap, prior, seed=seed,
                             widen=widen, calibration=None)
         a = acc.setdefault(rule, {})
 
@@ -83,7 +83,7 @@ def one_campaign(seed: int, starts: int, n_boot: int, grids, acc, diag) -> None:
                     int(un.lower95[i] <= tv <= un.upper95[i]),
                     int(un.lower68[i] <= tv <= un.upper68[i]), 1)
         fm = FittedModel(fit.params, un.covariance, piezo=2, draws=un.draws,
-                         uncertainty="parametric-bootstrap")
+                         uncertainty="generator-bootstrap")
         q = bc.prediction_cover(fm, truth, default_times(), 200, seed)
         add("overshoots", q["in95"], q["in68"], q["n"])
         for g in grids:

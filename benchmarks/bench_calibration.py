@@ -39,7 +39,7 @@ def one_campaign(seed: int, starts: int, n_boot: int) -> dict:
     truth, fit = sf.truth, sf.fit
     assert fit.prior is not None and fit.uncertainty is not None
     u = bootstrap_uncertainty(fit.objective(), fit.x, fit.uncertainty, fit.prior,
-                              "parametric-bootstrap", n_boot=n_boot, seed=seed, calibration=None)
+                              "generator-bootstrap", n_boot=n_boot, seed=seed, calibration=None)
     k = [fit.names.index(n) for n in PHYSICAL]
     lo, hi = fit.prior.to_u(u.lower95)[k], fit.prior.to_u(u.upper95)[k]
     tx = fit.x.copy()

@@ -15,7 +15,7 @@ method the fraction of 95 % and 68 % intervals that contain the truth:
   the six axes (Fig. 11, nominal geometry) at 21 times over t_c .. t_c + 0.2 ms.
 
 Methods: ``eq7`` and ``eq7-corr`` on the paper's unregularised fit; ``laplace-prior``,
-``parametric-bootstrap``, ``bootstrap-runs`` and ``mcmc`` on the prior-regularised fit
+``generator-bootstrap``, ``bootstrap-runs`` and ``mcmc`` on the prior-regularised fit
 (gprm.fit.uncertainty, gprm.fit.bootstrap).
 
     .venv/bin/python benchmarks/bench_coverage.py [--campaigns 20] [--starts 200] [--seed 1000] [--boot 30]
@@ -209,12 +209,12 @@ def one_campaign(seed: int, starts: int, samples: int, n_boot: int, methods) -> 
     cands = [("eq7", paper_fit, paper_fit.eq7), ("eq7-corr", paper_fit, paper_fit.uncertainty),
              ("laplace-prior", prior_fit, prior_fit.uncertainty)]
     # "uncalibrated": the default method with the mismatch calibration off (the same refits)
-    for method in ("parametric-bootstrap", "bootstrap-runs", "uncalibrated"):
+    for method in ("generator-bootstrap", "bootstrap-runs", "uncalibrated"):
         if method in methods:
             t = time.perf_counter()
             u = bootstrap_uncertainty(prior_fit.objective(), prior_fit.x, prior_fit.uncertainty,
                                       prior_fit.prior, method.replace(
-                                          "uncalibrated", "parametric-bootstrap"),
+                                          "uncalibrated", "generator-bootstrap"),
                                       n_boot=n_boot, seed=seed, campaign=camp,
                                       **({"calibration": None} if method == "uncalibrated"
                                          else {}))
@@ -312,8 +312,8 @@ def coverage_intervals(results: list[dict], method: str, n_resamples: int = 4000
 def tables(results: list[dict]) -> str:
     """The method table and, for the default method, its Monte Carlo intervals."""
     out = table(results)
-    if "parametric-bootstrap" in results[0]["methods"]:
-        out += "\n\n" + coverage_intervals(results, "parametric-bootstrap")
+    if "generator-bootstrap" in results[0]["methods"]:
+        out += "\n\n" + coverage_intervals(results, "generator-bootstrap")
     return out
 
 
@@ -327,7 +327,7 @@ def main(argv=None) -> None:
     ap.add_argument("--boot", type=int, default=30, help="refits per bootstrap")
     ap.add_argument("--from-json", nargs="+", help="print the tables of earlier --json "
                     "files (pooled) instead of running")
-    ap.add_argument("--methods", default="eq7,eq7-corr,laplace-prior,parametric-bootstrap,"
+    ap.add_argument("--methods", default="eq7,eq7-corr,laplace-prior,generator-bootstrap,"
                     "bootstrap-runs,mcmc", help="comma-separated methods (also "
                     "'uncalibrated': the default without the mismatch calibration)")
     a = ap.parse_args(argv)

@@ -376,7 +376,7 @@ def main(argv=None) -> None:
                     "synthetic one (e.g. from gprm synth campaign + gprm preprocess)")
     ap.add_argument("--uncertainty", default=None, help="comma-separated uncertainty methods "
                     "to time with the starts on the demo's campaign, next to the Eq. 7-only "
-                    "fit (e.g. laplace-prior,parametric-bootstrap)")
+                    "fit (e.g. laplace-prior,generator-bootstrap)")
     a = ap.parse_args(argv)
     cmd = "benchmarks/bench_fit.py " + " ".join(sys.argv[1:] if argv is None else argv)
     print("## Identification (gprm fit)\n")

@@ -206,6 +206,8 @@ MEANS = Schema("mean-signals NetCDF", (
     Var("noise_std", ("signal",), "m", required=False, min=0.0),
     Var("shift", ("signal",), "s", required=False),
     Var("n_runs", ("signal",), required=False, min=1.0),
+    Var("runs", ("signal", "run", "time"), "m", required=False),
+    Var("interpolation_error", ("signal", "time"), "m", required=False),
 ))
 
 SCHEMAS = {"campaign": CAMPAIGN, "means": MEANS}

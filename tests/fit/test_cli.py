@@ -7,6 +7,8 @@ import sys
 from pathlib import Path
 
 import pytest
+
+from gprm.fit.sandwich import Systematics
 from typer.testing import CliRunner
 
 from gprm.cli import app
@@ -42,16 +44,19 @@ def test_gprm_fit_writes_json_and_sidecar(means_file, tmp_path):
     # every fit loads, with its identified set, intervals and posterior draws
     fm = load_fit(out)
     assert len(fm.names) == 26 and fm.has_uncertainty and fm.draws.shape == (400, 26)
-    assert d["uncertainty"]["method"] == "parametric-bootstrap"
-    # the default method says which mismatch calibration factors widened its intervals
-    from gprm.fit.calibration import MISMATCH_CALIBRATION
-    assert d["uncertainty"]["calibration"]["factors"] == dict(MISMATCH_CALIBRATION)
+    assert d["uncertainty"]["method"] == "sandwich"
+    # the default method is built from the data: no generator constants, and it lists the
+    # systematics it marginalised and the adequacy verdict
+    assert "calibration" not in d["uncertainty"]
+    syst = d["uncertainty"]["details"]["systematics"]
+    assert set(syst) == set(d["signals"])
+    assert all(v["gain_sd"] == pytest.approx(Systematics().gain_sd) for v in syst.values())
+    assert d["uncertainty"]["adequacy"]["verdict"] in ("adequate", "not described")
     assert set(d["identified"]) | set(d["not_determined"]) == set(fm.names)
     for name in fm.names:
         e = d["parameters"][name]
-        # (the bootstrap re-centres the interval by its bias estimate: it need not hold the
-        # best fit)
-        assert 0 < e["interval"]["upper"] - e["interval"]["lower"], name
+        # centred on the best fit: the best fit lies inside every interval
+        assert e["interval"]["lower"] < e["value"] < e["interval"]["upper"], name
         assert e["identified"] == (name in d["identified"])
 
 

@@ -109,11 +109,14 @@ def test_gprm_fit_ends_with_the_text_gprm_show_prints(fitted):
     assert r.output.strip() in fit_output
     assert "[[Parameters]]" in r.output and "starts: 4" in r.output
     d = json.loads(before)
-    # the default method's calibration factors are shown, each as fit.json holds it
-    factors = d["uncertainty"]["calibration"]["factors"]
+    # the default method's systematics and the adequacy verdict are shown, each as fit.json
+    # holds them
+    syst = d["uncertainty"]["details"]["systematics"]
     flat = " ".join(r.output.split())            # the console may wrap the long line
-    assert "mismatch calibration (sd x factor):" in flat
-    assert all(f"{n} x{f:.3g}" in flat for n, f in factors.items())
+    assert "systematics marginalised" in flat
+    assert all(f"{s}: gain {100 * v['gain_sd']:.3g} %" in flat for s, v in syst.items())
+    adq = d["uncertainty"]["adequacy"]
+    assert f"[[Adequacy]] {adq['verdict']}" in flat and adq["text"].split(":")[0] in flat
     assert sum(1 for p in d["parameters"].values() if p["fitted"]) == \
         sum(1 for ln in r.output.splitlines() if " = " in ln and "+/-" in ln)
     assert out.read_bytes() == before                      # input not modified

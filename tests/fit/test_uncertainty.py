@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 
 from gprm.fit.prior import default_prior
-from gprm.fit.uncertainty import (Uncertainty, from_bootstrap, mcmc_chain,
-                                  time_correlation_factor)
+from gprm.fit.bootstrap import from_bootstrap
+from gprm.fit.uncertainty import Uncertainty, mcmc_chain, time_correlation_factor
 from gprm.params import paper
 
 
@@ -59,7 +59,7 @@ def test_bootstrap_correction_moves_identified_and_keeps_undetermined():
     # refits biased +2 % in m2 (spread 0.5 %), k_Cy barely moving (prior-dominated)
     refits = np.column_stack([x[0] * np.exp(0.02 + 0.005 * rng.standard_normal(400)),
                               x[1] * np.exp(0.001 * rng.standard_normal(400))])
-    for method, width0 in (("bootstrap-runs", 0.005), ("parametric-bootstrap", 0.01)):
+    for method, width0 in (("bootstrap-runs", 0.005), ("generator-bootstrap", 0.01)):
         u = from_bootstrap(method, x, refits, lap, prior, n_draws=0)
         centre = np.sqrt(u.lower95 * u.upper95)                  # log-symmetric intervals
         assert centre[0] == pytest.approx(x[0] * np.exp(-0.02), rel=1e-3)
@@ -100,7 +100,7 @@ def test_parametric_bootstrap_widens_only_the_lags_by_the_refits_spread():
     z = rng.standard_normal((4000, 3))
     z = (z - z.mean(0)) / z.std(0, ddof=1)
     refits = prior.from_u(u_hat + z * sd_u * np.array([3.0, 3.0, 0.5]))
-    u = from_bootstrap("parametric-bootstrap", x, refits, lap, prior, n_draws=0)
+    u = from_bootstrap("generator-bootstrap", x, refits, lap, prior, n_draws=0)
     half = 0.5 * (prior.to_u(u.upper95) - prior.to_u(u.lower95)) / 1.959964
     assert half[0] == pytest.approx(3.0 * sd_u[0], rel=1e-6)      # lag: the refits' spread
     assert half[1] == pytest.approx(sd_u[1], rel=1e-6)            # not a lag: posterior's
@@ -127,9 +127,9 @@ def test_mismatch_calibration_widens_named_parameters_and_can_undo_identified():
     refits = prior.from_u(prior.to_u(x) + 0.1 * sd_u * np.random.default_rng(3)
                           .standard_normal((200, 3)))
     table = {"k_Bx": 2.0, "d2": 3.0, "m2": 0.5}
-    u = from_bootstrap("parametric-bootstrap", x, refits, lap, prior, n_draws=0,
+    u = from_bootstrap("generator-bootstrap", x, refits, lap, prior, n_draws=0,
                        calibration=table)
-    plain = from_bootstrap("parametric-bootstrap", x, refits, lap, prior, n_draws=0,
+    plain = from_bootstrap("generator-bootstrap", x, refits, lap, prior, n_draws=0,
                            calibration=None)
     width = prior.to_u(u.upper95) - prior.to_u(u.lower95)
     width0 = prior.to_u(plain.upper95) - prior.to_u(plain.lower95)

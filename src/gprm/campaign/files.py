@@ -370,6 +370,14 @@ def means_dataset(ms) -> xr.Dataset:
                     "threshold_factor x noise_std at align_time"}),
                 "run": ("run", np.arange(ms.sync_shift.shape[1]),
                         {"long_name": "index of the actuated run"})})
+    if getattr(ms, "runs", None) is not None:
+        ds["runs"] = (("signal", "run", "time"), ms.runs, {
+            "units": "m", "long_name": "each actuated run synchronised and aligned onto the "
+            "output grid (mean, std and sem are taken over these)"})
+    if getattr(ms, "interpolation_error", None) is not None:
+        ds["interpolation_error"] = (("signal", "time"), ms.interpolation_error, {
+            "units": "m", "long_name": "the mean's cubic-spline interpolation less a quintic "
+            "one of the same runs at the same times (estimated interpolation error)"})
     if ms.truth_shift is not None:
         ds["truth_shift"] = (("signal",), ms.truth_shift, {
             "units": "s", "long_name": "shift the same alignment rule gives the noise-free "

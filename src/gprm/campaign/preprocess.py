@@ -36,7 +36,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 import xarray as xr
-from scipy.interpolate import CubicSpline
+from scipy.interpolate import CubicSpline, make_interp_spline
 from scipy.optimize import brentq, minimize_scalar
 
 import gprm
@@ -102,6 +102,12 @@ class MeanSignals:
     no_crossing: tuple[str, ...] = ()
     truth: dict | None = None             # the campaign's truth (synthetic), name -> SI
     truth_alignment: dict | None = None   # files.truth_alignment (synthetic)
+    #: (signal, run, time) m: each actuated run synchronised and aligned onto the output grid,
+    #: the samples the mean, std and sem are taken over (the fit's run-to-run covariance)
+    runs: np.ndarray | None = None
+    #: (signal, time) m: the mean's cubic interpolation less a quintic one of the same runs at
+    #: the same points: an estimate of the error the interpolation of step 3 adds
+    interpolation_error: np.ndarray | None = None
 
     def to_dataset(self) -> xr.Dataset:
         """The mean-signals NetCDF layout (:func:`gprm.campaign.files.means_dataset`)."""
@@ -228,7 +234,7 @@ def _position(Y, N, time, cfg: PreprocessConfig, name: str, src: str,
     med = np.median(Yb, axis=0)
     ref = int(np.argmin(np.mean((Yb[:, win] - med[win]) ** 2, axis=1)))
     shifts, splines = synchronise(Yb, ref, win, cfg.max_lag)
-    return dict(noise_std=sn, ref=ref, shifts=shifts, splines=splines, onset=i_on)
+    return dict(noise_std=sn, ref=ref, shifts=shifts, splines=splines, onset=i_on, runs=Yb)
 
 
 def preprocess(campaign: xr.Dataset, config: PreprocessConfig | None = None) -> MeanSignals:
@@ -291,10 +297,19 @@ def preprocess(campaign: xr.Dataset, config: PreprocessConfig | None = None) -> 
     P = len(POSITIONS)
     mean = np.empty((P, tgrid.size))
     std = np.empty_like(mean)
+    runs = np.empty((P, R, tgrid.size))
+    interp_err = np.empty_like(mean)
     for i, name in enumerate(POSITIONS):
         d = per[name]
-        A = np.stack([d["splines"][r](np.clip((tgrid - shift[i] - time[0]) / dt
-                                              + d["shifts"][r], 0, T - 1)) for r in range(R)])
+        at = [np.clip((tgrid - shift[i] - time[0]) / dt + d["shifts"][r], 0, T - 1)
+              for r in range(R)]
+        A = np.stack([d["splines"][r](at[r]) for r in range(R)])
+        # the interpolation's own error, estimated by a higher-order interpolant of the
+        # same samples at the same points (docs/data-formats.md, step 3)
+        idx = np.arange(T, dtype=float)
+        A5 = np.stack([make_interp_spline(idx, d["runs"][r], k=5)(at[r]) for r in range(R)])
+        interp_err[i] = A.mean(axis=0) - A5.mean(axis=0)
+        runs[i] = A
         mean[i] = A.mean(axis=0)
         std[i] = A.std(axis=0, ddof=1)
     sem = std / np.sqrt(R)
@@ -366,4 +381,5 @@ def preprocess(campaign: xr.Dataset, config: PreprocessConfig | None = None) -> 
         alignment = truth_alignment(truth, dict(zip(POSITIONS, truth_shift)))
     return MeanSignals(POSITIONS, tgrid, mean, std, sem, nstd, shift,
                        np.full(P, R), sync, ref, table1, dropped, snr, attrs,
-                       truth_shift, truth_mean, truth_spread, tuple(no_cross), truth, alignment)
+                       truth_shift, truth_mean, truth_spread, tuple(no_cross), truth, alignment,
+                       runs=runs, interpolation_error=interp_err)

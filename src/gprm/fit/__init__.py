@@ -10,6 +10,8 @@ __getattr__, __dir__, __all__ = attach(__name__, {
     "lm": ["LMResult", "levenberg_marquardt", "levenberg_marquardt_batch"],
     "result": ["FitResult"],
     "starts": ["LMOptions", "MultiStartOptions", "StartsOutcome", "draw_starts"],
-    "uncertainty": ["METHODS", "DEFAULT_METHOD", "Bands", "Profile", "profile_likelihood",
-                    "profile_prediction"],
+    "methods": ["METHODS", "DEFAULT_METHOD", "FitState", "uncertainty_of"],
+    "sandwich": ["Systematics"],
+    "adequacy": ["Adequacy", "assess"],
+    "uncertainty": ["Bands", "Profile", "profile_likelihood", "profile_prediction"],
 })

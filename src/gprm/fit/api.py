@@ -24,8 +24,10 @@ from gprm.fit.objective import fit_data_from_means
 from gprm.fit.prior import DEFAULT_WIDTH
 from gprm.fit.result import FitResult
 from gprm.fit.starts import LMOptions, MultiStartOptions
-from gprm.fit.uncertainty import DEFAULT_METHOD, METHODS
+from gprm.fit.methods import DEFAULT_METHOD, METHODS
+from gprm.fit.sandwich import Systematics
 from gprm.params import ALIGNMENT_OFFSETS, ParameterSet, load_params
+from gprm.params.files import read_systematics
 from gprm.model.piezo import check_piezo
 from gprm.validate import check_int, check_number
 
@@ -54,7 +56,11 @@ class FitOptions:
     z_bk_absolute: bool = False
     uncertainty: str = DEFAULT_METHOD         # gprm.fit.uncertainty.METHODS
     prior_width: float = DEFAULT_WIDTH        # 0: no prior (the paper's fit; eq7 methods)
-    boot: int = 30                            # campaigns of the parametric bootstrap
+    boot: int = 30                            # campaigns of the generator bootstrap
+    #: the instrument's systematics, one sd each (None: the parameter file's [systematics],
+    #: else gprm.fit.sandwich.Systematics' documented defaults)
+    gain_sd: float | None = None              # relative gain error of each channel
+    timing_sd: float | None = None            # s, timing offset of each channel
 
     def __post_init__(self):
         check_int("starts", self.starts, 1)
@@ -91,6 +97,23 @@ class FitOptions:
             raise GprmInputError("0 (no prior) needs the uncertainty eq7 or eq7-corr",
                                  field="prior_width")
         check_int("boot", self.boot, 5)
+        for name in ("gain_sd", "timing_sd"):
+            if getattr(self, name) is not None:
+                check_number(name, getattr(self, name))
+
+    def systematics(self, stated: dict | None = None) -> Systematics:
+        """The systematics the fit marginalises: these options over the parameter file's
+        ``[systematics]`` table (``stated``, gprm.params.files.read_systematics) over the
+        documented defaults."""
+        stated = stated or {}
+        d = Systematics()
+        gain = next(v for v in (self.gain_sd, stated.get("gain_sd"), d.gain_sd)
+                    if v is not None)
+        timing = next(v for v in (self.timing_sd, stated.get("timing_sd"), d.timing_sd)
+                      if v is not None)
+        per = tuple((s, gain if g is None else g, timing if t is None else t)
+                    for s, (g, t) in sorted(stated.get("per_signal", {}).items()))
+        return Systematics(float(gain), float(timing), per)
 
     def multistart(self) -> MultiStartOptions:
         return MultiStartOptions(n_starts=self.starts, seed=self.seed, spread=self.spread,
@@ -115,7 +138,8 @@ def run_fit(means: str | os.PathLike | xr.Dataset, opts: FitOptions = FitOptions
             source: str | None = None) -> FitResult:
     """Multi-start identification (Sec. 3.1) of a mean-signals file or dataset.
 
-    ``params``: the parameter set (constants, fitted set, bounds): a TOML file, a
+    ``params``: the parameter set (constants, fitted set, bounds): a TOML file (its
+    ``[systematics]`` table states the instrument's gain and timing errors), a
     :class:`ParameterSet`, or None for the paper's. ``workers``: local Dask worker processes
     (0: in this process); the result does not depend on it. ``checkpoint_dir``: chunks of
     starts already done are read back from it (resuming). ``progress(done, total)`` as chunks
@@ -133,8 +157,11 @@ def run_fit(means: str | os.PathLike | xr.Dataset, opts: FitOptions = FitOptions
         ds, src = read_means(means), source or str(means)
     data = fit_data_from_means(ds, window=opts.window, sigma=opts.sigma, source=src)
     base = params if isinstance(params, ParameterSet) else load_params(params)
+    stated = {} if params is None or isinstance(params, ParameterSet) else \
+        read_systematics(params)
     return identify(data, opts.parameters(base), opts.multistart(), piezo=opts.piezo,
                     workers=workers, scheduler=scheduler, checkpoint_dir=checkpoint_dir,
                     progress=progress, profile=opts.profile, z_bk_absolute=opts.z_bk_absolute,
                     band_samples=opts.band_samples, uncertainty=opts.uncertainty,
-                    prior_width=opts.prior_width or None, n_boot=opts.boot)
+                    prior_width=opts.prior_width or None, n_boot=opts.boot,
+                    systematics=opts.systematics(stated))

@@ -1,6 +1,9 @@
 """Bootstrap refits of an identification (issue 12): the whole chain repeated on campaigns that
 resemble the measured one, each refitted from the best fit.
 
+The opt-in uncertainty method ``generator-bootstrap`` (:func:`uncertainty`): the only module
+of ``gprm.fit`` that imports the synthetic generator (an import contract in pyproject.toml).
+
 - :func:`parametric_bootstrap`: campaigns *synthesised from the best fit* with the synthetic
   campaign generator (every mismatch ingredient: nonlinear correction, unmodelled mode,
   flange and runner motion, trigger offsets, run-to-run variability, coloured noise and
@@ -12,14 +15,14 @@ resemble the measured one, each refitted from the best fit.
 - :func:`run_bootstrap`: the measured campaign's runs resampled with replacement per position,
   preprocessed and refitted: run-to-run variability and noise, no model mismatch.
 
-Both return the refits (B, P), SI; :func:`gprm.fit.uncertainty.from_bootstrap` turns them
+Both return the refits (B, P), SI; :func:`from_bootstrap` turns them
 into intervals and draws.
 """
 
 from __future__ import annotations
 
 from dataclasses import fields, replace
-from typing import Any, Mapping
+from typing import Any, Mapping, Sequence
 
 import numpy as np
 import xarray as xr
@@ -27,11 +30,16 @@ import xarray as xr
 from gprm.campaign.files import read_generator, read_preprocess_settings
 from gprm.campaign.preprocess import PreprocessConfig, preprocess
 from gprm.campaign.synth import Support, SynthConfig, nonlinear_correction, synth_campaign
-from gprm.fit.calibration import MISMATCH_CALIBRATION
+from scipy.stats import norm
+
+from gprm.fit.calibration import MISMATCH_CALIBRATION, calibration_factors
 from gprm.fit.engine import polish_best
+from gprm.fit.methods import FitState
 from gprm.fit.objective import FitData, Objective, fit_data_from_means
+from gprm.fit.prior import Prior
 from gprm.fit.starts import LMOptions
-from gprm.params.registry import ALIGNMENT_OFFSETS
+from gprm.fit.uncertainty import CONTRACTION, Uncertainty, estimate, replace_method
+from gprm.params.registry import ALIGNMENT_OFFSETS, LAG_PARAMETERS
 
 
 def preprocess_config(attrs: dict) -> PreprocessConfig:
@@ -154,13 +162,11 @@ def bootstrap_uncertainty(obj: Objective, x: np.ndarray, laplace, prior, method:
                           n_boot: int = 40, seed: int = 0, lm: LMOptions = LMOptions(),
                           campaign: xr.Dataset | None = None, n_draws: int = 400,
                           calibration: Mapping[str, float] | None = MISMATCH_CALIBRATION):
-    """The ``parametric-bootstrap`` or ``bootstrap-runs`` (needs ``campaign``) uncertainty of
+    """The ``generator-bootstrap`` or ``bootstrap-runs`` (needs ``campaign``) uncertainty of
     a fit at ``x`` with objective ``obj`` (the fit's, weighted prior included) and its
-    Laplace posterior ``laplace`` (:func:`gprm.fit.uncertainty.from_bootstrap`, which applies
+    Laplace posterior ``laplace`` (:func:`from_bootstrap`, which applies
     ``calibration``)."""
-    from gprm.fit.uncertainty import from_bootstrap
-
-    if method == "parametric-bootstrap":
+    if method == "generator-bootstrap":
         refits = parametric_bootstrap(obj, x, n_boot=n_boot, seed=seed, lm=lm)
     elif method == "bootstrap-runs":
         if campaign is None:
@@ -170,3 +176,92 @@ def bootstrap_uncertainty(obj: Objective, x: np.ndarray, laplace, prior, method:
         raise ValueError(f"not a bootstrap method: {method!r}")
     return from_bootstrap(method, x, refits, laplace, prior, n_draws=n_draws, seed=seed,
                           calibration=calibration)
+
+
+def from_bootstrap(method: str, x: np.ndarray, refits: np.ndarray, laplace: Uncertainty,
+                   prior: Prior, *, n_draws: int = 400, seed: int = 0,
+                   widen: Sequence[str] = LAG_PARAMETERS,
+                   calibration: Mapping[str, float] | None = MISMATCH_CALIBRATION
+                   ) -> Uncertainty:
+    """Bootstrap-corrected posterior (methods ``generator-bootstrap``, ``bootstrap-runs``).
+
+    In the prior's coordinates u, with u^ the best fit and u_b the refits (B, P): the bias
+    b = mean(u_b) - u^ and the refits' standard deviations sd_b.
+
+    - ``generator-bootstrap``: the Laplace posterior N(u^, C) re-centred at u^ - b. The
+      refits of campaigns synthesised from the best fit are offset from it the way the
+      estimate is offset from the truth by the model mismatch the generator contains; the
+      posterior's spread (scaled by s2, which already carries the misfit) is kept. Measured
+      in docs/fitting.md: the re-centring is what brings the intervals to their nominal
+      coverage; the refits' own spread (about 0.7 of the posterior's) is too narrow.
+      The exception are the lags (t0, t1 and the alignment offsets, ``LAG_PARAMETERS``):
+      each mean signal is aligned at its own noisy threshold crossing, a timing error the
+      fit's likelihood (on a fixed time base) cannot see and the refits, which preprocess
+      their campaign again, do (their spread is 2-4 times the posterior's on the lags).
+      There S = max(1, sd_b / sd_C) widens the posterior; it is what brings the velocity
+      curves of Fig. 11, which hinge on t0, to their nominal coverage. ``widen`` names the
+      parameters this applies to (``benchmarks/bench_bootstrap_rules.py`` compares choices).
+      Last, each parameter's standard deviation is multiplied by its mismatch calibration
+      factor F_k >= 1 (``calibration``, default :data:`gprm.fit.calibration.MISMATCH_CALIBRATION`;
+      None or {} for none): the bias the refits cannot see for k_Bx, c_Bx and d2, measured
+      on synthetic campaigns (gprm.fit.calibration says how and where).
+    - ``bootstrap-runs``: the basic bootstrap, N(u^ - b, S C S) with S = diag(sd_b / sd_C)
+      on the identified parameters (1 elsewhere: the refits of a prior-dominated parameter
+      barely move, so their spread says nothing about it).
+
+    Correlations are the posterior's. Identified as in the Laplace posterior, with the
+    widened interval: ``contraction`` is the reported sd over the prior's, and a parameter
+    counts as identified where it is below :data:`CONTRACTION`.
+    """
+    refits = np.asarray(refits, float)
+    ok = np.all(np.isfinite(refits), axis=1)
+    U = prior.to_u(refits[ok])
+    u = prior.to_u(np.asarray(x, float))
+    names = laplace.names
+    if U.shape[0] < 5:
+        return replace_method(laplace, method, f"only {U.shape[0]} usable refits; the "
+                              "Laplace posterior stands in")
+    bias = U.mean(axis=0) - u
+    sd_b = U.std(axis=0, ddof=1)
+    cov_u = laplace.covariance / np.outer(prior.dx_du(x), prior.dx_du(x))
+    sd_l = np.sqrt(np.clip(np.diag(cov_u), 1e-300, None))
+    applied: tuple[tuple[str, float], ...] = ()
+    if method == "bootstrap-runs":
+        s = np.where(laplace.identified, sd_b / sd_l, 1.0)
+    else:
+        wide = np.isin(np.asarray(names), list(widen))
+        s = np.where(wide, np.maximum(1.0, sd_b / sd_l), 1.0)
+        f = calibration_factors(names, calibration)
+        s = s * f
+        applied = tuple((n, float(v)) for n, v in zip(names, f) if v > 1.0)
+    contraction = laplace.contraction * s
+    identified = np.asarray(laplace.identified) & (contraction < CONTRACTION)
+    centre = u - bias
+    Cu = cov_u * np.outer(s, s)
+    sd = np.sqrt(np.diag(Cu))
+    z95, z68 = norm.ppf(0.975), norm.ppf(0.84)
+    D = prior.dx_du(prior.from_u(centre))
+    rng = np.random.default_rng([seed, 15])
+    w, V = np.linalg.eigh(0.5 * (Cu + Cu.T))
+    Z = rng.standard_normal((int(n_draws), len(names))) @ (V * np.sqrt(np.clip(w, 0, None))).T
+    cov_x = Cu * np.outer(D, D)
+    return Uncertainty(method, names, 0.5 * (cov_x + cov_x.T),
+                       prior.from_u(centre - z95 * sd), prior.from_u(centre + z95 * sd),
+                       prior.from_u(centre - z68 * sd), prior.from_u(centre + z68 * sd),
+                       identified, contraction,
+                       prior.from_u(centre[None] + Z) if n_draws > 0 else None,
+                       laplace.s2, laplace.tau, calibration=applied)
+
+
+def uncertainty(method: str, state: FitState) -> Uncertainty:
+    """``generator-bootstrap`` through the one interface (gprm.fit.methods): the Laplace
+    posterior re-centred and widened by refits of campaigns that gprm's synthetic generator
+    makes from the best fit, with the mismatch calibration factors measured on that
+    generator. Opt-in: it assumes the data's mismatch is the generator's (issue 21)."""
+    assert state.prior is not None
+    lap = estimate("laplace-prior", state.x, state.J, state.r, state.obj.dof,
+                   len(state.obj.data.signals), state.prior, state.names,
+                   n_draws=state.n_draws, seed=state.seed)
+    return bootstrap_uncertainty(state.obj, state.x, lap, state.prior, method,
+                                 n_boot=state.n_boot, seed=state.seed, lm=state.lm,
+                                 n_draws=state.n_draws)

@@ -71,15 +71,24 @@ def register(app: typer.Typer, synth_app: typer.Typer) -> None:
                                          "for the sampled uncertainty bands"),
         profile: bool = typer.Option(False, "--profile", help="also compute profile "
                                      "likelihoods of every fitted parameter"),
-        uncertainty: str = typer.Option("parametric-bootstrap", "--uncertainty",
-                                        help="uncertainty method: parametric-bootstrap "
-                                        "(default), laplace-prior "
-                                        "(posterior of the prior-regularised fit), mcmc, "
-                                        "eq7-corr (Eq. 7 with the residuals' time "
-                                        "correlation) or eq7 (the paper's); docs/fitting.md "
-                                        "compares their coverage"),
+        uncertainty: str = typer.Option("sandwich", "--uncertainty",
+                                        help="uncertainty method: sandwich (default: the "
+                                        "campaign's own runs and residuals, with the "
+                                        "instrument systematics), laplace-prior, mcmc, "
+                                        "eq7-corr, eq7 (the paper's) or generator-bootstrap "
+                                        "(assumes gprm's synthetic generator's mismatch); "
+                                        "docs/fitting.md compares their coverage"),
         boot: int = typer.Option(30, "--boot", parser=Int(min=5),
-                                 help="campaigns of the parametric bootstrap (>= 5)"),
+                                 help="campaigns of the generator bootstrap (>= 5)"),
+        gain_sd: Optional[float] = typer.Option(None, "--gain-sd", parser=Number(min=0),
+                                                help="gain (calibration) error of each "
+                                                "laser channel, 1 sd, as a fraction (default: "
+                                                "the parameter file's [systematics] gain, "
+                                                "else 0.002; docs/fitting.md)"),
+        timing_sd: Optional[str] = typer.Option(None, "--timing-sd",
+                                                help="timing offset of each channel "
+                                                "beyond the fitted lags, 1 sd, e.g. '0.1us' "
+                                                "(default: the parameter file's, else 0)"),
         prior_width: float = typer.Option(1.25, "--prior-width", parser=Number(min=0),
                                           help="width of the weak "
                                           "prior around the initial values (log units for "
@@ -120,7 +129,8 @@ def register(app: typer.Typer, synth_app: typer.Typer) -> None:
                         prune_after=prune_after, prune_factor=prune_factor,
                         band_samples=band_samples, profile=profile,
                         z_bk_absolute=z_bk_absolute, uncertainty=uncertainty,
-                        prior_width=prior_width, boot=boot)
+                        prior_width=prior_width, boot=boot, gain_sd=gain_sd,
+                        timing_sd=None if timing_sd is None else _seconds(timing_sd))
         ckpt = checkpoint if checkpoint is not None else Path(str(out) + ".ckpt")
         check_outputs({out: "--out", out.with_suffix(".nc"): "--out (its .nc sidecar)"},
                       inputs=[means, params], folders={ckpt: "--checkpoint"})
@@ -178,6 +188,13 @@ def register(app: typer.Typer, synth_app: typer.Typer) -> None:
         from gprm.fit.report_text import fit_report
 
         typer.echo(fit_report(read_fit_document(fit), min_correl=min_correl))
+
+
+def _seconds(text: str) -> float:
+    """A time option ('0.1us', '1e-7', '0.1 us') in s; refused naming --timing-sd."""
+    from gprm.params.files import _seconds as seconds
+
+    return seconds(text.strip(), "command line", "--timing-sd")
 
 
 def dask_dashboard(address):

@@ -442,10 +442,16 @@ def _uncertainty_document(res: FitResult) -> dict:
         return {"method": "eq7", "note": res.covariance_message}
     notes = {"laplace-prior": "posterior of the prior-regularised fit (Laplace); identified "
                               f"= posterior sd below {CONTRACTION} of the prior's",
-             "parametric-bootstrap": "Laplace posterior re-centred by the parametric "
-                                     "bootstrap's bias, lags widened by the refits' spread, "
-                                     "mismatch calibration applied; identified = interval sd "
-                                     f"below {CONTRACTION} of the prior's (docs/fitting.md)"}
+             "sandwich": "the campaign's own error (runs' spread or residuals' covariance, "
+                         "the larger) through the linearised fit, with the instrument's "
+                         "gain and timing errors and the interpolation error marginalised; "
+                         "centred on the best fit; identified = interval sd below "
+                         f"{CONTRACTION} of the prior's (docs/fitting.md)",
+             "generator-bootstrap": "Laplace posterior re-centred by refits of campaigns "
+                                    "gprm's synthetic generator makes from the best fit, lags "
+                                    "widened by the refits' spread, mismatch calibration "
+                                    "measured on that generator applied: assumes the data's "
+                                    "mismatch is the generator's (opt-in; docs/fitting.md)"}
     d = {"method": u.method, "note": u.message if u.message != "ok" else
          notes.get(u.method, "linearised covariance"),
          "s2": _num(u.s2), "tau": _num(u.tau), "identified_threshold": CONTRACTION,
@@ -460,6 +466,18 @@ def _uncertainty_document(res: FitResult) -> dict:
                                     "on synthetic campaigns (gprm.fit.calibration)"}
     if res.eq7 is not None:
         d["eq7_message"] = res.eq7.message
+    if u.details:
+        det = dict(u.details)
+        src = det.pop("sources", None)
+        if isinstance(src, dict):
+            det["variance_shares"] = {n: {k: _num(v[i]) for k, v in src.items()}
+                                      for i, n in enumerate(u.names)}
+        d["details"] = det
+    if getattr(res, "adequacy", None) is not None:
+        from gprm.fit.adequacy import verdict_text
+
+        d["adequacy"] = res.adequacy.to_json()
+        d["adequacy"]["text"] = verdict_text(res.adequacy, u.method, u.details)
     return d
 
 def fit_sidecar(res: FitResult) -> xr.Dataset:

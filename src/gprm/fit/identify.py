@@ -11,15 +11,16 @@ import time
 import numpy as np
 
 from gprm.errors import GprmInputError
-from gprm.fit.bootstrap import bootstrap_uncertainty
+from gprm.fit.adequacy import assess, effective_parameters
 from gprm.fit.covariance import parameters_at_bounds
 from gprm.fit.engine import polish_best, run_multistart
 from gprm.fit.objective import FitData, Objective
 from gprm.fit.prior import DEFAULT_WIDTH, default_prior
 from gprm.fit.result import FitResult
 from gprm.fit.starts import MultiStartOptions
-from gprm.fit.uncertainty import (DEFAULT_METHOD, Profile, compute_bands, estimate,
-                                  from_mcmc, profile_likelihood, time_correlation_factor)
+from gprm.fit.methods import DEFAULT_METHOD, NEEDS_PRIOR, FitState, compute
+from gprm.fit.uncertainty import (Profile, compute_bands, estimate, profile_likelihood,
+                                  time_correlation_factor)
 from gprm.params import ParameterSet
 
 
@@ -28,7 +29,7 @@ def identify(data: FitData, base: ParameterSet, opts: MultiStartOptions = MultiS
              checkpoint_dir=None, progress=None, profile: bool = False, band_samples: int = 200,
              z_bk_absolute: bool = False, stop_after: int | None = None,
              uncertainty: str = DEFAULT_METHOD, prior_width: float | None = DEFAULT_WIDTH,
-             n_draws: int = 400, n_boot: int = 40) -> FitResult:
+             n_draws: int = 400, n_boot: int = 40, systematics=None) -> FitResult:
     """Multi-start identification of ``names`` (default: the set's fitted parameters).
 
     With ``prior_width`` (default) every start minimises chi-square plus the weak prior of
@@ -36,12 +37,14 @@ def identify(data: FitData, base: ParameterSet, opts: MultiStartOptions = MultiS
     the data's variance scale s2 (negative log posterior chi2 / s2 + prior), and the
     uncertainty comes from ``uncertainty`` (:mod:`gprm.fit.uncertainty`). ``prior_width=None``
     is the paper's unregularised fit (its uncertainty then is Eq. 7 or eq7-corr).
+    ``systematics``: the instrument's stated systematics (gprm.fit.sandwich.Systematics;
+    None: its documented defaults) the default method marginalises.
     """
     t_start = time.perf_counter()
     fit_names = tuple(base.fitted if names is None else names)
     prior = None if prior_width is None else default_prior(base, fit_names, prior_width)
-    if prior is None and uncertainty in ("laplace-prior", "parametric-bootstrap", "mcmc"):
-        raise GprmInputError("the laplace-prior uncertainty needs a prior (a prior width)",
+    if prior is None and uncertainty in NEEDS_PRIOR:
+        raise GprmInputError(f"the {uncertainty} uncertainty needs a prior (a prior width)",
                              field="--uncertainty")
     obj = Objective.create(data, base, fit_names, piezo=piezo, z_bk_absolute=z_bk_absolute,
                            prior=prior)
@@ -61,18 +64,13 @@ def identify(data: FitData, base: ParameterSet, opts: MultiStartOptions = MultiS
         r, J = _data_jacobian(obj, x)
     chi2 = float(r @ r)
     eq7 = estimate("eq7", x, J, r, obj.dof, len(data.signals), prior, obj.names)
-    base_method = ("laplace-prior" if uncertainty in ("parametric-bootstrap", "mcmc")
-                   else uncertainty)
-    unc = eq7 if uncertainty == "eq7" else estimate(
-        base_method, x, J, r, obj.dof, len(data.signals), prior, obj.names,
-        n_draws=n_draws, seed=opts.seed)
     t_b = time.perf_counter()
-    if uncertainty == "parametric-bootstrap":
-        unc = bootstrap_uncertainty(obj, x, unc, prior, uncertainty, n_boot=n_boot,
-                                    seed=opts.seed, lm=opts.lm, n_draws=n_draws)
-    elif uncertainty == "mcmc":
-        assert prior is not None  # an mcmc uncertainty without a prior is refused above
-        unc = from_mcmc(obj, x, unc, prior, seed=opts.seed, n_draws=n_draws)
+    state = FitState(obj, x, J, r, obj.prior, seed=opts.seed, n_draws=n_draws, lm=opts.lm,
+                     n_boot=n_boot, systematics=systematics)
+    unc = eq7 if uncertainty == "eq7" else compute(uncertainty, state)
+    t_a = time.perf_counter()
+    adequacy = assess(obj, x, r, effective_parameters(J, x, obj.prior), lm=opts.lm)
+    t_adequacy = time.perf_counter() - t_a
     cov, msg = unc.covariance, unc.message
     lo, hi = obj.bounds_normalised()
     at_b = tuple(np.asarray(obj.names)[parameters_at_bounds(obj.to_normalised(x), lo, hi)]
@@ -85,14 +83,16 @@ def identify(data: FitData, base: ParameterSet, opts: MultiStartOptions = MultiS
     profiles: tuple[Profile, ...] = ()
     if profile:
         s2p = unc.s2 if np.isfinite(unc.s2) else 1.0
-        sdu = (unc.contraction * prior.sd if prior is not None and unc.method == "laplace-prior"
-               else unc.stderr)
+        sdu = (unc.contraction * prior.sd if prior is not None
+               and unc.method in ("laplace-prior", "sandwich") else unc.stderr)
         profiles = tuple(profile_likelihood(obj, x, n, s2=s2p, sd_u=sdu[i], lm=opts.lm)
                          for i, n in enumerate(obj.names))
-    timings = {"multistart": round(t_ms, 3), "uncertainty": round(time.perf_counter() - t_b, 3),
+    timings = {"multistart": round(t_ms, 3), "uncertainty": round(t_a - t_b, 3),
+               "adequacy": round(t_adequacy, 3),
                "total": round(time.perf_counter() - t_start, 3)}
     return FitResult(obj.names, params, chi2, obj.dof, cov, msg, at_b, starts, opts, data,
-                     piezo, bands, profiles, timings, z_bk_absolute, polish, unc, eq7, prior)
+                     piezo, bands, profiles, timings, z_bk_absolute, polish, unc, eq7, prior,
+                     systematics, adequacy)
 
 
 def _data_jacobian(obj: Objective, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

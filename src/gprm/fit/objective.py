@@ -36,6 +36,13 @@ class FitData:
     sigma_kind: str = "sem"
     source: str = ""
     attrs: dict = field(default_factory=dict)
+    #: (n_signals, R, T) m: the synchronised, aligned runs behind ``values`` (None where the
+    #: mean-signals file does not carry them); the run-to-run covariance of the mean
+    runs: np.ndarray | None = None
+    #: (n_signals,) m: the noise std of each signal's noise runs (NaN where unknown)
+    noise_std: np.ndarray | None = None
+    #: (n_signals, T) m: the preprocessing's estimated interpolation error (None: unknown)
+    interpolation_error: np.ndarray | None = None
 
     @property
     def n_obs(self) -> int:
@@ -79,7 +86,22 @@ def fit_data_from_means(ds: xr.Dataset, *, window=DEFAULT_WINDOW, sigma: str = "
         bad = SIGNALS[int(np.argmax(np.any(~(sig > 0), axis=1)))]
         raise GprmInputError(f"sigma must be finite and > 0 (signal {bad})", source=source,
                              field=sigma)
-    return FitData(t[sel], vals, sig, SIGNALS, (lo, hi), sigma, source, dict(ds.attrs))
+    runs = None
+    if "runs" in ds.variables:
+        runs = np.stack([np.asarray(ds["runs"].sel(signal=s).transpose("run", "time").values,
+                                    float)[:, sel] for s in SIGNALS])
+        if runs.shape[1] < 2 or not np.all(np.isfinite(runs)):
+            raise GprmInputError("runs must be finite, at least two per signal",
+                                 source=source, field="runs")
+    nstd = None
+    if "noise_std" in ds.variables:
+        nstd = np.array([float(ds["noise_std"].sel(signal=s)) for s in SIGNALS])
+    ierr = None
+    if "interpolation_error" in ds.variables:
+        ierr = np.stack([np.asarray(ds["interpolation_error"].sel(signal=s).values,
+                                    float)[sel] for s in SIGNALS])
+    return FitData(t[sel], vals, sig, SIGNALS, (lo, hi), sigma, source, dict(ds.attrs),
+                   runs, nstd, ierr)
 
 
 @dataclass(frozen=True)

@@ -79,10 +79,36 @@ def fit_report(d: dict, *, min_correl: float = DEFAULT_MIN_CORREL) -> str:
     if isinstance(unc, dict) and unc.get("method"):
         lines.append(f"    uncertainty: {unc['method']}"
                      + (f" ({unc['note']})" if unc.get("note") else ""))
+        det = unc.get("details") or {}
+        syst = det.get("systematics") if isinstance(det, dict) else None
+        if isinstance(syst, dict) and syst:
+            lines.append("    systematics marginalised (1 sd; timing = stated (+) alignment "
+                         "estimated from the data):")
+            for sig, v in syst.items():
+                if isinstance(v, dict):
+                    lines.append(f"      {sig:>7}: gain {_g(100 * v.get('gain_sd', math.nan), '.3g')}"
+                                 f" %, timing {_g(1e9 * v.get('timing_sd_s', math.nan), '.3g')} ns"
+                                 f" (alignment {_g(1e9 * v.get('alignment_sd_s', math.nan), '.3g')}"
+                                 " ns)")
+            if det.get("statistical_from"):
+                lines.append(f"    statistical part from the {det['statistical_from']}")
         factors = (unc.get("calibration") or {}).get("factors") or {}
         if isinstance(factors, dict) and factors:
             lines.append("    mismatch calibration (sd x factor): "
                          + ", ".join(f"{n} x{_g(f, '.3g')}" for n, f in factors.items()))
+    adq = unc.get("adequacy") if isinstance(unc, dict) else None
+    if isinstance(adq, dict) and adq.get("verdict"):
+        lines.append(f"[[Adequacy]] {adq['verdict']}: reduced chi-square "
+                     f"{_g(adq.get('reduced_chi2'), '.4g')} (p = {_g(adq.get('p_value'), '.2g')})")
+        for sc in adq.get("signals") or []:
+            if isinstance(sc, dict):
+                lines.append(f"    {sc.get('signal', '?'):>7}: chi2/sample "
+                             f"{_g(sc.get('chi2_per_sample'), '.3g')}, Ljung-Box p "
+                             f"{_g(sc.get('ljung_box_p'), '.2g')}, lag-1 "
+                             f"{_g(sc.get('lag1_autocorrelation'), '.2f')}, leave-out error x"
+                             f"{_g(sc.get('loso_ratio'), '.3g')}")
+        if adq.get("text"):
+            lines.append("    " + str(adq["text"]))
     lines.append("[[Parameters]]  (value +/- stderr (relative), initial; "
                  "* at a bound; ? not identified)")
     params = d.get("parameters") or {}

@@ -41,6 +41,10 @@ class FitResult:
     uncertainty: Uncertainty | None = None
     eq7: Uncertainty | None = None
     prior: Prior | None = None
+    #: the stated instrument systematics (gprm.fit.sandwich.Systematics; None: defaults)
+    systematics: object = None
+    #: does the model describe the data (gprm.fit.adequacy.Adequacy)
+    adequacy: object = None
 
     def combinations(self) -> list[dict]:
         """What the data determine among the not-identified parameters

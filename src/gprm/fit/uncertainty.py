@@ -36,22 +36,19 @@ and profile likelihoods of a parameter (:func:`profile_likelihood`) or of a pred
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-from typing import Mapping, Sequence
+from dataclasses import dataclass, field
 
 import numpy as np
 from scipy.stats import norm
 
-from gprm.fit.calibration import MISMATCH_CALIBRATION, calibration_factors
 from gprm.fit.covariance import CovarianceError, covariance, sample_normal
 from gprm.fit.lm import levenberg_marquardt_batch
 from gprm.fit.objective import Objective
 from gprm.fit.prior import Prior
 from gprm.fit.starts import LMOptions
-from gprm.params.registry import LAG_PARAMETERS
+from gprm.fit.methods import DEFAULT_METHOD, METHODS, FitState
 
-METHODS = ("eq7", "eq7-corr", "laplace-prior", "parametric-bootstrap", "mcmc")
-DEFAULT_METHOD = "parametric-bootstrap"
+__all__ = ["METHODS", "DEFAULT_METHOD", "Uncertainty", "estimate", "uncertainty"]
 #: posterior sd / prior sd below which a parameter counts as identified
 CONTRACTION = 0.3
 
@@ -84,7 +81,8 @@ class Uncertainty:
     identified: (P,) bool; contraction: (P,) posterior/prior sd (NaN without a prior).
     draws: (n, P) parameter sets from the method, or None.  s2: the data's variance scale.
     tau: the time-correlation factor.  message: why a method is undefined, else "ok".
-    calibration: the mismatch calibration factors applied (parametric-bootstrap only).
+    calibration: the mismatch calibration factors applied (generator-bootstrap only).
+    details: the method's ingredients (sandwich: variance shares, systematics, adequacy).
     """
 
     method: str
@@ -102,6 +100,8 @@ class Uncertainty:
     message: str = "ok"
     #: (name, factor) of the mismatch calibration applied to the intervals (gprm.fit.calibration)
     calibration: tuple[tuple[str, float], ...] = ()
+    #: what the method built the intervals from (the sandwich's sources and systematics)
+    details: dict = field(default_factory=dict)
 
     @property
     def stderr(self) -> np.ndarray:
@@ -140,8 +140,8 @@ def estimate(method: str, x: np.ndarray, J: np.ndarray, r: np.ndarray, dof: int,
     prior's rows are not part of them.
     """
     names = tuple(names)
-    if method not in METHODS:
-        raise ValueError(f"unknown uncertainty method {method!r} (one of {', '.join(METHODS)})")
+    if method not in ("eq7", "eq7-corr", "laplace-prior"):
+        raise ValueError(f"estimate() computes eq7, eq7-corr and laplace-prior, not {method!r}")
     x = np.asarray(x, float)
     tau = time_correlation_factor(r, n_signals)
     s2_eq7 = float(r @ r) / dof if dof > 0 else np.nan
@@ -181,85 +181,25 @@ def estimate(method: str, x: np.ndarray, J: np.ndarray, r: np.ndarray, dof: int,
                        identified, contraction, draws, s2, tau)
 
 
-def from_bootstrap(method: str, x: np.ndarray, refits: np.ndarray, laplace: Uncertainty,
-                   prior: Prior, *, n_draws: int = 400, seed: int = 0,
-                   widen: Sequence[str] = LAG_PARAMETERS,
-                   calibration: Mapping[str, float] | None = MISMATCH_CALIBRATION
-                   ) -> Uncertainty:
-    """Bootstrap-corrected posterior (methods ``parametric-bootstrap``, ``bootstrap-runs``).
-
-    In the prior's coordinates u, with u^ the best fit and u_b the refits (B, P): the bias
-    b = mean(u_b) - u^ and the refits' standard deviations sd_b.
-
-    - ``parametric-bootstrap``: the Laplace posterior N(u^, C) re-centred at u^ - b. The
-      refits of campaigns synthesised from the best fit are offset from it the way the
-      estimate is offset from the truth by the model mismatch the generator contains; the
-      posterior's spread (scaled by s2, which already carries the misfit) is kept. Measured
-      in docs/fitting.md: the re-centring is what brings the intervals to their nominal
-      coverage; the refits' own spread (about 0.7 of the posterior's) is too narrow.
-      The exception are the lags (t0, t1 and the alignment offsets, ``LAG_PARAMETERS``):
-      each mean signal is aligned at its own noisy threshold crossing, a timing error the
-      fit's likelihood (on a fixed time base) cannot see and the refits, which preprocess
-      their campaign again, do (their spread is 2-4 times the posterior's on the lags).
-      There S = max(1, sd_b / sd_C) widens the posterior; it is what brings the velocity
-      curves of Fig. 11, which hinge on t0, to their nominal coverage. ``widen`` names the
-      parameters this applies to (``benchmarks/bench_bootstrap_rules.py`` compares choices).
-      Last, each parameter's standard deviation is multiplied by its mismatch calibration
-      factor F_k >= 1 (``calibration``, default :data:`gprm.fit.calibration.MISMATCH_CALIBRATION`;
-      None or {} for none): the bias the refits cannot see for k_Bx, c_Bx and d2, measured
-      on synthetic campaigns (gprm.fit.calibration says how and where).
-    - ``bootstrap-runs``: the basic bootstrap, N(u^ - b, S C S) with S = diag(sd_b / sd_C)
-      on the identified parameters (1 elsewhere: the refits of a prior-dominated parameter
-      barely move, so their spread says nothing about it).
-
-    Correlations are the posterior's. Identified as in the Laplace posterior, with the
-    widened interval: ``contraction`` is the reported sd over the prior's, and a parameter
-    counts as identified where it is below :data:`CONTRACTION`.
-    """
-    refits = np.asarray(refits, float)
-    ok = np.all(np.isfinite(refits), axis=1)
-    U = prior.to_u(refits[ok])
-    u = prior.to_u(np.asarray(x, float))
-    names = laplace.names
-    if U.shape[0] < 5:
-        return replace_method(laplace, method, f"only {U.shape[0]} usable refits; the "
-                              "Laplace posterior stands in")
-    bias = U.mean(axis=0) - u
-    sd_b = U.std(axis=0, ddof=1)
-    cov_u = laplace.covariance / np.outer(prior.dx_du(x), prior.dx_du(x))
-    sd_l = np.sqrt(np.clip(np.diag(cov_u), 1e-300, None))
-    applied: tuple[tuple[str, float], ...] = ()
-    if method == "bootstrap-runs":
-        s = np.where(laplace.identified, sd_b / sd_l, 1.0)
-    else:
-        wide = np.isin(np.asarray(names), list(widen))
-        s = np.where(wide, np.maximum(1.0, sd_b / sd_l), 1.0)
-        f = calibration_factors(names, calibration)
-        s = s * f
-        applied = tuple((n, float(v)) for n, v in zip(names, f) if v > 1.0)
-    contraction = laplace.contraction * s
-    identified = np.asarray(laplace.identified) & (contraction < CONTRACTION)
-    centre = u - bias
-    Cu = cov_u * np.outer(s, s)
-    sd = np.sqrt(np.diag(Cu))
-    z95, z68 = norm.ppf(0.975), norm.ppf(0.84)
-    D = prior.dx_du(prior.from_u(centre))
-    rng = np.random.default_rng([seed, 15])
-    w, V = np.linalg.eigh(0.5 * (Cu + Cu.T))
-    Z = rng.standard_normal((int(n_draws), len(names))) @ (V * np.sqrt(np.clip(w, 0, None))).T
-    cov_x = Cu * np.outer(D, D)
-    return Uncertainty(method, names, 0.5 * (cov_x + cov_x.T),
-                       prior.from_u(centre - z95 * sd), prior.from_u(centre + z95 * sd),
-                       prior.from_u(centre - z68 * sd), prior.from_u(centre + z68 * sd),
-                       identified, contraction,
-                       prior.from_u(centre[None] + Z) if n_draws > 0 else None,
-                       laplace.s2, laplace.tau, calibration=applied)
-
-
 def replace_method(u: Uncertainty, method: str, message: str) -> Uncertainty:
     from dataclasses import replace
 
     return replace(u, method=method, message=message)
+
+
+def uncertainty(method: str, state: FitState) -> Uncertainty:
+    """The methods of this module through the one interface (gprm.fit.methods): ``eq7``,
+    ``eq7-corr``, ``laplace-prior`` and ``mcmc`` (a posterior sample started from the
+    Laplace posterior)."""
+    n_signals = len(state.obj.data.signals)
+    if method == "mcmc":
+        assert state.prior is not None
+        lap = estimate("laplace-prior", state.x, state.J, state.r, state.obj.dof, n_signals,
+                       state.prior, state.names, n_draws=state.n_draws, seed=state.seed)
+        return from_mcmc(state.obj, state.x, lap, state.prior, seed=state.seed,
+                         n_draws=state.n_draws)
+    return estimate(method, state.x, state.J, state.r, state.obj.dof, n_signals, state.prior,
+                    state.names, n_draws=state.n_draws, seed=state.seed)
 
 
 def mcmc_chain(log_post, u0: np.ndarray, cov_u: np.ndarray, *, n_steps: int = 600,

@@ -155,3 +155,104 @@ def params_to_toml(ps: ParameterSet) -> str:
 
 def save_params(ps: ParameterSet, path: str | os.PathLike) -> None:
     write_text_atomic(path, params_to_toml(ps))
+
+
+SYSTEMATICS_SIGNALS = ("x_base", "x_head", "y_base", "y_head", "z_bk")
+
+
+def _dimensionless(value: Any, src: str, field: str) -> float:
+    u = ureg()
+    if isinstance(value, bool) or not isinstance(value, (int, float, str)):
+        raise GprmInputError(f"expected a number or a quantity such as \"0.5 %\", got {value!r}",
+                             source=src, field=field)
+    if isinstance(value, str):
+        try:
+            q = u.Quantity(value.replace("%", " percent"))
+        except Exception as exc:
+            raise GprmInputError(f"cannot parse {value!r} ({exc})", source=src,
+                                 field=field) from None
+        if isinstance(q, pint.Quantity):
+            if not q.dimensionless:
+                raise GprmInputError(f"{value!r} is not dimensionless (a relative error, e.g. "
+                                     "\"0.5 %\")", source=src, field=field)
+            value = float(q.to("dimensionless").magnitude)
+        else:
+            value = float(q)
+    v = float(value)
+    if not (math.isfinite(v) and v >= 0):
+        raise GprmInputError(f"must be finite and >= 0, got {value!r}", source=src, field=field)
+    return v
+
+
+def _seconds(value: Any, src: str, field: str) -> float:
+    u = ureg()
+    if isinstance(value, bool) or not isinstance(value, (int, float, str)):
+        raise GprmInputError(f"expected a time such as \"0.1 us\", got {value!r}", source=src,
+                             field=field)
+    if isinstance(value, str):
+        try:
+            q = u.Quantity(value)
+        except Exception as exc:
+            raise GprmInputError(f"cannot parse {value!r} ({exc})", source=src,
+                                 field=field) from None
+        if isinstance(q, pint.Quantity):
+            if q.dimensionality != u.Quantity(1.0, "s").dimensionality:
+                raise GprmInputError(f"{value!r} is not a time", source=src, field=field)
+            value = float(q.to("s").magnitude)
+        else:
+            value = float(q)
+    v = float(value)
+    if not (math.isfinite(v) and v >= 0):
+        raise GprmInputError(f"must be finite and >= 0, got {value!r}", source=src, field=field)
+    return v
+
+
+def read_systematics(path: str | os.PathLike | None) -> dict:
+    """The ``[systematics]`` table of a parameter file: the instrument's per-channel gain
+    (calibration) error and timing offset, one standard deviation each, for every channel
+    (``gain``, ``timing``) and per signal (``[systematics.z_bk]``). Returns ``{"gain_sd":
+    float | None, "timing_sd": float | None, "per_signal": {signal: (gain_sd, timing_sd)}}``
+    (None: not stated; SI, gain as a fraction). An empty dict where the file has no table."""
+    if path is None:
+        return {}
+    path = Path(path)
+    src = str(path)
+    check_input_file(path, what="parameter file")
+    try:
+        doc = tomllib.loads(path.read_text(encoding="utf-8"))
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError, RecursionError) as exc:
+        raise GprmInputError(f"invalid TOML ({type(exc).__name__}: {exc})",
+                             source=src) from None
+    table = doc.get("systematics")
+    if table is None:
+        return {}
+    if not isinstance(table, dict):
+        raise GprmInputError("[systematics] must be a table", source=src, field="systematics")
+    out: dict[str, Any] = {"gain_sd": None, "timing_sd": None, "per_signal": {}}
+    for key, value in table.items():
+        field = f"systematics.{key}"
+        if key == "gain":
+            out["gain_sd"] = _dimensionless(value, src, field)
+        elif key == "timing":
+            out["timing_sd"] = _seconds(value, src, field)
+        elif key in SYSTEMATICS_SIGNALS:
+            if not isinstance(value, dict):
+                raise GprmInputError("must be a table with gain and/or timing", source=src,
+                                     field=field)
+            extra = set(value) - {"gain", "timing"}
+            if extra:
+                raise GprmInputError(f"unknown key(s) {sorted(extra)} (expected gain, timing)",
+                                     source=src, field=field)
+            out["per_signal"][key] = (
+                _dimensionless(value["gain"], src, field + ".gain") if "gain" in value else None,
+                _seconds(value["timing"], src, field + ".timing") if "timing" in value
+                else None)
+        else:
+            import difflib
+
+            close = difflib.get_close_matches(key, ("gain", "timing") + SYSTEMATICS_SIGNALS, 1)
+            hint = f" (did you mean {close[0]!r}?)" if close else ""
+            raise GprmInputError(f"unknown key {key!r}{hint}; expected gain, timing or a "
+                                 f"signal ({', '.join(SYSTEMATICS_SIGNALS)})", source=src,
+                                 field=field)
+    return out

@@ -1,0 +1,219 @@
+"""Coverage of the fit's uncertainty per source of data (issue 21): a table per source, never
+pooled over sources.
+
+For each source of benchmarks/sources.py and each of ``--campaigns`` seeds: the campaign,
+``preprocess`` and the fit with the CLI's defaults (PreprocessConfig(), FitOptions(): Table 3
+and the alignment offsets, the weak prior, ``--starts`` random starts), then the intervals of
+each method on the 21 physical parameters: how many are identified, and how often the truth
+lies inside the 95 % and 68 % intervals of the identified ones (and of all).
+
+    .venv/bin/python benchmarks/bench_sources.py [--sources white,gain-2,...] [--campaigns 20]
+        [--seed 5000] [--starts 200] [--methods sandwich,laplace-prior] [--workers 2]
+        [--json F] [--cache DIR]
+    .venv/bin/python benchmarks/bench_sources.py --from-json F [F ...]
+
+``--cache DIR`` keeps each campaign's fit (a pickle) so that methods can be compared again
+without refitting. Prints one markdown table per source and a summary table (one row per
+source) with the Monte Carlo 95 % interval of each coverage (campaigns resampled).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import pickle
+import sys
+import tempfile
+import time
+from concurrent.futures import ProcessPoolExecutor
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+import sources  # noqa: E402
+
+from gprm.campaign.files import read_campaign_dir  # noqa: E402
+from gprm.campaign.preprocess import PreprocessConfig, preprocess  # noqa: E402
+from gprm.fit.api import FitOptions  # noqa: E402
+from gprm.fit.identify import identify  # noqa: E402
+from gprm.fit.objective import fit_data_from_means  # noqa: E402
+from gprm.fit.starts import MultiStartOptions  # noqa: E402
+from gprm.params import paper  # noqa: E402
+
+LEVELS = (0.95, 0.68)
+
+
+@dataclass(frozen=True)
+class Case:
+    source: str
+    seed: int
+    truth: dict            # name -> SI, the physical parameters
+    fit: object            # FitResult
+    seconds: float
+
+
+def run_case(source: str, seed: int, starts: int, cache: str | None) -> Case:
+    path = Path(cache) / f"{source}-{seed}-{starts}.pkl" if cache else None
+    if path is not None and path.exists():
+        with open(path, "rb") as f:
+            return pickle.load(f)
+    t = time.perf_counter()
+    with tempfile.TemporaryDirectory(prefix="gprm-src-") as tmp:
+        camp, truth = sources.make(source, seed, workdir=tmp)
+        if not hasattr(camp, "sizes"):
+            camp = read_campaign_dir(camp)
+        means = preprocess(camp, PreprocessConfig()).to_dataset()
+    opts = FitOptions()
+    fit = identify(fit_data_from_means(means, window=opts.window, sigma=opts.sigma),
+                   opts.parameters(paper()), MultiStartOptions(n_starts=starts, seed=seed),
+                   band_samples=0, uncertainty="sandwich", prior_width=opts.prior_width)
+    case = Case(source, seed, {n: float(truth[n]) for n in sources.PHYSICAL}, fit,
+                time.perf_counter() - t)
+    if path is not None:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        tmpf = path.with_suffix(".part")
+        with open(tmpf, "wb") as f:
+            pickle.dump(case, f)
+        tmpf.replace(path)
+    return case
+
+
+def intervals(case: Case, method: str):
+    """(names, identified, {level: (lo, hi)}, best) of ``method`` on this case's fit."""
+    from gprm.fit.methods import uncertainty_of
+    unc = uncertainty_of(case.fit, method)
+    lv = {L: unc.interval(L) for L in LEVELS}
+    return unc.names, np.asarray(unc.identified), lv, case.fit.x
+
+
+def score(case: Case, method: str) -> dict:
+    names, ident, lv, best = intervals(case, method)
+    out = {"source": case.source, "seed": case.seed, "method": method,
+           "n_identified": 0, "n_all": 0, "best_outside": 0}
+    for L in LEVELS:
+        out[f"id_in{round(100 * L)}"] = 0
+        out[f"all_in{round(100 * L)}"] = 0
+    misses = []
+    for k, n in enumerate(names):
+        if n not in case.truth:
+            continue
+        v = case.truth[n]
+        out["n_all"] += 1
+        out["n_identified"] += int(ident[k])
+        for L in LEVELS:
+            lo, hi = lv[L]
+            inside = bool(lo[k] <= v <= hi[k])
+            out[f"all_in{round(100 * L)}"] += int(inside)
+            if ident[k]:
+                out[f"id_in{round(100 * L)}"] += int(inside)
+                if L == 0.95 and not inside:
+                    misses.append(n)
+        lo, hi = lv[0.95]
+        out["best_outside"] += int(not (lo[k] <= best[k] <= hi[k]))
+    out["misses95"] = misses
+    return out
+
+
+def mc_interval(rows: list[dict], num: str, den: str, rng, n_boot: int = 2000):
+    a = np.array([r[num] for r in rows], float)
+    b = np.array([r[den] for r in rows], float)
+    if b.sum() == 0:
+        return np.nan, np.nan, np.nan
+    idx = rng.integers(0, len(rows), (n_boot, len(rows)))
+    f = a[idx].sum(axis=1) / np.maximum(b[idx].sum(axis=1), 1)
+    lo, hi = np.percentile(f, [2.5, 97.5])
+    return 100 * a.sum() / b.sum(), 100 * lo, 100 * hi
+
+
+def summary(rows: list[dict]) -> str:
+    rng = np.random.default_rng(0)
+    out = ["| source | method | campaigns | identified / campaign (min) | 95 % (MC 95 %) | "
+           "68 % (MC 95 %) | all 21: 95 % / 68 % | best fit outside its 95 % |",
+           "|---|---|---|---|---|---|---|---|"]
+    keys = sorted({(r["source"], r["method"]) for r in rows},
+                  key=lambda k: (sources.SOURCES.index(k[0]) if k[0] in sources.SOURCES
+                                 else 99, k[1]))
+    for src, m in keys:
+        rr = [r for r in rows if r["source"] == src and r["method"] == m]
+        nid = [r["n_identified"] for r in rr]
+        c95 = mc_interval(rr, "id_in95", "n_identified", rng)
+        c68 = mc_interval(rr, "id_in68", "n_identified", rng)
+        a95 = 100 * sum(r["all_in95"] for r in rr) / max(sum(r["n_all"] for r in rr), 1)
+        a68 = 100 * sum(r["all_in68"] for r in rr) / max(sum(r["n_all"] for r in rr), 1)
+        out.append(f"| {src} | {m} | {len(rr)} | {np.mean(nid):.1f} ({min(nid)}) | "
+                   f"{c95[0]:.1f} ({c95[1]:.0f}-{c95[2]:.0f}) | "
+                   f"{c68[0]:.1f} ({c68[1]:.0f}-{c68[2]:.0f}) | {a95:.1f} / {a68:.1f} | "
+                   f"{sum(r['best_outside'] for r in rr)} |")
+    return "\n".join(out)
+
+
+def misses_table(rows: list[dict]) -> str:
+    out = []
+    for src in sorted({r["source"] for r in rows}):
+        for m in sorted({r["method"] for r in rows if r["source"] == src}):
+            cnt: dict[str, int] = {}
+            for r in rows:
+                if r["source"] == src and r["method"] == m:
+                    for n in r["misses95"]:
+                        cnt[n] = cnt.get(n, 0) + 1
+            top = ", ".join(f"{n} {c}" for n, c in sorted(cnt.items(), key=lambda t: -t[1]))
+            out.append(f"- {src}, {m}: {top or 'none'}")
+    return "\n".join(out)
+
+
+def _job(args):
+    source, seed, starts, cache, methods = args
+    case = run_case(source, seed, starts, cache)
+    return [score(case, m) for m in methods], case.seconds
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--sources", default=",".join(sources.SOURCES))
+    ap.add_argument("--campaigns", type=int, default=20)
+    ap.add_argument("--seed", type=int, default=5000)
+    ap.add_argument("--starts", type=int, default=200)
+    ap.add_argument("--methods", default="sandwich")
+    ap.add_argument("--workers", type=int, default=2)
+    ap.add_argument("--json")
+    ap.add_argument("--cache")
+    ap.add_argument("--from-json", nargs="+")
+    a = ap.parse_args(argv)
+    if a.from_json:
+        rows = [r for f in a.from_json for r in json.loads(Path(f).read_text())["rows"]]
+        print(summary(rows))
+        print()
+        print(misses_table(rows))
+        return 0
+    srcs = [s for s in a.sources.split(",") if s]
+    unknown = [s for s in srcs if s not in sources.SOURCES]
+    if unknown:
+        ap.error(f"unknown source(s) {unknown}; one of {', '.join(sources.SOURCES)}")
+    methods = [m for m in a.methods.split(",") if m]
+    jobs = [(s, a.seed + i, a.starts, a.cache, methods) for s in srcs
+            for i in range(a.campaigns)]
+    t0 = time.perf_counter()
+    rows: list[dict] = []
+    secs = []
+    with ProcessPoolExecutor(a.workers) as ex:
+        for res, sec in ex.map(_job, jobs):
+            rows.extend(res)
+            secs.append(sec)
+    meta = {"command": " ".join(["benchmarks/bench_sources.py"] + (argv or sys.argv[1:])),
+            "wall_s": round(time.perf_counter() - t0, 1),
+            "median_case_s": float(np.median(secs))}
+    print(f"{len(jobs)} campaigns in {meta['wall_s']} s ({a.workers} workers; median "
+          f"{meta['median_case_s']:.1f} s per campaign)\n")
+    print(summary(rows))
+    print()
+    print(misses_table(rows))
+    if a.json:
+        Path(a.json).write_text(json.dumps({"meta": meta, "rows": rows}, indent=1))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,109 @@
+"""Sources of validation campaigns for the uncertainty study (issue 21): each a way of making
+a campaign with a known truth, and the truth's 21 physical parameters drawn within +-10 % of
+Table 3 (as ../shared/tools/chain-check draws them).
+
+- ``white``: the exact linear model with white interferometer noise (5e-10 m) and nothing
+  else (gprm's generator with every other ingredient off);
+- one imperfection alone at two strengths, on top of ``white`` (``jitter-1`` ... ``-2``):
+  ``jitter`` (trigger offsets, +-2.5 / +-5 samples), ``drive`` (run-to-run V0, tau_v and
+  stiffness/damping scatter at 1x / 2x the generator's), ``gain`` (a fixed calibration error
+  per laser position, U(-0.5, 0.5) % / U(-1, 1) %), ``mode`` (the unmodelled 28 kHz mode at
+  1.5 / 3 % of each signal's peak), ``coloured`` (low-pass noise 3e-10 / 6e-10 m), ``drift``
+  (zero, ramp and 300 Hz drift at 1x / 3x), ``nonlinear`` (the nonlinear correction at 1x /
+  3x);
+- ``generator``: ``gprm synth campaign`` as it is (every ingredient);
+- ``sim2``, ``sim2-white``: the second simulator (benchmarks/sim2.py, written independently
+  of gprm's model code: its own solve_ivp integration and its own imperfections), every
+  imperfection on / white noise only. Never used to choose or tune anything.
+
+``make(source, seed)`` returns (campaign Dataset or CSV folder path, truth ParameterSet).
+"""
+
+from __future__ import annotations
+
+import sys
+import tempfile
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+
+from gprm.campaign.synth import SynthConfig, nonlinear_correction, synth_campaign
+from gprm.params import FITTED_DEFAULT, LAG_PARAMETERS, ParameterSet, paper
+
+#: the 21 physical parameters of Table 3 (its 23 less the lags t0, t1)
+PHYSICAL = tuple(n for n in FITTED_DEFAULT if n not in LAG_PARAMETERS)
+
+_OFF = dict(nonlinear=False, mode_rel=0.0, trigger_max=0.0, v0_rel=0.0, tau_rel=0.0,
+            param_rel=0.0, noise_white=5e-10, noise_coloured=0.0, drift_offset=0.0,
+            drift_ramp=0.0, drift_sine=0.0)
+
+_D = SynthConfig()
+#: one imperfection alone: (SynthConfig changes at strength 1, at strength 2)
+_ALONE = {
+    "jitter": ({"trigger_max": 2.5}, {"trigger_max": 5.0}),
+    "drive": ({"v0_rel": _D.v0_rel, "tau_rel": _D.tau_rel, "param_rel": _D.param_rel},
+              {"v0_rel": 2 * _D.v0_rel, "tau_rel": 2 * _D.tau_rel,
+               "param_rel": 2 * _D.param_rel}),
+    "mode": ({"mode_rel": 0.015}, {"mode_rel": 0.03}),
+    "coloured": ({"noise_coloured": 3e-10}, {"noise_coloured": 6e-10}),
+    "drift": ({"drift_offset": _D.drift_offset, "drift_ramp": _D.drift_ramp,
+               "drift_sine": _D.drift_sine},
+              {"drift_offset": 3 * _D.drift_offset, "drift_ramp": 3 * _D.drift_ramp,
+               "drift_sine": 3 * _D.drift_sine}),
+    "nonlinear": ({"nonlinear": True}, {"nonlinear": True}),
+    "gain": ({}, {}),
+}
+_GAIN = {1: 0.005, 2: 0.01}
+_NL_SCALE = {1: 1.0, 2: 3.0}
+
+SOURCES = (("white",) + tuple(f"{k}-{s}" for k in _ALONE for s in (1, 2))
+           + ("generator", "sim2-white", "sim2"))
+
+
+def draw_truth(seed: int) -> ParameterSet:
+    rng = np.random.default_rng([seed, 77])
+    base = paper()
+    return base.with_values(**{n: base[n] * rng.uniform(0.9, 1.1) for n in PHYSICAL})
+
+
+def _sim2():
+    here = str(Path(__file__).resolve().parent)
+    if here not in sys.path:
+        sys.path.insert(0, here)
+    import sim2
+    return sim2
+
+
+def make(source: str, seed: int, workdir: str | None = None):
+    """(campaign, truth): a Dataset for gprm's generator, a CSV folder for sim2."""
+    if source.startswith("sim2"):
+        sim2 = _sim2()
+        out = Path(workdir or tempfile.mkdtemp(prefix="gprm-sim2-")) / f"{source}-{seed}"
+        preset = "white" if source == "sim2-white" else "default"
+        truth = sim2.make_campaign(out, seed, imperfections=sim2.PRESETS[preset])
+        values = truth["parameters"]
+        return out, paper().with_values(**{k: float(v) for k, v in values.items()
+                                            if k in paper().values})
+    truth = draw_truth(seed)
+    if source == "generator":
+        return synth_campaign(truth, seed=seed), truth
+    base = replace(SynthConfig(), **_OFF)
+    if source == "white":
+        return synth_campaign(truth, seed=seed, config=base), truth
+    kind, strength = source.rsplit("-", 1)
+    k = int(strength)
+    cfg = replace(base, **_ALONE[kind][k - 1])
+    corr = None
+    if kind == "nonlinear":
+        n = int(np.floor(cfg.t_end * cfg.rate + 1e-9)) + 1
+        corr = {p: _NL_SCALE[k] * v for p, v in
+                nonlinear_correction(truth, np.arange(n) / cfg.rate).items()}
+    camp = synth_campaign(truth, seed=seed, config=cfg, correction=corr)
+    if kind == "gain":
+        g = np.random.default_rng([seed, 91]).uniform(-_GAIN[k], _GAIN[k],
+                                                      camp.sizes["position"])
+        camp = camp.copy()
+        camp["displacement"] = camp["displacement"] * (1.0 + camp["position"].copy(data=g))
+        camp["gain_error"] = (("position",), g)
+    return camp, truth

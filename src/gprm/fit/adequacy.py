@@ -1,0 +1,208 @@
+"""Does the model describe the data? The adequacy verdict of every fit (issue 21).
+
+Three checks on the best fit, each from the data alone:
+
+- **chi-square**: the weighted residuals' sum of squares over N - p_eff degrees of freedom
+  (p_eff the trace of the fit's hat matrix, prior included), with its p-value under the
+  chi-square distribution (what it would be if the residuals were the sigma(t) the
+  preprocessing measured, independent);
+- **whiteness, per signal**: the Ljung-Box statistic Q = n (n + 2) sum_k rho_k^2 / (n - k)
+  over the first ``lags`` autocorrelations of the signal's residuals, its p-value under
+  chi-square(lags) (gprm's implementation is checked against statsmodels' acorr_ljungbox in
+  tests/fit/test_adequacy.py), the lag-1 autocorrelation, and the residuals' spectrum: the
+  frequency holding the most residual power and its share of it (an unmodelled resonance
+  shows as a peak);
+- **leave one signal out**: the fit polished again from the best fit without signal s, and
+  its prediction of s: the mean squared weighted error of that prediction over the in-fit
+  one. Near 1 the other signals predict s as well as s fits itself; much larger means the
+  signals disagree about the parameters (mismatch that one signal's share cannot absorb).
+
+Verdict: ``adequate`` where the chi-square's p-value is above 0.001 and no signal's
+Ljung-Box p-value is below 0.001 / n_signals; otherwise ``not described``, with the reasons.
+The default uncertainty (gprm.fit.sandwich) accounts for an inadequate model through the
+residuals' own covariance; :func:`verdict_text` says so in the words of the report.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.signal import periodogram
+from scipy.stats import chi2 as chi2_dist
+
+from gprm.fit.engine import polish_best
+from gprm.fit.objective import FitData, Objective
+from gprm.fit.prior import Prior
+from gprm.fit.starts import LMOptions
+
+P_CHI2 = 1e-3
+P_WHITE = 1e-3
+
+
+def ljung_box(x: np.ndarray, lags: int) -> tuple[float, float]:
+    """(Q, p-value) of the Ljung-Box test of ``x`` (1-D) over ``lags`` autocorrelations."""
+    x = np.asarray(x, float)
+    n = x.size
+    x = x - x.mean()
+    den = float(x @ x)
+    if den <= 0 or lags < 1:
+        return 0.0, 1.0
+    q = 0.0
+    for k in range(1, lags + 1):
+        rho = float(x[k:] @ x[:-k]) / den
+        q += rho * rho / (n - k)
+    q *= n * (n + 2)
+    return float(q), float(chi2_dist.sf(q, lags))
+
+
+@dataclass(frozen=True)
+class SignalCheck:
+    signal: str
+    chi2_per_sample: float
+    ljung_box_q: float
+    ljung_box_p: float
+    lags: int
+    lag1: float
+    peak_frequency: float        # Hz, the residual spectrum's largest bin (DC excluded)
+    peak_share: float            # that bin's share of the residual power
+    loso_ratio: float            # leave-this-signal-out prediction error / in-fit error
+
+    def to_json(self) -> dict:
+        return {"signal": self.signal, "chi2_per_sample": self.chi2_per_sample,
+                "ljung_box_q": self.ljung_box_q, "ljung_box_p": self.ljung_box_p,
+                "lags": self.lags, "lag1_autocorrelation": self.lag1,
+                "peak_frequency_hz": self.peak_frequency, "peak_share": self.peak_share,
+                "loso_ratio": self.loso_ratio}
+
+
+@dataclass(frozen=True)
+class Adequacy:
+    """The adequacy of one fit (module docstring)."""
+
+    chi2: float
+    dof: float
+    p_value: float
+    signals: tuple[SignalCheck, ...]
+    adequate: bool
+    reasons: tuple[str, ...]
+
+    @property
+    def reduced_chi2(self) -> float:
+        return self.chi2 / self.dof if self.dof > 0 else float("nan")
+
+    def to_json(self) -> dict:
+        return {"verdict": "adequate" if self.adequate else "not described",
+                "chi2": self.chi2, "dof": self.dof, "reduced_chi2": self.reduced_chi2,
+                "p_value": self.p_value, "reasons": list(self.reasons),
+                "signals": [s.to_json() for s in self.signals]}
+
+    @classmethod
+    def from_json(cls, d: dict) -> "Adequacy":
+        sig = tuple(SignalCheck(s["signal"], s["chi2_per_sample"], s["ljung_box_q"],
+                                s["ljung_box_p"], int(s["lags"]), s["lag1_autocorrelation"],
+                                s["peak_frequency_hz"], s["peak_share"], s["loso_ratio"])
+                    for s in d.get("signals", []))
+        return cls(float(d["chi2"]), float(d["dof"]), float(d["p_value"]), sig,
+                   d.get("verdict") == "adequate", tuple(d.get("reasons", [])))
+
+
+def _subset(data: FitData, keep: list[int]) -> FitData:
+    return FitData(data.time, data.values[keep], data.sigma[keep],
+                   tuple(data.signals[i] for i in keep), data.window, data.sigma_kind,
+                   data.source, data.attrs,
+                   None if data.runs is None else data.runs[keep],
+                   None if data.noise_std is None else data.noise_std[keep],
+                   None if data.interpolation_error is None
+                   else data.interpolation_error[keep])
+
+
+def leave_one_signal_out(obj: Objective, x: np.ndarray, lm: LMOptions = LMOptions(),
+                         max_iter: int = 60) -> np.ndarray:
+    """(n_signals,) the prediction error of each signal by the fit without it, over its
+    in-fit error (mean squared weighted residuals)."""
+    d = obj.data
+    S = len(d.signals)
+    y_fit = obj.model(np.asarray(x, float)[None]).y[0]
+    own = np.mean(((d.values - y_fit) / d.sigma) ** 2, axis=1)
+    out = np.full(S, np.nan)
+    for s in range(S):
+        keep = [i for i in range(S) if i != s]
+        sub = Objective(_subset(d, keep), obj.base, obj.names, obj.scale, obj.piezo,
+                        obj.z_bk_absolute, obj.prior)
+        xs, _ = polish_best(sub, np.asarray(x, float), lm, max_iter=max_iter, ftol=1e-10)
+        ys = obj.model(xs[None]).y[0]
+        if np.all(np.isfinite(ys[s])):
+            out[s] = float(np.mean(((d.values[s] - ys[s]) / d.sigma[s]) ** 2) / own[s])
+    return out
+
+
+def effective_parameters(J: np.ndarray, x: np.ndarray, prior: Prior | None) -> float:
+    """p_eff = trace of the hat matrix J (J^T J + w^2 Lambda)^-1 J^T, in the prior's
+    coordinates (the number of parameters the data determine; P without a prior)."""
+    if prior is None:
+        return float(np.linalg.matrix_rank(J))
+    Ju = J * prior.dx_du(np.asarray(x, float))[None, :]
+    H = Ju.T @ Ju + np.diag(float(prior.weight) ** 2 / prior.sd ** 2)
+    return float(np.trace(np.linalg.solve(H, Ju.T @ Ju)))
+
+
+def assess(obj: Objective, x: np.ndarray, r: np.ndarray, p_eff: float, *,
+           lm: LMOptions = LMOptions(), loso: bool = True) -> Adequacy:
+    """The adequacy checks of the module docstring for the fit at ``x`` with weighted data
+    residuals ``r`` (N,) and effective number of parameters ``p_eff``."""
+    d = obj.data
+    S, T = d.values.shape
+    R = np.asarray(r, float).reshape(S, T)
+    chi2 = float(np.sum(R * R))
+    dof = float(max(R.size - p_eff, 1.0))
+    p = float(chi2_dist.sf(chi2, dof))
+    lags = int(max(1, min(10, T // 5)))
+    fs = 1.0 / float(np.median(np.diff(d.time))) if T > 1 else 1.0
+    ratios = leave_one_signal_out(obj, x, lm) if loso else np.full(S, np.nan)
+    checks = []
+    for s in range(S):
+        q, pq = ljung_box(R[s], lags)
+        z = R[s] - R[s].mean()
+        den = float(z @ z)
+        lag1 = float(z[1:] @ z[:-1]) / den if den > 0 else 0.0
+        f, pw = periodogram(R[s], fs=fs, detrend="constant")
+        if pw.size > 1 and np.sum(pw[1:]) > 0:
+            k = 1 + int(np.argmax(pw[1:]))
+            pf, share = float(f[k]), float(pw[k] / np.sum(pw[1:]))
+        else:
+            pf, share = float("nan"), float("nan")
+        checks.append(SignalCheck(d.signals[s], float(np.mean(R[s] ** 2)), q, pq, lags, lag1,
+                                  pf, share, float(ratios[s])))
+    reasons = []
+    if p < P_CHI2:
+        reasons.append(f"chi-square {chi2:.4g} on {dof:.0f} degrees of freedom (reduced "
+                       f"{chi2 / dof:.3g}, p = {p:.2g}): the residuals are larger than the "
+                       "runs' spread")
+    for c in checks:
+        if c.ljung_box_p < P_WHITE / S:
+            reasons.append(f"{c.signal}: residuals not white (Ljung-Box p = "
+                           f"{c.ljung_box_p:.2g}, lag-1 autocorrelation {c.lag1:.2f}, most "
+                           f"power at {c.peak_frequency / 1e3:.3g} kHz)")
+    return Adequacy(chi2, dof, p, tuple(checks), not reasons, tuple(reasons))
+
+
+def verdict_text(a: Adequacy, method: str, details: dict | None = None) -> str:
+    """One paragraph for the report and ``gprm show``."""
+    if a.adequate:
+        head = (f"The model describes the data: reduced chi-square {a.reduced_chi2:.3g} "
+                f"(p = {a.p_value:.2g}) and every signal's residuals are white.")
+    else:
+        head = ("The model does not describe the data: " + "; ".join(a.reasons) + ".")
+    if method != "sandwich":
+        return head + (f" The intervals ({method}) do not use the residuals' structure.")
+    ratio = (details or {}).get("residual_over_runs")
+    if ratio:
+        big = sum(1 for v in ratio if v > 1.2)
+        tail = (f" The intervals take the larger of the runs' spread and the residuals' own "
+                f"covariance: the residuals widen {big} of {len(ratio)} parameters by more "
+                "than 20 %.")
+    else:
+        tail = (" The file has no runs: the intervals come from the residuals' own "
+                "covariance.")
+    return head + tail

@@ -1,0 +1,330 @@
+"""The default uncertainty (``sandwich``): the error of the mean signals estimated from the
+campaign itself, propagated through the fit's linearised estimator, with the instrument's
+systematics marginalised (issue 21; docs/fitting.md, "The default uncertainty").
+
+The best fit x^ minimises ``|r(x)|^2 + |p(x)|^2`` (r: the data residuals weighted by
+sigma(t), N rows; p: the weak prior's P rows with weight w, gprm.fit.prior). In the prior's
+coordinates u (ln x for positive parameters) the estimator moves with a perturbation e of the
+weighted data as ``du = B e`` with ``B = H^-1 J^T``, ``H = J^T J + w^2 diag(1/sd^2)`` (J the
+data Jacobian in u). Its covariance is the sandwich ``B S B^T`` plus the prior's share, for the
+covariance S of the weighted data's error, which is not assumed but estimated in three
+independent ways, each from the data:
+
+``runs``
+    the spread of the synchronised, aligned runs behind each mean signal (the mean-signals
+    file's ``runs``): ``S_runs = sum_r d_r d_r^T / (R (R - 1))`` with d_r a run's deviation
+    from the mean, per signal (positions are measured in separate runs, so the blocks are
+    independent). Run-to-run drive variation, trigger jitter left after synchronisation,
+    noise, drift: whatever differs between runs, with its full time correlation.
+``residuals``
+    the fit's own residuals, with their time correlation: a heteroskedasticity- and
+    autocorrelation-consistent (HAC, Newey-West) estimate per signal over the scores
+    ``B[:, t] r_t`` with a Bartlett window of ``max_lag`` samples, and the small-sample
+    factor N / (N - p_eff) (p_eff the trace of the hat matrix). This is what sees model
+    mismatch common to all runs (an unmodelled resonance, a nonlinearity, a gain error that
+    the shared parameters cannot absorb): residuals that are larger or more correlated than
+    the runs' spread explains.
+``systematics``
+    the instrument's per-channel gain (calibration) error and timing offset, marginalised
+    with the priors the user states (:class:`Systematics`): a gain error g of signal s moves
+    its data by g y_s (the model signal), a timing error by -tau dy_s/dt. Each is a rank-one
+    term ``sd^2 (B v)(B v)^T``; a gain error the parameters can absorb therefore widens
+    exactly what it would bias. The timing sd of each signal also carries the alignment's
+    own error, estimated from the data: the mean's noise at the alignment time over its slope.
+
+The statistical part is the larger of the first two in the matrix sense (``V_runs +
+[V_res - V_runs]_+``): with a model that describes the data both estimate the same thing and
+agree; where the model does not, the residuals are larger than the runs' spread and their
+estimate takes over. Systematics and the prior's share add to it. The intervals are centred
+on the best fit (u^ +/- z sd): nothing is re-centred, so the best fit lies inside every
+interval. Nothing here depends on how a campaign was made (no generator, no constant measured
+on synthetic data).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.stats import norm
+
+from gprm.errors import GprmInputError
+from gprm.fit.methods import FitState
+from gprm.fit.objective import Objective
+from gprm.fit.prior import Prior
+from gprm.fit.uncertainty import CONTRACTION, Uncertainty
+
+
+@dataclass(frozen=True)
+class Systematics:
+    """Priors on the instrument's per-channel systematics (standard deviations, SI), stated
+    by the user (parameter file ``[systematics]``, ``gprm fit --gain-sd/--timing-sd``).
+
+    gain_sd: relative calibration (gain) error of each laser channel, 1 (default 0.005:
+    0.5 %, the scale factor of a laboratory heterodyne interferometer on a mechanism bench
+    known to a few tenths of a per cent; docs/fitting.md says where it comes from and what
+    it does). timing_sd: s, timing offset of each channel beyond what the alignment fits
+    (default 0: each signal is aligned at its own threshold crossing and its lag is fitted,
+    docs/model.md, so a constant channel delay is absorbed; the alignment's own error is
+    estimated from the data and added). ``per_signal``: optional overrides
+    ``{signal: (gain_sd, timing_sd)}``.
+    """
+
+    gain_sd: float = 0.0
+    timing_sd: float = 0.0
+    per_signal: tuple[tuple[str, float, float], ...] = ()
+    #: also estimate the gain errors' sd from the residuals and use the larger
+    estimate_gain: bool = True
+
+    def __post_init__(self):
+        for name in ("gain_sd", "timing_sd"):
+            v = getattr(self, name)
+            if isinstance(v, bool) or not isinstance(v, (int, float)) or not np.isfinite(v) \
+                    or v < 0:
+                raise GprmInputError(f"must be a finite number >= 0, got {v!r}",
+                                     field=f"systematics.{name}")
+        for entry in self.per_signal:
+            if len(entry) != 3 or not all(np.isfinite(v) and v >= 0 for v in entry[1:]):
+                raise GprmInputError(f"per-signal entry {entry!r} must be (signal, gain_sd, "
+                                     "timing_sd) with finite values >= 0",
+                                     field="systematics.per_signal")
+
+    def for_signal(self, signal: str) -> tuple[float, float]:
+        for s, g, t in self.per_signal:
+            if s == signal:
+                return float(g), float(t)
+        return float(self.gain_sd), float(self.timing_sd)
+
+    def to_json(self) -> dict:
+        return {"gain_sd": self.gain_sd, "timing_sd_s": self.timing_sd,
+                "estimate_gain": self.estimate_gain,
+                "per_signal": {s: {"gain_sd": g, "timing_sd_s": t}
+                               for s, g, t in self.per_signal}}
+
+
+@dataclass(frozen=True)
+class SandwichParts:
+    """The pieces of the default covariance in u (each (P, P)) and what they came from."""
+
+    runs: np.ndarray | None         # from the runs' spread (None: the file has no runs)
+    residuals: np.ndarray           # HAC estimate from the fit's residuals
+    statistical: np.ndarray         # the larger of the two (matrix sense)
+    gain: np.ndarray                # per-channel gain errors, marginalised
+    timing: np.ndarray              # per-channel timing errors (stated + alignment)
+    interpolation: np.ndarray       # the preprocessing's interpolation error (from data)
+    prior: np.ndarray               # the prior's share
+    total: np.ndarray
+    timing_sd: np.ndarray           # (n_signals,) s, the timing sd used per signal
+    gain_sd: np.ndarray             # (n_signals,) 1, the gain sd used per signal
+    gain_estimated: float           # 1, the gain errors' sd the residuals show
+    alignment_sd: np.ndarray        # (n_signals,) s, the alignment's own error (from data)
+    p_eff: float
+    max_lag: int
+
+    def share(self) -> dict[str, np.ndarray]:
+        """Each source's share of every parameter's variance (P,) (they sum to 1)."""
+        tot = np.clip(np.diag(self.total), 1e-300, None)
+        return {k: np.diag(v) / tot for k, v in (("statistical", self.statistical),
+                                                   ("gain", self.gain),
+                                                   ("timing", self.timing),
+                                                   ("interpolation", self.interpolation),
+                                                   ("prior", self.prior))}
+
+
+def _psd_part(A: np.ndarray) -> np.ndarray:
+    w, V = np.linalg.eigh(0.5 * (A + A.T))
+    return (V * np.clip(w, 0.0, None)) @ V.T
+
+
+def hac_meat(E: np.ndarray, max_lag: int) -> np.ndarray:
+    """Newey-West sum over one signal's scores E (T, P): sum_t e_t e_t^T plus the Bartlett-
+    weighted lag terms up to ``max_lag``."""
+    S = E.T @ E
+    for lag in range(1, min(max_lag, E.shape[0] - 1) + 1):
+        G = E[lag:].T @ E[:-lag]
+        S += (1.0 - lag / (max_lag + 1.0)) * (G + G.T)
+    return S
+
+
+def default_max_lag(T: int) -> int:
+    """Bartlett window of the residual HAC: a quarter of the window's samples (the signals'
+    mismatch is correlated over tens of microseconds, the window holds ~47 samples)."""
+    return max(1, T // 4)
+
+
+def alignment_sd(obj: Objective, y: np.ndarray, dy: np.ndarray) -> np.ndarray:
+    """(n_signals,) s: the error of each signal's alignment, estimated from the data: the
+    noise of the mean at the alignment time (sem there, or noise_std / sqrt(R)) over the
+    model's slope there. Zero where the alignment time is outside the window."""
+    d = obj.data
+    t_a = float(d.attrs.get("align_time", np.nan))
+    out = np.zeros(len(d.signals))
+    if not np.isfinite(t_a) or not (d.time[0] <= t_a <= d.time[-1]):
+        return out
+    k = int(np.argmin(np.abs(d.time - t_a)))
+    for s in range(len(d.signals)):
+        if d.runs is not None:
+            noise = float(np.std(d.runs[s, :, k], ddof=1) / np.sqrt(d.runs.shape[1]))
+        elif d.sigma_kind == "sem":
+            noise = float(d.sigma[s, k])
+        else:
+            noise = float(d.sigma[s, k]) / np.sqrt(float(d.attrs.get("n_runs", 10)))
+        slope = abs(float(dy[s, k]))
+        out[s] = noise / slope if slope > 0 else 0.0
+    return out
+
+
+def estimate_gain_sd(Ju: np.ndarray, Hinv: np.ndarray, R: np.ndarray, y: np.ndarray,
+                     sigma: np.ndarray, runs: np.ndarray | None) -> float:
+    """The per-channel gain errors' standard deviation the residuals show (method of moments).
+
+    A gain error g_s of signal s adds g_s G_s to the weighted data (G_s = y_s / sigma_s on
+    that signal's rows). The fit absorbs what the parameters can mimic; what is left is
+    m_s = (I - J H^-1 J^T) G_s. With independent g_s of variance v, E[(m_s^T r)^2] =
+    v sum_k (m_s^T m_k)^2 + m_s^T S m_s (S the data error covariance: the runs' where the file
+    has them, else the identity). Summed over the signals this gives v; the estimate is
+    clipped at 0. It assumes the part of the gain errors the data see has the size of the part
+    they do not."""
+    S, T = R.shape
+    N = S * T
+    G = np.zeros((N, S))
+    for s in range(S):
+        G[s * T:(s + 1) * T, s] = y[s] / sigma[s]
+    M = G - Ju @ (Hinv @ (Ju.T @ G))                          # (N, S)
+    r = R.reshape(-1)
+    proj = M.T @ r                                            # (S,)
+    MM = M.T @ M
+    if runs is not None and runs.shape[1] >= 2:
+        n_r = runs.shape[1]
+        noise = np.zeros(S)
+        for s in range(S):
+            dev = (runs[s] - runs[s].mean(axis=0)) / sigma[s][None, :]
+            z = dev @ M[s * T:(s + 1) * T, :]                 # (R, S)
+            noise += np.sum(z * z, axis=0) / (n_r * (n_r - 1))
+    else:
+        noise = np.diag(MM)
+    den = float(np.sum(MM * MM))
+    if den <= 0:
+        return 0.0
+    v = float(np.sum(proj ** 2 - noise)) / den
+    return float(np.sqrt(max(v, 0.0)))
+
+
+def sandwich_parts(obj: Objective, x: np.ndarray, J: np.ndarray, r: np.ndarray,
+                   prior: Prior, systematics: Systematics = Systematics(), *,
+                   max_lag: int | None = None) -> SandwichParts:
+    """The default covariance of the fit at ``x`` (physical (P,)), in the prior's u.
+
+    J: (N, P) Jacobian of the weighted data residuals ``r`` (N,) in physical units (prior
+    rows excluded); ``prior``: the fit's prior with its weight."""
+    d = obj.data
+    S, T = d.values.shape
+    x = np.asarray(x, float)
+    Dx = prior.dx_du(x)
+    Ju = J * Dx[None, :]
+    w2 = float(prior.weight) ** 2
+    lam = w2 / prior.sd ** 2
+    H = Ju.T @ Ju + np.diag(lam)
+    Hinv = np.linalg.inv(0.5 * (H + H.T))
+    B = Hinv @ Ju.T                                           # (P, N)
+    P = x.size
+    p_eff = float(np.trace(Ju @ B))
+    N = r.size
+    L = default_max_lag(T) if max_lag is None else int(max_lag)
+    Bs = B.reshape(P, S, T)
+    R = r.reshape(S, T)
+    # residual HAC, per signal
+    V_res = np.zeros((P, P))
+    for s in range(S):
+        V_res += hac_meat((Bs[:, s, :] * R[s][None, :]).T, L)
+    V_res *= N / max(N - p_eff, 1.0)
+    # the runs' spread, per signal
+    V_runs = None
+    if d.runs is not None:
+        V_runs = np.zeros((P, P))
+        n_r = d.runs.shape[1]
+        for s in range(S):
+            dev = (d.runs[s] - d.runs[s].mean(axis=0)) / d.sigma[s][None, :]   # (R, T)
+            Z = dev @ Bs[:, s, :].T                                              # (R, P)
+            V_runs += Z.T @ Z / (n_r * (n_r - 1))
+        V_stat = V_runs + _psd_part(V_res - V_runs)
+    else:
+        V_stat = V_res
+    # systematics: model signals and slopes at the best fit
+    o = obj.model(x[None])
+    y = o.y[0]                                                # (S, T) m
+    dy = np.gradient(y, d.time, axis=1)
+    a_sd = alignment_sd(obj, y, dy)
+    g_sd = np.array([systematics.for_signal(s)[0] for s in d.signals])
+    t_sd = np.array([np.hypot(systematics.for_signal(s)[1], a_sd[i])
+                     for i, s in enumerate(d.signals)])
+    g_est = estimate_gain_sd(Ju, Hinv, R, y, d.sigma, d.runs)
+    if systematics.estimate_gain:
+        g_sd = np.maximum(g_sd, g_est)
+    V_gain = np.zeros((P, P))
+    V_time = np.zeros((P, P))
+    V_interp = np.zeros((P, P))
+    for s in range(S):
+        if d.interpolation_error is not None:
+            bi = Bs[:, s, :] @ (d.interpolation_error[s] / d.sigma[s])
+            V_interp += np.outer(bi, bi)
+        bg = Bs[:, s, :] @ (y[s] / d.sigma[s])
+        bt = Bs[:, s, :] @ (dy[s] / d.sigma[s])
+        V_gain += g_sd[s] ** 2 * np.outer(bg, bg)
+        V_time += t_sd[s] ** 2 * np.outer(bt, bt)
+    V_prior = Hinv @ np.diag(w2 * lam) @ Hinv
+    total = V_stat + V_gain + V_time + V_interp + V_prior
+    return SandwichParts(V_runs, V_res, V_stat, V_gain, V_time, V_interp, V_prior,
+                         0.5 * (total + total.T), t_sd, g_sd, g_est, a_sd, p_eff, L)
+
+
+def interval_u(u: np.ndarray, cov_u: np.ndarray, level: float) -> tuple[np.ndarray, np.ndarray]:
+    z = norm.ppf(0.5 + level / 2.0)
+    sd = np.sqrt(np.clip(np.diag(cov_u), 0.0, None))
+    return u - z * sd, u + z * sd
+
+
+def uncertainty(method: str, state: FitState) -> Uncertainty:
+    """The ``sandwich`` method through the one interface (gprm.fit.methods)."""
+    prior = state.prior
+    if prior is None:
+        raise ValueError("the sandwich uncertainty needs the fit's prior")
+    syst = state.systematics if isinstance(state.systematics, Systematics) else Systematics()
+    parts = sandwich_parts(state.obj, state.x, state.J, state.r, prior, syst)
+    x = np.asarray(state.x, float)
+    u = prior.to_u(x)
+    Cu = parts.total
+    sd_u = np.sqrt(np.clip(np.diag(Cu), 0.0, None))
+    lo95, hi95 = interval_u(u, Cu, 0.95)
+    lo68, hi68 = interval_u(u, Cu, 0.68)
+    contraction = sd_u / prior.sd
+    identified = contraction < CONTRACTION
+    D = prior.dx_du(x)
+    cov_x = Cu * np.outer(D, D)
+    rng = np.random.default_rng([state.seed, 21])
+    w, V = np.linalg.eigh(Cu)
+    Z = rng.standard_normal((int(state.n_draws), x.size)) @ (V * np.sqrt(np.clip(w, 0, None))).T
+    draws = prior.from_u(u[None] + Z) if state.n_draws > 0 else None
+    r = state.r
+    # the variance scale the fit weighed its prior with (FitResult.objective rebuilds it)
+    s2 = float(prior.weight) ** 2
+    tau = s2 / max(float(r @ r) / max(state.obj.dof, 1), 1e-300)
+    share = parts.share()
+    details = {
+        "sources": {k: [float(v) for v in share[k]] for k in share},
+        "statistical_from": "runs and residuals" if parts.runs is not None else
+        "residuals (the mean-signals file has no runs)",
+        "residual_over_runs": ([float(v) for v in np.sqrt(
+            np.diag(parts.residuals) / np.clip(np.diag(parts.runs), 1e-300, None))]
+            if parts.runs is not None else None),
+        "systematics": {s: {"gain_sd": float(parts.gain_sd[i]),
+                            "timing_sd_s": float(parts.timing_sd[i]),
+                            "alignment_sd_s": float(parts.alignment_sd[i])}
+                        for i, s in enumerate(state.obj.data.signals)},
+        "stated": syst.to_json(),
+        "gain_estimated": parts.gain_estimated,
+        "max_lag": parts.max_lag, "p_eff": parts.p_eff,
+    }
+    return Uncertainty(method, state.names, 0.5 * (cov_x + cov_x.T), prior.from_u(lo95),
+                       prior.from_u(hi95), prior.from_u(lo68), prior.from_u(hi68), identified,
+                       contraction, draws, s2, tau, details=details)

@@ -89,7 +89,41 @@ def intervals(case: Case, method: str):
     return unc.names, np.asarray(unc.identified), lv, case.fit.x
 
 
-def score(case: Case, method: str) -> dict:
+def truth_in_fit_time(case: Case):
+    """The truth with its lag t0 in the fit's aligned time base: t0 plus the shift the
+    alignment rule of preprocessing gives the noise-free truth's x_base (threshold 2 x the
+    measured noise std, align time 1.01 ms), on the record's 200 kHz grid."""
+    from gprm.campaign.preprocess import alignment_shift
+    from gprm.params import batch
+    from gprm.simulate import observe
+
+    truth = paper().with_values(**case.truth)
+    d = case.fit.data
+    t = np.arange(301) / 200e3
+    y = observe(batch([truth]), t, ("x_base",)).y[0, 0]
+    k = list(d.signals).index("x_base")
+    thr = 2.0 * float(d.noise_std[k]) if d.noise_std is not None else 1e-9
+    shift = alignment_shift(t, y, thr, align_time=float(d.attrs.get("align_time", 1.01e-3)))
+    return truth, truth.with_values(t0=truth["t0"] + (shift or 0.0))
+
+
+def prediction_scores(case: Case, method: str, samples: int = 200) -> dict:
+    """Overshoots, kinetic-energy histogram and velocity curves (benchmarks/bench_coverage.py's
+    scores) of ``method``'s draws against the truth."""
+    from bench_coverage import curve_cover, energy_cover, prediction_cover
+    from gprm.fit.files import FittedModel
+    from gprm.fit.methods import uncertainty_of
+    from gprm.predict.trajectories import default_times
+
+    u = uncertainty_of(case.fit, method)
+    fm = FittedModel(case.fit.params, u.covariance, piezo=2, draws=u.draws, uncertainty=method)
+    truth, truth_t = truth_in_fit_time(case)
+    return {"pred": prediction_cover(fm, truth, default_times(), samples, case.seed),
+            "energy": energy_cover(fm, truth_t, samples, case.seed),
+            "curves": curve_cover(fm, truth_t, samples, case.seed)}
+
+
+def score(case: Case, method: str, predictions: bool = False) -> dict:
     names, ident, lv, best = intervals(case, method)
     out = {"source": case.source, "seed": case.seed, "method": method,
            "n_identified": 0, "n_all": 0, "best_outside": 0}
@@ -114,6 +148,8 @@ def score(case: Case, method: str) -> dict:
         lo, hi = lv[0.95]
         out["best_outside"] += int(not (lo[k] <= best[k] <= hi[k]))
     out["misses95"] = misses
+    if predictions:
+        out.update(prediction_scores(case, method))
     return out
 
 
@@ -126,6 +162,26 @@ def mc_interval(rows: list[dict], num: str, den: str, rng, n_boot: int = 2000):
     f = a[idx].sum(axis=1) / np.maximum(b[idx].sum(axis=1), 1)
     lo, hi = np.percentile(f, [2.5, 97.5])
     return 100 * a.sum() / b.sum(), 100 * lo, 100 * hi
+
+
+def prediction_summary(rows: list[dict]) -> str:
+    rng = np.random.default_rng(1)
+    out = ["| source | method | overshoots 95 % | 68 % | KE histogram 95 % | 68 % | "
+           "velocity curves 95 % | 68 % |", "|---|---|---|---|---|---|---|---|"]
+    keys = sorted({(r["source"], r["method"]) for r in rows if "pred" in r},
+                  key=lambda k: (sources.SOURCES.index(k[0]) if k[0] in sources.SOURCES
+                                 else 99, k[1]))
+    for src, m in keys:
+        rr = [r for r in rows if r["source"] == src and r["method"] == m and "pred" in r]
+        cells = []
+        for key in ("pred", "energy", "curves"):
+            flat = [{"a95": r[key]["in95"], "a68": r[key]["in68"], "n": r[key]["n"]}
+                    for r in rr]
+            for lv in ("95", "68"):
+                c = mc_interval(flat, f"a{lv}", "n", rng)
+                cells.append(f"{c[0]:.1f} ({c[1]:.0f}-{c[2]:.0f})")
+        out.append(f"| {src} | {m} | " + " | ".join(cells) + " |")
+    return "\n".join(out)
 
 
 def summary(rows: list[dict]) -> str:
@@ -165,9 +221,9 @@ def misses_table(rows: list[dict]) -> str:
 
 
 def _job(args):
-    source, seed, starts, cache, methods = args
+    source, seed, starts, cache, methods, predictions = args
     case = run_case(source, seed, starts, cache)
-    return [score(case, m) for m in methods], case.seconds
+    return [score(case, m, predictions) for m in methods], case.seconds
 
 
 def main(argv=None) -> int:
@@ -178,6 +234,8 @@ def main(argv=None) -> int:
     ap.add_argument("--starts", type=int, default=200)
     ap.add_argument("--methods", default="sandwich")
     ap.add_argument("--workers", type=int, default=2)
+    ap.add_argument("--predictions", action="store_true",
+                    help="also score overshoots, KE histogram and velocity curves (slower)")
     ap.add_argument("--json")
     ap.add_argument("--cache")
     ap.add_argument("--from-json", nargs="+")
@@ -186,6 +244,9 @@ def main(argv=None) -> int:
         rows = [r for f in a.from_json for r in json.loads(Path(f).read_text())["rows"]]
         print(summary(rows))
         print()
+        if any("pred" in r for r in rows):
+            print(prediction_summary(rows))
+            print()
         print(misses_table(rows))
         return 0
     srcs = [s for s in a.sources.split(",") if s]
@@ -193,7 +254,7 @@ def main(argv=None) -> int:
     if unknown:
         ap.error(f"unknown source(s) {unknown}; one of {', '.join(sources.SOURCES)}")
     methods = [m for m in a.methods.split(",") if m]
-    jobs = [(s, a.seed + i, a.starts, a.cache, methods) for s in srcs
+    jobs = [(s, a.seed + i, a.starts, a.cache, methods, a.predictions) for s in srcs
             for i in range(a.campaigns)]
     t0 = time.perf_counter()
     rows: list[dict] = []
@@ -209,6 +270,9 @@ def main(argv=None) -> int:
           f"{meta['median_case_s']:.1f} s per campaign)\n")
     print(summary(rows))
     print()
+    if a.predictions:
+        print(prediction_summary(rows))
+        print()
     print(misses_table(rows))
     if a.json:
         Path(a.json).write_text(json.dumps({"meta": meta, "rows": rows}, indent=1))

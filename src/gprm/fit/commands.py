@@ -84,7 +84,8 @@ def register(app: typer.Typer, synth_app: typer.Typer) -> None:
                                                 help="gain (calibration) error of each "
                                                 "laser channel, 1 sd, as a fraction (default: "
                                                 "the parameter file's [systematics] gain, "
-                                                "else 0.002; docs/fitting.md)"),
+                                                "else 0; a gain error the residuals show is "
+                                                "included anyway; docs/fitting.md)"),
         timing_sd: Optional[str] = typer.Option(None, "--timing-sd",
                                                 help="timing offset of each channel "
                                                 "beyond the fitted lags, 1 sd, e.g. '0.1us' "

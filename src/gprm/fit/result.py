@@ -12,6 +12,7 @@ import numpy as np
 
 from gprm.fit import files
 from gprm.fit.files import MODEL_NAME
+from gprm.fit.adequacy import Adequacy
 from gprm.fit.objective import FitData, Objective
 from gprm.fit.prior import Prior
 from gprm.fit.starts import MultiStartOptions, StartsOutcome
@@ -43,8 +44,8 @@ class FitResult:
     prior: Prior | None = None
     #: the stated instrument systematics (gprm.fit.sandwich.Systematics; None: defaults)
     systematics: object = None
-    #: does the model describe the data (gprm.fit.adequacy.Adequacy)
-    adequacy: object = None
+    #: does the model describe the data
+    adequacy: Adequacy | None = None
 
     def combinations(self) -> list[dict]:
         """What the data determine among the not-identified parameters

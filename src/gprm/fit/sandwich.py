@@ -55,6 +55,11 @@ from gprm.fit.prior import Prior
 from gprm.fit.uncertainty import CONTRACTION, Uncertainty
 
 
+#: the per-source coverage study's headline for the report (benchmarks/bench_sources.py;
+#: docs/fitting.md, "Coverage per source")
+COVERAGE_HEADLINE = "COVERAGE-TBD"
+
+
 @dataclass(frozen=True)
 class Systematics:
     """Priors on the instrument's per-channel systematics (standard deviations, SI), stated
@@ -112,6 +117,7 @@ class SandwichParts:
     gain: np.ndarray                # per-channel gain errors, marginalised
     timing: np.ndarray              # per-channel timing errors (stated + alignment)
     interpolation: np.ndarray       # the preprocessing's interpolation error (from data)
+    synchronisation: np.ndarray     # the smoothing the runs' relative shifts may cause
     prior: np.ndarray               # the prior's share
     total: np.ndarray
     timing_sd: np.ndarray           # (n_signals,) s, the timing sd used per signal
@@ -128,6 +134,7 @@ class SandwichParts:
                                                    ("gain", self.gain),
                                                    ("timing", self.timing),
                                                    ("interpolation", self.interpolation),
+                                                   ("synchronisation", self.synchronisation),
                                                    ("prior", self.prior))}
 
 
@@ -176,7 +183,15 @@ def alignment_sd(obj: Objective, y: np.ndarray, dy: np.ndarray) -> np.ndarray:
 
 def estimate_gain_sd(Ju: np.ndarray, Hinv: np.ndarray, R: np.ndarray, y: np.ndarray,
                      sigma: np.ndarray, runs: np.ndarray | None) -> float:
-    """The per-channel gain errors' standard deviation the residuals show (method of moments).
+    """The per-channel gain errors' standard deviation the residuals show: the square root of
+    :func:`gain_variance`, clipped at 0."""
+    return float(np.sqrt(max(gain_variance(Ju, Hinv, R, y, sigma, runs), 0.0)))
+
+
+def gain_variance(Ju: np.ndarray, Hinv: np.ndarray, R: np.ndarray, y: np.ndarray,
+                  sigma: np.ndarray, runs: np.ndarray | None) -> float:
+    """The variance of the per-channel gain errors the residuals show (method of moments,
+    unbiased; may be negative by chance).
 
     A gain error g_s of signal s adds g_s G_s to the weighted data (G_s = y_s / sigma_s on
     that signal's rows). The fit absorbs what the parameters can mimic; what is left is
@@ -184,7 +199,8 @@ def estimate_gain_sd(Ju: np.ndarray, Hinv: np.ndarray, R: np.ndarray, y: np.ndar
     v sum_k (m_s^T m_k)^2 + m_s^T S m_s (S the data error covariance: the runs' where the file
     has them, else the identity). Summed over the signals this gives v; the estimate is
     clipped at 0. It assumes the part of the gain errors the data see has the size of the part
-    they do not."""
+    they do not. Ju: (N, P) data Jacobian in u; Hinv: the inverse of the fit's H; R: (S, T)
+    weighted residuals; y: (S, T) model signals; sigma: (S, T) weights; runs: (S, n, T)."""
     S, T = R.shape
     N = S * T
     G = np.zeros((N, S))
@@ -206,8 +222,56 @@ def estimate_gain_sd(Ju: np.ndarray, Hinv: np.ndarray, R: np.ndarray, y: np.ndar
     den = float(np.sum(MM * MM))
     if den <= 0:
         return 0.0
-    v = float(np.sum(proj ** 2 - noise)) / den
-    return float(np.sqrt(max(v, 0.0)))
+    return float(np.sum(proj ** 2 - noise)) / den
+
+
+def synchronisation_error(obj: Objective, x: np.ndarray, sync_shift: np.ndarray | None,
+                          h: float = 0.5e-6) -> np.ndarray | None:
+    """(n_signals, T) m: the mean's error the synchronisation may leave, 1/2 var_r(s_r) y''.
+
+    Step 1 of preprocessing shifts run r by s_r before averaging. Where the shifts are true
+    trigger offsets this undoes them; where they come from the runs' differing shapes (drive
+    amplitude or time constant varying between runs moves the RMS-optimal shift) it shifts
+    runs that were not offset, and the mean becomes an average of time-shifted copies: to
+    second order the signal plus 1/2 var(s) y'' (its first-order part, a common shift, is
+    a lag the fit absorbs). Which case holds, the data cannot say; the size and shape of the
+    error can be computed: var over the runs of the stored shifts, and y'' of the model at
+    the best fit (central difference with step ``h``). Measured on exact-model campaigns
+    with only the drive amplitude varying 2 % between runs: d2, k_Bx and c_Bx came out 1-5
+    sigma off, all with the same sign, without this term."""
+    if sync_shift is None or sync_shift.shape[1] < 2:
+        return None
+    t = obj.data.time
+    y0 = obj.model(x[None]).y[0]
+    yp = obj.model(x[None], times=t + h).y[0]
+    ym = obj.model(x[None], times=t - h).y[0]
+    curv = (yp - 2.0 * y0 + ym) / (h * h)
+    var = np.var(sync_shift, axis=1, ddof=1)
+    return 0.5 * var[:, None] * curv
+
+
+def statistical_covariance(Bs: np.ndarray, R: np.ndarray, dev: np.ndarray | None, max_lag: int,
+                           p_eff: float):
+    """(V_runs, V_res, V_stat) of the module docstring, from plain arrays.
+
+    Bs: (P, S, T) the estimator's influence ``H^-1 J^T`` laid out per signal and time;
+    R: (S, T) weighted residuals; dev: (S, n_runs, T) each run's deviation from the mean,
+    weighted like the residuals (None: no runs); ``max_lag``: the HAC's Bartlett window;
+    ``p_eff``: the fit's effective number of parameters (small-sample factor)."""
+    P, S, T = Bs.shape
+    N = S * T
+    V_res = np.zeros((P, P))
+    for s in range(S):
+        V_res += hac_meat((Bs[:, s, :] * R[s][None, :]).T, max_lag)
+    V_res *= N / max(N - p_eff, 1.0)
+    if dev is None:
+        return None, V_res, V_res
+    n_r = dev.shape[1]
+    V_runs = np.zeros((P, P))
+    for s in range(S):
+        Z = dev[s] @ Bs[:, s, :].T                                   # (n_runs, P)
+        V_runs += Z.T @ Z / (n_r * (n_r - 1))
+    return V_runs, V_res, V_runs + _psd_part(V_res - V_runs)
 
 
 def sandwich_parts(obj: Objective, x: np.ndarray, J: np.ndarray, r: np.ndarray,
@@ -229,27 +293,13 @@ def sandwich_parts(obj: Objective, x: np.ndarray, J: np.ndarray, r: np.ndarray,
     B = Hinv @ Ju.T                                           # (P, N)
     P = x.size
     p_eff = float(np.trace(Ju @ B))
-    N = r.size
     L = default_max_lag(T) if max_lag is None else int(max_lag)
     Bs = B.reshape(P, S, T)
     R = r.reshape(S, T)
-    # residual HAC, per signal
-    V_res = np.zeros((P, P))
-    for s in range(S):
-        V_res += hac_meat((Bs[:, s, :] * R[s][None, :]).T, L)
-    V_res *= N / max(N - p_eff, 1.0)
-    # the runs' spread, per signal
-    V_runs = None
+    dev = None
     if d.runs is not None:
-        V_runs = np.zeros((P, P))
-        n_r = d.runs.shape[1]
-        for s in range(S):
-            dev = (d.runs[s] - d.runs[s].mean(axis=0)) / d.sigma[s][None, :]   # (R, T)
-            Z = dev @ Bs[:, s, :].T                                              # (R, P)
-            V_runs += Z.T @ Z / (n_r * (n_r - 1))
-        V_stat = V_runs + _psd_part(V_res - V_runs)
-    else:
-        V_stat = V_res
+        dev = (d.runs - d.runs.mean(axis=1, keepdims=True)) / d.sigma[:, None, :]
+    V_runs, V_res, V_stat = statistical_covariance(Bs, R, dev, L, p_eff)
     # systematics: model signals and slopes at the best fit
     o = obj.model(x[None])
     y = o.y[0]                                                # (S, T) m
@@ -264,17 +314,22 @@ def sandwich_parts(obj: Objective, x: np.ndarray, J: np.ndarray, r: np.ndarray,
     V_gain = np.zeros((P, P))
     V_time = np.zeros((P, P))
     V_interp = np.zeros((P, P))
+    V_sync = np.zeros((P, P))
+    sync_err = synchronisation_error(obj, x, d.sync_shift)
     for s in range(S):
         if d.interpolation_error is not None:
             bi = Bs[:, s, :] @ (d.interpolation_error[s] / d.sigma[s])
             V_interp += np.outer(bi, bi)
+        if sync_err is not None:
+            bq = Bs[:, s, :] @ (sync_err[s] / d.sigma[s])
+            V_sync += np.outer(bq, bq)
         bg = Bs[:, s, :] @ (y[s] / d.sigma[s])
         bt = Bs[:, s, :] @ (dy[s] / d.sigma[s])
         V_gain += g_sd[s] ** 2 * np.outer(bg, bg)
         V_time += t_sd[s] ** 2 * np.outer(bt, bt)
     V_prior = Hinv @ np.diag(w2 * lam) @ Hinv
-    total = V_stat + V_gain + V_time + V_interp + V_prior
-    return SandwichParts(V_runs, V_res, V_stat, V_gain, V_time, V_interp, V_prior,
+    total = V_stat + V_gain + V_time + V_interp + V_sync + V_prior
+    return SandwichParts(V_runs, V_res, V_stat, V_gain, V_time, V_interp, V_sync, V_prior,
                          0.5 * (total + total.T), t_sd, g_sd, g_est, a_sd, p_eff, L)
 
 

@@ -305,15 +305,6 @@ def identifiable_combinations(unc: Uncertainty, prior: Prior, x: np.ndarray, *,
     return out
 
 
-#: the coverage study's headline for the report (benchmarks/bench_coverage.py; docs/fitting.md)
-COVERAGE_HEADLINE = ("Over 60 synthetic campaigns with truths within ±10 % of Table 3 the "
-                     "default method's 95 % intervals contained the truth for 95.3 % of the "
-                     "identified parameters (97.4 % on 20 campaigns not used to calibrate it), "
-                     "92.8 % of the moving overshoots, 93.3 % of the kinetic-energy histogram's "
-                     "bins and 94.0 % of the velocity-curve points (68 %: 74.3, 70.6, 68.7 and "
-                     "67.5 %)")
-
-
 # ---------------------------------------------------------------------- bands and profiles
 
 @dataclass(frozen=True)

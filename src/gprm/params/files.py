@@ -167,7 +167,7 @@ def _dimensionless(value: Any, src: str, field: str) -> float:
                              source=src, field=field)
     if isinstance(value, str):
         try:
-            q = u.Quantity(value.replace("%", " percent"))
+            q: pint.Quantity | float = u.Quantity(value.replace("%", " percent"))
         except Exception as exc:
             raise GprmInputError(f"cannot parse {value!r} ({exc})", source=src,
                                  field=field) from None
@@ -191,10 +191,11 @@ def _seconds(value: Any, src: str, field: str) -> float:
                              field=field)
     if isinstance(value, str):
         try:
-            q = u.Quantity(value)
+            qt: pint.Quantity | float = u.Quantity(value)
         except Exception as exc:
             raise GprmInputError(f"cannot parse {value!r} ({exc})", source=src,
                                  field=field) from None
+        q = qt
         if isinstance(q, pint.Quantity):
             if q.dimensionality != u.Quantity(1.0, "s").dimensionality:
                 raise GprmInputError(f"{value!r} is not a time", source=src, field=field)

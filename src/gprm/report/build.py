@@ -29,7 +29,7 @@ from gprm._io import open_netcdf, read_json, write_text_atomic
 from gprm.campaign.files import load_campaign, read_means, read_tables
 from gprm.errors import GprmInputError
 from gprm.fit.files import read_fit_document, read_fit_sidecar
-from gprm.fit.uncertainty import COVERAGE_HEADLINE
+from gprm.fit.sandwich import COVERAGE_HEADLINE
 from gprm.flight.files import read_impact, read_impact_curves, read_telemetry
 from gprm.params import REGISTRY, from_si
 from gprm.predict.files import read_prediction, read_whatif
@@ -237,13 +237,45 @@ def combination_rows(fit: dict) -> list:
 
 
 def _calibration_sentence(unc: dict) -> str:
-    """The mismatch calibration factors the uncertainty applied, in words ('' if none)."""
+    """The mismatch calibration factors an opt-in generator-bootstrap applied, in words ('' if
+    none)."""
     factors = (unc.get("calibration") or {}).get("factors") or {}
     if not factors:
         return ""
     listed = ", ".join(f"{n} ×{f:.2f}" for n, f in factors.items())
-    return (f" Intervals widened by the mismatch calibration measured on synthetic campaigns "
-            f"(gprm.fit.calibration): {listed}.")
+    return (f" Intervals widened by the mismatch calibration measured on gprm's synthetic "
+            f"generator (gprm.fit.calibration): {listed}.")
+
+
+def systematics_rows(unc: dict) -> list:
+    """Per signal: the gain and timing standard deviations the default uncertainty
+    marginalised (stated, estimated from the residuals, the alignment's own)."""
+    det = unc.get("details") or {}
+    syst = det.get("systematics") or {}
+    stated = (det.get("stated") or {})
+    est = det.get("gain_estimated")
+    rows = []
+    for sig, v in syst.items():
+        if not isinstance(v, dict):
+            continue
+        rows.append([sig, f"{100 * v.get('gain_sd', float('nan')):.3g} %",
+                     f"{100 * stated.get('gain_sd', 0.0):.3g} %" if stated else "–",
+                     f"{100 * est:.3g} %" if isinstance(est, (int, float)) else "–",
+                     f"{1e9 * v.get('timing_sd_s', float('nan')):.3g} ns",
+                     f"{1e9 * v.get('alignment_sd_s', float('nan')):.3g} ns"])
+    return rows
+
+
+def adequacy_rows(adq: dict) -> list:
+    rows = []
+    for sc in adq.get("signals") or []:
+        if isinstance(sc, dict):
+            rows.append([sc.get("signal", "?"), f"{sc.get('chi2_per_sample', float('nan')):.3g}",
+                         f"{sc.get('ljung_box_p', float('nan')):.2g}",
+                         f"{sc.get('lag1_autocorrelation', float('nan')):.2f}",
+                         f"{sc.get('peak_frequency_hz', float('nan')) / 1e3:.3g} kHz",
+                         f"{sc.get('loso_ratio', float('nan')):.3g}"])
+    return rows
 
 
 def fit_section(run: Path) -> tuple[Section, dict | None]:
@@ -265,13 +297,38 @@ def fit_section(run: Path) -> tuple[Section, dict | None]:
             ("t0", "t1") and not n.startswith("dt_")]
     ident = [n for n in phys if fit["parameters"][n].get("identified")]
     if unc:
+        headline = (f"{COVERAGE_HEADLINE} (docs/fitting.md, benchmarks/bench_sources.py)."
+                    if unc.get("method") == "sandwich" else
+                    "This method's coverage is compared with the default's in "
+                    "docs/fitting.md.")
         s.blocks.append(paragraph(
             f"Uncertainty: {unc.get('method')} — {unc.get('note', '')}. The data determine "
             f"{len(ident)} of the {len(phys)} physical parameters ({', '.join(ident)}); the "
             "others are reported as not determined, with the interval the posterior gives "
-            "(close to the weak prior's), never with a small error. "
-            f"{COVERAGE_HEADLINE} (docs/fitting.md, benchmarks/bench_coverage.py)."
+            "(close to the weak prior's), never with a small error. " + headline
             + _calibration_sentence(unc)))
+        adq = unc.get("adequacy") or {}
+        if adq.get("text"):
+            s.blocks.append(paragraph(f"Model adequacy: {adq['text']}"))
+            s.blocks.append(table(["signal", "χ² per sample", "Ljung–Box p", "lag-1 autocorr.",
+                                   "residual peak", "leave-out error ×"], adequacy_rows(adq),
+                                  "Does the model describe the data?", "table-adequacy",
+                                  note="Per signal: the residuals' size, their whiteness "
+                                  "(Ljung–Box test, p below 0.001/5 flags structure), the "
+                                  "frequency holding most residual power, and the error of "
+                                  "the signal's prediction by the fit without it over its "
+                                  "in-fit error (docs/fitting.md, 'Model adequacy')."))
+        srows = systematics_rows(unc)
+        if srows:
+            s.blocks.append(table(["signal", "gain sd used", "gain sd stated",
+                                   "gain sd from residuals", "timing sd used",
+                                   "of which alignment"], srows,
+                                  "Instrument systematics marginalised", "table-systematics",
+                                  note="Per-channel gain (calibration) and timing errors the "
+                                  "intervals include: the stated prior (parameter file "
+                                  "[systematics], --gain-sd, --timing-sd) or, where larger, "
+                                  "the gain errors' size the residuals show; the timing adds "
+                                  "the alignment's own error, estimated from the data."))
     if side is not None:
         s.blocks.append(fig_to_img(F.fig_fit(side), "Best fit over the mean signals with "
                                    "±σ and the 95 % model band from the parameter covariance "
@@ -555,6 +612,14 @@ def summary_cards(run: Path, fit: dict | None, prov: dict) -> list[Card]:
                           "ok" if f["reduced_chi2"] < 2 else "warn"))
         cards.append(Card("starts at the best", f"{f.get('n_at_best')} / {f.get('starts')}",
                           "within Δχ² ≤ 1"))
+    adq = ((fit or {}).get("uncertainty") or {}).get("adequacy") or {}
+    if adq.get("verdict"):
+        ok = adq["verdict"] == "adequate"
+        cards.append(Card("model adequacy", "describes the data" if ok else "does not "
+                          "describe the data", f"reduced χ² {adq.get('reduced_chi2', 0):.3g}; "
+                          + ("residuals white" if ok else f"{len(adq.get('reasons', []))} "
+                             "check(s) fail; intervals include the residuals' structure"),
+                          "ok" if ok else "warn"))
     if fit is not None and "m2" in fit["parameters"]:
         m2 = fit["parameters"]["m2"]
         cards.append(Card("plunger mass m₂", pm(m2["value"], m2.get("stderr"), 1e3) + " g",

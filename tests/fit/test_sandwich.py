@@ -1,0 +1,217 @@
+"""The default uncertainty (gprm.fit.sandwich) and the adequacy checks (gprm.fit.adequacy)
+against independent references: the HAC sum against statsmodels, the Ljung-Box test against
+statsmodels, the coverage of the run-based and residual-based covariances on a linear model
+with correlated errors whose answer is known, the gain-error estimate's mean, the stated
+systematics read from a parameter file, and the structure: a default fit loads neither the
+synthetic generator nor the opt-in method that needs it."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+from scipy.stats import binom
+
+from gprm.errors import GprmInputError
+from gprm.fit.adequacy import ljung_box
+from gprm.fit.sandwich import (Systematics, estimate_gain_sd, gain_variance, hac_meat,
+                               statistical_covariance)
+from gprm.params.files import read_systematics
+
+
+def _binomial_range(p: float, n: int, level: float = 0.9999) -> tuple[float, float]:
+    """The central range a coverage fraction lies in with probability ``level``."""
+    lo, hi = binom.interval(level, n, p)
+    return lo / n, hi / n
+
+
+def test_hac_meat_matches_statsmodels():
+    from statsmodels.stats.sandwich_covariance import S_hac_simple
+
+    rng = np.random.default_rng(1)
+    E = rng.standard_normal((60, 3))
+    E[1:] += 0.6 * E[:-1]
+    for lags in (1, 4, 12):
+        np.testing.assert_allclose(hac_meat(E, lags), S_hac_simple(E, nlags=lags),
+                                   rtol=1e-12)
+
+
+def test_ljung_box_matches_statsmodels():
+    from statsmodels.stats.diagnostic import acorr_ljungbox
+
+    rng = np.random.default_rng(2)
+    x = rng.standard_normal(47)
+    x[1:] += 0.4 * x[:-1]
+    for lags in (1, 5, 9):
+        q, p = ljung_box(x, lags)
+        ref = acorr_ljungbox(x, lags=[lags])
+        assert q == pytest.approx(float(ref["lb_stat"].iloc[0]), rel=1e-10)
+        assert p == pytest.approx(float(ref["lb_pvalue"].iloc[0]), rel=1e-8)
+
+
+def _ar1(rng, shape, phi):
+    e = rng.standard_normal(shape)
+    for t in range(1, shape[-1]):
+        e[..., t] = phi * e[..., t - 1] + np.sqrt(1 - phi ** 2) * e[..., t]
+    return e
+
+
+def _linear_problem(rng, S=3, T=40, P=4):
+    t = np.linspace(0, 1, T)
+    X = np.stack([np.stack([np.sin((k + 1) * (s + 1) * t) + 0.3 * k for k in range(P)], 1)
+                  for s in range(S)])                          # (S, T, P)
+    return X, X.reshape(S * T, P)
+
+
+def test_run_based_covariance_gives_the_exact_t_pivot_with_correlated_run_errors():
+    """Each 'campaign': R = 10 runs per signal, each the truth plus AR(1) errors (phi 0.8,
+    correlated in time), the mean fitted with known weights. The run-based sandwich is then
+    the unbiased sample covariance of the estimate, so (est - truth) / sd follows Student's t
+    with R - 1 degrees of freedom: its coverage of the normal 95 % / 68 % quantiles is
+    P(|t_9| < z), checked to the binomial range. Eq. 7 with white residuals is far off."""
+    from scipy.stats import t as student
+
+    rng = np.random.default_rng(3)
+    X, _ = _linear_problem(rng)
+    S, T, P = X.shape
+    theta = np.array([1.0, -0.5, 0.3, 2.0])
+    n_rep, R = 500, 10
+    zs = {0.95: 1.959964, 0.68: 0.994458}
+    hits = {L: 0 for L in zs}
+    hits_eq7 = 0
+    sig = 0.1 / np.sqrt(R)                                  # the mean's error sd per sample
+    Jw = (X / sig).reshape(S * T, P)
+    H = Jw.T @ Jw
+    Bs = np.linalg.solve(H, Jw.T).reshape(P, S, T)
+    for _ in range(n_rep):
+        runs = (X @ theta)[:, None, :] + 0.1 * _ar1(rng, (S, R, T), 0.8)
+        mean = runs.mean(axis=1)
+        est = np.linalg.solve(H, Jw.T @ (mean / sig).reshape(-1))
+        r = (mean / sig) - (X @ est) / sig
+        dev = (runs - mean[:, None, :]) / sig
+        V_runs, V_res, V = statistical_covariance(Bs, r, dev, T // 4, float(P))
+        sd = np.sqrt(np.diag(V_runs))
+        for L, z in zs.items():
+            hits[L] += int(np.sum(np.abs(est - theta) <= z * sd))
+        hits_eq7 += int(np.sum(np.abs(est - theta) <= 1.959964 * np.sqrt(np.diag(
+            np.linalg.inv(H)) * float(np.sum(r * r)) / (S * T - P))))
+        # the combined estimate is at least as large as each of its parts
+        assert np.all(np.linalg.eigvalsh(V - V_runs) > -1e-9 * np.abs(V).max())
+        assert np.all(np.linalg.eigvalsh(V - V_res) > -1e-9 * np.abs(V).max())
+    n = n_rep * P
+    for L, z in zs.items():
+        expected = 1 - 2 * student.sf(z, R - 1)
+        lo, hi = _binomial_range(expected, n)
+        assert lo <= hits[L] / n <= hi, (L, hits[L] / n, expected)
+    assert hits_eq7 / n < 0.85          # white-residual Eq. 7 under-covers here
+
+
+def test_residual_hac_matches_statsmodels_for_one_signal():
+    """Without runs and without a prior, the residual part is the Newey-West covariance with
+    the small-sample factor N / (N - P): statsmodels' HAC with use_correction."""
+    import statsmodels.api as sm
+
+    rng = np.random.default_rng(4)
+    T = 80
+    X = np.column_stack([np.ones(T), np.linspace(0, 1, T), np.sin(np.linspace(0, 6, T))])
+    y = X @ [1.0, 2.0, 3.0] + _ar1(rng, (T,), 0.5)
+    ols = sm.OLS(y, X).fit()
+    Bs = np.linalg.solve(X.T @ X, X.T).reshape(3, 1, T)
+    for lags in (2, 5, 20):
+        runs_part, V_res, V = statistical_covariance(Bs, ols.resid.reshape(1, T), None, lags,
+                                                     3.0)
+        ref = ols.get_robustcov_results("HAC", maxlags=lags, use_correction=True)
+        assert runs_part is None and V is V_res
+        np.testing.assert_allclose(V_res, ref.cov_params(), rtol=1e-10)
+
+
+def test_gain_error_estimate_is_unbiased_in_the_variance():
+    """Data = signals with independent gain errors of sd 2 % plus white noise, part of the
+    signals' shapes shared with the parameters: the method-of-moments variance estimate
+    (before its clip at 0) averages to the true variance, and to 0 without gain errors."""
+    rng = np.random.default_rng(5)
+    S, T = 5, 50
+    t = np.linspace(0, 1, T)
+    y = np.stack([np.sin(2 * np.pi * (s + 1) * t) * (3 + s) + 10 * t for s in range(S)])
+    Ju = np.zeros((S * T, 2))
+    Ju[:, 0] = 10 * np.tile(t, S)                 # a common ramp the model fits
+    Ju[:, 1] = np.concatenate([np.sin(2 * np.pi * t)] + [np.zeros(T)] * (S - 1))
+    Hinv = np.linalg.inv(Ju.T @ Ju)
+    sigma = np.ones((S, T))
+    for g_true in (0.02, 0.0):
+        v = []
+        for _ in range(400):
+            g = g_true * rng.standard_normal(S)
+            data = y * (1 + g[:, None]) + rng.standard_normal((S, T))
+            r = data.reshape(-1) - y.reshape(-1)
+            r = r - Ju @ (Hinv @ (Ju.T @ r))
+            v.append(gain_variance(Ju, Hinv, r.reshape(S, T), y, sigma, None))
+            assert estimate_gain_sd(Ju, Hinv, r.reshape(S, T), y, sigma, None) == \
+                pytest.approx(np.sqrt(max(v[-1], 0.0)))
+        # the mean of 400 estimates within four of its standard errors of the truth
+        se = float(np.std(v)) / np.sqrt(len(v))
+        assert abs(float(np.mean(v)) - g_true ** 2) < 4 * se, (np.mean(v), g_true ** 2, se)
+
+
+def test_systematics_are_read_from_the_parameter_file(tmp_path):
+    p = tmp_path / "p.toml"
+    p.write_text('[parameters]\n[systematics]\ngain = "0.5 %"\ntiming = "0.2 us"\n'
+                 '[systematics.z_bk]\ngain = 0.01\n')
+    d = read_systematics(p)
+    assert d["gain_sd"] == pytest.approx(0.005) and d["timing_sd"] == pytest.approx(2e-7)
+    assert d["per_signal"] == {"z_bk": (0.01, None)}
+    from gprm.fit.api import FitOptions
+
+    s = FitOptions().systematics(d)
+    assert s.for_signal("z_bk") == pytest.approx((0.01, 2e-7))
+    assert s.for_signal("x_base") == pytest.approx((0.005, 2e-7))
+    # an option given on the command line wins over the file
+    assert FitOptions(gain_sd=0.002).systematics(d).for_signal("x_head")[0] == 0.002
+
+
+@pytest.mark.parametrize("text, field", [
+    ('[systematics]\ngian = "1 %"\n', "systematics.gian"),
+    ('[systematics]\ngain = "1 mm"\n', "systematics.gain"),
+    ('[systematics]\ntiming = "-1 us"\n', "systematics.timing"),
+    ('[systematics.x_base]\noffset = 1\n', "systematics.x_base"),
+])
+def test_bad_systematics_name_the_field(tmp_path, text, field):
+    p = tmp_path / "p.toml"
+    p.write_text("[parameters]\n" + text)
+    with pytest.raises(GprmInputError) as exc:
+        read_systematics(p)
+    assert exc.value.field == field and exc.value.source == str(p)
+    if "gian" in text:
+        assert "did you mean 'gain'" in str(exc.value)
+
+
+def test_systematics_refuse_negative_values():
+    with pytest.raises(GprmInputError):
+        Systematics(gain_sd=-0.1)
+
+
+def test_a_default_fit_never_loads_the_synthetic_generator(tmp_path):
+    """The structure of issue 21: the default fit path imports neither gprm.campaign.synth
+    nor the opt-in method that uses it (checked in a fresh interpreter)."""
+    from gprm.params import paper
+    sys.path.insert(0, str(__import__("pathlib").Path(__file__).parent))
+    from means_factory import make_means
+
+    ds = make_means(paper(), seed=1, rel=0.0)
+    ds.attrs.pop("truth_json")
+    path = tmp_path / "means.nc"
+    ds.to_netcdf(path)
+    code = (
+        "import sys\n"
+        "from gprm.fit.api import FitOptions, run_fit\n"
+        f"res = run_fit({str(path)!r}, FitOptions(starts=2, max_iter=3, band_samples=0))\n"
+        "assert res.uncertainty.method == 'sandwich'\n"
+        "bad = [m for m in ('gprm.campaign.synth', 'gprm.fit.bootstrap', "
+        "'gprm.fit.calibration') if m in sys.modules]\n"
+        "print('loaded:', bad)\n"
+        "sys.exit(1 if bad else 0)\n")
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                          timeout=300)
+    assert proc.returncode == 0, proc.stdout + proc.stderr

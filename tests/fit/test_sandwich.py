@@ -215,3 +215,65 @@ def test_a_default_fit_never_loads_the_synthetic_generator(tmp_path):
     proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
                           timeout=300)
     assert proc.returncode == 0, proc.stdout + proc.stderr
+
+
+class _Quartic:
+    """A stand-in objective in physical = normalised coordinates: phi = a x0^2 + b x1^2 +
+    c x0^4 (quadratic for c = 0, steeper with c > 0, flatter with c < 0 near the edges)."""
+
+    def __init__(self, a, b, c):
+        self.a, self.b, self.c = a, b, c
+
+    def bounds(self):
+        return np.array([-np.inf, -np.inf]), np.array([np.inf, np.inf])
+
+    def to_normalised(self, X):
+        return np.asarray(X, float)
+
+    def chi2(self, X):
+        X = np.atleast_2d(X)
+        return self.a * X[:, 0] ** 2 + self.b * X[:, 1] ** 2 + self.c * X[:, 0] ** 4
+
+
+def _flat_prior():
+    from gprm.fit.prior import Prior
+
+    return Prior(("p", "q"), np.zeros(2), np.array([1e6, 1e6]), np.array([False, False]), 0.0)
+
+
+def test_shape_factors_leave_a_quadratic_objective_alone_and_widen_a_flat_one():
+    from gprm.fit.sandwich import shape_factors
+
+    prior = _flat_prior()
+    Ju = np.diag([np.sqrt(4.0), np.sqrt(9.0)])            # H = J^T J = diag(4, 9)
+    Cu = np.linalg.inv(Ju.T @ Ju)
+    lo, hi = shape_factors(_Quartic(4.0, 9.0, 0.0), np.zeros(2), Cu, Ju, prior)
+    np.testing.assert_allclose(lo, 1.0, atol=1e-9)
+    np.testing.assert_allclose(hi, 1.0, atol=1e-9)
+    # steeper than quadratic: never narrowed
+    lo, hi = shape_factors(_Quartic(4.0, 9.0, 5.0), np.zeros(2), Cu, Ju, prior)
+    np.testing.assert_allclose([lo, hi], 1.0, atol=1e-9)
+    # flatter: phi = 4 x^2 - x^4 / 4 rises to the quadratic's 2-sd value (4 H sd^2 = 4) at
+    # the x where 4 x^2 - x^4 / 4 = 4, i.e. x^2 = 8 - sqrt(48); sd = 1/2, so the factor is
+    # x / (2 sd) = x; interpolated between the sampled steps it is close to that
+    lo, hi = shape_factors(_Quartic(4.0, 9.0, -0.25), np.zeros(2), Cu, Ju, prior)
+    expected = np.sqrt(8 - np.sqrt(48))
+    assert lo[0] == pytest.approx(expected, rel=0.05) and hi[0] == pytest.approx(expected, rel=0.05)
+    assert lo[1] == pytest.approx(1.0) and hi[1] == pytest.approx(1.0)
+
+
+def test_run_deviations_restore_what_the_synchronisation_took_out():
+    """Runs that differ only in amplitude, 'synchronised' by shifts that took out part of the
+    difference: adding back s_r y' restores the recorded deviations."""
+    from gprm.fit.sandwich import run_deviations
+
+    t = np.linspace(0, 1, 50)
+    y = np.sin(3 * t)[None, :]
+    a = np.array([0.98, 1.0, 1.02, 1.01])
+    s = np.array([[0.01, 0.0, -0.01, 0.004]])
+    recorded = a[:, None] * y                              # (R, T)
+    synced = recorded + s[0][:, None] * (3 * np.cos(3 * t))[None, :]   # y_r(t + s_r)
+    dy = (3 * a.mean() * np.cos(3 * t))[None, :]
+    dev = run_deviations(synced[None], np.ones((1, 50)), dy, s)
+    want = recorded - recorded.mean(axis=0)
+    np.testing.assert_allclose(dev[0], want, atol=2e-4)

@@ -80,6 +80,9 @@ class Systematics:
     per_signal: tuple[tuple[str, float, float], ...] = ()
     #: also estimate the gain errors' sd from the residuals and use the larger
     estimate_gain: bool = True
+    #: widen each side of an interval where the objective is flatter than its quadratic
+    #: approximation (:func:`shape_factors`)
+    shape_check: bool = True
 
     def __post_init__(self):
         for name in ("gain_sd", "timing_sd"):
@@ -102,7 +105,7 @@ class Systematics:
 
     def to_json(self) -> dict:
         return {"gain_sd": self.gain_sd, "timing_sd_s": self.timing_sd,
-                "estimate_gain": self.estimate_gain,
+                "estimate_gain": self.estimate_gain, "shape_check": self.shape_check,
                 "per_signal": {s: {"gain_sd": g, "timing_sd_s": t}
                                for s, g, t in self.per_signal}}
 
@@ -225,6 +228,27 @@ def gain_variance(Ju: np.ndarray, Hinv: np.ndarray, R: np.ndarray, y: np.ndarray
     return float(np.sum(proj ** 2 - noise)) / den
 
 
+def run_deviations(runs: np.ndarray, sigma: np.ndarray, dy: np.ndarray,
+                   sync_shift: np.ndarray | None) -> np.ndarray:
+    """(S, R, T): each run's deviation from the mean, weighted by sigma, *as recorded*: the
+    synchronised run less the mean, less the part its synchronisation shift took out,
+    (s_r - mean s) dy/dt (run r at t + s_r is the synchronised run, so the recorded run at t
+    is the synchronised one less s_r y' to first order).
+
+    Why: the RMS-optimal shift of step 1 turns part of any run-to-run difference of shape
+    into a time shift. A run whose drive amplitude is 2 % low is shifted so that it matches
+    the reference better, which hides part of its amplitude deficit from the synchronised
+    spread, while the mean keeps the whole deficit (as a gain). Measured on exact-model
+    campaigns with only the drive amplitude varying between runs: without the shifts'
+    part the run-based covariance missed d2, k_Bx and c_Bx by up to 5 sigma. Where the shifts
+    are true trigger offsets the term adds a timing spread, which the fitted lags absorb."""
+    dev = runs - runs.mean(axis=1, keepdims=True)
+    if sync_shift is not None and sync_shift.shape == runs.shape[:2]:
+        ds = sync_shift - sync_shift.mean(axis=1, keepdims=True)
+        dev = dev - ds[:, :, None] * dy[:, None, :]
+    return dev / sigma[:, None, :]
+
+
 def synchronisation_error(obj: Objective, x: np.ndarray, sync_shift: np.ndarray | None,
                           h: float = 0.5e-6) -> np.ndarray | None:
     """(n_signals, T) m: the mean's error the synchronisation may leave, 1/2 var_r(s_r) y''.
@@ -296,14 +320,14 @@ def sandwich_parts(obj: Objective, x: np.ndarray, J: np.ndarray, r: np.ndarray,
     L = default_max_lag(T) if max_lag is None else int(max_lag)
     Bs = B.reshape(P, S, T)
     R = r.reshape(S, T)
-    dev = None
-    if d.runs is not None:
-        dev = (d.runs - d.runs.mean(axis=1, keepdims=True)) / d.sigma[:, None, :]
-    V_runs, V_res, V_stat = statistical_covariance(Bs, R, dev, L, p_eff)
-    # systematics: model signals and slopes at the best fit
+    # model signals and slopes at the best fit
     o = obj.model(x[None])
     y = o.y[0]                                                # (S, T) m
     dy = np.gradient(y, d.time, axis=1)
+    dev = None
+    if d.runs is not None:
+        dev = run_deviations(d.runs, d.sigma, dy, d.sync_shift)
+    V_runs, V_res, V_stat = statistical_covariance(Bs, R, dev, L, p_eff)
     a_sd = alignment_sd(obj, y, dy)
     g_sd = np.array([systematics.for_signal(s)[0] for s in d.signals])
     t_sd = np.array([np.hypot(systematics.for_signal(s)[1], a_sd[i])
@@ -339,6 +363,71 @@ def interval_u(u: np.ndarray, cov_u: np.ndarray, level: float) -> tuple[np.ndarr
     return u - z * sd, u + z * sd
 
 
+#: steps along a parameter's posterior direction, in its standard deviations, at which the
+#: objective's actual rise is compared with its quadratic approximation
+SHAPE_STEPS = (0.5, 1.0, 1.5, 2.0, 3.0, 4.0, 6.0, 8.0)
+
+
+def shape_factors(obj: Objective, x: np.ndarray, Cu: np.ndarray, Ju: np.ndarray,
+                  prior: Prior, *, reach: float = 2.0) -> tuple[np.ndarray, np.ndarray]:
+    """(lower, upper) (P,) >= 1: how much farther than the linearisation says the objective
+    actually has to go, on each side of each parameter, to rise as far as its quadratic
+    approximation rises at ``reach`` standard deviations.
+
+    Along parameter k's posterior direction v = C[:, k] / sd_k (u coordinates: the step that
+    moves u_k by one sd and the others as they are expected to follow) the Gauss-Newton
+    model of the objective phi = |r|^2 + |p|^2 rises by alpha^2 v^T H v. The objective itself
+    is evaluated at alpha = SHAPE_STEPS on both sides (one batch of model runs, no Jacobian);
+    where it rises more slowly (a curved valley, a second basin), the step alpha* at which it
+    reaches the quadratic's rise at ``reach`` is found by interpolation and the side's
+    factor is alpha* / reach (the largest step where it never does). It never narrows an
+    interval. Where the objective falls below the best fit's, the factor is the largest too
+    (the best fit is then not the minimum on that side)."""
+    x = np.asarray(x, float)
+    P = x.size
+    u = prior.to_u(x)
+    sd = np.sqrt(np.clip(np.diag(Cu), 1e-300, None))
+    V = Cu / sd[None, :]                                     # column k: direction of k
+    w2 = float(prior.weight) ** 2
+    H = Ju.T @ Ju + np.diag(w2 / prior.sd ** 2)
+    q = np.einsum("pk,pq,qk->k", V, H, V)                    # quadratic rise per alpha^2
+    steps = np.array(SHAPE_STEPS)
+    alphas = np.concatenate([-steps[::-1], steps])
+    U = u[None, None, :] + alphas[None, :, None] * V.T[:, None, :]      # (P, A, P)
+    X = prior.from_u(U.reshape(-1, P))
+    lo_b, hi_b = obj.bounds()
+    inside = np.all((X > lo_b) & (X < hi_b) & np.isfinite(X), axis=1)
+    phi = np.full(X.shape[0], np.inf)
+    if inside.any():
+        phi[inside] = obj.chi2(obj.to_normalised(X[inside]))
+    phi0 = float(obj.chi2(obj.to_normalised(x)[None])[0])
+    dphi = (np.where(np.isfinite(phi), phi, np.inf) - phi0).reshape(P, alphas.size)
+    target = reach ** 2 * q
+    out = []
+    for side in (-1, 1):
+        cols = np.nonzero(np.sign(alphas) == side)[0]
+        cols = cols[np.argsort(np.abs(alphas[cols]))]
+        a = np.abs(alphas[cols])
+        f = np.ones(P)
+        for k in range(P):
+            d = dphi[k, cols]
+            if np.any(d < -1e-9 * max(phi0, 1.0)):
+                f[k] = a[-1] / reach
+                continue
+            hit = np.nonzero(d >= target[k])[0]
+            if hit.size == 0:
+                f[k] = a[-1] / reach
+                continue
+            j = hit[0]
+            if j == 0:
+                a_star = a[0] * np.sqrt(target[k] / max(d[0], 1e-300))
+            else:
+                a_star = np.interp(target[k], [d[j - 1], d[j]], [a[j - 1], a[j]])
+            f[k] = max(1.0, a_star / reach)
+        out.append(f)
+    return out[0], out[1]
+
+
 def uncertainty(method: str, state: FitState) -> Uncertainty:
     """The ``sandwich`` method through the one interface (gprm.fit.methods)."""
     prior = state.prior
@@ -349,16 +438,24 @@ def uncertainty(method: str, state: FitState) -> Uncertainty:
     x = np.asarray(state.x, float)
     u = prior.to_u(x)
     Cu = parts.total
+    Ju = state.J * prior.dx_du(x)[None, :]
+    f_lo, f_hi = shape_factors(state.obj, x, Cu, Ju, prior) if syst.shape_check else \
+        (np.ones(x.size), np.ones(x.size))
     sd_u = np.sqrt(np.clip(np.diag(Cu), 0.0, None))
-    lo95, hi95 = interval_u(u, Cu, 0.95)
-    lo68, hi68 = interval_u(u, Cu, 0.68)
-    contraction = sd_u / prior.sd
+    z95, z68 = norm.ppf(0.975), norm.ppf(0.84)
+    lo95, hi95 = u - z95 * sd_u * f_lo, u + z95 * sd_u * f_hi
+    lo68, hi68 = u - z68 * sd_u * f_lo, u + z68 * sd_u * f_hi
+    contraction = sd_u * np.maximum(f_lo, f_hi) / prior.sd
     identified = contraction < CONTRACTION
+    # the reported covariance carries the wider side
+    F = np.maximum(f_lo, f_hi)
+    Cu_rep = Cu * np.outer(F, F)
     D = prior.dx_du(x)
-    cov_x = Cu * np.outer(D, D)
+    cov_x = Cu_rep * np.outer(D, D)
     rng = np.random.default_rng([state.seed, 21])
     w, V = np.linalg.eigh(Cu)
     Z = rng.standard_normal((int(state.n_draws), x.size)) @ (V * np.sqrt(np.clip(w, 0, None))).T
+    Z = Z * np.where(Z < 0, f_lo[None, :], f_hi[None, :])      # each side its own stretch
     draws = prior.from_u(u[None] + Z) if state.n_draws > 0 else None
     r = state.r
     # the variance scale the fit weighed its prior with (FitResult.objective rebuilds it)
@@ -379,6 +476,7 @@ def uncertainty(method: str, state: FitState) -> Uncertainty:
         "stated": syst.to_json(),
         "gain_estimated": parts.gain_estimated,
         "max_lag": parts.max_lag, "p_eff": parts.p_eff,
+        "shape_factors": {"lower": [float(v) for v in f_lo], "upper": [float(v) for v in f_hi]},
     }
     return Uncertainty(method, state.names, 0.5 * (cov_x + cov_x.T), prior.from_u(lo95),
                        prior.from_u(hi95), prior.from_u(lo68), prior.from_u(hi68), identified,

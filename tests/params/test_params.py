@@ -1,4 +1,4 @@
-"""Parameters: registry contents against MODEL.md's tables, TOML round trip, pint units, bare
+"""Parameters: registry contents against the paper's tables, TOML round trip, pint units, bare
 numbers in SI, fit flags and bounds, and bad input (library and `gprm params`)."""
 
 import math
@@ -13,7 +13,7 @@ from gprm.errors import GprmInputError
 from gprm.params import (FITTED_DEFAULT, REGISTRY, batch, batch_from_vectors, load_params,
                          paper, params_to_toml, save_params, to_si)
 
-# MODEL.md, Table 3 (best fit, initial, unit) and Table 2 constants, typed in independently.
+# The paper's Table 3 (best fit, initial, unit) and Table 2 constants, typed in independently.
 TABLE3 = {
     "v2": (2.7, 2.8, 1e-3), "g2": (-0.4, -0.4, 1e-3), "gamma": (-7, 5, 1e-3),
     "rho": (37, 37, 1e-3), "k_lr": (164e4, 166e4, 1), "k_Ax": (1104e5, 1123e5, 1),

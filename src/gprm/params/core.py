@@ -87,7 +87,7 @@ class ParameterSet:
 
 
 def paper() -> ParameterSet:
-    """The built-in ``paper`` set: Table 2 constants, Table 3 best fit, MODEL.md defaults."""
+    """The built-in ``paper`` set: Table 2 constants, Table 3 best fit, the assumed values of docs/spec.md."""
     return ParameterSet({n: s.default for n, s in REGISTRY.items()}, source="paper")
 
 

@@ -1,4 +1,4 @@
-"""Parameter files (TOML, see ``shared/spec/INTERFACES.md``) and unit handling with pint.
+"""Parameter files (TOML, see ``docs/spec.md``) and unit handling with pint.
 
 A value is a string with a unit (``"2.7 mm"``), a bare number in SI, or an inline table
 ``{ value = "12.4 g", fit = true, lower = "5 g", upper = "20 g" }``.

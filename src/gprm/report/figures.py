@@ -32,7 +32,7 @@ COLORS = {
     "wx": "#8c564b", "truth": "#111111", "piezo2": "#9aa3ad",
     "M_xz": "#1f77b4", "M_yz": "#d62728", "tip_edge": "#2ca02c", "com": "#7f7f7f",
 }
-# the six flight axes, in the order of INTERFACES.md
+# the six flight axes, in the order of docs/spec.md
 AXES = ("vx", "vz_xz", "wy", "vy", "vz_yz", "wx")
 AXIS_LABEL = {"vx": "v_x [µm/s]", "vz_xz": "v_z (x–z) [µm/s]", "wy": "ω_y [µrad/s]",
               "vy": "v_y [µm/s]", "vz_yz": "v_z (y–z) [µm/s]", "wx": "ω_x [µrad/s]"}
@@ -328,7 +328,7 @@ def whatif_rows(wi: dict) -> list:
 
 
 # ----------------------------------------------------------------------------- flight
-# impact.json (INTERFACES.md + docs/flight.md) and its sidecar impact.nc:
+# impact.json (docs/spec.md + docs/flight.md) and its sidecar impact.nc:
 # nominal/lo/hi(axis, time) = predicted TM velocity as a function of the impact time.
 
 def _vt(rel: dict, axis: str, what: str):

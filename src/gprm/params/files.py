@@ -167,7 +167,7 @@ def _dimensionless(value: Any, src: str, field: str) -> float:
                              source=src, field=field)
     if isinstance(value, str):
         try:
-            q = u.Quantity(value.replace("%", " percent"))
+            q: Any = u.Quantity(value.replace("%", " percent"))
         except Exception as exc:
             raise GprmInputError(f"cannot parse {value!r} ({exc})", source=src,
                                  field=field) from None
@@ -191,7 +191,7 @@ def _seconds(value: Any, src: str, field: str) -> float:
                              field=field)
     if isinstance(value, str):
         try:
-            q = u.Quantity(value)
+            q: Any = u.Quantity(value)
         except Exception as exc:
             raise GprmInputError(f"cannot parse {value!r} ({exc})", source=src,
                                  field=field) from None

@@ -39,7 +39,9 @@ from gprm.validate import Schema, Var, check_dataset
 
 if TYPE_CHECKING:
     from gprm.fit.objective import FitData
-    from gprm.fit.result import FitResult
+    # what the writer reads of a gprm.fit.result.FitResult (which imports this module to
+    # write itself: naming its class here would close an import circle)
+    from gprm.fit.record import FitRecord as FitResult
     from gprm.fit.starts import StartsOutcome
 
 MODEL_NAME = "gprm-3d"

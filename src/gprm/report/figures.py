@@ -305,26 +305,11 @@ def fig_energy(pred, run=None):
 
 def whatif_rows(wi: dict) -> list:
     """Rows of the what-if table: the headline ratio per axis with its 2.5-97.5 % range,
-    and the paper's values."""
-    head_pt = {"x": "M_xz", "y": "M_yz", "z": "M_xz"}
-    rows = []
-    for r in wi.get("ratios") or []:
-        if r.get("name") == r.get("baseline"):
-            continue
-        cells = []
-        for a in ("x", "y", "z"):
-            v = (r.get("headline") or {}).get(a)
-            lo = ((r.get("ratio_p2_5") or {}).get(head_pt[a]) or {}).get(a)
-            hi = ((r.get("ratio_p97_5") or {}).get(head_pt[a]) or {}).get(a)
-            txt = "—" if v is None else f"{v:.3g}"
-            if lo is not None and hi is not None:
-                txt += f" [{lo:.2g}, {hi:.2g}]"
-            cells.append(txt)
-        paper = r.get("paper") or {}
-        ptxt = ", ".join(f"{paper[a]:g}" if a in paper else "—" for a in ("x", "y", "z")) \
-            if paper else "—"
-        rows.append((r.get("name"), *cells, ptxt))
-    return rows
+    and the paper's values (:func:`gprm.predict.whatif.ratio_rows`, which ``gprm predict
+    --whatif`` prints too)."""
+    from gprm.predict.whatif import ratio_rows
+
+    return ratio_rows(wi)
 
 
 # ----------------------------------------------------------------------------- flight

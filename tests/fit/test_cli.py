@@ -58,6 +58,19 @@ def test_gprm_fit_writes_json_and_sidecar(means_file, tmp_path):
         # centred on the best fit: the best fit lies inside every interval
         assert e["interval"]["lower"] < e["value"] < e["interval"]["upper"], name
         assert e["identified"] == (name in d["identified"])
+    # issue 22: without a terminal (here) the progress is plain lines on stderr, and the line
+    # after them tells the starts' best from the polished chi-square the report shows
+    err = r.stderr if hasattr(r, "stderr") else r.output
+    assert "fit: started" in err and "fit: 3/3 starts (100 %), best start chi2 (before " \
+        "polish)" in err, err
+    import numpy as np
+    import xarray as xr
+
+    with xr.open_dataset(out.with_suffix(".nc")) as side:
+        best_start = float(np.nanmin(side["chi2"].values))
+    assert f"best start chi2 {best_start:.6g} before the polish" in err, err
+    assert f"chi2 {d['chi2']:.6g} after it" in err, err
+    assert f"chi-square {d['chi2']:.6g}" in r.stdout                # the report's number
 
 
 @pytest.mark.parametrize("args, text", [

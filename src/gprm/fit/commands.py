@@ -150,9 +150,10 @@ def register(app: typer.Typer, synth_app: typer.Typer) -> None:
         if not scheduler and workers > 4 * n_cpu:   # each is a process with its own memory
             raise GprmInputError(f"{workers} local worker processes on {n_cpu} cores; the "
                                  f"largest value accepted is {4 * n_cpu}", field="--workers")
-        from gprm.fit.report_text import fit_report, starts_progress
+        from gprm.fit.report_text import fit_report, polish_note, starts_progress
 
-        with starts_progress(Console(stderr=True), starts) as progress:
+        err = Console(stderr=True)
+        with starts_progress(err, starts) as progress:
             try:
                 with dask_dashboard(dashboard):
                     res = run_fit(ds, opts, params=base, workers=workers,
@@ -167,6 +168,9 @@ def register(app: typer.Typer, synth_app: typer.Typer) -> None:
             except Exception:
                 remove_checkpoints(ckpt, only_if_empty=True)
                 raise
+        # the bar showed the starts' best; the report shows the polished fit's chi-square
+        err.print(polish_note(starts, progress.best, res.chi2, res.timings["total"]),
+                  highlight=False, markup=False, soft_wrap=True)
         side = res.write(out)
         remove_checkpoints(ckpt)          # only what gprm wrote there, never other files
         from gprm.fit.files import read_fit_document

@@ -71,6 +71,17 @@ def test_gprm_fit_writes_json_and_sidecar(means_file, tmp_path):
     assert f"best start chi2 {best_start:.6g} before the polish" in err, err
     assert f"chi2 {d['chi2']:.6g} after it" in err, err
     assert f"chi-square {d['chi2']:.6g}" in r.stdout                # the report's number
+    # issue 22: an alignment offset starts at 0 (its registry default; the paper gives no
+    # initial value), and the report says so instead of repeating the fitted value
+    show = CliRunner().invoke(app, ["show", str(out)])
+    assert show.exit_code == 0, show.output
+    for name in ("dt_x_head", "dt_y_base", "dt_y_head"):
+        e = d["parameters"][name]
+        assert e["initial"] == 0.0 and e["value"] != 0.0, (name, e)
+        line = next(ln for ln in show.stdout.splitlines() if ln.split()[:1] == [name])
+        assert "(init = 0)" in line, line
+    # the 23 of Table 3 keep the paper's initial values
+    assert d["parameters"]["v2"]["initial"] == pytest.approx(2.8e-3)
 
 
 @pytest.mark.parametrize("args, text", [

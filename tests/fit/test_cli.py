@@ -186,3 +186,33 @@ def test_checkpoints_of_another_run_are_refused_naming_the_option(means_file, tm
     assert "--checkpoint" in r.output and "other inputs or options" in r.output
     assert set(p.name for p in ck.iterdir()) <= set(before)
     assert not (tmp_path / "f.json").exists()
+
+
+@pytest.mark.parametrize("starts, cores, expect", [(200, 2, 0), (1000, 2, 2), (1000, 1, 0),
+                                                   (1000, 16, 4), (50, 16, 0)])
+def test_the_default_workers_are_the_fastest_on_two_cores(means_file, tmp_path, monkeypatch,
+                                                          starts, cores, expect):
+    """Issue 22: the default was one worker per core, also for a fit of one chunk (200
+    starts), which two workers only slow down (docs/fitting.md, "Scale"). Now: one per core,
+    at most one per chunk of starts, none where that is fewer than two. gprm run and gprm
+    demo take the same default."""
+    import gprm.fit.api
+    import gprm.fit.engine
+    from gprm.run import RunOptions
+    from gprm.run.commands import make_options
+
+    seen = {}
+
+    def fake_run_fit(means, opts, **kw):
+        seen["workers"] = kw["workers"]
+        raise KeyboardInterrupt("stop here")
+
+    monkeypatch.setattr(gprm.fit.engine, "usable_cores", lambda: cores)
+    monkeypatch.setattr(gprm.fit.api, "run_fit", fake_run_fit)
+    CliRunner().invoke(app, ["fit", str(means_file), "--out", str(tmp_path / "f.json"),
+                             "--starts", str(starts)])
+    assert seen["workers"] == expect
+    assert make_options(RunOptions, quick=False, seed=0, starts=starts,
+                        workers=None).workers == expect
+    assert make_options(RunOptions, quick=True, seed=0, starts=None, workers=None).workers == 0
+    assert make_options(RunOptions, quick=False, seed=0, starts=None, workers=3).workers == 3

@@ -35,10 +35,11 @@ def register(app: typer.Typer, synth_app: typer.Typer) -> None:
         sigma: str = typer.Option("sem", "--sigma", help="weights: sem (standard error of "
                                   "the mean) or std (the paper's across-run std)"),
         workers: Optional[int] = typer.Option(None, "--workers", parser=Int(min=0),
-                                              help="local Dask worker "
-                                              "processes (default: one per core; 0: run in "
-                                              "this process; the result does not depend "
-                                              "on it)"),
+                                              help="local Dask worker processes (default: "
+                                              "one per core, at most one per chunk of "
+                                              "starts, 0 where that is fewer than 2: "
+                                              "in this process, the fastest then; the "
+                                              "result does not depend on it)"),
         scheduler: Optional[str] = typer.Option(None, "--scheduler",
                                                 help="address of an existing Dask scheduler"),
         dashboard: Optional[str] = typer.Option(None, "--dashboard", help="serve the Dask "
@@ -112,7 +113,8 @@ def register(app: typer.Typer, synth_app: typer.Typer) -> None:
         from gprm.fit.api import FitOptions, run_fit
 
         from gprm._io import check_outputs
-        from gprm.fit.engine import check_checkpoint_folder, remove_checkpoints, starts_memory
+        from gprm.fit.engine import (check_checkpoint_folder, default_workers,
+                                     remove_checkpoints, starts_memory)
         from gprm.params import load_params
         from gprm.resources import check_memory
         from gprm.campaign.files import read_means
@@ -143,7 +145,7 @@ def register(app: typer.Typer, synth_app: typer.Typer) -> None:
         check_memory(starts, starts_memory(1, len(opts.parameters(base).fitted)),
                      field="--starts", what=f"{starts} starts")
         if workers is None:
-            workers = 0 if scheduler else max(1, os.cpu_count() or 1)
+            workers = 0 if scheduler else default_workers(starts, chunk)
         if workers < 0:
             raise GprmInputError(f"must be >= 0, got {workers}", field="--workers")
         n_cpu = os.cpu_count() or 1

@@ -284,6 +284,29 @@ def _chunks(n: int, size: int) -> list[np.ndarray]:
     return [np.arange(i, min(i + size, n)) for i in range(0, n, size)]
 
 
+def usable_cores() -> int:
+    """The cores this process may run on (its CPU affinity where the system says; else the
+    machine's count)."""
+    try:
+        return max(1, len(os.sched_getaffinity(0)))
+    except (AttributeError, OSError):
+        return max(1, os.cpu_count() or 1)
+
+
+def default_workers(n_starts: int, chunk_size: int, cores: int | None = None) -> int:
+    """The default number of local worker processes of ``gprm fit``, ``gprm run`` and
+    ``gprm demo`` (``--workers``): one per core, at most one per chunk of starts, and none
+    (in this process) when that would be fewer than two. A chunk runs on one worker, so with
+    one chunk (up to ``chunk_size`` starts: a 200-start fit, ``--quick``) workers cannot work
+    in parallel and only add their start-up; on one core neither can two chunks. Measured on
+    the 2-core machine (docs/fitting.md, "Scale"): 200 starts run faster in process, 1000
+    starts (four chunks) on two workers."""
+    cores = usable_cores() if cores is None else max(1, int(cores))
+    n_chunks = len(_chunks(int(n_starts), chunk_size))
+    n = min(cores, n_chunks)
+    return n if n >= 2 else 0
+
+
 def local_worker_config() -> dict:
     """Dask settings for the local cluster's workers (a warmed-up chunk of 250 demo starts:
     14.8 s CPU with Dask's defaults, 12.7 s with these, 8.5 s in one process;

@@ -35,8 +35,10 @@ def register(app: typer.Typer, synth_app: typer.Typer) -> None:
                                              "(default 1000, or 50 with --quick)"),
         workers: Optional[int] = typer.Option(None, "--workers", parser=Int(min=0), help="local Dask worker "
                                               "processes for the fit (default: one per core, "
-                                              "or 0 with --quick; 0: in this process; the "
-                                              "result does not depend on it)"),
+                                              "at most one per chunk of 250 starts, 0 where "
+                                              "that is fewer than 2, as with --quick: in "
+                                              "this process; the result does not depend on "
+                                              "it)"),
         releases: int = typer.Option(11, "--releases", parser=Int(2, 10_000), help="synthetic releases (without "
                                      "--telemetry)"),
     ):
@@ -52,12 +54,18 @@ def register(app: typer.Typer, synth_app: typer.Typer) -> None:
 
 
 def make_options(cls, *, quick, seed, starts, workers, **kw):
-    """RunOptions from command-line values; a bad value is named as its flag."""
-    import os
-
+    """RunOptions from command-line values; a bad value is named as its flag. The default
+    ``workers`` is the fit's (:func:`gprm.fit.engine.default_workers`) for the starts the
+    run will make."""
+    opts = cli_options(cls.make, quick=quick, seed=seed, starts=starts, workers=workers or 0,
+                       **kw)
     if workers is None:
-        workers = 0 if quick else max(1, os.cpu_count() or 1)
-    return cli_options(cls.make, quick=quick, seed=seed, starts=starts, workers=workers, **kw)
+        from dataclasses import replace
+
+        from gprm.fit.engine import default_workers
+
+        opts = replace(opts, workers=default_workers(opts.fit.starts, opts.fit.chunk))
+    return opts
 
 
 def run_and_print(out: Path, opts, *, demo: bool) -> None:

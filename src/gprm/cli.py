@@ -17,6 +17,7 @@ What reaches the console is always short:
 from __future__ import annotations
 
 import datetime
+import inspect
 import os
 import sys
 import tempfile
@@ -148,6 +149,20 @@ STAGE_COMMANDS = (params_commands, simulate_commands, campaign_commands, fit_com
                   demo_commands)
 for _mod in STAGE_COMMANDS:
     _mod.register(app, synth_app)
+
+
+def _whole_summaries(typer_app: typer.Typer) -> None:
+    """The summary of each command in ``--help`` is the first paragraph of its docstring,
+    whole. Left to click it ends at the first period ("(Sec.") and is cut to fit one line
+    ("and write..."); given as ``short_help`` it is wrapped onto the next lines instead."""
+    for info in typer_app.registered_commands:
+        doc = getattr(info.callback, "__doc__", None)
+        if info.short_help is None and doc:
+            info.short_help = " ".join(inspect.cleandoc(doc).split("\n\n")[0].split())
+
+
+_whole_summaries(app)
+_whole_summaries(synth_app)
 
 __all__ = ["app", "main", "one_line_errors", "synth_app"]
 

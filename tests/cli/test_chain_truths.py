@@ -1,6 +1,6 @@
 """The command-line chain with default options (starts and bootstrap campaigns lowered only)
 on campaigns the demo never sees: truths drawn within +-10 % of Table 3's physical
-parameters and seeds of their own, as ../shared/tools/chain-check draws them (issue 13,
+parameters and seeds of their own, as the project's chain check draws them (issue 13,
 item 8). Every step exits 0 without a traceback, the fit's intervals are finite, and the
 chain from the fit through telemetry and impact analysis completes."""
 

@@ -100,3 +100,25 @@ def test_help_shows_flags_without_a_value():
     assert r.exit_code == 0
     line = [ln for ln in r.output.splitlines() if "--profile" in ln][0]
     assert "<bool>" not in line and "BOOLEAN" not in line
+
+
+@pytest.mark.parametrize("group", [[], ["synth"]], ids=["gprm", "gprm synth"])
+def test_help_lists_each_command_with_its_whole_summary(group):
+    """Issue 22: click cut summaries at the first period ("identification (Sec.") and to one
+    line ("and write..."); each is now the docstring's first paragraph, wrapped."""
+    import inspect
+
+    from typer.testing import CliRunner
+
+    from gprm.cli import app
+
+    r = CliRunner().invoke(app, [*group, "--help"], terminal_width=80)
+    assert r.exit_code == 0, r.output
+    listing = r.output.split("Commands:")[1]
+    assert "..." not in listing, listing
+    flat = " ".join(listing.split())
+    for name, cmd in _all_commands():
+        if name.split()[:-1] != group:
+            continue
+        first = inspect.cleandoc(cmd.callback.__doc__).split("\n\n")[0]
+        assert f"{name.split()[-1]} {' '.join(first.split())}" in flat, (name, listing)

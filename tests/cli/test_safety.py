@@ -97,8 +97,13 @@ def test_local_cluster_binds_to_localhost_without_dashboard(obj, monkeypatch):
     seen = {}
 
     class FakeCluster:
+        scheduler = None
+
         def __init__(self, **kw):
             seen.update(kw)
+
+        def sync(self, fn, *args):
+            seen["stopped_http"] = True
 
         def close(self):
             pass
@@ -117,6 +122,9 @@ def test_local_cluster_binds_to_localhost_without_dashboard(obj, monkeypatch):
         def submit(self, fn, task, pure=False):
             return FakeFuture(fn(task))
 
+        def run(self, fn):
+            seen["ran"] = fn.__name__
+
         def close(self):
             pass
 
@@ -125,13 +133,18 @@ def test_local_cluster_binds_to_localhost_without_dashboard(obj, monkeypatch):
     monkeypatch.setattr(distributed, "as_completed", lambda futs: futs)
     ref = run_multistart(obj, OPTS)
     out = run_multistart(obj, OPTS, workers=2)
-    assert seen["host"] == "127.0.0.1" and seen["dashboard_address"] is None
+    # no dashboard: distributed would serve one on 8787 for dashboard_address=None (issue 22)
+    assert seen["host"] == "127.0.0.1" and seen["dashboard_address"] == "127.0.0.1:0"
+    assert seen["scheduler_kwargs"] == {"dashboard": False} and seen["stopped_http"]
+    assert seen["ran"] == "_stop_http_server"
     np.testing.assert_array_equal(ref.x, out.x)
     from gprm.fit.commands import dask_dashboard
 
+    seen.clear()
     with dask_dashboard("127.0.0.1:8787"):
         run_multistart(obj, OPTS, workers=2)
     assert seen["dashboard_address"] == "127.0.0.1:8787"
+    assert "stopped_http" not in seen and "ran" not in seen
     seen.clear()
     out = run_multistart(obj, OPTS, scheduler="tcp://10.1.2.3:8786")   # an existing cluster
     assert seen == {"client_of": "tcp://10.1.2.3:8786"}                 # no local cluster
@@ -215,3 +228,64 @@ def test_an_unreachable_scheduler_is_an_input_error(obj, monkeypatch):
     with pytest.raises(GprmInputError, match="cannot connect to the Dask scheduler") as e:
         run_multistart(obj, OPTS, scheduler="tcp://127.0.0.1:1")
     assert e.value.field == "scheduler"
+
+
+def _listening(pids) -> set[int]:
+    import psutil
+
+    ports = set()
+    for pid in pids:
+        try:
+            for c in psutil.Process(pid).net_connections(kind="inet"):
+                if c.status == psutil.CONN_LISTEN:
+                    ports.add(c.laddr.port)
+        except psutil.Error:
+            pass
+    return ports
+
+
+def _port(address: str) -> int:
+    return int(address.rsplit(":", 1)[1])
+
+
+def test_the_real_local_cluster_listens_for_dask_only():
+    """Issue 22: with the default settings the scheduler answered HTTP on 127.0.0.1:8787
+    although --dashboard said "default: none". Started as gprm starts it, the cluster's
+    processes listen on its Dask ports (scheduler, nannies, workers) and on nothing else: no
+    dashboard, no HTTP endpoint at all."""
+    import psutil
+    from distributed import Client
+
+    from gprm.fit.engine import _stop_http_server, local_cluster
+
+    me = psutil.Process()
+    before = _listening([me.pid])
+    cluster = local_cluster(1)
+    try:
+        with Client(cluster) as client:
+            client.run(_stop_http_server)
+            assert client.submit(sum, [1, 2]).result() == 3           # the cluster works
+            dask_ports = {_port(cluster.scheduler_address)}
+            dask_ports |= {_port(a) for a in cluster.scheduler.workers}
+            dask_ports |= {_port(n.address) for n in cluster.workers.values()}
+            pids = [me.pid] + [c.pid for c in me.children(recursive=True)]
+            ours = _listening(pids) - before
+            assert 8787 not in ours
+            assert ours == dask_ports, (ours, dask_ports)
+    finally:
+        cluster.close()
+
+
+def test_a_dashboard_asked_for_is_served():
+    import urllib.request
+
+    from gprm.fit.engine import local_cluster
+
+    cluster = local_cluster(1, dashboard="127.0.0.1:0")
+    try:
+        port = cluster.scheduler.http_server.port
+        assert port != 8787
+        with urllib.request.urlopen(f"http://127.0.0.1:{port}/health", timeout=10) as r:
+            assert r.status == 200
+    finally:
+        cluster.close()

@@ -58,6 +58,30 @@ def test_gprm_fit_writes_json_and_sidecar(means_file, tmp_path):
         # centred on the best fit: the best fit lies inside every interval
         assert e["interval"]["lower"] < e["value"] < e["interval"]["upper"], name
         assert e["identified"] == (name in d["identified"])
+    # issue 22: without a terminal (here) the progress is plain lines on stderr, and the line
+    # after them tells the starts' best from the polished chi-square the report shows
+    err = r.stderr if hasattr(r, "stderr") else r.output
+    assert "fit: started" in err and "fit: 3/3 starts (100 %), best start chi2 (before " \
+        "polish)" in err, err
+    import numpy as np
+    import xarray as xr
+
+    with xr.open_dataset(out.with_suffix(".nc")) as side:
+        best_start = float(np.nanmin(side["chi2"].values))
+    assert f"best start chi2 {best_start:.6g} before the polish" in err, err
+    assert f"chi2 {d['chi2']:.6g} after it" in err, err
+    assert f"chi-square {d['chi2']:.6g}" in r.stdout                # the report's number
+    # issue 22: an alignment offset starts at 0 (its registry default; the paper gives no
+    # initial value), and the report says so instead of repeating the fitted value
+    show = CliRunner().invoke(app, ["show", str(out)])
+    assert show.exit_code == 0, show.output
+    for name in ("dt_x_head", "dt_y_base", "dt_y_head"):
+        e = d["parameters"][name]
+        assert e["initial"] == 0.0 and e["value"] != 0.0, (name, e)
+        line = next(ln for ln in show.stdout.splitlines() if ln.split()[:1] == [name])
+        assert "(init = 0)" in line, line
+    # the 23 of Table 3 keep the paper's initial values
+    assert d["parameters"]["v2"]["initial"] == pytest.approx(2.8e-3)
 
 
 @pytest.mark.parametrize("args, text", [
@@ -162,3 +186,33 @@ def test_checkpoints_of_another_run_are_refused_naming_the_option(means_file, tm
     assert "--checkpoint" in r.output and "other inputs or options" in r.output
     assert set(p.name for p in ck.iterdir()) <= set(before)
     assert not (tmp_path / "f.json").exists()
+
+
+@pytest.mark.parametrize("starts, cores, expect", [(200, 2, 0), (1000, 2, 2), (1000, 1, 0),
+                                                   (1000, 16, 4), (50, 16, 0)])
+def test_the_default_workers_are_the_fastest_on_two_cores(means_file, tmp_path, monkeypatch,
+                                                          starts, cores, expect):
+    """Issue 22: the default was one worker per core, also for a fit of one chunk (200
+    starts), which two workers only slow down (docs/fitting.md, "Scale"). Now: one per core,
+    at most one per chunk of starts, none where that is fewer than two. gprm run and gprm
+    demo take the same default."""
+    import gprm.fit.api
+    import gprm.fit.engine
+    from gprm.run import RunOptions
+    from gprm.run.commands import make_options
+
+    seen = {}
+
+    def fake_run_fit(means, opts, **kw):
+        seen["workers"] = kw["workers"]
+        raise KeyboardInterrupt("stop here")
+
+    monkeypatch.setattr(gprm.fit.engine, "usable_cores", lambda: cores)
+    monkeypatch.setattr(gprm.fit.api, "run_fit", fake_run_fit)
+    CliRunner().invoke(app, ["fit", str(means_file), "--out", str(tmp_path / "f.json"),
+                             "--starts", str(starts)])
+    assert seen["workers"] == expect
+    assert make_options(RunOptions, quick=False, seed=0, starts=starts,
+                        workers=None).workers == expect
+    assert make_options(RunOptions, quick=True, seed=0, starts=None, workers=None).workers == 0
+    assert make_options(RunOptions, quick=False, seed=0, starts=None, workers=3).workers == 3

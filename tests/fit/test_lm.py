@@ -30,7 +30,7 @@ PLAIN_FAILS = {("MGH17", 0), ("BoxBOD", 0), ("MGH10", 0), ("Bennett5", 1)}
 
 
 def test_all_27_problems_are_present_and_read():
-    assert len(PROBLEMS) == 27, f"the 19 shared problems are read from {nist.DATA_DIR}"
+    assert len(PROBLEMS) == 27, f"the 19 lower/average-difficulty problems are read from {nist.DATA_DIR}"
     assert set(nist.HIGHER) <= set(PROBLEMS)
     for name in PROBLEMS:
         p = nist.load(name)

@@ -93,7 +93,9 @@ def test_bad_inputs_library(tmp_path):
 
 @pytest.mark.parametrize("case,needle", [
     ("few", "samples after the release"), ("missing", "eta"),
-    ("nonmono", "strictly increasing"), ("nan", "non-finite"), ("absent", "does not exist")])
+    ("nonmono", "strictly increasing"), ("nan", "non-finite"),
+    ("absent", "none.nc: telemetry file does not exist (a NetCDF or CSV file)"),
+    ("absent_csv", "none.csv: telemetry file does not exist (a NetCDF or CSV file)")])
 def test_bad_inputs_cli(tmp_path, case, needle):
     from typer.testing import CliRunner
     from gprm.cli import app
@@ -107,7 +109,8 @@ def test_bad_inputs_cli(tmp_path, case, needle):
         ds["time"].values[0, 7] = ds["time"].values[0, 2]
     elif case == "nan":
         ds["theta"].values[1, 20] = np.nan
-    p = _bad(ds, tmp_path) if case != "absent" else tmp_path / "none.nc"
+    p = (_bad(ds, tmp_path) if not case.startswith("absent")
+         else tmp_path / ("none.csv" if case == "absent_csv" else "none.nc"))
     res = CliRunner().invoke(app, ["impact", "paper", str(p), "--out",
                                    str(tmp_path / "o.json"), "--samples", "4"])
     assert res.exit_code == 2

@@ -1,15 +1,15 @@
 """The derived linear equations against the paper's Appendix A, term by term.
 
 Appendix A (Eqs. A.1-A.9, Piezo 2) is transcribed here by hand from the paper, as SymPy
-expressions, *literally*; the garbles MODEL.md lists are then applied as explicit corrections
+expressions, *literally*; the garbles docs/spec.md lists are then applied as explicit corrections
 (literal term -> corrected term). The tests check that
 
 * the corrected linear parts equal the derived linear equations M0 x'' + C0 x' + K0 x - F V
   exactly (A.9 is the derived charge equation times C_a: see docs/model.md),
 * every correction is needed (the literal reading differs from the derivation),
-* MODEL.md's claims about the literal reading hold (indefinite K, unstable mode),
+* docs/spec.md's claims about the literal reading hold (indefinite K, unstable mode),
 * the appendix's products of small quantities (eta*z_lr'' ...) equal the first-order terms of
-  the derived mass matrix M(x), except the one sign MODEL.md names,
+  the derived mass matrix M(x), except the one sign docs/spec.md names,
 * Piezo 1: force on mu4 with its reaction on mu3, everything else as for Piezo 2,
 * the generated code (what is simulated) equals the corrected appendix numerically.
 """
@@ -40,7 +40,7 @@ zlr, zA, xA, yA, eta, th, mu3, mu4, q = (X[c] for c in COORDINATES)
 zlr_d, zA_d, xA_d, yA_d, eta_d, th_d, mu3_d, mu4_d, q_d = (XD[c] for c in COORDINATES)
 zlr_dd, zA_dd, xA_dd, yA_dd, eta_dd, th_dd, mu3_dd, mu4_dd, q_dd = (XDD[c] for c in COORDINATES)
 
-# a_1, a_2 of A.4 and A.6 are b_1, b_2 (MODEL.md): substituted in the transcription itself,
+# a_1, a_2 of A.4 and A.6 are b_1, b_2 (docs/spec.md): substituted in the transcription itself,
 # since they are only names.
 a1, a2 = b1, b2
 
@@ -111,7 +111,7 @@ PRODUCTS = {
     "A.8": [-m4 * sg * eta * zlr_dd, m4 * cg * sr * th * zlr_dd],
 }
 
-# ------------------------------------------------------------------ the garbles (MODEL.md)
+# ------------------------------------------------------------------ the garbles (docs/spec.md)
 # (equation, literal term as printed, corrected term)
 A3_LAST_LINE = m3 * sg * mu3_dd + m3 * xA_dd + m4 * sg * mu4_dd + m4 * xA_dd
 CORRECTIONS = [
@@ -204,7 +204,7 @@ def _numeric(mat, values):
 
 
 def test_literal_appendix_is_unphysical_as_model_md_says():
-    """MODEL.md: without d1^2 k_Ax eta the stiffness matrix is indefinite; with the literal
+    """docs/spec.md: without d1^2 k_Ax eta the stiffness matrix is indefinite; with the literal
     A.6 damping the damping matrix is not symmetric and a mode is unstable."""
     vals = dict(paper().values)
     lit = corrected()
@@ -243,7 +243,7 @@ def _max_real_eig(M, C, K):
 def test_products_of_small_quantities_match_the_mass_matrix_expansion(linearised):
     """Each appendix product c * x_k * z_lr'' in the equation of coordinate i is the
     first-order term d M_{i,z_lr}/d x_k of the derived M(x); A.5's h4 m4 cos(g) cos(r)
-    eta z_lr'' has the wrong sign (MODEL.md)."""
+    eta z_lr'' has the wrong sign (docs/spec.md)."""
     from gprm.model.definition import DEFINITIONS, make_symbols
 
     s = make_symbols()

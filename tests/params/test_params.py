@@ -1,4 +1,4 @@
-"""Parameters: registry contents against MODEL.md's tables, TOML round trip, pint units, bare
+"""Parameters: registry contents against the paper's tables, TOML round trip, pint units, bare
 numbers in SI, fit flags and bounds, and bad input (library and `gprm params`)."""
 
 import math
@@ -13,7 +13,7 @@ from gprm.errors import GprmInputError
 from gprm.params import (FITTED_DEFAULT, REGISTRY, batch, batch_from_vectors, load_params,
                          paper, params_to_toml, save_params, to_si)
 
-# MODEL.md, Table 3 (best fit, initial, unit) and Table 2 constants, typed in independently.
+# The paper's Table 3 (best fit, initial, unit) and Table 2 constants, typed in independently.
 TABLE3 = {
     "v2": (2.7, 2.8, 1e-3), "g2": (-0.4, -0.4, 1e-3), "gamma": (-7, 5, 1e-3),
     "rho": (37, 37, 1e-3), "k_lr": (164e4, 166e4, 1), "k_Ax": (1104e5, 1123e5, 1),
@@ -30,7 +30,7 @@ ASSUMED = {"h2": 0.030, "d_x_base": 0.025, "d_y_base": 0.025, "d_x_head": 0.058,
            "t_c": 1.0e-3, "tau_v": 10e-6}
 
 
-def test_paper_set_matches_model_md():
+def test_paper_set_matches_the_papers_tables():
     ps = paper()
     assert ps.fitted == tuple(TABLE3) == FITTED_DEFAULT
     for n, (best, init, scale) in TABLE3.items():
@@ -126,3 +126,24 @@ def test_batches():
     assert np.allclose(bb["d2"], [0.040, 0.044]) and np.all(bb["h2"] == ps["h2"])
     with pytest.raises(GprmInputError):
         ps.with_values(m2=-1.0)
+
+
+def test_a_parameter_added_to_the_fitted_set_keeps_its_start_as_initial_value():
+    """Issue 22: ``gprm show`` gave each alignment offset an initial value equal to its fit.
+    A parameter the paper gives no initial value for starts where it was when it joined the
+    fitted set; new values (a fit's best) do not move that, and it survives pickling (the
+    sets travel to Dask workers)."""
+    import pickle
+
+    dt = ("dt_x_head", "dt_y_base", "dt_y_head")
+    fitted = paper().with_fitted(FITTED_DEFAULT + dt + ("h2",))
+    best = fitted.with_values(dt_x_head=4.8e-6, dt_y_base=1.8e-6, dt_y_head=-2.8e-6, h2=0.032,
+                              v2=2.75e-3)
+    np.testing.assert_array_equal(best.initial_vector(dt), 0.0)
+    assert best.initial_vector(("h2",))[0] == pytest.approx(0.030)
+    assert best.initial_vector(("v2",))[0] == pytest.approx(2.8e-3)       # the paper's
+    assert pickle.loads(pickle.dumps(best)).initial_vector(dt + ("h2",)).tolist() == \
+        best.initial_vector(dt + ("h2",)).tolist()
+    # dropped from the fitted set and added again: it starts from where it is then
+    again = best.with_fitted(FITTED_DEFAULT).with_fitted(FITTED_DEFAULT + ("h2",))
+    assert again.initial_vector(("h2",))[0] == pytest.approx(0.032)

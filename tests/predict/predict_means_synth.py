@@ -1,4 +1,5 @@
-"""A synthetic mean-signals dataset (contracts.md layout) made from the model plus noise."""
+"""A synthetic mean-signals dataset (the layout of docs/spec.md, "Mean-signals file") made
+from the model plus noise."""
 
 
 import numpy as np

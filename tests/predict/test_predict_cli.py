@@ -59,6 +59,15 @@ def test_predict_writes_documented_dataset(tmp_path):
     assert ds.attrs["samples_ok"] == 40 and ds.attrs["model"] == "gprm-3d"
     w = json.loads(wi.read_text())
     assert [s["name"] for s in w["scenarios"]] == ["piezo2", "piezo1", "piezo1_ecc_div10"]
+    # issue 22: the ratios are printed, not only written (the rows of the report's table)
+    from gprm.predict.whatif import ratio_rows
+
+    assert "what-if overshoot ratios, baseline (piezo2) / strategy" in r.stdout
+    for row in ratio_rows(w, missing="-"):
+        line = next(ln for ln in r.stdout.splitlines() if ln.split()[:1] == [row[0]])
+        assert line.split() == " ".join(row).split(), (line, row)
+    p1 = w["ratios"][1]["headline"]
+    assert f"{p1['x']:.3g} [" in r.stdout and "4, 6.4, 3.8" in r.stdout
     # same seed -> same file content
     out2 = tmp_path / "p2.nc"
     run(fit_json(tmp_path / "fit.json"), "--out", out2, "--samples", 40, "--seed", 3,

@@ -75,7 +75,7 @@ def test_ratios_against_independent_simulation(fm, table):
 
 def test_paper_ratios_reported(table):
     """Piezo 1 shrinks every overshoot; eccentricities / 10 shrink the lateral ones ten-fold
-    more and leave the axial one as with Piezo 1 (the paper's statements). With the MODEL.md
+    more and leave the axial one as with Piezo 1 (the paper's statements). With the docs/spec.md
     geometry the x and z ratios come within 10 % of the paper's 4.0 and 3.8; y does not (see
     docs/prediction.md)."""
     p1, e10 = table["ratios"][1]["headline"], table["ratios"][2]["headline"]

@@ -1,6 +1,6 @@
 """A small run directory for the report tests that does not need the campaign, predict or
 flight stages: mean signals straight from the linear model plus noise (known truth), a fit of a
-few starts with the fit library, and an impact result in the INTERFACES.md format."""
+few starts with the fit library, and an impact result in the format of docs/spec.md."""
 
 from __future__ import annotations
 
@@ -37,8 +37,9 @@ def make_means(path: Path, *, seed: int = 0, rel: float = 0.02, floor: float = 2
 
 
 def make_fit(run: Path, *, starts: int = 40, seed: int = 0) -> None:
-    """A fit result in the contract format (contracts.md), without running the fitter: the
-    truth perturbed by its Table-3 error as the "fit", chi-square values of a waterfall."""
+    """A fit result in the contract format (docs/spec.md, "Fit result"), without running the
+    fitter: the truth perturbed by its Table-3 error as the "fit", chi-square values of a
+    waterfall."""
     from gprm._io import open_netcdf
     from gprm.fit.objective import fit_data_from_means
     from gprm.params import REGISTRY

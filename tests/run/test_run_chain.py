@@ -193,7 +193,9 @@ def test_interrupted_run_resumes_and_reruns_only_what_changed(runs):
     (["run", "no-such-campaign.nc", "--out", "{tmp}/x"], "no-such-campaign.nc: campaign "
                                                           "does not exist"),
     (["run", "{campaign}", "--telemetry", "nope.nc", "--out", "{tmp}/x"],
-     "nope.nc: telemetry NetCDF does not exist"),
+     "nope.nc: telemetry file does not exist (a NetCDF or CSV file)"),
+    (["run", "{campaign}", "--telemetry", "nosuch.csv", "--out", "{tmp}/x"],
+     "nosuch.csv: telemetry file does not exist (a NetCDF or CSV file)"),
     (["run", "{campaign}", "--starts", "0", "--out", "{tmp}/x"], "'--starts': must be >= 1"),
     (["run", "{campaign}", "--releases", "1", "--out", "{tmp}/x"], "'--releases': must be >= 2"),
 ])

@@ -1,7 +1,8 @@
-"""`gprm simulate` on good and bad input: a NetCDF of INTERFACES.md, or one line on stderr that
+"""`gprm simulate` on good and bad input: a NetCDF of docs/spec.md, or one line on stderr that
 names the file and the field, a non-zero exit code and no output file."""
 
 import warnings
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -30,7 +31,7 @@ def _assert_error(res, out, *words):
     assert not [p for p in out.parent.iterdir() if p.name.startswith(f".{out.name}")]
 
 
-def test_simulate_writes_the_netcdf_of_interfaces_md(tmp_path):
+def test_simulate_writes_the_netcdf_of_the_spec(tmp_path):
     out = tmp_path / "sim.nc"
     res = _run(["simulate", "--out", out, "--piezo", "1", "--t-end", "1.1e-3"])
     assert res.exit_code == 0, res.stderr
@@ -42,6 +43,10 @@ def test_simulate_writes_the_netcdf_of_interfaces_md(tmp_path):
         assert float(ds["voltage"][0]) == 120.0
         assert np.all(ds["x_head"].values[:190] == 0)       # rest until t_c + t0 = 1.004 ms
         assert np.abs(ds["mu4"]).max() > 1e-6
+        # the drive is named by where it is defined, a page of this repository
+        assert ds.attrs["input"] == "default profile (docs/spec.md)"
+    spec = Path(__file__).resolve().parents[2] / "docs" / "spec.md"
+    assert "default profile" in spec.read_text()
 
 
 def _params(tmp_path, body):

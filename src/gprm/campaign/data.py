@@ -1,4 +1,4 @@
-"""The campaign data model (INTERFACES.md "Campaign file"): an xarray Dataset with
+"""The campaign data model (docs/spec.md, "Campaign file"): an xarray Dataset with
 
 - ``displacement(position, run, time)`` m: the actuated runs (tip retractions),
 - ``noise(position, noise_run, time)`` m: runs without actuation, same time base,

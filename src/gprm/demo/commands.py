@@ -24,8 +24,10 @@ def register(app: typer.Typer, synth_app: typer.Typer) -> None:
                                              "(default 1000, or 50 with --quick)"),
         workers: Optional[int] = typer.Option(None, "--workers", parser=Int(min=0), help="local Dask worker "
                                               "processes for the fit (default: one per core, "
-                                              "or 0 with --quick; 0: in this process; the "
-                                              "result does not depend on it)"),
+                                              "at most one per chunk of 250 starts, 0 where "
+                                              "that is fewer than 2, as with --quick: in "
+                                              "this process; the result does not depend on "
+                                              "it)"),
     ):
         """The whole chain on generated data, resumable, ending in report.html.
 

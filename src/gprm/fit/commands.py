@@ -35,10 +35,11 @@ def register(app: typer.Typer, synth_app: typer.Typer) -> None:
         sigma: str = typer.Option("sem", "--sigma", help="weights: sem (standard error of "
                                   "the mean) or std (the paper's across-run std)"),
         workers: Optional[int] = typer.Option(None, "--workers", parser=Int(min=0),
-                                              help="local Dask worker "
-                                              "processes (default: one per core; 0: run in "
-                                              "this process; the result does not depend "
-                                              "on it)"),
+                                              help="local Dask worker processes (default: "
+                                              "one per core, at most one per chunk of "
+                                              "starts, 0 where that is fewer than 2: "
+                                              "in this process, the fastest then; the "
+                                              "result does not depend on it)"),
         scheduler: Optional[str] = typer.Option(None, "--scheduler",
                                                 help="address of an existing Dask scheduler"),
         dashboard: Optional[str] = typer.Option(None, "--dashboard", help="serve the Dask "
@@ -113,7 +114,8 @@ def register(app: typer.Typer, synth_app: typer.Typer) -> None:
         from gprm.fit.api import FitOptions, run_fit
 
         from gprm._io import check_outputs
-        from gprm.fit.engine import check_checkpoint_folder, remove_checkpoints, starts_memory
+        from gprm.fit.engine import (check_checkpoint_folder, default_workers,
+                                     remove_checkpoints, starts_memory)
         from gprm.params import load_params
         from gprm.resources import check_memory
         from gprm.campaign.files import read_means
@@ -144,16 +146,17 @@ def register(app: typer.Typer, synth_app: typer.Typer) -> None:
         check_memory(starts, starts_memory(1, len(opts.parameters(base).fitted)),
                      field="--starts", what=f"{starts} starts")
         if workers is None:
-            workers = 0 if scheduler else max(1, os.cpu_count() or 1)
+            workers = 0 if scheduler else default_workers(starts, chunk)
         if workers < 0:
             raise GprmInputError(f"must be >= 0, got {workers}", field="--workers")
         n_cpu = os.cpu_count() or 1
         if not scheduler and workers > 4 * n_cpu:   # each is a process with its own memory
             raise GprmInputError(f"{workers} local worker processes on {n_cpu} cores; the "
                                  f"largest value accepted is {4 * n_cpu}", field="--workers")
-        from gprm.fit.report_text import fit_report, starts_progress
+        from gprm.fit.report_text import fit_report, polish_note, starts_progress
 
-        with starts_progress(Console(stderr=True), starts) as progress:
+        err = Console(stderr=True)
+        with starts_progress(err, starts) as progress:
             try:
                 with dask_dashboard(dashboard):
                     res = run_fit(ds, opts, params=base, workers=workers,
@@ -168,6 +171,9 @@ def register(app: typer.Typer, synth_app: typer.Typer) -> None:
             except Exception:
                 remove_checkpoints(ckpt, only_if_empty=True)
                 raise
+        # the bar showed the starts' best; the report shows the polished fit's chi-square
+        err.print(polish_note(starts, progress.best, res.chi2, res.timings["total"]),
+                  highlight=False, markup=False, soft_wrap=True)
         side = res.write(out)
         remove_checkpoints(ckpt)          # only what gprm wrote there, never other files
         from gprm.fit.files import read_fit_document

@@ -284,6 +284,29 @@ def _chunks(n: int, size: int) -> list[np.ndarray]:
     return [np.arange(i, min(i + size, n)) for i in range(0, n, size)]
 
 
+def usable_cores() -> int:
+    """The cores this process may run on (its CPU affinity where the system says; else the
+    machine's count)."""
+    try:
+        return max(1, len(os.sched_getaffinity(0)))
+    except (AttributeError, OSError):
+        return max(1, os.cpu_count() or 1)
+
+
+def default_workers(n_starts: int, chunk_size: int, cores: int | None = None) -> int:
+    """The default number of local worker processes of ``gprm fit``, ``gprm run`` and
+    ``gprm demo`` (``--workers``): one per core, at most one per chunk of starts, and none
+    (in this process) when that would be fewer than two. A chunk runs on one worker, so with
+    one chunk (up to ``chunk_size`` starts: a 200-start fit, ``--quick``) workers cannot work
+    in parallel and only add their start-up; on one core neither can two chunks. Measured on
+    the 2-core machine (docs/fitting.md, "Scale"): 200 starts run faster in process, 1000
+    starts (four chunks) on two workers."""
+    cores = usable_cores() if cores is None else max(1, int(cores))
+    n_chunks = len(_chunks(int(n_starts), chunk_size))
+    n = min(cores, n_chunks)
+    return n if n >= 2 else 0
+
+
 def local_worker_config() -> dict:
     """Dask settings for the local cluster's workers (a warmed-up chunk of 250 demo starts:
     14.8 s CPU with Dask's defaults, 12.7 s with these, 8.5 s in one process;
@@ -305,6 +328,58 @@ def local_worker_config() -> dict:
            if k != "MALLOC_TRIM_THRESHOLD_"}
     return {"distributed.nanny.pre-spawn-environ": env,
             "distributed.worker.profile.enabled": False}
+
+
+def local_cluster(n_workers: int, dashboard: str | None = None):
+    """The fit's local Dask cluster: ``n_workers`` single-threaded worker processes, the
+    scheduler and the workers listening on 127.0.0.1 only (:func:`local_worker_config`).
+
+    Without ``dashboard`` no HTTP server is left listening: distributed starts the
+    scheduler's on port 8787 even when told to serve no dashboard (``dashboard_address=None``
+    means "the default port", and ``":0"`` means all interfaces), so it is started on a
+    random loopback port with no routes and then stopped; the workers' serve no routes
+    either (the caller stops them once connected: ``client.run(_stop_http_server)``). With
+    ``dashboard`` (``--dashboard 127.0.0.1:8787``) the scheduler serves it there.
+
+    The scheduler does not authenticate: while a fit runs, another user of the machine who
+    finds the port could connect a client (distributed's TLS with temporary credentials needs
+    the ``cryptography`` package, which gprm does not depend on; docs/fitting.md). The
+    default ``--workers 0`` starts no cluster.
+    """
+    import dask
+    from distributed import LocalCluster
+
+    settings = dict(local_worker_config())
+    extra: dict = {}
+    if not dashboard:
+        settings.update({"distributed.scheduler.http.routes": [],
+                         "distributed.worker.http.routes": []})
+        extra = {"dashboard_address": "127.0.0.1:0", "scheduler_kwargs": {"dashboard": False}}
+    else:
+        extra = {"dashboard_address": dashboard}
+    with dask.config.set(settings):
+        cluster = LocalCluster(n_workers=n_workers, threads_per_worker=1, processes=True,
+                               host="127.0.0.1", silence_logs=40, **extra)
+    if not dashboard:
+        try:
+            cluster.sync(_stop_server_http, cluster.scheduler)
+        except Exception:
+            cluster.close()
+            raise
+    return cluster
+
+
+async def _stop_server_http(server) -> None:
+    """Stop the HTTP listener of a scheduler (run on the cluster's event loop)."""
+    _stop_http_server(server)
+
+
+def _stop_http_server(dask_worker=None) -> None:
+    """Stop the HTTP listener of a Dask server: ``client.run`` passes each worker as
+    ``dask_worker``; the scheduler is passed directly."""
+    http = getattr(dask_worker, "http_server", None)
+    if http is not None:
+        http.stop()
 
 
 def run_multistart(obj: Objective, opts: MultiStartOptions = MultiStartOptions(), *,
@@ -347,7 +422,7 @@ def run_multistart(obj: Objective, opts: MultiStartOptions = MultiStartOptions()
 
     if pending and (workers > 0 or scheduler):
         import dask
-        from distributed import Client, LocalCluster, as_completed
+        from distributed import Client, as_completed
 
         cluster = None
         if scheduler:
@@ -358,12 +433,10 @@ def run_multistart(obj: Objective, opts: MultiStartOptions = MultiStartOptions()
                                      f"({type(exc).__name__}: {exc})",
                                      field="scheduler") from None
         else:
-            with dask.config.set(local_worker_config()):
-                cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
-                                       host="127.0.0.1", silence_logs=40,
-                                       dashboard_address=dask.config.get(
-                                           "gprm.dashboard-address", None))
+            cluster = local_cluster(workers, dask.config.get("gprm.dashboard-address", None))
             client = Client(cluster)
+            if not dask.config.get("gprm.dashboard-address", None):
+                client.run(_stop_http_server)        # the workers': no listener left
         try:
             futs = [client.submit(run_chunk, t, pure=False) for t in pending]
             for fut in as_completed(futs):

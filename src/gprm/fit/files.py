@@ -1,7 +1,7 @@
 """The fit file: its writer and its reader side by side, and :class:`FittedModel`, the object
 every later stage (predict, flight, report, run) consumes.
 
-The fit file is a JSON document (INTERFACES.md, docs/fitting.md) with a NetCDF sidecar of the
+The fit file is a JSON document (docs/spec.md, docs/fitting.md) with a NetCDF sidecar of the
 same name (``.nc``: every start, the data, the bands, the covariance, the uncertainty
 method's draws).
 
@@ -11,7 +11,7 @@ method's draws).
   table), :func:`read_fit_sidecar`, :func:`load_fit` (a :class:`FittedModel`) and
   :func:`load_model`, which resolves what a command accepts as a model: the word ``paper``
   (the paper's Table 3 with its uncertainties as a diagonal reference covariance,
-  MODEL.md), a fit JSON, or a run folder holding ``fit.json``.
+  docs/spec.md), a fit JSON, or a run folder holding ``fit.json``.
 """
 
 from __future__ import annotations
@@ -39,7 +39,9 @@ from gprm.validate import Schema, Var, check_dataset
 
 if TYPE_CHECKING:
     from gprm.fit.objective import FitData
-    from gprm.fit.result import FitResult
+    # what the writer reads of a gprm.fit.result.FitResult (which imports this module to
+    # write itself: naming its class here would close an import circle)
+    from gprm.fit.record import FitRecord as FitResult
     from gprm.fit.starts import StartsOutcome
 
 MODEL_NAME = "gprm-3d"
@@ -238,7 +240,7 @@ def read_fit_sidecar(path: str | os.PathLike) -> xr.Dataset:
 
 
 def load_fit(path: str | os.PathLike) -> FittedModel:
-    """Read a fit result JSON (INTERFACES.md) into a :class:`FittedModel`.
+    """Read a fit result JSON (docs/spec.md) into a :class:`FittedModel`.
 
     Every fit ``gprm fit`` writes loads, with or without a covariance: where there is none
     (``correlation.matrix`` null), the model is the best fit alone (``has_uncertainty``
@@ -355,7 +357,7 @@ def _read_draws(side: Path, names: tuple[str, ...]) -> np.ndarray | None:
 # ----------------------------------------------------------------------------- writer
 
 def fit_document(res: FitResult) -> dict:
-    """The fit file's JSON content (INTERFACES.md, docs/fitting.md) of a fit result."""
+    """The fit file's JSON content (docs/spec.md, docs/fitting.md) of a fit result."""
     corr = res.correlation
     u = res.uncertainty
     params = {}

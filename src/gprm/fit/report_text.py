@@ -11,6 +11,8 @@ from __future__ import annotations
 import math
 from typing import TypeGuard
 
+from gprm.console import ProgressLines, clock_text
+
 DEFAULT_MIN_CORREL = 0.9
 
 
@@ -163,34 +165,89 @@ def fit_report(d: dict, *, min_correl: float = DEFAULT_MIN_CORREL) -> str:
     return "\n".join(lines)
 
 
+#: what the progress shows beside the starts: the multi-start's best, before the polish that
+#: the fit's result (and its report's chi-square) comes from
+BEST_START = "best start chi2 (before polish)"
+
+
+#: beside the count once every start is done, while the fit polishes the best one and
+#: computes its uncertainty (no count to show)
+AFTER_STARTS = "; polishing the best start, then its uncertainty"
+
+
 def starts_info(best_chi2: float) -> str:
-    """The text beside the bar of a fit's starts: the unit and the best chi-square so far."""
+    """The text beside the bar of a fit's starts: the unit and the best chi-square of the
+    starts so far (the polished fit ends lower; :func:`polish_note` says both)."""
     best = f"{best_chi2:.6g}" if math.isfinite(best_chi2) else "-"
-    return f"starts  best chi2 {best}"
+    return f"starts  {BEST_START} {best}"
+
+
+def polish_note(n_starts: int, best_start: float, chi2: float, seconds: float) -> str:
+    """The line after the starts' progress: their best and the polished chi-square the
+    report shows, so that the two numbers are not mistaken for one. (The starts minimise
+    the data's chi-square plus the weak prior's terms, when there is a prior; the report's
+    chi-square is the data's alone, after the polish.)"""
+    best = f"{best_start:.6g}" if math.isfinite(best_start) else "-"
+    return (f"fit: {n_starts} starts in {seconds:.1f} s; best start chi2 {best} before the "
+            f"polish (prior terms included), chi2 {chi2:.6g} after it (the data's alone: the "
+            "report's)")
 
 
 class starts_progress:
-    """Context manager: a rich bar over the starts of a multi-start fit, with the best
-    chi-square so far and the time remaining; yields the callback for ``run_multistart``."""
+    """Context manager: the progress of a multi-start fit's starts, with the best chi-square
+    of the starts so far and the time remaining; yields the callback for ``run_multistart``
+    (which also keeps ``.best``, the last best chi-square it was given).
 
-    def __init__(self, console, n_starts: int, description: str = "fit"):
-        from rich.progress import (BarColumn, MofNCompleteColumn, Progress, TextColumn,
-                                   TimeElapsedColumn, TimeRemainingColumn)
+    On a terminal it is a rich bar (transient); elsewhere (a log file, a pipe) plain lines
+    (:class:`gprm.console.ProgressLines`): one per tenth of the starts and at least every
+    ``every`` seconds while the fit runs, so a long fit without a terminal is not silent."""
 
-        self.bar = Progress(TextColumn(description), BarColumn(), MofNCompleteColumn(),
-                            TextColumn("{task.fields[info]}"),
-                            TimeElapsedColumn(), TextColumn("eta"), TimeRemainingColumn(),
-                            console=console, transient=True)
+    def __init__(self, console, n_starts: int, description: str = "fit", *,
+                 every: float = 10.0):
         self.n_starts = int(n_starts)
+        self.description = description
+        self.bar = None
+        self.lines = None
+        if console.is_terminal:
+            from rich.progress import (BarColumn, MofNCompleteColumn, Progress, TextColumn,
+                                       TimeElapsedColumn, TimeRemainingColumn)
+
+            self.bar = Progress(TextColumn(description), BarColumn(), MofNCompleteColumn(),
+                                TextColumn("{task.fields[info]}"),
+                                TimeElapsedColumn(), TextColumn("eta"), TimeRemainingColumn(),
+                                console=console, transient=True)
+        else:
+            self.lines = ProgressLines(console.file, every=every)
 
     def __enter__(self):
-        self.bar.__enter__()
-        task = self.bar.add_task("fit", total=self.n_starts, info=starts_info(float("nan")))
+        outer = self
 
-        def progress(done, total, best_chi2=float("nan")):
-            self.bar.update(task, completed=done, total=total, info=starts_info(best_chi2))
+        class Callback:
+            best = float("nan")
 
-        return progress
+            def __call__(self, done, total, best_chi2=float("nan")):
+                self.best = best_chi2
+                after = AFTER_STARTS if done >= total else ""
+                if outer.bar is not None:
+                    outer.bar.update(task, completed=done, total=total,
+                                     info=starts_info(best_chi2) + after)
+                else:
+                    best = f"{best_chi2:.6g}" if math.isfinite(best_chi2) else "-"
+                    outer.lines.update("fit", done, total, "starts",
+                                       f"{BEST_START} {best}{after}")
+
+        if self.bar is not None:
+            self.bar.__enter__()
+            task = self.bar.add_task("fit", total=self.n_starts, info=starts_info(float("nan")))
+        else:
+            self.lines.__enter__()
+            self.lines.start("fit", self.description)
+        return Callback()
 
     def __exit__(self, *exc):
-        return self.bar.__exit__(*exc)
+        if self.bar is not None:
+            return self.bar.__exit__(*exc)
+        if exc[0] is not None:
+            self.lines.finish("fit", f"{self.description}: stopped "
+                              f"({clock_text(self.lines.elapsed('fit'))} elapsed)")
+        return self.lines.__exit__(*exc)

@@ -1,6 +1,6 @@
 """Flight analysis pipeline (``gprm impact``): release velocities -> predicted curves ->
 impact times -> Tukey test, as an :class:`ImpactResult` (its ``to_json()`` is the JSON of
-INTERFACES.md, its ``to_xarray()`` the NetCDF sidecar of the curves).
+docs/spec.md, its ``to_xarray()`` the NetCDF sidecar of the curves).
 """
 
 from __future__ import annotations

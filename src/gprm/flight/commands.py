@@ -79,7 +79,7 @@ def register(app: typer.Typer, synth_app: typer.Typer) -> None:
     @one_line_errors
     def impact_cmd(
         fit: str = typer.Argument(..., help="fit result JSON, or 'paper' (Table 3)"),
-        telemetry: Path = typer.Argument(..., help="telemetry NetCDF"),
+        telemetry: Path = typer.Argument(..., help="telemetry file: NetCDF or CSV (.csv)"),
         out: Path = typer.Option(..., "--out", help="output JSON (sidecar <name>.nc: curves)"),
         alpha: float = typer.Option(0.01, "--alpha", parser=Number(0, 1, min_open=True,
                                     max_open=True), help="Tukey test level (0 < alpha < 1)"),

@@ -79,6 +79,8 @@ def load_telemetry(path: str | os.PathLike) -> Telemetry:
     """Read and check telemetry (synthetic or real: the same reader and checks): a NetCDF file
     of the ``gprm-telemetry`` format, or a CSV file (:func:`telemetry_csv_dataset`)."""
     src = str(path)
+    if not Path(path).exists():
+        raise GprmInputError("telemetry file does not exist (a NetCDF or CSV file)", source=src)
     if Path(path).suffix.lower() in (".csv", ".txt"):
         return telemetry_from_dataset(telemetry_csv_dataset(path), source=src)
     ds = open_netcdf(path, what="telemetry NetCDF")

@@ -9,7 +9,7 @@ Since issue 14 the default is the one-contact 3D impact instead (:class:`ImpactG
 ``impact_model``; docs/flight.md §2), whose six axes are the TM's own components (both v_z
 axes the one v_z).
 
-Bodies (MODEL.md):
+Bodies (docs/spec.md):
 
 * plunger side (A): the assembly plunger + spacer + tip, mass M = m2 + m3 + m4, CoM the
   assembly CoM (``named_points(...)["assembly_com"]``) with its velocity, angular velocity

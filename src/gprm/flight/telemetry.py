@@ -15,7 +15,7 @@ import numpy as np
 from gprm.errors import GprmInputError
 
 AXES: tuple[str, ...] = ("vx", "vz_xz", "wy", "vy", "vz_yz", "wx")
-"""The six velocity components (INTERFACES.md): x–z plane (v_x, v_z, ω_y), y–z plane
+"""The six velocity components (docs/spec.md): x–z plane (v_x, v_z, ω_y), y–z plane
 (v_y, v_z, ω_x)."""
 
 AXIS_CHANNEL = {"vx": "x", "vz_xz": "z", "wy": "eta", "vy": "y", "vz_yz": "z", "wx": "theta"}

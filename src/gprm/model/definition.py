@@ -1,5 +1,5 @@
 """Model definitions: kinematics and energies of the GPRM plunger, from which the equations of
-motion are derived (``shared/spec/MODEL.md``; paper Sec. 3, Eq. 1-3, Appendix A).
+motion are derived (``docs/spec.md``; paper Sec. 3, Eq. 1-3, Appendix A).
 
 A :class:`ModelDefinition` is pure data plus a function that builds the Lagrangian pieces with
 SymPy. A model variant (another piezo, the linear runner's lateral vibration, ...) is a new
@@ -72,7 +72,7 @@ def make_symbols(coordinates=COORDINATES, parameters=EOM_PARAMETERS) -> Symbols:
 
 
 def rotation(theta, eta) -> sp.Matrix:
-    """Plunger attitude R = R_x(theta) R_y(eta) (MODEL.md; reproduces the paper's Eq. 8)."""
+    """Plunger attitude R = R_x(theta) R_y(eta) (docs/spec.md; reproduces the paper's Eq. 8)."""
     ct, st, ce, se = sp.cos(theta), sp.sin(theta), sp.cos(eta), sp.sin(eta)
     Rx = sp.Matrix([[1, 0, 0], [0, ct, -st], [0, st, ct]])
     Ry = sp.Matrix([[ce, 0, se], [0, 1, 0], [-se, 0, ce]])
@@ -80,7 +80,7 @@ def rotation(theta, eta) -> sp.Matrix:
 
 
 def actuation_axis(gamma, rho) -> sp.Matrix:
-    """Unit vector u of the spacer/tip motion in the plunger frame (MODEL.md)."""
+    """Unit vector u of the spacer/tip motion in the plunger frame (docs/spec.md)."""
     return sp.Matrix([sp.sin(gamma), sp.cos(gamma) * sp.sin(rho), sp.cos(gamma) * sp.cos(rho)])
 
 
@@ -125,7 +125,7 @@ def _gprm_energies(s: Symbols, piezo: int) -> Energies:
 
     # Lateral springs/dampers act on the plunger axis point at distance d from A; exact
     # kinematics here (x: x_A + d sin(eta); y: y_A - d cos(eta) sin(theta)), which linearise to
-    # MODEL.md's x_A + d*eta and y_A - d*theta.
+    # docs/spec.md's x_A + d*eta and y_A - d*theta.
     def axis_x(d):
         return body_point(d * ez)[0]
 

@@ -27,21 +27,32 @@ class ParameterSet:
     bounds: name -> (lower, upper), SI, for fitted parameters (the registry's physical bounds
         unless a parameter file narrows them).
     source: where the set came from (``paper`` or a file path), for messages and provenance.
+    initial: the initial value (centre of the random starts) of each fitted parameter the
+        paper gives none for (the alignment offsets, a geometry value a file fits): the value
+        it had when it joined the fitted set, kept when values change later (a fit's best
+        values), so that a fit reports where it started, not where it ended.
     """
 
     values: Mapping[str, float]
     fitted: tuple[str, ...] = FITTED_DEFAULT
     bounds: Mapping[str, tuple[float, float]] = field(default_factory=dict)
     source: str = "paper"
+    initial: Mapping[str, float] = field(default_factory=dict)
 
     def __post_init__(self):
         object.__setattr__(self, "values", MappingProxyType(dict(self.values)))
         b = {n: (REGISTRY[n].lower, REGISTRY[n].upper) for n in self.fitted}
         b.update(self.bounds)
         object.__setattr__(self, "bounds", MappingProxyType(b))
+        init = {n: float(v) for n, v in dict(self.initial).items() if n in self.fitted}
+        for n in self.fitted:
+            if REGISTRY[n].initial is None and n not in init and n in self.values:
+                init[n] = float(self.values[n])
+        object.__setattr__(self, "initial", MappingProxyType(init))
 
     def __reduce__(self):  # MappingProxyType does not pickle; needed to ship sets to workers
-        return (ParameterSet, (dict(self.values), self.fitted, dict(self.bounds), self.source))
+        return (ParameterSet, (dict(self.values), self.fitted, dict(self.bounds), self.source,
+                               dict(self.initial)))
 
     def __getitem__(self, name: str) -> float:
         return self.values[name]
@@ -71,10 +82,11 @@ class ParameterSet:
         return self.with_values(**dict(zip(names, map(float, x))))
 
     def initial_vector(self, names: Iterable[str] | None = None) -> np.ndarray:
-        """The paper's initial values (Table 3) where given, else the current values."""
+        """The paper's initial values (Table 3) where given; else, for a fitted parameter,
+        its value when it joined the fitted set (``initial``); else the current value."""
         names = self.fitted if names is None else tuple(names)
         return np.array([REGISTRY[n].initial if REGISTRY[n].initial is not None
-                         else self.values[n] for n in names], dtype=float)
+                         else self.initial.get(n, self.values[n]) for n in names], dtype=float)
 
     def paper_stderr(self, names: Iterable[str] | None = None) -> np.ndarray:
         """Table 3 uncertainties (SI); NaN where the paper gives none."""
@@ -87,7 +99,7 @@ class ParameterSet:
 
 
 def paper() -> ParameterSet:
-    """The built-in ``paper`` set: Table 2 constants, Table 3 best fit, MODEL.md defaults."""
+    """The built-in ``paper`` set: Table 2 constants, Table 3 best fit, the assumed values of docs/spec.md."""
     return ParameterSet({n: s.default for n, s in REGISTRY.items()}, source="paper")
 
 

@@ -1,4 +1,4 @@
-"""Parameter files (TOML, see ``shared/spec/INTERFACES.md``) and unit handling with pint.
+"""Parameter files (TOML, see ``docs/spec.md``) and unit handling with pint.
 
 A value is a string with a unit (``"2.7 mm"``), a bare number in SI, or an inline table
 ``{ value = "12.4 g", fit = true, lower = "5 g", upper = "20 g" }``.
@@ -167,7 +167,7 @@ def _dimensionless(value: Any, src: str, field: str) -> float:
                              source=src, field=field)
     if isinstance(value, str):
         try:
-            q: pint.Quantity | float = u.Quantity(value.replace("%", " percent"))
+            q: Any = u.Quantity(value.replace("%", " percent"))
         except Exception as exc:
             raise GprmInputError(f"cannot parse {value!r} ({exc})", source=src,
                                  field=field) from None
@@ -191,11 +191,10 @@ def _seconds(value: Any, src: str, field: str) -> float:
                              field=field)
     if isinstance(value, str):
         try:
-            qt: pint.Quantity | float = u.Quantity(value)
+            q: Any = u.Quantity(value)
         except Exception as exc:
             raise GprmInputError(f"cannot parse {value!r} ({exc})", source=src,
                                  field=field) from None
-        q = qt
         if isinstance(q, pint.Quantity):
             if q.dimensionality != u.Quantity(1.0, "s").dimensionality:
                 raise GprmInputError(f"{value!r} is not a time", source=src, field=field)

@@ -1,5 +1,5 @@
 """The parameter registry: every parameter of the paper's Tables 2 and 3 and the documented
-defaults of ``shared/spec/MODEL.md``, with unit, role, default, paper initial value, paper
+assumed values of ``docs/spec.md``, with unit, role, default, paper initial value, paper
 uncertainty and bounds.
 
 Values are stored in SI (radians for angles). Units are shown and accepted only at the edges
@@ -26,9 +26,9 @@ class ParamSpec:
     unit: the unit the paper quotes and the tool shows (a pint unit string).
     description: what the parameter is.
     group: ``fitted`` (Table 3), ``constant`` (Table 2), ``geometry`` (values the paper does
-        not give; MODEL.md defaults), ``alignment`` (per-signal time offsets of the aligned
-        mean signals; default 0, not fitted by default), ``input`` (voltage profile) or
-        ``flight`` (test mass and impact geometry).
+        not give; docs/spec.md's assumed values), ``alignment`` (per-signal time offsets of
+        the aligned mean signals; default 0, not fitted by default), ``input`` (voltage
+        profile) or ``flight`` (test mass and impact geometry).
     default: the ``paper`` value, SI.
     initial: the paper's initial value (centre of the random starts), SI, fitted ones only.
     paper_stderr: the Table 3 uncertainty, SI, fitted ones only.
@@ -65,7 +65,7 @@ def _s(name, unit, scale, desc, group, default, initial=None, stderr=None, nomin
 
 
 # Table 3 (best fit = default, initial value, uncertainty), Table 2 constants,
-# MODEL.md assumed geometry. Bounds: physical sign constraints only (masses, stiffnesses,
+# the assumed geometry of docs/spec.md. Bounds: physical sign constraints only (masses, stiffnesses,
 # dampings, distances and electrical constants are non-negative; angles within ±0.5 rad).
 # The lags t0, t1 and the alignment offsets are signed offsets in the aligned time base of the
 # mean signals (preprocessing puts each signal's own 2-sigma crossing at 1 ms), so they may be
@@ -134,7 +134,7 @@ _SPECS = (
     _s("T_em", "C/m", 1.0, "piezo electro-mechanical coupling", "constant", 2.6, lower=0.0),
     _s("C_a", "F", 1.0, "piezo capacitance", "constant", 5.0e-7, lower=0.0),
     _s("R", "ohm", 1.0, "drive circuit resistance", "constant", 19.06, lower=0.0),
-    # --- geometry the paper does not give (MODEL.md assumptions) ---
+    # --- geometry the paper does not give (docs/spec.md, assumed values) ---
     _s("h2", "mm", 1e-3, "plunger CoM along the axis from A (assumed)", "geometry", 30.0),
     _s("d_x_base", "mm", 1e-3, "x_base laser point distance from A (assumed)", "geometry", 25.0),
     _s("d_x_head", "mm", 1e-3, "x_head laser point distance from A (assumed)", "geometry", 58.0),
@@ -144,11 +144,11 @@ _SPECS = (
     _s("dist_y", "mm", 1e-3, "M_yz y offset from the plunger CoM (assumed)", "geometry", 4.0),
     _s("dist_z", "mm", 1e-3, "M_xz, M_yz z offset from the plunger CoM (assumed)", "geometry",
        29.0),
-    # --- default voltage profile (MODEL.md) ---
+    # --- default voltage profile (docs/spec.md) ---
     _s("V0", "V", 1.0, "piezo voltage before the retraction", "input", 120.0),
     _s("t_c", "ms", 1e-3, "time the retraction command starts", "input", 1.0, lower=0.0),
     _s("tau_v", "us", 1e-6, "time constant of the voltage drop", "input", 10.0, lower=0.0),
-    # --- test mass and impact geometry (Section 4, MODEL.md) ---
+    # --- test mass and impact geometry (Section 4, docs/spec.md) ---
     _s("m_tm", "kg", 1.0, "test-mass mass", "flight", 1.928, lower=0.0),
     _s("s_tm", "mm", 1e-3, "test-mass cube side", "flight", 46.0, lower=0.0),
     _s("indent_angle", "deg", math.pi / 180, "indent face normal angle to the z axis (assumed)",

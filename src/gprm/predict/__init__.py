@@ -1,8 +1,10 @@
 """predict stage: trajectories with uncertainty bands (Eq. 8, Fig. 10), kinetic-energy check
 (Fig. 8), mass comparison (Fig. 7), what-ifs and overshoots (Sec. 4.2), impact risk against a
 gap. See docs/prediction.md. Modules (the body kinematics they use are
-:mod:`gprm.simulate.kinematics`): ``trajectories``, ``energy``, ``masses``, ``scenarios``, ``whatif``, ``risk``, ``core``
-(``predict``), ``files`` (NetCDF), ``commands`` (CLI); the figures are in :mod:`gprm.report.figures`."""
+:mod:`gprm.simulate.kinematics`): ``trajectories``, ``energy``, ``masses``, ``scenarios``,
+``whatif``, ``risk``, ``prediction`` (``Prediction`` and its dataset), ``core``
+(``predict``), ``files`` (NetCDF), ``commands`` (CLI); the figures are in
+:mod:`gprm.report.figures`."""
 
 from gprm._lazy import attach
 

@@ -148,5 +148,9 @@ def register(app: typer.Typer, synth_app: typer.Typer) -> None:
                                              zip(pred.risk.planes, pred.risk.p_cross))
         typer.echo(msg)
         if whatif_out is not None:
-            write_whatif(run_whatif(fm, opts), whatif_out)
+            from gprm.predict.whatif import ratio_table_text
+
+            table = run_whatif(fm, opts)
+            write_whatif(table, whatif_out)
+            typer.echo(ratio_table_text(table.to_json()))
             typer.echo(f"wrote {whatif_out}")

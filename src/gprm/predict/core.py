@@ -1,64 +1,29 @@
 """The prediction stage in one call: trajectories with bands, kinetic-energy check, mass table,
 overshoots and (optionally) impact risk, for one scenario of a fitted model.
 
-``predict(fm, ...) -> Prediction``; :func:`gprm.predict.files.prediction_dataset` turns it into
-the NetCDF of docs/prediction.md. The CLI ``gprm predict`` is a thin layer over these.
+``predict(fm, ...) -> Prediction`` (:mod:`gprm.predict.prediction`, whose
+:func:`~gprm.predict.prediction.prediction_dataset` turns it into the NetCDF of
+docs/prediction.md). The CLI ``gprm predict`` is a thin layer over these.
 """
 
 from __future__ import annotations
 
 import os
-from dataclasses import dataclass
 
 import numpy as np
 
 from gprm.errors import GprmInputError
 from gprm.fit.files import FittedModel
 from gprm.predict.energy import DEFAULT_WINDOW as ENERGY_WINDOW
-from gprm.predict.energy import EnergyCheck, energy_check, read_means
-from gprm.predict.files import prediction_dataset
-from gprm.predict.masses import MassTable, mass_table
-from gprm.predict.risk import ImpactRisk, impact_risk
+from gprm.predict.energy import energy_check, read_means
+from gprm.predict.masses import mass_table
+from gprm.predict.prediction import Prediction
+from gprm.predict.risk import impact_risk
 from gprm.predict.scenarios import Scenario, apply_scenario
-from gprm.predict.trajectories import Trajectories, default_times, predict_trajectories
+from gprm.predict.trajectories import default_times, predict_trajectories
 from gprm.predict.whatif import overshoot
 
 MAX_TIMES = 200_000
-
-
-@dataclass(frozen=True)
-class Prediction:
-    fm: FittedModel               # the scenario's model (values and covariance)
-    scenario: Scenario
-    trajectories: Trajectories
-    overshoot: np.ndarray         # (point, 3) best fit, over the trajectory span
-    energy: EnergyCheck
-    masses: MassTable             # Fig. 7
-    risk: ImpactRisk | None
-    seed: int
-    means_source: str | None
-
-    def to_xarray(self):
-        """The prediction as the dataset of its file (``predict.nc``, docs/prediction.md;
-        :func:`gprm.predict.files.prediction_dataset`)."""
-        return prediction_dataset(self)
-
-    def to_json(self) -> dict:
-        """The prediction's headline numbers, JSON-able: the scenario, the best-fit overshoot
-        of each point on each axis (m), the masses (Fig. 7), the impact risk where a gap was
-        given, and what uncertainty the bands carry. The time series are in
-        :meth:`to_xarray`."""
-        tr = self.trajectories
-        return {
-            "scenario": self.scenario.to_json(),
-            "overshoot_m": {p: dict(zip(("x", "y", "z"), map(float, self.overshoot[i])))
-                            for i, p in enumerate(tr.points)},
-            "masses": self.masses.to_json(),
-            "impact_risk": None if self.risk is None else self.risk.to_json(),
-            "uncertainty": self.fm.uncertainty_note,
-            "seed": int(self.seed),
-            "means_source": self.means_source,
-        }
 
 
 def prediction_times(t_start: float, t_end: float, rate: float) -> np.ndarray:

@@ -243,6 +243,46 @@ def whatif(fm: FittedModel, scenarios: Sequence[Scenario] | None = None, *,
                   seed=int(seed), scenarios=tuple(out_sc), ratios=tuple(out_ratio))
 
 
+def ratio_rows(table: Mapping, *, missing: str = "—") -> list[tuple[str, ...]]:
+    """Rows of the what-if ratio table, one per scenario other than the baseline: its name,
+    the paper's headline ratio per axis (baseline / scenario; x: M_xz, y: M_yz, z: M_xz) with
+    its 2.5-97.5 % range over the drawn parameter sets in brackets where there are draws, and
+    the paper's numbers (x, y, z). ``table``: a what-if document (:meth:`WhatIf.to_json`,
+    ``whatif.json``); the report's table and ``gprm predict --whatif`` print these rows."""
+    rows = []
+    for r in table.get("ratios") or []:
+        if r.get("name") == r.get("baseline"):
+            continue
+        cells = []
+        for a in ("x", "y", "z"):
+            v = (r.get("headline") or {}).get(a)
+            lo = ((r.get("ratio_p2_5") or {}).get(HEADLINE[a]) or {}).get(a)
+            hi = ((r.get("ratio_p97_5") or {}).get(HEADLINE[a]) or {}).get(a)
+            txt = missing if v is None else f"{v:.3g}"
+            if lo is not None and hi is not None:
+                txt += f" [{lo:.2g}, {hi:.2g}]"
+            cells.append(txt)
+        paper = r.get("paper") or {}
+        ptxt = ", ".join(f"{paper[a]:g}" if a in paper else missing for a in ("x", "y", "z")) \
+            if paper else missing
+        rows.append((str(r.get("name")), *cells, ptxt))
+    return rows
+
+
+def ratio_table_text(table: Mapping) -> str:
+    """The what-if ratio table as text (``gprm predict --whatif``): :func:`ratio_rows` under
+    a header, in aligned columns, ASCII only."""
+    head = ("strategy", "x (M_xz)", "y (M_yz)", "z (M_xz)", "paper (x, y, z)")
+    rows = [head, *ratio_rows(table, missing="-")]
+    widths = [max(len(r[i]) for r in rows) for i in range(len(head))]
+    n = table.get("samples", 0)
+    lines = ["what-if overshoot ratios, baseline (" + str(
+        next((r.get("baseline") for r in table.get("ratios") or []), "?")) + ") / strategy"
+        + (f"; in brackets 2.5-97.5 % over {n} drawn parameter sets" if n else "") + ":"]
+    lines += ["  " + "  ".join(c.ljust(w) for c, w in zip(r, widths)).rstrip() for r in rows]
+    return "\n".join(lines)
+
+
 @dataclass(frozen=True)
 class Sweep:
     """Best-fit overshoot as one parameter takes several values (:func:`sweep`).

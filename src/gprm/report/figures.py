@@ -32,7 +32,7 @@ COLORS = {
     "wx": "#8c564b", "truth": "#111111", "piezo2": "#9aa3ad",
     "M_xz": "#1f77b4", "M_yz": "#d62728", "tip_edge": "#2ca02c", "com": "#7f7f7f",
 }
-# the six flight axes, in the order of INTERFACES.md
+# the six flight axes, in the order of docs/spec.md
 AXES = ("vx", "vz_xz", "wy", "vy", "vz_yz", "wx")
 AXIS_LABEL = {"vx": "v_x [µm/s]", "vz_xz": "v_z (x–z) [µm/s]", "wy": "ω_y [µrad/s]",
               "vy": "v_y [µm/s]", "vz_yz": "v_z (y–z) [µm/s]", "wx": "ω_x [µrad/s]"}
@@ -305,30 +305,15 @@ def fig_energy(pred, run=None):
 
 def whatif_rows(wi: dict) -> list:
     """Rows of the what-if table: the headline ratio per axis with its 2.5-97.5 % range,
-    and the paper's values."""
-    head_pt = {"x": "M_xz", "y": "M_yz", "z": "M_xz"}
-    rows = []
-    for r in wi.get("ratios") or []:
-        if r.get("name") == r.get("baseline"):
-            continue
-        cells = []
-        for a in ("x", "y", "z"):
-            v = (r.get("headline") or {}).get(a)
-            lo = ((r.get("ratio_p2_5") or {}).get(head_pt[a]) or {}).get(a)
-            hi = ((r.get("ratio_p97_5") or {}).get(head_pt[a]) or {}).get(a)
-            txt = "—" if v is None else f"{v:.3g}"
-            if lo is not None and hi is not None:
-                txt += f" [{lo:.2g}, {hi:.2g}]"
-            cells.append(txt)
-        paper = r.get("paper") or {}
-        ptxt = ", ".join(f"{paper[a]:g}" if a in paper else "—" for a in ("x", "y", "z")) \
-            if paper else "—"
-        rows.append((r.get("name"), *cells, ptxt))
-    return rows
+    and the paper's values (:func:`gprm.predict.whatif.ratio_rows`, which ``gprm predict
+    --whatif`` prints too)."""
+    from gprm.predict.whatif import ratio_rows
+
+    return ratio_rows(wi)
 
 
 # ----------------------------------------------------------------------------- flight
-# impact.json (INTERFACES.md + docs/flight.md) and its sidecar impact.nc:
+# impact.json (docs/spec.md + docs/flight.md) and its sidecar impact.nc:
 # nominal/lo/hi(axis, time) = predicted TM velocity as a function of the impact time.
 
 def _vt(rel: dict, axis: str, what: str):

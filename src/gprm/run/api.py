@@ -23,8 +23,12 @@ def _check_sources(opts: RunOptions) -> None:
                                  field="manifest.csv")
     if opts.telemetry is not None:
         p = Path(opts.telemetry)
+        if not p.exists():
+            raise GprmInputError("telemetry file does not exist (a NetCDF or CSV file)",
+                                 source=str(p))
         if not p.is_file():
-            raise GprmInputError("telemetry NetCDF does not exist", source=str(p))
+            raise GprmInputError("telemetry must be a file (NetCDF or CSV), not a folder",
+                                 source=str(p))
 
 
 def run_chain(out: str | os.PathLike, opts: RunOptions = RunOptions(), *, progress=None,

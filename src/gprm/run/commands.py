@@ -10,7 +10,7 @@ from typing import TYPE_CHECKING, Optional
 
 import typer
 
-from gprm.console import cli_options, one_line_errors
+from gprm.console import ProgressLines, cli_options, one_line_errors
 from gprm.options import Int
 
 if TYPE_CHECKING:
@@ -26,8 +26,8 @@ def register(app: typer.Typer, synth_app: typer.Typer) -> None:
         out: Path = typer.Option(..., "--out", help="run directory (created; a rerun resumes "
                                  "what is up to date)"),
         telemetry: Optional[Path] = typer.Option(None, "--telemetry", help="in-flight "
-                                                 "telemetry NetCDF (default: synthetic "
-                                                 "releases drawn from the fit)"),
+                                                 "telemetry file, NetCDF or CSV (default: "
+                                                 "synthetic releases drawn from the fit)"),
         quick: bool = typer.Option(False, "--quick", help="50 starts, fewer band samples"),
         seed: int = typer.Option(0, "--seed", parser=Int(min=0), help="seed of the starts, the sampled bands "
                                  "and synthetic telemetry"),
@@ -35,8 +35,10 @@ def register(app: typer.Typer, synth_app: typer.Typer) -> None:
                                              "(default 1000, or 50 with --quick)"),
         workers: Optional[int] = typer.Option(None, "--workers", parser=Int(min=0), help="local Dask worker "
                                               "processes for the fit (default: one per core, "
-                                              "or 0 with --quick; 0: in this process; the "
-                                              "result does not depend on it)"),
+                                              "at most one per chunk of 250 starts, 0 where "
+                                              "that is fewer than 2, as with --quick: in "
+                                              "this process; the result does not depend on "
+                                              "it)"),
         releases: int = typer.Option(11, "--releases", parser=Int(2, 10_000), help="synthetic releases (without "
                                      "--telemetry)"),
     ):
@@ -52,12 +54,18 @@ def register(app: typer.Typer, synth_app: typer.Typer) -> None:
 
 
 def make_options(cls, *, quick, seed, starts, workers, **kw):
-    """RunOptions from command-line values; a bad value is named as its flag."""
-    import os
-
+    """RunOptions from command-line values; a bad value is named as its flag. The default
+    ``workers`` is the fit's (:func:`gprm.fit.engine.default_workers`) for the starts the
+    run will make."""
+    opts = cli_options(cls.make, quick=quick, seed=seed, starts=starts, workers=workers or 0,
+                       **kw)
     if workers is None:
-        workers = 0 if quick else max(1, os.cpu_count() or 1)
-    return cli_options(cls.make, quick=quick, seed=seed, starts=starts, workers=workers, **kw)
+        from dataclasses import replace
+
+        from gprm.fit.engine import default_workers
+
+        opts = replace(opts, workers=default_workers(opts.fit.starts, opts.fit.chunk))
+    return opts
 
 
 def run_and_print(out: Path, opts, *, demo: bool) -> None:
@@ -85,44 +93,71 @@ def run_and_print(out: Path, opts, *, demo: bool) -> None:
 
 class _Progress:
     """One line per stage: spinner while it runs, a bar where the stage reports steps; the
-    fit's line counts starts with the best chi-square so far and the time remaining, as
-    ``gprm fit`` shows them (the same progress callback of the library)."""
+    fit's line counts starts with the best chi-square of the starts so far and the time
+    remaining, as ``gprm fit`` shows them (the same progress callback of the library).
 
-    def __init__(self, console, titles: dict[str, str]):
-        from rich.progress import (BarColumn, MofNCompleteColumn, Progress, SpinnerColumn,
-                                   TextColumn, TimeElapsedColumn, TimeRemainingColumn)
+    Without a terminal (a log file, a pipe) the stages are plain lines instead
+    (:class:`gprm.console.ProgressLines`: start, every tenth of the starts, at least every
+    ``every`` seconds while a stage runs, and its outcome). The rich display starts with the
+    first stage, so an error before any stage prints only its own line."""
 
+    def __init__(self, console, titles: dict[str, str], *, every: float = 10.0):
+        self.console = console
         self.titles = titles
-        self.bar = Progress(SpinnerColumn(finished_text="•"), TextColumn("{task.description}"),
-                            BarColumn(), MofNCompleteColumn(), TextColumn("{task.fields[info]}"),
-                            TimeElapsedColumn(), TextColumn("eta"), TimeRemainingColumn(),
-                            console=console)
+        self.bar = None
+        self.lines = None if console.is_terminal else ProgressLines(console.file, every=every)
         self.tasks: dict[str, TaskID] = {}     # stage -> its line
 
+    def _bar(self):
+        if self.bar is None:
+            from rich.progress import (BarColumn, MofNCompleteColumn, Progress, SpinnerColumn,
+                                       TextColumn, TimeElapsedColumn, TimeRemainingColumn)
+
+            self.bar = Progress(SpinnerColumn(finished_text="•"),
+                                TextColumn("{task.description}"), BarColumn(),
+                                MofNCompleteColumn(), TextColumn("{task.fields[info]}"),
+                                TimeElapsedColumn(), TextColumn("eta"), TimeRemainingColumn(),
+                                console=self.console)
+            self.bar.__enter__()
+        return self.bar
+
     def __enter__(self):
-        self.bar.__enter__()
+        if self.lines is not None:
+            self.lines.__enter__()
         return self
 
     def __exit__(self, *exc):
-        return self.bar.__exit__(*exc)
+        if self.lines is not None:
+            self.lines.__exit__(*exc)
+        if self.bar is not None:
+            return self.bar.__exit__(*exc)
+        return None
 
     def event(self, stage: str, kind: str, done=None, total=None, best_chi2=None):
-        from gprm.fit.report_text import starts_info
+        if self.lines is not None:
+            self._line(stage, kind, done, total, best_chi2)
+            return
+        from gprm.fit.report_text import AFTER_STARTS, starts_info
 
+        bar = self._bar()
         title = self.titles.get(stage, stage)
         if kind == "start":
-            self.tasks[stage] = self.bar.add_task(f"[bold]{title}", total=None, info="")
+            self.tasks[stage] = bar.add_task(f"[bold]{title}", total=None, info="")
         elif kind == "step" and stage in self.tasks:
             info = "" if best_chi2 is None else starts_info(best_chi2)
-            self.bar.update(self.tasks[stage], completed=done, total=total, info=info)
+            if info and total and done >= total:
+                info += AFTER_STARTS
+            bar.update(self.tasks[stage], completed=done, total=total, info=info)
         elif kind == "done" and stage in self.tasks:
             # a stage that counted steps (the fit's starts) keeps its count (1000/1000
             # starts); the elapsed time is the stage's, not that of its last step: a change
             # of total restarts rich's finish clock
-            n = next((t.total for t in self.bar.tasks if t.id == self.tasks[stage]), None) or 1
-            self.bar.update(self.tasks[stage], total=n + 1)
-            self.bar.update(self.tasks[stage], description=f"[green]✓ {title}", total=n,
-                            completed=n)
+            n = next((t.total for t in bar.tasks if t.id == self.tasks[stage]), None) or 1
+            info = next((t.fields.get("info", "") for t in bar.tasks
+                         if t.id == self.tasks[stage]), "").replace(AFTER_STARTS, "")
+            bar.update(self.tasks[stage], total=n + 1)
+            bar.update(self.tasks[stage], description=f"[green]✓ {title}", total=n,
+                       completed=n, info=info)
         else:
             label = {"skip": "[dim]↷ {} (up to date)", "unavailable": "[yellow]– {} (not "
                      "available)", "blocked": "[yellow]– {} (needs an earlier stage)",
@@ -130,11 +165,36 @@ class _Progress:
             if label is None:
                 return
             if stage in self.tasks:      # finished (full bar, no spinner), with its outcome
-                self.bar.update(self.tasks[stage], description=label.format(title), total=1,
-                                completed=1)
+                bar.update(self.tasks[stage], description=label.format(title), total=1,
+                           completed=1)
             else:
-                self.tasks[stage] = self.bar.add_task(label.format(title), total=1, info="")
-                self.bar.update(self.tasks[stage], completed=1)
+                self.tasks[stage] = bar.add_task(label.format(title), total=1, info="")
+                bar.update(self.tasks[stage], completed=1)
+
+    def _line(self, stage: str, kind: str, done, total, best_chi2) -> None:
+        """The event as plain lines (no terminal)."""
+        from gprm.fit.report_text import AFTER_STARTS, BEST_START
+
+        lines = self.lines
+        assert lines is not None
+        title = self.titles.get(stage, stage)
+        if kind == "start":
+            lines.start(stage, title)
+        elif kind == "step":
+            if best_chi2 is None:
+                lines.update(stage, done, total)
+            else:
+                best = f"{best_chi2:.6g}" if math.isfinite(best_chi2) else "-"
+                after = AFTER_STARTS if total and done >= total else ""
+                lines.update(stage, done, total, "starts", f"{BEST_START} {best}{after}")
+        elif kind == "done":
+            lines.finish(stage, f"{title}: done in {lines.elapsed(stage):.1f} s")
+        else:
+            outcome = {"skip": "skipped (up to date)", "unavailable": "not available",
+                       "blocked": "blocked (needs an earlier stage)",
+                       "fail": "failed"}.get(kind)
+            if outcome is not None:
+                lines.finish(stage, f"{title}: {outcome}")
 
 
 def _f(v, fmt="{:.4g}"):
@@ -167,7 +227,7 @@ def print_summary(console, res, titles: dict[str, str], name: str = "gprm run") 
     k.add_column("value")
     if "fit" in s:
         f = s["fit"]
-        k.add_row("best χ²", f"{_f(f['chi2'])} for {f['dof']} degrees of freedom")
+        k.add_row("best χ² (polished fit)", f"{_f(f['chi2'])} for {f['dof']} degrees of freedom")
         k.add_row("reduced χ²", f"{_f(f['reduced_chi2'])} (weights: {f.get('sigma')})")
         k.add_row("starts at the best (Δχ² ≤ 1)", f"{f.get('n_at_best')} of {f.get('starts')}"
                   f" ({f.get('converged')} converged)")

@@ -21,7 +21,8 @@ class RunOptions:
 
     campaign: the campaign (NetCDF file or CSV folder with ``manifest.csv``), or None for a
         synthetic one generated with ``seed`` (``gprm demo``).
-    telemetry: in-flight telemetry NetCDF, or None for synthetic releases drawn from the fit.
+    telemetry: in-flight telemetry (a NetCDF or CSV file), or None for synthetic releases
+        drawn from the fit.
     preprocess, fit: the stages' options (``fit.seed`` seeds the starts and the fit bands).
     predict_samples: parameter sets drawn for the prediction and impact-curve bands.
     releases: synthetic releases (when ``telemetry`` is None).

@@ -26,7 +26,7 @@ COORDS: tuple[str, ...] = COORDINATES          # the model's coordinates (model.
 RATES: tuple[str, ...] = tuple(f"{c}_dot" for c in MECHANICAL)   # the simulated rates
 _IDX = {n: i for i, n in enumerate(STATE_NAMES)}
 
-# Eq. 3 with the physically consistent sign for y (MODEL.md): name -> [(state, coef), ...]
+# Eq. 3 with the physically consistent sign for y (docs/spec.md): name -> [(state, coef), ...]
 _OUTPUT_DEF = {
     "x_base": [("x_A", None), ("eta", "d_x_base")],
     "x_head": [("x_A", None), ("eta", "d_x_head")],

@@ -51,7 +51,7 @@ def simulation_dataset(res: SimulationResult, params: ParameterSet, *, index: in
         "title": "gprm simulation of the GPRM tip retraction",
         "model": "gprm-3d", "piezo": int(res.piezo), "gprm_version": gprm.__version__,
         "convention": "changes from the initial static equilibrium at V(0)",
-        "parameter_source": params.source, "input": source or "default profile (MODEL.md)",
+        "parameter_source": params.source, "input": source or "default profile (docs/spec.md)",
     }
     return ds.merge(parameter_table(dict(params.values), var="parameter_value",
                                     long_name="parameter value of the simulation (SI)"))

@@ -1,4 +1,4 @@
-"""Input voltage profiles: the default drop of MODEL.md and measured oscilloscope traces.
+"""Input voltage profiles: the default drop of docs/spec.md and measured oscilloscope traces.
 
 The model sees V(t - t0). Everything is expressed as the *change* from the initial value,
 u(s) = V(s) - V(0), where s is the time since the input starts changing, because the system
@@ -18,7 +18,7 @@ from gprm.errors import GprmInputError
 
 
 def default_voltage(t, params) -> np.ndarray:
-    """The default profile V(t) (MODEL.md): V0 until t_c, then V0*exp(-(t - t_c)/tau_v).
+    """The default profile V(t) (docs/spec.md): V0 until t_c, then V0*exp(-(t - t_c)/tau_v).
 
     ``params`` is a ParameterSet or a mapping with V0, t_c, tau_v (scalars or arrays (B,));
     the lag t0 is *not* applied here. Returns V with shape broadcast(params, t).

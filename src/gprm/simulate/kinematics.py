@@ -1,5 +1,5 @@
 """Body kinematics of the plunger assembly from a simulation: attitude, angular velocity and the
-motion of any point of the plunger, the spacer or the tip (paper Eq. 8, MODEL.md).
+motion of any point of the plunger, the spacer or the tip (paper Eq. 8, docs/spec.md).
 
 Stable API (other stages rely on these names):
 
@@ -14,7 +14,7 @@ Stable API (other stages rely on these names):
     - ``rates`` ``{z_lr_dot, ..., mu4_dot: (B, T)}`` - the simulated (exact) time derivatives;
     - ``mu_eq`` ``{mu3, mu4: (B,)}`` - the equilibrium extensions at V(0) (linear statics);
       ``mu3 + mu_eq["mu3"]`` is the absolute spacer coordinate;
-    - ``R`` (B, T, 3, 3) - attitude R = R_x(theta) R_y(eta), exact rotations (MODEL.md);
+    - ``R`` (B, T, 3, 3) - attitude R = R_x(theta) R_y(eta), exact rotations (docs/spec.md);
     - ``omega`` (B, 3, T) - angular velocity in the ground frame,
       omega = (theta', eta' cos(theta), eta' sin(theta)) (from R' R^T = [omega]x);
     - ``sens`` / ``sens_names`` - optional exact parameter sensitivities of ``coords`` and
@@ -84,13 +84,13 @@ def as_batch(source) -> dict[str, np.ndarray]:
 
 
 def actuation_axis(pb: Mapping[str, np.ndarray]) -> np.ndarray:
-    """u (B, 3) = (sin g, cos g sin rho, cos g cos rho) in the plunger frame (MODEL.md)."""
+    """u (B, 3) = (sin g, cos g sin rho, cos g cos rho) in the plunger frame (docs/spec.md)."""
     g, r = np.asarray(pb["gamma"]), np.asarray(pb["rho"])
     return np.stack([np.sin(g), np.cos(g) * np.sin(r), np.cos(g) * np.cos(r)], axis=-1)
 
 
 def rotation(theta, eta) -> np.ndarray:
-    """R = R_x(theta) R_y(eta), shape (..., 3, 3) (MODEL.md; gives Eq. 8)."""
+    """R = R_x(theta) R_y(eta), shape (..., 3, 3) (docs/spec.md; gives Eq. 8)."""
     theta, eta = np.asarray(theta), np.asarray(eta)
     ct, st, ce, se = np.cos(theta), np.sin(theta), np.cos(eta), np.sin(eta)
     z = np.zeros_like(ct * ce)
@@ -305,7 +305,7 @@ def static_position(motion: PlungerMotion, point, *, which: str = "plunger") -> 
 
 # ----------------------------------------------------------------------------- energy
 def kinetic_energy(motion: PlungerMotion) -> dict[str, np.ndarray]:
-    """Kinetic energy (B, T) of each body, as in the model's Lagrangian (MODEL.md):
+    """Kinetic energy (B, T) of each body, as in the model's Lagrangian (docs/spec.md):
     m1 z_lr'^2/2; m2 |v_G|^2/2; J2 (w_bx^2 + w_by^2)/2 with w_b = R^T omega (no spin term);
     m3 |v_spacer|^2/2; m4 |v_tip|^2/2 (spacer and tip as point masses)."""
     pb = motion.params

@@ -114,8 +114,7 @@ def _subset(data: FitData, keep: list[int]) -> FitData:
                    None if data.runs is None else data.runs[keep],
                    None if data.noise_std is None else data.noise_std[keep],
                    None if data.interpolation_error is None
-                   else data.interpolation_error[keep],
-                   None if data.sync_shift is None else data.sync_shift[keep])
+                   else data.interpolation_error[keep])
 
 
 def leave_one_signal_out(obj: Objective, x: np.ndarray, lm: LMOptions = LMOptions(),

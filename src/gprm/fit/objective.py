@@ -43,8 +43,6 @@ class FitData:
     noise_std: np.ndarray | None = None
     #: (n_signals, T) m: the preprocessing's estimated interpolation error (None: unknown)
     interpolation_error: np.ndarray | None = None
-    #: (n_signals, R) s: each run's synchronisation shift (None: unknown)
-    sync_shift: np.ndarray | None = None
 
     @property
     def n_obs(self) -> int:
@@ -102,14 +100,8 @@ def fit_data_from_means(ds: xr.Dataset, *, window=DEFAULT_WINDOW, sigma: str = "
     if "interpolation_error" in ds.variables:
         ierr = np.stack([np.asarray(ds["interpolation_error"].sel(signal=s).values,
                                     float)[sel] for s in SIGNALS])
-    sync = None
-    if "sync_shift" in ds.variables:
-        sync = np.stack([np.asarray(ds["sync_shift"].sel(signal=s).values, float)
-                         for s in SIGNALS])
-        if not np.all(np.isfinite(sync)):
-            raise GprmInputError("sync_shift must be finite", source=source, field="sync_shift")
     return FitData(t[sel], vals, sig, SIGNALS, (lo, hi), sigma, source, dict(ds.attrs),
-                   runs, nstd, ierr, sync)
+                   runs, nstd, ierr)
 
 
 @dataclass(frozen=True)

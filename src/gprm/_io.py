@@ -523,12 +523,21 @@ def check_outputs(outputs: dict | list[tuple[Any, str]], inputs=(), *,
     ``(path, option)`` pairs where two options may name the same file); ``folders`` the same
     for output folders (a checkpoint folder). Refused: an output that is an existing folder
     (or a folder output that is a file), an output in a folder where no file can be created,
-    an output that is one of ``inputs`` (for a folder output: one that holds an input), and
-    two outputs that are the same file. Inputs are never opened for writing. A command that
-    reads a folder lists the files it reads in it (:func:`files_read_from`).
+    an output that is one of ``inputs`` or the sidecar of one (a JSON input's ``.nc`` of the
+    same name: ``fit.json`` is read with ``fit.nc``; for a folder output: one that holds an
+    input), and two outputs that are the same file. Inputs are never opened for writing. A
+    command that reads a folder lists the files it reads in it (:func:`files_read_from`).
+    Every command calls this once, before any work, with all its outputs and inputs.
     """
     folders = folders or {}
-    ins = [Path(p) for p in inputs if p is not None]
+    ins: list[tuple[Path, str]] = []
+    for p in inputs:
+        if p is None:
+            continue
+        p = Path(p)
+        ins.append((p, f"the input {p}"))
+        if p.suffix == ".json":
+            ins.append((p.with_suffix(".nc"), f"the sidecar of the input {p}"))
     seen: list[tuple[Path, str]] = []
     pairs = outputs.items() if isinstance(outputs, dict) else outputs
     items = [*((Path(p), o, False) for p, o in pairs if p is not None),
@@ -541,9 +550,9 @@ def check_outputs(outputs: dict | list[tuple[Any, str]], inputs=(), *,
         elif path.is_dir():
             raise GprmInputError("is a folder; expected a file to write", source=str(path),
                                  field=opt)
-        for i in ins:
+        for i, label in ins:
             if _same(path, i) or (is_folder and _is_inside(i, path)):
-                raise GprmInputError(f"would overwrite the input {i}; choose another name",
+                raise GprmInputError(f"would overwrite {label}; choose another name",
                                      source=str(path), field=opt)
         for other, oopt in seen:
             if _same(path, other):

@@ -98,6 +98,35 @@ def run_copy(run_dir, tmp_path):
     return dst
 
 
+# ----------------------------------------------------------------------------- 1. data loss
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("argv", [
+    ["predict", "{run}/fit.json", "--out", "{run}/fit.nc"],
+    ["predict", "{run}", "--out", "{run}/fit.nc"],
+    ["synth", "telemetry", "{run}/fit.json", "--out", "{run}/fit.nc"],
+], ids=["predict", "predict-run-folder", "synth-telemetry"])
+def test_no_command_replaces_the_sidecar_of_the_fit_it_reads(run_copy, tmp_path, argv):
+    before = _snapshot(run_copy)
+    r = _invoke([a.format(run=run_copy) for a in argv], tmp_path)
+    assert r.exit_code == 2, r.output
+    line = _one_error_line(r.output)
+    assert f"--out {run_copy}/fit.nc: would overwrite the sidecar of the input " \
+           f"{run_copy}/fit.json" in line
+    assert _snapshot(run_copy) == before
+
+
+def test_check_outputs_counts_a_json_inputs_sidecar_as_an_input(tmp_path):
+    from gprm._io import check_outputs
+
+    fit = tmp_path / "f.json"
+    with pytest.raises(GprmInputError, match="sidecar of the input") as e:
+        check_outputs({tmp_path / "f.nc": "--out"}, inputs=[fit])
+    assert e.value.field == "--out"
+    check_outputs({tmp_path / "g.nc": "--out"}, inputs=[fit])          # another name: fine
+
+
 # ----------------------------------------------------------------------------- 6. damaged input
 
 def test_a_damaged_netcdf_ends_in_one_line_within_seconds(tmp_path):

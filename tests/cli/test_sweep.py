@@ -42,6 +42,12 @@ def inputs(tmp_path_factory):
     (d / "userdir").mkdir()
     (d / "userdir" / "keep.txt").write_text("user data")
     (d / "afile").write_text("not a folder")
+    # issue 22: a fit's sidecar is an input too; attributes of the wrong type; a NaN bound
+    (d / "fit.json").write_text("{}")
+    (d / "fit.nc").write_bytes(b"the fit's sidecar")
+    (d / "run").mkdir()
+    (d / "run" / "fit.json").write_text("{}")
+    (d / "run" / "fit.nc").write_bytes(b"the run's fit sidecar")
     return d
 
 
@@ -166,6 +172,19 @@ CASES = [
     ("show-binary", ["show", "bad.toml"], "bad.toml", None),
     ("show-folder", ["show", "folder"], "folder", None),
     ("show-min-correl", ["show", "bad.toml", "--min-correl", "2"], "--min-correl", None),
+    # issue 22: no output over an input's sidecar; run folders that cannot be one; file
+    # attributes of the wrong type; options checked before any work
+    ("predict-over-fit-sidecar", ["predict", "fit.json", "--out", "fit.nc"],
+     "--out fit.nc: would overwrite the sidecar of the input fit.json", None),
+    ("predict-whatif-over-fit-sidecar", ["predict", "fit.json", "--out", "p.nc", "--whatif",
+                                         "fit.nc"], "--whatif fit.nc: would overwrite the "
+     "sidecar of the input fit.json", None),
+    ("predict-over-run-fit-sidecar", ["predict", "run", "--out", "run/fit.nc"],
+     "sidecar of the input run/fit.json", None),
+    ("telemetry-over-fit-sidecar", ["synth", "telemetry", "fit.json", "--out", "fit.nc"],
+     "--out fit.nc: would overwrite the sidecar of the input fit.json", None),
+    ("impact-over-fit-sidecar", ["impact", "fit.json", "m.nc", "--out", "fit.json"],
+     "would overwrite the input fit.json", None),
     ("unknown-option", ["fit", "m.nc", "--out", "f.json", "--bogus"], "--bogus", None),
     ("missing-option", ["simulate"], "--out", None),
 ]

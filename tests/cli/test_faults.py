@@ -20,7 +20,9 @@ import subprocess
 import sys
 import time
 from pathlib import Path
+from types import SimpleNamespace
 
+import numpy as np
 import pytest
 from typer.testing import CliRunner
 
@@ -99,6 +101,54 @@ def run_copy(run_dir, tmp_path):
 
 
 # ----------------------------------------------------------------------------- 1. data loss
+
+def test_a_run_that_fails_keeps_every_file_it_did_not_write(tmp_path):
+    """``gprm run bad.nc --out U`` where U holds the user's own fit.json, fit.nc, means.nc and
+    impact.json: the blocked stages leave them as they were, no later stage takes the user's
+    means.nc as its input, and neither the summary nor the report presents them as results."""
+    u = tmp_path / "U"
+    u.mkdir()
+    mine = {"fit.json": b'{"my": "fit"}', "fit.nc": b"my sidecar", "means.nc": b"my means",
+            "impact.json": b'{"my": "impact"}'}
+    for name, data in mine.items():
+        (u / name).write_bytes(data)
+    bad = tmp_path / "bad.nc"
+    bad.write_bytes(np.random.default_rng(0).bytes(1000))
+    r = _invoke(["run", bad, *SMALL, "--out", u], tmp_path)
+    assert r.exit_code == 1, r.output
+    assert "stage(s) failed: campaign: " + str(bad) in r.output
+    for name, data in mine.items():
+        assert (u / name).read_bytes() == data, name
+    rec = json.loads((u / "run.json").read_text())
+    st = rec["stages"]
+    assert st["campaign"]["status"] == "failed"
+    assert {k: st[k]["status"] for k in ("preprocess", "fit", "predict", "impact")} == \
+        dict.fromkeys(("preprocess", "fit", "predict", "impact"), "blocked")
+    assert st["preprocess"]["kept"] == ["means.nc"] and st["fit"]["kept"] == ["fit.json",
+                                                                            "fit.nc"]
+    assert rec["summary"] == {}                      # the user's fit is not this run's result
+    html = (u / "report.html").read_text()
+    assert "fit.json was not made by the last run and is not shown" in html
+    assert sorted(p.name for p in u.iterdir()) == sorted([*mine, "run.json", "report.html"])
+
+
+def test_a_stage_that_stops_half_way_removes_only_what_it_wrote(tmp_path):
+    """A two-file stage that wrote its first file and failed: that file goes (it was written
+    in this call), a file of its second name that was there before stays."""
+    from gprm.run.engine import Stage, run_stages
+
+    def half(run, opts, step):
+        (run / "one.txt").write_text("written now")
+        raise RuntimeError("disk trouble")
+
+    (tmp_path / "two.txt").write_text("the user's")
+    stages = (Stage("s", "S", (), ("one.txt", "two.txt"), lambda o: {}, half),)
+    res = run_stages(tmp_path, SimpleNamespace(seed=0), stages, report_html=False)
+    assert [r.status for r in res.records] == ["failed"]
+    assert not (tmp_path / "one.txt").exists()
+    assert (tmp_path / "two.txt").read_text() == "the user's"
+    assert json.loads((tmp_path / "run.json").read_text())["stages"]["s"]["kept"] == \
+        ["two.txt"]
 
 
 @pytest.mark.slow
@@ -317,6 +367,24 @@ def test_write_failures_name_their_cause(tmp_path, monkeypatch):
     assert list(tmp_path.iterdir()) == []
 
 
+# ----------------------------------------------------------------------------- 8. read-only
+
+@pytest.mark.skipif(not CAN_MOUNT, reason="needs root and unshare to mount a tmpfs")
+@pytest.mark.parametrize("command", ["run", "demo"])
+def test_a_read_only_output_folder_is_one_line_naming_it(small_inputs, tmp_path, command):
+    """A read-only file system (root ignores chmod, so a read-only tmpfs is mounted in a
+    private mount namespace): refused before any work, naming the folder and the cause."""
+    ro = tmp_path / "ro"
+    ro.mkdir()
+    args = (["run", str(small_inputs / "c.nc")] if command == "run" else ["demo"]) + \
+        [*SMALL, "--out", str(ro / "r")]
+    r = _in_mount_ns(tmp_path, ro, "ro", args)
+    assert r.returncode == 2, r.stdout + r.stderr
+    line = _one_error_line(r.stderr)
+    assert line == (f"gprm: error: --out {ro}/r: cannot be written: cannot create files in "
+                    f"{ro} (Read-only file system)")
+
+
 # ----------------------------------------------------------------------------- 9. stopped
 
 #: in the subprocess: once the temporary file of predict_piezo1.nc is written (whole), the
@@ -353,6 +421,30 @@ def test_sigterm_during_a_run_leaves_no_temporary_file_and_a_rerun_finishes(run_
     r = _invoke(args, tmp_path)                            # the rerun finishes the chain
     assert r.exit_code == 0, r.output
     assert (run_copy / "predict_piezo1.nc").is_file() and _parts(run_copy) == []
+
+
+@pytest.mark.slow
+def test_a_rerun_removes_the_temporary_files_a_killed_gprm_left_and_nothing_else(run_copy,
+                                                                               tmp_path):
+    from gprm._io import _host_tag
+
+    done = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"],
+                          capture_output=True, text=True, check=True)
+    dead = int(done.stdout)                                # a PID no process has now
+    host = _host_tag()
+    stale = [f".predict_piezo1.nc.gprm-{host}-{dead}-abcd1234.part",
+             ".predict_piezo1.nc.k2j4_x9q.part"]           # gprm 0.1.0's name (no PID)
+    alive = f".predict.nc.gprm-{host}-{os.getppid()}-zz11yy22.part"   # its writer runs
+    users = [".notes.part", "draft.part", ".fit.json.backup.part", "notes.txt",
+             ".notes.txt.abcd1234.part"]                   # not a run file's name
+    for name in [*stale, alive, *users]:
+        (run_copy / name).write_text("x")
+    r = _invoke(["run", run_copy / "campaign.nc", *SMALL, "--out", run_copy], tmp_path)
+    assert r.exit_code == 0, r.output
+    for name in stale:
+        assert not (run_copy / name).exists(), name
+    for name in [alive, *users]:
+        assert (run_copy / name).read_text() == "x", name
 
 
 def test_an_interrupted_write_removes_its_temporary_file(tmp_path):

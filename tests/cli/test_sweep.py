@@ -185,6 +185,17 @@ CASES = [
      "--out fit.nc: would overwrite the sidecar of the input fit.json", None),
     ("impact-over-fit-sidecar", ["impact", "fit.json", "m.nc", "--out", "fit.json"],
      "would overwrite the input fit.json", None),
+    ("run-out-is-file", ["run", "c.nc", "--out", "afile"], "--out afile: is a file", None),
+    ("run-out-under-file", ["run", "c.nc", "--out", "afile/sub"],
+     "--out afile/sub: cannot be written: afile is not a folder", None),
+    ("demo-out-is-file", ["demo", "--out", "afile"], "--out afile: is a file", None),
+    ("demo-out-under-file", ["demo", "--out", "fit.json/sub"],
+     "--out fit.json/sub: cannot be written: fit.json is not a folder", None),
+    ("run-over-input", ["run", "means.nc", "--out", "."], "would overwrite the input means.nc",
+     lambda d: (d / "c.nc").rename(d / "means.nc")),
+    ("run-foreign-checkpoint", ["run", "c.nc", "--out", "."], "not a gprm checkpoint folder",
+     lambda d: ((d / "fit.json.ckpt").mkdir(), (d / "fit.json.ckpt" / "keep.txt").write_text(
+         "mine"))),
     ("unknown-option", ["fit", "m.nc", "--out", "f.json", "--bogus"], "--bogus", None),
     ("missing-option", ["simulate"], "--out", None),
 ]

@@ -458,3 +458,70 @@ def test_an_interrupted_write_removes_its_temporary_file(tmp_path):
             assert ".o.txt.gprm-" in tmp.name
             raise Terminated(signal.SIGTERM)
     assert list(tmp_path.iterdir()) == []
+
+
+# ----------------------------------------------------------------------------- 10. options
+
+@pytest.fixture
+def means_file(tmp_path, monkeypatch):
+    from gprm.params import paper
+
+    p = tmp_path / "m.nc"
+    make_means(paper(), seed=2).to_netcdf(p)
+    monkeypatch.chdir(tmp_path)
+    return p
+
+
+FIT = ["--starts", "4", "--chunk", "2", "--max-iter", "3", "--band-samples", "0",
+       "--workers", "0"]
+
+
+def test_a_nan_bound_is_refused_before_any_work_and_leaves_no_checkpoint(means_file,
+                                                                         tmp_path):
+    (tmp_path / "p.toml").write_text('[parameters]\nk_lr = { value = "1.64e6 N/m", '
+                                     'upper = nan, fit = true }\n')
+    r = _invoke(["fit", "m.nc", "--out", "f.json", "--params", "p.toml", *FIT], tmp_path)
+    assert r.exit_code == 2, r.output
+    assert _one_error_line(r.output) == ("gprm: error: p.toml: field 'k_lr': upper bound is "
+                                         "NaN; give a number (-inf or inf for none)")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["m.nc", "p.toml"]
+
+
+def test_a_refusal_after_chunks_were_saved_removes_the_folder_it_created(means_file,
+                                                                          tmp_path,
+                                                                          monkeypatch):
+    """The fit refuses its input half-way (after a chunk of starts was checkpointed): the
+    checkpoint folder this call created goes; one that was there before keeps its chunks."""
+    from gprm.fit import engine
+
+    save = engine.Checkpoints.save
+
+    def save_then_refuse(self, res):
+        save(self, res)
+        raise GprmInputError("refused half-way", source="m.nc", field="x")
+
+    monkeypatch.setattr(engine.Checkpoints, "save", save_then_refuse)
+    r = _invoke(["fit", "m.nc", "--out", "f.json", *FIT], tmp_path)
+    assert r.exit_code == 2 and "refused half-way" in r.output, r.output
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["m.nc"]
+    engine.prepare_checkpoint_folder(tmp_path / "ck")  # there before: a resumed fit's
+    r = _invoke(["fit", "m.nc", "--out", "f.json", *FIT, "--checkpoint", "ck"], tmp_path)
+    assert r.exit_code == 2
+    assert len(list((tmp_path / "ck").glob("chunk_*.npz"))) == 1
+
+
+def test_band_samples_beyond_the_memory_are_refused_before_the_fit(means_file, tmp_path,
+                                                                    monkeypatch):
+    import gprm.fit.api
+    import gprm.resources
+
+    monkeypatch.setattr(gprm.resources, "available_memory", lambda: 200_000_000)
+    monkeypatch.setattr(gprm.fit.api, "identify", lambda *a, **k: pytest.fail("fit ran"))
+    args = ["fit", "m.nc", "--out", "f.json", *FIT[:-4], "--workers", "0"]
+    r = _invoke([*args, "--band-samples", "1000"], tmp_path)
+    assert r.exit_code == 2, r.output
+    line = _one_error_line(r.output)
+    assert line.startswith("gprm: error: --band-samples: 1000 band samples of ")
+    n = int(line.rsplit("fits is ", 1)[1])
+    assert 0 < n < 1000
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["m.nc"]

@@ -48,6 +48,15 @@ def inputs(tmp_path_factory):
     (d / "run").mkdir()
     (d / "run" / "fit.json").write_text("{}")
     (d / "run" / "fit.nc").write_bytes(b"the run's fit sidecar")
+    camp.assign_attrs(seed="x").to_netcdf(d / "c_text_seed.nc")
+    make_means(paper(), seed=1).assign_attrs(align_time="late").to_netcdf(d / "m_text_align.nc")
+    from gprm.flight.synth import SynthOptions, synth_telemetry
+    from gprm.fit.files import paper_model
+
+    tel = synth_telemetry(paper_model(2), SynthOptions(n_releases=2))
+    tel.assign_attrs(format_version="one").to_netcdf(d / "t_text_version.nc")
+    (d / "nan.toml").write_text('[parameters]\nk_lr = { value = 1.0, lower = nan, '
+                                "fit = true }\n")
     return d
 
 
@@ -196,6 +205,16 @@ CASES = [
     ("run-foreign-checkpoint", ["run", "c.nc", "--out", "."], "not a gprm checkpoint folder",
      lambda d: ((d / "fit.json.ckpt").mkdir(), (d / "fit.json.ckpt" / "keep.txt").write_text(
          "mine"))),
+    ("preprocess-text-seed", ["preprocess", "c_text_seed.nc", "--out", "x.nc"],
+     "c_text_seed.nc: field 'seed': attribute must be one whole number", None),
+    ("fit-text-align-time", ["fit", "m_text_align.nc", "--out", "f.json"],
+     "m_text_align.nc: field 'align_time'", None),
+    ("impact-text-format-version", ["impact", "paper", "t_text_version.nc", "--out",
+                                    "i.json"], "field 'format_version'", None),
+    ("fit-params-nan-bound", ["fit", "m.nc", "--out", "f.json", "--params", "nan.toml"],
+     "nan.toml: field 'k_lr': lower bound is NaN", None),
+    ("fit-band-samples-huge", ["fit", "m.nc", "--out", "f.json", "--band-samples",
+                               "1000000000"], "--band-samples: 1000000000 band samples", None),
     ("unknown-option", ["fit", "m.nc", "--out", "f.json", "--bogus"], "--bogus", None),
     ("missing-option", ["simulate"], "--out", None),
 ]

@@ -483,11 +483,12 @@ def _uncertainty_document(res: FitResult) -> dict:
             det["variance_shares"] = {n: {k: _num(v[i]) for k, v in src.items()}
                                       for i, n in enumerate(u.names)}
         d["details"] = det
-    if getattr(res, "adequacy", None) is not None:
+    adequacy: Any = getattr(res, "adequacy", None)     # FitResult types it as object
+    if adequacy is not None:
         from gprm.fit.adequacy import verdict_text
 
-        d["adequacy"] = res.adequacy.to_json()
-        d["adequacy"]["text"] = verdict_text(res.adequacy, u.method, u.details)
+        d["adequacy"] = adequacy.to_json()
+        d["adequacy"]["text"] = verdict_text(adequacy, u.method, u.details)
     return d
 
 def fit_sidecar(res: FitResult) -> xr.Dataset:

@@ -171,7 +171,7 @@ def _dimensionless(value: Any, src: str, field: str) -> float:
                              source=src, field=field)
     if isinstance(value, str):
         try:
-            q = u.Quantity(value.replace("%", " percent"))
+            q: pint.Quantity | float = u.Quantity(value.replace("%", " percent"))
         except Exception as exc:
             raise GprmInputError(f"cannot parse {value!r} ({exc})", source=src,
                                  field=field) from None
@@ -195,16 +195,16 @@ def _seconds(value: Any, src: str, field: str) -> float:
                              field=field)
     if isinstance(value, str):
         try:
-            q = u.Quantity(value)
+            q2: pint.Quantity | float = u.Quantity(value)
         except Exception as exc:
             raise GprmInputError(f"cannot parse {value!r} ({exc})", source=src,
                                  field=field) from None
-        if isinstance(q, pint.Quantity):
-            if q.dimensionality != u.Quantity(1.0, "s").dimensionality:
+        if isinstance(q2, pint.Quantity):
+            if q2.dimensionality != u.Quantity(1.0, "s").dimensionality:
                 raise GprmInputError(f"{value!r} is not a time", source=src, field=field)
-            value = float(q.to("s").magnitude)
+            value = float(q2.to("s").magnitude)
         else:
-            value = float(q)
+            value = float(q2)
     v = float(value)
     if not (math.isfinite(v) and v >= 0):
         raise GprmInputError(f"must be finite and >= 0, got {value!r}", source=src, field=field)

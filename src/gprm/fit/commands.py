@@ -145,9 +145,10 @@ def register(app: typer.Typer, synth_app: typer.Typer) -> None:
         if band_samples:
             from gprm.fit.objective import fit_data_from_means
 
-            # the sampled bands simulate every sample at once: about 0.8-0.95 kB per sample
-            # and fitted data point (tracemalloc peak of gprm.fit.uncertainty.compute_bands
-            # at 100-1600 samples over 5 x 47 and 5 x 181 points; docs/README.md), + 50 MB
+            # the sampled bands simulate every sample at once: 0.81-0.94 kB per sample and
+            # fitted data point (tracemalloc peak of gprm.fit.uncertainty.compute_bands
+            # between 100 and 400 samples over 5 x 47 and 5 x 181 points,
+            # benchmarks/bench_memory.py; docs/README.md), + 50 MB
             n_points = int(fit_data_from_means(ds, window=opts.window, sigma=opts.sigma,
                                                source=str(means)).values.size)
             check_memory(band_samples, 1200.0 * n_points, fixed=50e6, field="--band-samples",

@@ -110,7 +110,7 @@ _STOP_SIGNALS = tuple(getattr(signal, n) for n in ("SIGTERM", "SIGHUP") if hasat
 @contextlib.contextmanager
 def stop_signals_raise() -> Iterator[dict[str, Any]]:
     """While the command runs, SIGTERM and SIGHUP raise :class:`Terminated` (a second one
-    ends the process at once, the system's default). Yields a dict whose ``signum`` says
+    ends the process at once, the system's default; one the caller ignores stays ignored). Yields a dict whose ``signum`` says
     which signal arrived (None: none). Only the main thread can take signals; elsewhere
     nothing changes."""
     got: dict[str, Any] = {"signum": None, "armed": True}
@@ -120,12 +120,14 @@ def stop_signals_raise() -> Iterator[dict[str, Any]]:
 
     def on_signal(signum, frame):
         got["signum"] = signum
-        for s in _STOP_SIGNALS:
+        for s in old:
             signal.signal(s, signal.SIG_DFL)
         if got["armed"]:            # not once the command has finished: only the exit code
             raise Terminated(signum)
 
-    old = {s: signal.signal(s, on_signal) for s in _STOP_SIGNALS}
+    # a signal the caller ignores stays ignored (`nohup gprm run ...` survives a hangup)
+    old = {s: signal.signal(s, on_signal) for s in _STOP_SIGNALS
+           if signal.getsignal(s) is not signal.SIG_IGN}
     try:
         yield got
     finally:

@@ -525,3 +525,22 @@ def test_band_samples_beyond_the_memory_are_refused_before_the_fit(means_file, t
     n = int(line.rsplit("fits is ", 1)[1])
     assert 0 < n < 1000
     assert sorted(p.name for p in tmp_path.iterdir()) == ["m.nc"]
+
+
+def test_a_stop_signal_the_caller_ignores_stays_ignored():
+    """``nohup gprm run ...`` must survive a hangup: an ignored SIGHUP is left ignored, while
+    SIGTERM raises and every handler is restored afterwards."""
+    from gprm.cli import Terminated, stop_signals_raise
+
+    old = signal.signal(signal.SIGHUP, signal.SIG_IGN)
+    term = signal.getsignal(signal.SIGTERM)
+    try:
+        with pytest.raises(Terminated):
+            with stop_signals_raise():
+                assert signal.getsignal(signal.SIGHUP) is signal.SIG_IGN
+                os.kill(os.getpid(), signal.SIGTERM)
+                time.sleep(5)
+        assert signal.getsignal(signal.SIGHUP) is signal.SIG_IGN
+        assert signal.getsignal(signal.SIGTERM) == term
+    finally:
+        signal.signal(signal.SIGHUP, old)

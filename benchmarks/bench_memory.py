@@ -78,7 +78,7 @@ def main():
         cov = np.diag((1e-3 * np.abs(x) + 1e-12) ** 2)
         n_pts = obj.data.values.size
         marginal(f"fit (--band-samples), {n_pts} points", "sample x point",
-                 lambda n: compute_bands(obj, x, cov, n_samples=n, seed=0),
+                 lambda n, o=obj, x=x, c=cov: compute_bands(o, x, c, n_samples=n, seed=0),
                  [(100, 100 * n_pts), (400, 400 * n_pts)])
 
 

@@ -2,7 +2,7 @@
 
 Prints the tracemalloc peak of each guarded allocation at two sizes and the marginal bytes
 per unit (the difference of the peaks over the difference of the units), which the guards'
-per-unit estimates in the commands round up. About 15 s of CPU.
+per-unit estimates in the commands round up. About 20 s of CPU.
 
     PYTHONPATH=src .venv/bin/python benchmarks/bench_memory.py
 """
@@ -61,6 +61,25 @@ def main():
 
     marginal("synth campaign (--runs)", "run sample", camp,
              [(4, 10 * 6 * 301), (16, 10 * 24 * 301)])
+
+    import numpy as np
+
+    from gprm.fit.api import FitOptions
+    from gprm.fit.objective import Objective, fit_data_from_means
+    from gprm.fit.uncertainty import compute_bands
+    from gprm.campaign.preprocess import preprocess
+
+    means = preprocess(synth_campaign(seed=0, config=SynthConfig(n_runs=4, n_noise=2,
+                                                                 nonlinear=False))).to_dataset()
+    for window in ((0.97e-3, 1.2e-3), (0.5e-3, 1.4e-3)):
+        obj = Objective.create(fit_data_from_means(means, window=window),
+                               FitOptions().parameters(ps))
+        x = obj.base.initial_vector(obj.names)
+        cov = np.diag((1e-3 * np.abs(x) + 1e-12) ** 2)
+        n_pts = obj.data.values.size
+        marginal(f"fit (--band-samples), {n_pts} points", "sample x point",
+                 lambda n, o=obj, x=x, c=cov: compute_bands(o, x, c, n_samples=n, seed=0),
+                 [(100, 100 * n_pts), (400, 400 * n_pts)])
 
 
 if __name__ == "__main__":

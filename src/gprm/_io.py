@@ -2,47 +2,220 @@
 
 Outputs are written to a temporary file in the destination folder and moved into place, so an
 interrupted or failed run never leaves a half-written file behind and never touches inputs.
+The temporary file's name says who made it (``.NAME.gprm-HOST-PID-XXXXXXXX.part``): one that a
+killed gprm process left behind is removed by the next write into that folder
+(:func:`remove_stale_temps`), and nothing else ever is. A write that fails for want of space,
+a file-size limit, a read-only file system or permissions is a :class:`GprmOutputError`
+naming the file and the cause, and leaves no temporary file.
+
+NetCDF inputs are untrusted: a damaged file can make the NetCDF/HDF5 library loop forever or
+crash the process. :func:`open_netcdf` checks the file's signature, then reads it once in a
+child process with a time limit (:func:`probe_netcdf`) before loading it here.
 """
 
 from __future__ import annotations
 
+import atexit
 import contextlib
 import csv
+import errno
+import hashlib
 import json
 import os
+import re
+import socket
 import tempfile
+import time
 from pathlib import Path
 from typing import Any, Iterator
 
-from gprm.errors import GprmInputError
+from gprm.errors import GprmInputError, GprmOutputError
+
+# ----------------------------------------------------------------------------- writing
+
+#: temporary files of writes in progress in this process (removed if the process exits
+#: before the write finishes, e.g. on SIGTERM: gprm.cli turns it into an exception)
+_LIVE_TEMPS: set[Path] = set()
+
+
+def _host_tag() -> str:
+    return hashlib.sha256(socket.gethostname().encode()).hexdigest()[:6]
+
+
+def temp_prefix(name: str) -> str:
+    """The start of the name of a temporary file gprm writes ``name`` through."""
+    return f".{name}.gprm-{_host_tag()}-{os.getpid()}-"
+
+
+#: a temporary file of gprm's: .NAME.gprm-HOST-PID-RANDOM.part (RANDOM: mkstemp's letters)
+_TEMP_RE = re.compile(r"\.(?P<name>.+)\.gprm-(?P<host>[0-9a-f]{6})-(?P<pid>\d+)-"
+                      r"[A-Za-z0-9_]+\.part")
+
+
+def _pid_alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except OSError:             # exists, owned by someone else
+        return True
+    return True
+
+
+#: the temporary files of gprm 0.1.0 and before (mkstemp's 8 letters, no PID)
+_LEGACY_TEMP_RE = re.compile(r"\.(?P<name>.+)\.[a-z0-9_]{8}\.part")
+
+
+def remove_stale_temps(folder: str | os.PathLike, name: str | None = None, *,
+                       legacy_names=()) -> list[Path]:
+    """Remove the temporary files (``.NAME.gprm-HOST-PID-*.part``) that a gprm process on
+    this host left in ``folder`` when it was killed before it could clean up (its PID is no
+    longer running); with ``name``, only those of that output. ``legacy_names``: outputs
+    whose temporary files of earlier gprm versions (``.NAME.XXXXXXXX.part``, no PID) are
+    removed too (a run directory, whose file names are gprm's). Nothing else is touched, and
+    a folder that cannot be listed is left alone. Returns what was removed."""
+    folder = Path(folder)
+    host, me = _host_tag(), os.getpid()
+    legacy = set(legacy_names)
+    removed: list[Path] = []
+    try:
+        entries = list(os.scandir(folder))
+    except OSError:
+        return removed
+    for e in entries:
+        m = _TEMP_RE.fullmatch(e.name)
+        if m is None:
+            old = _LEGACY_TEMP_RE.fullmatch(e.name)
+            if old is None or old["name"] not in legacy:
+                continue
+        elif m["host"] != host or (name is not None and m["name"] != name):
+            continue
+        elif int(m["pid"]) == me or _pid_alive(int(m["pid"])):
+            continue
+        with contextlib.suppress(OSError):
+            if e.is_file(follow_symlinks=False):
+                os.unlink(e.path)
+                removed.append(Path(e.path))
+    return removed
+
+
+def _cleanup_live_temps() -> None:
+    for p in list(_LIVE_TEMPS):
+        with contextlib.suppress(OSError):
+            p.unlink()
+    _LIVE_TEMPS.clear()
+
+
+atexit.register(_cleanup_live_temps)
+
+#: errno -> what a user is told
+_ERRNO_CAUSES = {
+    errno.ENOSPC: "no space left on the device",
+    errno.EDQUOT: "disk quota exceeded",
+    errno.EFBIG: "file too large (a file-size limit, e.g. ulimit -f, was reached)",
+    errno.EROFS: "read-only file system",
+    errno.EACCES: "permission denied",
+    errno.EPERM: "operation not permitted",
+    errno.ENOTDIR: "a component of the path is a file, not a folder",
+    errno.EISDIR: "is a folder",
+    errno.ENAMETOOLONG: "file name too long",
+    errno.EIO: "input/output error",
+}
+
+
+def _fsize_limit() -> int | None:
+    try:
+        import resource
+    except ImportError:  # pragma: no cover - not POSIX
+        return None
+    soft = resource.getrlimit(resource.RLIMIT_FSIZE)[0]
+    return None if soft == resource.RLIM_INFINITY else int(soft)
+
+
+def write_failure_cause(exc: BaseException, folder: Path, size: int | None = None) -> str:
+    """Why a write into ``folder`` failed, in words: the errno of an OSError, else (the
+    NetCDF library reports only "HDF error") the state of the file system and of the
+    file-size limit; ``size``: how large the temporary file had grown."""
+    if isinstance(exc, OSError) and exc.errno in _ERRNO_CAUSES:
+        return _ERRNO_CAUSES[exc.errno]
+    limit = _fsize_limit()
+    if limit is not None and size is not None and size + (1 << 16) >= limit:
+        return (f"file too large (the file-size limit, ulimit -f, is {limit} bytes)")
+    try:
+        st = os.statvfs(folder)
+        if st.f_bavail * st.f_frsize < (1 << 20):
+            return "no space left on the device"
+        if st.f_flag & getattr(os, "ST_RDONLY", 1):
+            return "read-only file system"
+    except OSError:
+        pass
+    if isinstance(exc, OSError):
+        return exc.strerror or str(exc)
+    return f"{type(exc).__name__}: {exc}"
+
+
+def _is_write_failure(exc: BaseException, tmp: Path) -> bool:
+    """An error of the file system or of the NetCDF library while writing ``tmp`` (as
+    opposed to a bug in what is being written, which stays an internal error, or an error
+    reading another file, which names that file itself)."""
+    if isinstance(exc, GprmInputError):
+        return False
+    if isinstance(exc, OSError):
+        named = [f for f in (exc.filename, exc.filename2) if f is not None]
+        return not named or any(_same_name(f, tmp) for f in named)
+    return isinstance(exc, RuntimeError) and "NetCDF" in str(exc)
+
+
+def _same_name(a, b: Path) -> bool:
+    try:
+        return os.path.abspath(os.fsdecode(a)) == os.path.abspath(b)
+    except (TypeError, ValueError):
+        return False
+
+
+def output_error(path: Path, exc: BaseException, size: int | None = None) -> GprmOutputError:
+    return GprmOutputError(f"cannot be written: {write_failure_cause(exc, path.parent, size)}",
+                           source=str(path))
 
 
 @contextlib.contextmanager
 def atomic_path(path: str | os.PathLike) -> Iterator[Path]:
     """Yield a temporary path beside ``path``; on success move it onto ``path``.
 
-    On an exception the temporary file is removed and ``path`` is left as it was.
+    On an exception the temporary file is removed and ``path`` is left as it was; a failure
+    of the file system (no space, a file-size limit, read-only, permissions) or of the
+    NetCDF library while writing becomes a :class:`GprmOutputError` naming ``path`` and the
+    cause. Temporary files that killed gprm processes left for ``path`` are removed first.
     """
     path = Path(path)
     if path.is_dir():
         raise GprmInputError("is a folder; expected a file to write", source=str(path))
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
-        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".part", dir=path.parent)
+        remove_stale_temps(path.parent, path.name)
+        fd, tmp = tempfile.mkstemp(prefix=temp_prefix(path.name), suffix=".part",
+                                   dir=path.parent)
     except OSError as exc:
-        raise GprmInputError(f"cannot write here ({exc.strerror or exc})",
-                             source=str(path)) from None
+        raise output_error(path, exc) from None
     os.close(fd)
     tmp_path = Path(tmp)
+    _LIVE_TEMPS.add(tmp_path)
     try:
         yield tmp_path
         # mkstemp makes the file private (0600); give the output the usual mode (umask applies)
         os.chmod(tmp_path, 0o666 & ~_umask())
         os.replace(tmp_path, path)
-    except BaseException:
-        with contextlib.suppress(FileNotFoundError):
+    except BaseException as exc:
+        size = None
+        with contextlib.suppress(OSError):
+            size = tmp_path.stat().st_size
+        with contextlib.suppress(OSError):
             tmp_path.unlink()
+        if isinstance(exc, Exception) and _is_write_failure(exc, tmp_path):
+            raise output_error(path, exc, size) from None
         raise
+    finally:
+        _LIVE_TEMPS.discard(tmp_path)
 
 
 def _umask() -> int:
@@ -109,11 +282,172 @@ def write_netcdf_atomic(ds, path: str | os.PathLike) -> None:
         out.to_netcdf(tmp, engine="netcdf4")
 
 
+# ----------------------------------------------------------------------------- reading NetCDF
+
+_HDF5_SIGNATURE = b"\x89HDF\r\n\x1a\n"
+_CLASSIC_SIGNATURES = (b"CDF\x01", b"CDF\x02", b"CDF\x05")
+
+#: seconds a NetCDF file may take to be read once in the child process, at least (plus one
+#: second per 25 MB); ``GPRM_READ_TIMEOUT`` overrides the base
+READ_TIMEOUT_S = 10.0
+
+#: files already read once in a child: (device, inode, size, mtime) -> True
+_PROBED: dict[tuple, bool] = {}
+
+
+def check_netcdf_signature(path: Path, what: str) -> None:
+    """Refuse a file that is not NetCDF by its first bytes: the HDF5 signature (at 0, 512,
+    1024, ... as the NetCDF library looks for it) or a classic NetCDF header."""
+    try:
+        size = path.stat().st_size
+        with open(path, "rb") as fh:
+            head = fh.read(8)
+            if size == 0:
+                raise GprmInputError(f"is empty; expected a {what}", source=str(path))
+            if head[:4] in _CLASSIC_SIGNATURES or head == _HDF5_SIGNATURE:
+                return
+            off = 512
+            while off + 8 <= size and off <= (1 << 30):
+                fh.seek(off)
+                if fh.read(8) == _HDF5_SIGNATURE:
+                    return
+                off *= 2
+    except OSError as exc:
+        raise GprmInputError(f"cannot be read ({exc.strerror or exc})",
+                             source=str(path)) from None
+    raise GprmInputError(f"is not a NetCDF file (no NetCDF or HDF5 signature); expected a "
+                         f"{what}", source=str(path))
+
+
+def _read_everything(path: str) -> None:
+    """Open ``path`` with the NetCDF library and read every attribute and variable of every
+    group, in slices of a few MB (the child's work in :func:`probe_netcdf`)."""
+    import netCDF4
+
+    with netCDF4.Dataset(path, "r") as root:
+        groups = [root]
+        while groups:
+            g = groups.pop()
+            for a in g.ncattrs():
+                g.getncattr(a)
+            for v in g.variables.values():
+                v.set_auto_maskandscale(False)
+                for a in v.ncattrs():
+                    v.getncattr(a)
+                if v.ndim == 0 or v.shape[0] == 0:
+                    v[...]
+                    continue
+                row = max(1, int(v.size // v.shape[0])) * getattr(v.dtype, "itemsize", 64)
+                step = max(1, (8 << 20) // max(1, row))
+                for i in range(0, v.shape[0], step):
+                    v[i:i + step]
+            groups.extend(g.groups.values())
+
+
+def _timeout(size: int) -> float:
+    base = READ_TIMEOUT_S
+    with contextlib.suppress(ValueError):
+        base = float(os.environ.get("GPRM_READ_TIMEOUT", base))
+    return base + size / 25e6
+
+
+def probe_netcdf(path: Path, what: str) -> None:
+    """Read ``path`` once in a forked child process, with a time limit: a damaged file that
+    makes the NetCDF/HDF5 library loop or crash ends in a :class:`GprmInputError` naming the
+    file (within :data:`READ_TIMEOUT_S` seconds) instead of hanging or killing gprm. Ctrl-C
+    stops the child and is raised here. A file read this way before (same inode, size and
+    modification time) is not read again. Without ``os.fork`` this does nothing."""
+    if not hasattr(os, "fork"):  # pragma: no cover - not POSIX
+        return
+    try:
+        st = path.stat()
+    except OSError:
+        return                  # the open that follows says why
+    key = (st.st_dev, st.st_ino, st.st_size, st.st_mtime_ns)
+    if key in _PROBED:
+        return
+    import netCDF4  # noqa: F401  (imported before the fork: the child only reads)
+
+    r, w = os.pipe()
+    pid = os.fork()
+    if pid == 0:                                            # the child
+        code = 0
+        try:
+            import signal
+
+            os.close(r)
+            for s in (signal.SIGINT, signal.SIGTERM):
+                signal.signal(s, signal.SIG_DFL)
+            # what the libraries print (HDF5 diagnostics, a crash dump) stays off the console
+            import faulthandler
+
+            faulthandler.disable()
+            null = os.open(os.devnull, os.O_WRONLY)
+            os.dup2(null, 1)
+            os.dup2(null, 2)
+            try:
+                _read_everything(str(path))
+            except BaseException as exc:                    # noqa: BLE001 - reported
+                os.write(w, f"{type(exc).__name__}: {exc}".encode("utf-8", "replace")[:2000])
+                code = 3
+        finally:
+            os._exit(code)
+    os.close(w)
+    limit = _timeout(st.st_size)
+    deadline = time.monotonic() + limit
+    status = None
+    try:
+        delay = 0.001
+        while True:
+            done, status = os.waitpid(pid, os.WNOHANG)
+            if done:
+                break
+            if time.monotonic() > deadline:
+                break
+            time.sleep(delay)
+            delay = min(0.05, delay * 2)
+    except BaseException:               # Ctrl-C, SIGTERM: stop the child, then go on
+        _kill(pid)
+        os.close(r)
+        raise
+    if not done:
+        _kill(pid)
+        os.close(r)
+        raise GprmInputError(f"cannot be read as {what}: reading it did not finish within "
+                             f"{limit:.3g} s (the file is probably damaged)", source=str(path))
+    with os.fdopen(r, "rb") as fh:
+        message = fh.read().decode("utf-8", "replace").strip()
+    code = os.waitstatus_to_exitcode(status)
+    if code < 0:
+        raise GprmInputError(f"cannot be read as {what}: the NetCDF library crashed on it "
+                             f"(signal {-code}; the file is probably damaged)",
+                             source=str(path))
+    if code != 0:
+        raise GprmInputError(f"cannot be read as {what} ({message or f'exit code {code}'})",
+                             source=str(path))
+    _PROBED[key] = True
+
+
+def _kill(pid: int) -> None:
+    import signal
+
+    with contextlib.suppress(OSError):
+        os.kill(pid, signal.SIGKILL)
+    with contextlib.suppress(OSError):
+        os.waitpid(pid, 0)
+
+
 def open_netcdf(path: str | os.PathLike, *, what: str = "NetCDF file"):
-    """Load a NetCDF file fully into memory (the file is closed afterwards, never modified)."""
+    """Load a NetCDF file fully into memory (the file is closed afterwards, never modified).
+
+    The file is untrusted: its signature is checked and it is read once in a child process
+    with a time limit first (:func:`probe_netcdf`), so a damaged file is a one-line
+    :class:`GprmInputError` naming it, never a hang or a crash."""
     import xarray as xr
 
     path = check_input_file(path, what=what)
+    check_netcdf_signature(path, what)
+    probe_netcdf(path, what)
     try:
         with xr.open_dataset(path, engine="netcdf4") as ds:
             return ds.load()
@@ -189,12 +523,21 @@ def check_outputs(outputs: dict | list[tuple[Any, str]], inputs=(), *,
     ``(path, option)`` pairs where two options may name the same file); ``folders`` the same
     for output folders (a checkpoint folder). Refused: an output that is an existing folder
     (or a folder output that is a file), an output in a folder where no file can be created,
-    an output that is one of ``inputs`` (for a folder output: one that holds an input), and
-    two outputs that are the same file. Inputs are never opened for writing. A command that
-    reads a folder lists the files it reads in it (:func:`files_read_from`).
+    an output that is one of ``inputs`` or the sidecar of one (a JSON input's ``.nc`` of the
+    same name: ``fit.json`` is read with ``fit.nc``; for a folder output: one that holds an
+    input), and two outputs that are the same file. Inputs are never opened for writing. A
+    command that reads a folder lists the files it reads in it (:func:`files_read_from`).
+    Every command calls this once, before any work, with all its outputs and inputs.
     """
     folders = folders or {}
-    ins = [Path(p) for p in inputs if p is not None]
+    ins: list[tuple[Path, str]] = []
+    for p in inputs:
+        if p is None:
+            continue
+        p = Path(p)
+        ins.append((p, f"the input {p}"))
+        if p.suffix == ".json":
+            ins.append((p.with_suffix(".nc"), f"the sidecar of the input {p}"))
     seen: list[tuple[Path, str]] = []
     pairs = outputs.items() if isinstance(outputs, dict) else outputs
     items = [*((Path(p), o, False) for p, o in pairs if p is not None),
@@ -207,9 +550,9 @@ def check_outputs(outputs: dict | list[tuple[Any, str]], inputs=(), *,
         elif path.is_dir():
             raise GprmInputError("is a folder; expected a file to write", source=str(path),
                                  field=opt)
-        for i in ins:
+        for i, label in ins:
             if _same(path, i) or (is_folder and _is_inside(i, path)):
-                raise GprmInputError(f"would overwrite the input {i}; choose another name",
+                raise GprmInputError(f"would overwrite {label}; choose another name",
                                      source=str(path), field=opt)
         for other, oopt in seen:
             if _same(path, other):

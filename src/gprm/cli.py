@@ -11,18 +11,24 @@ What reaches the console is always short:
   line ``gprm: error: ...`` on stderr, exit code 2;
 - any other exception: one line naming a log file that holds the traceback, exit code 1
   (``gprm --debug CMD ...`` or ``GPRM_DEBUG=1`` prints the traceback instead);
-- Ctrl-C: one line, exit code 130.
+- Ctrl-C: one line, exit code 130; SIGTERM (and SIGHUP) end gprm the same way, as an
+  exception, so that temporary files of unfinished writes are removed and ``gprm run``
+  records where it stopped: one line, exit code 143 (129).
 """
 
 from __future__ import annotations
 
+import contextlib
 import datetime
 import inspect
 import os
+import signal
 import sys
 import tempfile
+import threading
 import traceback
 from pathlib import Path
+from typing import Any, Iterator
 
 import typer
 
@@ -90,11 +96,70 @@ def write_crash_log(exc: BaseException, args) -> Path:
     raise OSError("no writable folder for the error log")
 
 
+class Terminated(KeyboardInterrupt):
+    """SIGTERM or SIGHUP, raised where the program is, as Ctrl-C raises KeyboardInterrupt:
+    every clean-up (``finally``, temporary files, the fit's cluster) runs."""
+
+    def __init__(self, signum: int):
+        super().__init__(signal.Signals(signum).name)
+        self.signum = signum
+
+
+_STOP_SIGNALS = tuple(getattr(signal, n) for n in ("SIGTERM", "SIGHUP") if hasattr(signal, n))
+
+
+@contextlib.contextmanager
+def stop_signals_raise() -> Iterator[dict[str, Any]]:
+    """While the command runs, SIGTERM and SIGHUP raise :class:`Terminated` (a second one
+    ends the process at once, the system's default; one the caller ignores stays ignored). Yields a dict whose ``signum`` says
+    which signal arrived (None: none). Only the main thread can take signals; elsewhere
+    nothing changes."""
+    got: dict[str, Any] = {"signum": None, "armed": True}
+    if threading.current_thread() is not threading.main_thread():
+        yield got
+        return
+
+    def on_signal(signum, frame):
+        got["signum"] = signum
+        for s in old:
+            signal.signal(s, signal.SIG_DFL)
+        if got["armed"]:            # not once the command has finished: only the exit code
+            raise Terminated(signum)
+
+    # a signal the caller ignores stays ignored (`nohup gprm run ...` survives a hangup)
+    old = {s: signal.signal(s, on_signal) for s in _STOP_SIGNALS
+           if signal.getsignal(s) is not signal.SIG_IGN}
+    try:
+        yield got
+    finally:
+        for s, h in old.items():
+            signal.signal(s, h)
+
+
 class _GprmGroup(TyperGroup):
     """The root group: every error leaves as one line with a meaningful exit code."""
 
     def main(self, args=None, prog_name=None, complete_var=None, standalone_mode=True,
              **extra):
+        with stop_signals_raise() as got:
+            try:
+                code = self._main(args, prog_name, complete_var, **extra)
+            except KeyboardInterrupt:   # arrived while an error was being reported
+                code = 130
+            finally:
+                got["armed"] = False
+            if got["signum"] is not None:
+                name = signal.Signals(got["signum"]).name
+                click.echo(f"gprm: stopped by {name}; unfinished outputs were not written",
+                           err=True)
+                code = 128 + got["signum"]
+            elif code == 130:       # Ctrl-C (typer returns its exit code silently)
+                click.echo("gprm: interrupted; unfinished outputs were not written", err=True)
+        if standalone_mode:
+            sys.exit(code)
+        return code
+
+    def _main(self, args, prog_name, complete_var, **extra) -> int:
         code = 0
         try:
             rv = super().main(args, prog_name, complete_var, standalone_mode=False, **extra)
@@ -110,7 +175,6 @@ class _GprmGroup(TyperGroup):
             click.echo(f"gprm: error: {msg}", err=True)
             code = exc.exit_code
         except Abort:
-            click.echo("gprm: aborted", err=True)
             code = 130
         except Exception as exc:                   # a bug or an environment problem
             if _debug_requested(args):
@@ -124,8 +188,6 @@ class _GprmGroup(TyperGroup):
                 click.echo(f"gprm: internal error ({type(exc).__name__}: "
                            f"{_one_line(exc)[:200]}); {where}", err=True)
                 code = 1
-        if standalone_mode:
-            sys.exit(code)
         return code
 
 

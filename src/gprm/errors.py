@@ -25,3 +25,9 @@ class GprmInputError(ValueError):
                 parts.append(f"field '{field}'")
         prefix = ": ".join(parts)
         super().__init__(f"{prefix}: {problem}" if prefix else problem)
+
+
+class GprmOutputError(GprmInputError):
+    """An output that cannot be written (no space left, a file-size limit, a read-only file
+    system, permissions): names the file and the cause. The commands show it as they show
+    bad input: one line, exit code 2, no file left behind."""

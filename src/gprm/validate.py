@@ -28,8 +28,8 @@ import xarray as xr
 
 from gprm.errors import GprmInputError
 
-__all__ = ["Var", "Attr", "Schema", "check_dataset", "pint_unit", "unit_factor", "CAMPAIGN",
-           "MEANS", "SCHEMAS"]
+__all__ = ["Var", "Attr", "Schema", "check_attr", "check_dataset", "pint_unit", "unit_factor",
+           "CAMPAIGN", "MEANS", "SCHEMAS"]
 
 
 @dataclass(frozen=True)
@@ -51,7 +51,8 @@ class Var:
 
 @dataclass(frozen=True)
 class Attr:
-    """A global attribute: ``number`` (finite real, optional lower bound) or ``string``."""
+    """A global attribute: ``number`` (finite real, optional lower bound), ``integer`` (a
+    whole number) or ``string``."""
 
     name: str
     kind: str = "number"
@@ -153,15 +154,30 @@ def _check_attr(ds, a: Attr, src: str):
         return val
     arr = np.asarray(val)
     if arr.dtype.kind not in "iuf" or arr.size != 1:
-        raise GprmInputError(f"attribute must be one number, got {val!r}", source=src,
-                             field=a.name)
+        raise GprmInputError(f"attribute must be one {'whole ' if a.kind == 'integer' else ''}"
+                             f"number, got {val!r}", source=src, field=a.name)
     x = float(arr.reshape(()))
     if not math.isfinite(x):
         raise GprmInputError(f"attribute must be finite, got {x}", source=src, field=a.name)
+    if a.kind == "integer":
+        if x != int(x):
+            raise GprmInputError(f"attribute must be a whole number, got {val!r}", source=src,
+                                 field=a.name)
+        xi = int(x)
+        if a.min is not None and xi < a.min:
+            raise GprmInputError(f"attribute must be >= {a.min:g}, got {xi}", source=src,
+                                 field=a.name)
+        return xi
     if a.min is not None and (x < a.min or (a.min_open and x == a.min)):
         raise GprmInputError(f"attribute must be {'>' if a.min_open else '>='} {a.min:g}, "
                              f"got {x:g}", source=src, field=a.name)
     return x
+
+
+def check_attr(ds, attr: Attr, source: str):
+    """The global attribute ``attr`` of ``ds`` checked (None where absent and optional); a
+    wrong type or value is a :class:`GprmInputError` naming it."""
+    return _check_attr(ds, attr, str(source))
 
 
 def check_dataset(ds, schema: Schema, source: str):
@@ -194,7 +210,7 @@ CAMPAIGN = Schema("campaign NetCDF", (
     Var("noise", ("position", "noise_run", "time"), "m"),
     Var("voltage", ("vrun", "vtime"), "V", required=False),
     Var("vtime", ("vtime",), "s", required=False, increasing=True),
-), (Attr("sample_rate", "number", min=0.0, min_open=True),))
+), (Attr("sample_rate", "number", min=0.0, min_open=True), Attr("seed", "integer")))
 
 #: the mean-signals NetCDF of ``gprm preprocess`` (docs/data-formats.md)
 MEANS = Schema("mean-signals NetCDF", (
@@ -208,7 +224,9 @@ MEANS = Schema("mean-signals NetCDF", (
     Var("n_runs", ("signal",), required=False, min=1.0),
     Var("runs", ("signal", "run", "time"), "m", required=False),
     Var("interpolation_error", ("signal", "time"), "m", required=False),
-))
+), (Attr("align_time", "number", min=0.0, min_open=True),
+    Attr("sample_rate", "number", min=0.0, min_open=True),
+    Attr("record_duration", "number", min=0.0, min_open=True), Attr("seed", "integer")))
 
 SCHEMAS = {"campaign": CAMPAIGN, "means": MEANS}
 

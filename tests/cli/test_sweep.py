@@ -42,6 +42,21 @@ def inputs(tmp_path_factory):
     (d / "userdir").mkdir()
     (d / "userdir" / "keep.txt").write_text("user data")
     (d / "afile").write_text("not a folder")
+    # issue 22: a fit's sidecar is an input too; attributes of the wrong type; a NaN bound
+    (d / "fit.json").write_text("{}")
+    (d / "fit.nc").write_bytes(b"the fit's sidecar")
+    (d / "run").mkdir()
+    (d / "run" / "fit.json").write_text("{}")
+    (d / "run" / "fit.nc").write_bytes(b"the run's fit sidecar")
+    camp.assign_attrs(seed="x").to_netcdf(d / "c_text_seed.nc")
+    make_means(paper(), seed=1).assign_attrs(align_time="late").to_netcdf(d / "m_text_align.nc")
+    from gprm.flight.synth import SynthOptions, synth_telemetry
+    from gprm.fit.files import paper_model
+
+    tel = synth_telemetry(paper_model(2), SynthOptions(n_releases=2))
+    tel.assign_attrs(format_version="one").to_netcdf(d / "t_text_version.nc")
+    (d / "nan.toml").write_text('[parameters]\nk_lr = { value = 1.0, lower = nan, '
+                                "fit = true }\n")
     return d
 
 
@@ -166,6 +181,40 @@ CASES = [
     ("show-binary", ["show", "bad.toml"], "bad.toml", None),
     ("show-folder", ["show", "folder"], "folder", None),
     ("show-min-correl", ["show", "bad.toml", "--min-correl", "2"], "--min-correl", None),
+    # issue 22: no output over an input's sidecar; run folders that cannot be one; file
+    # attributes of the wrong type; options checked before any work
+    ("predict-over-fit-sidecar", ["predict", "fit.json", "--out", "fit.nc"],
+     "--out fit.nc: would overwrite the sidecar of the input fit.json", None),
+    ("predict-whatif-over-fit-sidecar", ["predict", "fit.json", "--out", "p.nc", "--whatif",
+                                         "fit.nc"], "--whatif fit.nc: would overwrite the "
+     "sidecar of the input fit.json", None),
+    ("predict-over-run-fit-sidecar", ["predict", "run", "--out", "run/fit.nc"],
+     "sidecar of the input run/fit.json", None),
+    ("telemetry-over-fit-sidecar", ["synth", "telemetry", "fit.json", "--out", "fit.nc"],
+     "--out fit.nc: would overwrite the sidecar of the input fit.json", None),
+    ("impact-over-fit-sidecar", ["impact", "fit.json", "m.nc", "--out", "fit.json"],
+     "would overwrite the input fit.json", None),
+    ("run-out-is-file", ["run", "c.nc", "--out", "afile"], "--out afile: is a file", None),
+    ("run-out-under-file", ["run", "c.nc", "--out", "afile/sub"],
+     "--out afile/sub: cannot be written: afile is not a folder", None),
+    ("demo-out-is-file", ["demo", "--out", "afile"], "--out afile: is a file", None),
+    ("demo-out-under-file", ["demo", "--out", "fit.json/sub"],
+     "--out fit.json/sub: cannot be written: fit.json is not a folder", None),
+    ("run-over-input", ["run", "means.nc", "--out", "."], "would overwrite the input means.nc",
+     lambda d: (d / "c.nc").rename(d / "means.nc")),
+    ("run-foreign-checkpoint", ["run", "c.nc", "--out", "."], "not a gprm checkpoint folder",
+     lambda d: ((d / "fit.json.ckpt").mkdir(), (d / "fit.json.ckpt" / "keep.txt").write_text(
+         "mine"))),
+    ("preprocess-text-seed", ["preprocess", "c_text_seed.nc", "--out", "x.nc"],
+     "c_text_seed.nc: field 'seed': attribute must be one whole number", None),
+    ("fit-text-align-time", ["fit", "m_text_align.nc", "--out", "f.json"],
+     "m_text_align.nc: field 'align_time'", None),
+    ("impact-text-format-version", ["impact", "paper", "t_text_version.nc", "--out",
+                                    "i.json"], "field 'format_version'", None),
+    ("fit-params-nan-bound", ["fit", "m.nc", "--out", "f.json", "--params", "nan.toml"],
+     "nan.toml: field 'k_lr': lower bound is NaN", None),
+    ("fit-band-samples-huge", ["fit", "m.nc", "--out", "f.json", "--band-samples",
+                               "1000000000"], "--band-samples: 1000000000 band samples", None),
     ("unknown-option", ["fit", "m.nc", "--out", "f.json", "--bogus"], "--bogus", None),
     ("missing-option", ["simulate"], "--out", None),
 ]

@@ -96,7 +96,8 @@ def test_interrupted_run_resumes_after_the_last_finished_stage(tmp_path):
     assert [r.status for r in res.records] == ["skipped", "skipped", "ran"]
 
 
-def test_failing_stage_blocks_the_ones_that_need_it_and_removes_stale_outputs(tmp_path):
+def test_failing_stage_blocks_the_ones_that_need_it_and_keeps_files_it_did_not_write(
+        tmp_path):
     calls: list = []
     chain = list(_chain(calls))
 
@@ -111,7 +112,13 @@ def test_failing_stage_blocks_the_ones_that_need_it_and_removes_stale_outputs(tm
     assert [r.status for r in res.records] == ["ran", "failed", "blocked"]
     assert res.records[1].detail == "x.nc: field 'time': missing variable"   # as the CLI says
     assert "b.txt" in res.records[2].detail
-    assert not (tmp_path / "c.txt").exists()
+    # c.txt was not written by this call: it stays (issue 22), listed as kept, not this run's
+    assert (tmp_path / "c.txt").read_text() == "from an older run"
+    rec = json.loads((tmp_path / "run.json").read_text())["stages"]["c"]
+    assert rec["status"] == "blocked" and rec["kept"] == ["c.txt"]
+    from gprm.report.summary import current_file, earlier_outputs
+
+    assert "c.txt" in earlier_outputs(tmp_path) and current_file(tmp_path, "c.txt") is None
 
 
 def test_failing_stage_is_recorded_and_the_rest_continues(tmp_path):

@@ -145,6 +145,18 @@ def register(app: typer.Typer, synth_app: typer.Typer) -> None:
         base = load_params(params)
         check_memory(starts, starts_memory(1, len(opts.parameters(base).fitted)),
                      field="--starts", what=f"{starts} starts")
+        if band_samples:
+            from gprm.fit.objective import fit_data_from_means
+
+            # the sampled bands simulate every sample at once: 0.81-0.94 kB per sample and
+            # fitted data point (tracemalloc peak of gprm.fit.uncertainty.compute_bands
+            # between 100 and 400 samples over 5 x 47 and 5 x 181 points,
+            # benchmarks/bench_memory.py; docs/README.md), + 50 MB
+            n_points = int(fit_data_from_means(ds, window=opts.window, sigma=opts.sigma,
+                                               source=str(means)).values.size)
+            check_memory(band_samples, 1200.0 * n_points, fixed=50e6, field="--band-samples",
+                         what=f"{band_samples} band samples of {n_points} data points",
+                         integer=True)
         if workers is None:
             workers = 0 if scheduler else default_workers(starts, chunk)
         if workers < 0:
@@ -155,6 +167,9 @@ def register(app: typer.Typer, synth_app: typer.Typer) -> None:
                                  f"largest value accepted is {4 * n_cpu}", field="--workers")
         from gprm.fit.report_text import fit_report, polish_note, starts_progress
 
+        # a refused or failed fit leaves no checkpoint folder of its own behind; one that was
+        # there before (a resumed fit) keeps its chunks
+        keep = dict(only_if_empty=ckpt.exists())
         err = Console(stderr=True)
         with starts_progress(err, starts) as progress:
             try:
@@ -163,13 +178,13 @@ def register(app: typer.Typer, synth_app: typer.Typer) -> None:
                                   scheduler=scheduler, checkpoint_dir=ckpt,
                                   progress=progress, source=str(means))
             except GprmInputError as exc:
-                remove_checkpoints(ckpt, only_if_empty=True)   # refused: leave nothing behind
+                remove_checkpoints(ckpt, **keep)               # refused: leave nothing behind
                 if exc.field in ("checkpoint", "scheduler"):   # name the option as typed
                     raise GprmInputError(exc.problem, source=exc.source,
                                          field="--" + exc.field) from None
                 raise
             except Exception:
-                remove_checkpoints(ckpt, only_if_empty=True)
+                remove_checkpoints(ckpt, only_if_empty=True)   # an internal error: resumable
                 raise
         # the bar showed the starts' best; the report shows the polished fit's chi-square
         err.print(polish_note(starts, progress.best, res.chi2, res.timings["total"]),

@@ -315,6 +315,16 @@ def load_fit(path: str | os.PathLike) -> FittedModel:
                        covariance_message=str(doc.get("covariance_message", "") or ""))
 
 
+def model_inputs(source) -> list[Path]:
+    """The files :func:`load_model` reads for ``source`` (for
+    :func:`gprm._io.check_outputs`, which adds the fit JSON's ``.nc`` sidecar): none for
+    ``paper``, the folder's ``fit.json`` for a run folder, else the file itself."""
+    if source is None or isinstance(source, FittedModel) or str(source) == "paper":
+        return []
+    path = Path(source)
+    return [path / "fit.json"] if path.is_dir() else [path]
+
+
 def load_model(source: str | os.PathLike | FittedModel, *,
                piezo: int | None = None) -> FittedModel:
     """The model a command or stage runs on: a :class:`FittedModel` as it is, the word

@@ -49,7 +49,7 @@ def register(app: typer.Typer, synth_app: typer.Typer) -> None:
     ):
         """Synthetic in-flight releases with known impact times (telemetry NetCDF)."""
         from gprm._io import check_outputs
-        from gprm.fit.files import load_model
+        from gprm.fit.files import load_model, model_inputs
         from gprm.flight.api import TelemetryOptions, run_synth_telemetry
         from gprm.flight.files import write_telemetry
         from gprm.flight.synth import SynthOptions
@@ -59,7 +59,7 @@ def register(app: typer.Typer, synth_app: typer.Typer) -> None:
             SynthOptions, _SYNTH_FLAGS, n_releases=releases, seed=seed, rate=rate, post=post,
             pos_noise=pos_noise, att_noise=att_noise, truth_spread=not no_spread,
             z_from=z_from, truth_model=truth_model))
-        check_outputs({out: "--out"}, inputs=[None if fit == "paper" else fit])
+        check_outputs({out: "--out"}, inputs=model_inputs(fit))
         # 150 B per record sample (tracemalloc peak: 96 B per sample between 2 x 1e4 and
         # 2 x 4e4 samples; docs/README.md) plus a fixed 50 MB
         check_memory(releases * (post * rate + 1), 150.0, fixed=50e6, field="--rate",
@@ -110,7 +110,7 @@ def register(app: typer.Typer, synth_app: typer.Typer) -> None:
         from gprm._io import check_outputs
         from gprm.errors import GprmInputError
         from gprm.flight.analysis import AnalysisOptions
-        from gprm.fit.files import load_model
+        from gprm.fit.files import load_model, model_inputs
         from gprm.flight.api import ImpactOptions, run_impact, write_impact
         from gprm.flight.files import impact_sidecar
 
@@ -122,7 +122,7 @@ def register(app: typer.Typer, synth_app: typer.Typer) -> None:
         except GprmInputError as exc:
             raise GprmInputError(exc.problem, source=exc.source, field="--out") from None
         check_outputs({out: "--out", side: "--out (its .nc sidecar)"},
-                      inputs=[None if fit == "paper" else fit, telemetry])
+                      inputs=[*model_inputs(fit), telemetry])
         m = load_model(fit, piezo=piezo)
         doc = write_impact(run_impact(m, telemetry, opts), out).to_json()
         n_ok = sum(1 for r in doc["releases"] for a in r["impact_time"].values()

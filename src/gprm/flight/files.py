@@ -203,10 +203,11 @@ def telemetry_from_dataset(ds, *, source: str = "telemetry", min_releases: int =
     finite release times and data, positive standard deviations, and no channel constant over
     a release (a stuck or filled channel)."""
     fmt = ds.attrs.get("format", FORMAT)
-    if fmt != FORMAT:
+    if not isinstance(fmt, str) or fmt != FORMAT:
         raise GprmInputError(f"format {fmt!r}, expected {FORMAT!r}", source=source,
                              field="format")
-    if int(ds.attrs.get("format_version", FORMAT_VERSION)) != FORMAT_VERSION:
+    version = validate.check_attr(ds, validate.Attr("format_version", "integer"), str(source))
+    if version is not None and version != FORMAT_VERSION:
         raise GprmInputError(f"format version {ds.attrs.get('format_version')}, this gprm "
                              f"reads {FORMAT_VERSION}", source=source, field="format_version")
     for v in ("time", "release_time") + REQUIRED:

@@ -115,6 +115,10 @@ def load_params(path: str | os.PathLike | None = None, *, base: ParameterSet | N
                 lo = to_si(entry["lower"], name, source=src)
             if "upper" in entry:
                 hi = to_si(entry["upper"], name, source=src)
+            for which, b in (("lower", lo), ("upper", hi)):
+                if math.isnan(b):
+                    raise GprmInputError(f"{which} bound is NaN; give a number (-inf or inf "
+                                         "for none)", source=src, field=name)
             if lo >= hi:
                 raise GprmInputError(f"lower bound {lo:g} is not below upper bound {hi:g}",
                                      source=src, field=name)

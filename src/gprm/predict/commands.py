@@ -104,14 +104,14 @@ def register(app: typer.Typer, synth_app: typer.Typer) -> None:
         """Predict trajectories, kinetic energy, masses, overshoot and impact risk."""
         from gprm.errors import GprmInputError
         from gprm.predict.api import PredictOptions, run_predict, run_whatif
-        from gprm.fit.files import load_model
+        from gprm.fit.files import load_model, model_inputs
         from gprm.predict.files import write_prediction, write_whatif
 
         from gprm._io import check_outputs
         from gprm.resources import check_memory
 
         check_outputs([(out, "--out"), (whatif_out, "--whatif")],
-                      inputs=[None if fit == "paper" else fit, means, voltage])
+                      inputs=[*model_inputs(fit), means, voltage])
         # about 1.95 kB per drawn set and time (measured with tracemalloc at 20 and 80 sets
         # over the default 251 times; docs/README.md) plus a fixed 50 MB
         n_times = (t_end - t_start) * rate + 1

@@ -37,8 +37,8 @@ from gprm.fit.report_text import pretty_unit
 from gprm.report import figures as F
 from gprm.report.html import (Card, Section, fig_to_img, not_run, num, paragraph, pm, render,
                               table)
-from gprm.report.summary import (impact_times_found, summarise, truth_for_fit,
-                                 truth_from_means)
+from gprm.report.summary import (current_file, earlier_outputs, impact_times_found,
+                                 summarise, truth_for_fit, truth_from_means)
 
 # Figure id -> the paper's figure it mirrors.
 FIGURE_IDS = {
@@ -66,19 +66,28 @@ def _reader(name: str):
 
 
 def _load_nc(run: Path, name: str, what: str):
-    p = run / name
-    if not p.exists():
+    p = current_file(run, name)
+    if p is None:
         return None
     read = _reader(name)
     return read(p) if read is not None else open_netcdf(p, what=what)
 
 
 def _load_json(run: Path, name: str, what: str):
-    p = run / name
-    if not p.exists():
+    p = current_file(run, name)
+    if p is None:
         return None
     read = _reader(name)
     return read(p) if read is not None else read_json(p, what=what)
+
+
+def _missing(run: Path, name: str, why: str) -> str:
+    """Why ``name`` is not shown: ``why`` (missing), or that the last run did not make it."""
+    stale = earlier_outputs(run).get(name)
+    if stale is None:
+        return why
+    return (f"{name} was not made by the last run and is not shown: {stale} there "
+            "(run.json), and gprm left the file as it was.")
 
 
 def _not_run(s: Section, what: str, why: str) -> Section:
@@ -113,8 +122,8 @@ def campaign_section(run: Path) -> Section:
     s = Section("Ground-test campaign", "campaign")
     means = _load_nc(run, "means.nc", "mean-signals file")
     if means is None:
-        return _not_run(s, "Campaign and preprocessing",
-                        "means.nc is missing (gprm synth campaign + gprm preprocess).")
+        return _not_run(s, "Campaign and preprocessing", _missing(
+            run, "means.nc", "means.nc is missing (gprm synth campaign + gprm preprocess)."))
     camp = _load_nc(run, "campaign.nc", "campaign file")
     n_runs = means["n_runs"].values if "n_runs" in means else None
     align = float(means.attrs.get("align_time", 1e-3))
@@ -280,10 +289,11 @@ def adequacy_rows(adq: dict) -> list:
 
 def fit_section(run: Path) -> tuple[Section, dict | None]:
     s = Section("Identification", "fit")
-    if not (run / "fit.json").exists():
-        return _not_run(s, "Fit", "fit.json is missing (gprm fit)."), None
+    if current_file(run, "fit.json") is None:
+        return _not_run(s, "Fit", _missing(run, "fit.json",
+                                           "fit.json is missing (gprm fit).")), None
     fit = read_fit_document(run / "fit.json")
-    side = read_fit_sidecar(run / "fit.nc") if (run / "fit.nc").exists() else None
+    side = read_fit_sidecar(run / "fit.nc") if current_file(run, "fit.nc") else None
     st = fit.get("starts", {})
     s.blocks.append(paragraph(
         f"Weighted multi-signal Levenberg–Marquardt (Algorithm 1) from {st.get('requested')} "
@@ -389,7 +399,8 @@ def predict_section(run: Path) -> Section:
     s = Section("Prediction", "predict")
     pred = _load_nc(run, "predict.nc", "prediction file")
     if pred is None:
-        return _not_run(s, "Prediction", "predict.nc is missing (gprm predict).")
+        return _not_run(s, "Prediction", _missing(run, "predict.nc",
+                                                  "predict.nc is missing (gprm predict)."))
     s.blocks.append(paragraph(
         "Trajectories of the contact middle points M_xz and M_yz and of the tip edge from the "
         "best fit (Eq. 8), with trajectories of parameter sets drawn from the fit covariance, "
@@ -430,8 +441,9 @@ def whatif_section(run: Path) -> Section:
     e10 = _load_nc(run, "predict_ecc10.nc", "what-if prediction")
     base = _load_nc(run, "predict.nc", "prediction file")
     if wi is None and p1 is None and e10 is None:
-        return _not_run(s, "What-ifs", "whatif.json and the what-if predictions are missing "
-                        "(gprm predict --piezo 1, --scale-eccentricity 0.1).")
+        return _not_run(s, "What-ifs", _missing(
+            run, "whatif.json", "whatif.json and the what-if predictions are missing "
+            "(gprm predict --piezo 1, --scale-eccentricity 0.1)."))
     s.blocks.append(paragraph(
         "Two strategies of Sec. 4.2: driving Piezo 1 instead of Piezo 2, and Piezo 1 with the "
         "eccentricities v2, g2, ρ and γ divided by ten. The ratios are the overshoot with "
@@ -466,8 +478,8 @@ def flight_section(run: Path) -> Section:
     s = Section("Flight: impact analysis", "flight")
     imp = _load_json(run, "impact.json", "impact result")
     if imp is None:
-        return _not_run(s, "Flight analysis",
-                        "impact.json is missing (gprm synth telemetry + gprm impact).")
+        return _not_run(s, "Flight analysis", _missing(
+            run, "impact.json", "impact.json is missing (gprm synth telemetry + gprm impact)."))
     curves = _load_nc(run, "impact.nc", "impact curves")
     n = len(imp.get("releases", []))
     n_ok = impact_times_found(imp)

@@ -5,6 +5,7 @@ the report's summary cards. Every entry is present only when the file it comes f
 
 from __future__ import annotations
 
+import json
 import math
 from pathlib import Path
 
@@ -14,11 +15,38 @@ from gprm.predict.files import read_whatif
 from gprm.fit.files import read_fit_document
 
 
+def earlier_outputs(run: str | Path) -> dict[str, str]:
+    """Files of a run directory that its last ``gprm run`` did not produce: the outputs of a
+    stage that failed or was blocked in it, left as they were (``kept`` in ``run.json``;
+    gprm deletes only what it wrote in that call). Name -> why ("fit failed"). The summary
+    and the report leave them out: they are not that run's results."""
+    p = Path(run) / "run.json"
+    try:
+        rec = json.loads(p.read_text(encoding="utf-8")) if p.is_file() else {}
+    except (OSError, ValueError, RecursionError):
+        return {}
+    stages = rec.get("stages") if isinstance(rec, dict) else None
+    out: dict[str, str] = {}
+    for name, st in (stages.items() if isinstance(stages, dict) else ()):
+        if isinstance(st, dict) and st.get("status") not in ("ran", "skipped"):
+            for f in st.get("kept") or ():
+                out[str(f)] = f"the {name} stage {st.get('status')}"
+    return out
+
+
+def current_file(run: str | Path, name: str) -> Path | None:
+    """``run / name`` where it exists and is the last run's (not :func:`earlier_outputs`)."""
+    p = Path(run) / name
+    if not p.exists() or name in earlier_outputs(run):
+        return None
+    return p
+
+
 def truth_from_means(run: Path) -> dict | None:
     """The synthetic truth (SI, name -> value) recorded in ``means.nc``, if any; t0 and t1 in
     the aligned time base of the means (its truth after alignment) where given."""
-    p = Path(run) / "means.nc"
-    if not p.exists():
+    p = current_file(run, "means.nc")
+    if p is None:
         return None
     means = read_means(p)
     truth = read_truth(means)
@@ -119,7 +147,7 @@ def impact_times_found(imp: dict) -> int:
 def summarise(run: str | Path) -> dict:
     run = Path(run)
     s: dict = {}
-    if (run / "fit.json").exists():
+    if current_file(run, "fit.json"):
         fit = read_fit_document(run / "fit.json")
         st = fit.get("starts", {})
         s["fit"] = {"chi2": fit.get("chi2"), "dof": fit.get("dof"),
@@ -129,13 +157,13 @@ def summarise(run: str | Path) -> dict:
         truth = truth_from_means(run)
         if truth:
             s["truth_recovery"] = truth_recovery(fit, truth_for_fit(truth, fit))
-    if (run / "whatif.json").exists():
+    if current_file(run, "whatif.json"):
         wi = read_whatif(run / "whatif.json")
         s["whatif"] = {r["name"]: r.get("headline", {}) for r in wi.get("ratios", [])
                        if r.get("name") != r.get("baseline")}
         s["whatif_paper"] = {r["name"]: r["paper"] for r in wi.get("ratios", [])
                              if r.get("paper")}
-    if (run / "impact.json").exists():
+    if current_file(run, "impact.json"):
         imp = read_impact(run / "impact.json")
         tk = imp.get("tukey", {})
         pairs = tk.get("pairs", [])

@@ -7,10 +7,46 @@ import os
 from dataclasses import replace
 from pathlib import Path
 
+from gprm._io import check_outputs
+from gprm.campaign.files import campaign_inputs
 from gprm.errors import GprmInputError
-from gprm.run.engine import RunResult, run_stages
+from gprm.fit.engine import check_checkpoint_folder
+from gprm.run.engine import RUN_JSON, RunResult, run_stages
 from gprm.run.options import RunOptions
-from gprm.run.stages import chain
+from gprm.run.stages import FIT_CHECKPOINTS, chain
+
+#: files of a run directory besides the stages' outputs
+RUN_FILES = (RUN_JSON, "report.html")
+
+
+def check_run_outputs(out: str | os.PathLike, opts: RunOptions, field: str = "out") -> None:
+    """Refuse, before anything runs, a run directory that cannot be one (a file, a path
+    below a file, a place where no file can be created) or whose files would overwrite an
+    input (the campaign's files, the telemetry; the run's own ``campaign.nc`` and
+    ``telemetry.nc`` may be the inputs they are copies of, when a run is resumed from them),
+    and a checkpoint folder ``fit.json.ckpt`` that gprm did not make. ``field`` names the
+    option in the message."""
+    run = Path(out)
+    check_outputs({}, folders={run: field})
+    inputs = [*(campaign_inputs(opts.campaign) if opts.campaign is not None else ()),
+              *((Path(opts.telemetry),) if opts.telemetry is not None else ())]
+    own = {"campaign.nc": opts.campaign, "telemetry.nc": opts.telemetry}
+    outs = []
+    for name in [*(n for s in chain(opts) for n in s.outputs), *RUN_FILES]:
+        src = own.get(name)
+        if src is not None and _same_file(Path(src), run / name):
+            continue
+        outs.append((run / name, field))
+    check_outputs(outs, inputs=inputs)
+    check_checkpoint_folder(run / FIT_CHECKPOINTS, field=field)
+
+
+def _same_file(a: Path, b: Path) -> bool:
+    try:
+        return a.is_file() and b.is_file() and os.path.samefile(a, b)
+    except OSError:
+        return False
+
 
 def _check_sources(opts: RunOptions) -> None:
     if opts.campaign is not None:
@@ -34,12 +70,14 @@ def _check_sources(opts: RunOptions) -> None:
 def run_chain(out: str | os.PathLike, opts: RunOptions = RunOptions(), *, progress=None,
               command: str | None = None, report_html: bool = True) -> RunResult:
     """Run the chain of ``opts`` into ``out`` (created if needed), resuming what is up to
-    date (see :mod:`gprm.run.engine`). A campaign or telemetry path that does not exist is a
-    :class:`GprmInputError` before anything runs; a stage that fails on its input is recorded
+    date (see :mod:`gprm.run.engine`). A campaign or telemetry path that does not exist, or
+    an ``out`` that cannot be a run directory (:func:`check_run_outputs`), is a
+    :class:`GprmInputError` (field ``out``) before anything runs; a stage that fails on its input is recorded
     in ``run.json`` (status ``failed``, with the message) and blocks the stages after it."""
     if not isinstance(opts, RunOptions):
         raise GprmInputError(f"expected RunOptions, got {type(opts).__name__}", field="opts")
     _check_sources(opts)
+    check_run_outputs(out, opts)
     return run_stages(out, opts, chain(opts), progress=progress, command=command,
                       report_html=report_html)
 

@@ -77,8 +77,15 @@ def run_and_print(out: Path, opts, *, demo: bool) -> None:
 
     from gprm.run import run_chain, run_demo, stage_titles
 
+    from gprm.run.api import check_run_outputs
+
     titles = stage_titles(opts)
     name = "gprm demo" if demo else "gprm run"
+    if demo:
+        from dataclasses import replace
+
+        opts = replace(opts, campaign=None, telemetry=None)
+    check_run_outputs(out, opts, field="--out")    # before the progress display starts
     with _Progress(Console(stderr=True), titles) as prog:
         res = (run_demo if demo else run_chain)(out, opts, progress=prog.event,
                                                 command="gprm " + " ".join(sys.argv[1:]))

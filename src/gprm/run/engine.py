@@ -11,6 +11,12 @@ downstream stage's input hash changes.
 A stage that fails is recorded (with the last lines of its traceback); the stages that need
 its output are "blocked", and the report says "not run" for them. This module knows nothing of
 the particular stages (:mod:`gprm.run.stages`); it sits above the report, which it calls last.
+
+Nothing the tool did not write is deleted: a stage that fails removes only the files it wrote
+in this call (a multi-file stage that stopped half-way); files of the stage's names that were
+there before (an earlier run's, or the user's) are left as they were and listed as ``kept``
+in its record, and the report and the summary leave them out (they are not this run's). The
+temporary files of writes that a killed gprm left in the folder are removed.
 """
 
 from __future__ import annotations
@@ -30,7 +36,7 @@ import scipy
 import xarray
 
 from gprm import __version__
-from gprm._io import read_json, write_json_atomic
+from gprm._io import read_json, remove_stale_temps, write_json_atomic
 from gprm.fit.engine import takes_keyword
 from gprm.errors import GprmInputError
 from gprm.report.build import write_report
@@ -98,9 +104,31 @@ def input_key(run: Path, stage: Stage, opts) -> str:
     return h.hexdigest()
 
 
+def _file_key(path: Path) -> tuple | None:
+    """What changes when a file is written (atomically: a new inode) or edited."""
+    try:
+        st = path.stat()
+    except OSError:
+        return None
+    return (st.st_dev, st.st_ino, st.st_size, st.st_mtime_ns)
+
+
+def last_result(previous: dict, name: str) -> dict | None:
+    """The record of the last call in which stage ``name`` produced its outputs: its own
+    record, or, where it then failed or was blocked and its earlier outputs were kept, the
+    record of those (``earlier``)."""
+    rec = (previous.get("stages") or {}).get(name)
+    if not isinstance(rec, dict):
+        return None
+    if rec.get("status") in ("ran", "skipped"):
+        return rec
+    earlier = rec.get("earlier")
+    return earlier if isinstance(earlier, dict) else None
+
+
 def up_to_date(run: Path, stage: Stage, key: str, previous: dict) -> bool:
-    rec = previous.get("stages", {}).get(stage.name)
-    if not rec or rec.get("status") not in ("ran", "skipped") or rec.get("input_key") != key:
+    rec = last_result(previous, stage.name)
+    if not rec or rec.get("input_key") != key:
         return False
     outs = rec.get("outputs", {})
     for name in stage.outputs:
@@ -143,14 +171,22 @@ def run_stages(out: str | os.PathLike, opts, stages, *, progress: Progress | Non
     stage records and the summary (also written to ``run.json``).
     """
     run = Path(out)
-    run.mkdir(parents=True, exist_ok=True)
+    try:
+        run.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise GprmInputError(f"cannot be created ({exc.strerror or exc})", source=str(run),
+                             field="out") from None
+    # temporary files of writes a killed gprm left here (of any version); nothing else
+    remove_stale_temps(run, legacy_names={n for s in stages for n in s.outputs}
+                       | {RUN_JSON, "report.html"})
     prev_path = run / RUN_JSON
-    previous = {}
+    previous: dict = {}
     if prev_path.exists():
         try:
-            previous = read_json(prev_path, what="run record")
+            rec = read_json(prev_path, what="run record")
         except Exception:   # a damaged record only costs a full rerun
-            previous = {}
+            rec = None
+        previous = rec if isinstance(rec, dict) else {}
     report = _events(progress)
     seed = getattr(opts, "seed", None)
     state: dict[str, Any] = {           # the run record (run.json)
@@ -164,27 +200,49 @@ def run_stages(out: str | os.PathLike, opts, stages, *, progress: Progress | Non
         "timings_s": {},
     }
     records: list[StageRecord] = []
+    not_this_run: set[str] = set()      # outputs of stages that did not run: never inputs
 
-    def not_done(stage: Stage, rec: StageRecord, event: str, **entry) -> None:
-        """Record a stage that produced no outputs (blocked, failed) and remove its outputs:
-        those of an older run would no longer match, a half-written one must not be reused."""
+    def not_done(stage: Stage, rec: StageRecord, event: str, before: dict | None = None,
+                 **entry) -> None:
+        """Record a stage that produced no outputs (blocked, failed). Of its output names,
+        the files it wrote in this call (``before``: their state before it ran) are removed;
+        any other file of those names is left as it was and listed as ``kept``: not this
+        run's result, so the summary and the report leave it out."""
         report(stage.name, event, None, None)
         records.append(rec)
-        state["stages"][stage.name] = {"status": rec.status, "detail": rec.detail, **entry}
+        not_this_run.update(stage.outputs)
+        before = before if before is not None else {n: _file_key(run / n)
+                                                    for n in stage.outputs}
+        kept = []
         for name in stage.outputs:
-            (run / name).unlink(missing_ok=True)
+            now = _file_key(run / name)
+            if now is None:
+                continue
+            if now != before.get(name):            # written by this stage, in this call
+                try:
+                    (run / name).unlink(missing_ok=True)
+                    continue
+                except OSError:                     # cannot be removed: not used either
+                    pass
+            kept.append(name)
+        state["stages"][stage.name] = {"status": rec.status, "detail": rec.detail, **entry}
+        if kept:
+            state["stages"][stage.name]["kept"] = kept
+            earlier = last_result(previous, stage.name)
+            if earlier is not None:     # a later call may still find them up to date
+                state["stages"][stage.name]["earlier"] = earlier
         _write_state(run, state)
 
     t_all = time.perf_counter()
     for stage in stages:
-        missing = [n for n in stage.inputs if not (run / n).exists()]
+        missing = [n for n in stage.inputs if n in not_this_run or not (run / n).exists()]
         if missing:
             not_done(stage, StageRecord(stage.name, "blocked",
                                         detail="needs " + ", ".join(missing)), "blocked")
             continue
         key = input_key(run, stage, opts)
         if up_to_date(run, stage, key, previous):
-            old = previous["stages"][stage.name]
+            old = last_result(previous, stage.name) or {}
             rec = StageRecord(stage.name, "skipped", seconds=0.0,
                               detail="up to date (inputs and settings unchanged)",
                               info=old.get("info", {}))
@@ -197,6 +255,7 @@ def run_stages(out: str | os.PathLike, opts, stages, *, progress: Progress | Non
             continue
         report(stage.name, "start", None, None)
         t0 = time.perf_counter()
+        before = {n: _file_key(run / n) for n in stage.outputs}
         try:
             info = stage.run(run, opts, lambda d, t, _n=stage.name, **kw:
                              report(_n, "step", d, t, **kw))
@@ -208,12 +267,12 @@ def run_stages(out: str | os.PathLike, opts, stages, *, progress: Progress | Non
             detail = str(exc) if _is_input_error(exc) else f"{type(exc).__name__}: {exc}"
             tb = traceback.format_exc().strip().splitlines()[-12:]
             not_done(stage, StageRecord(stage.name, "failed", seconds=time.perf_counter() - t0,
-                                        detail=detail), "fail", traceback=tb)
+                                        detail=detail), "fail", before, traceback=tb)
             continue
         except BaseException:          # interrupted: record it and stop; a rerun resumes
-            report(stage.name, "fail", None, None)
-            state["stages"][stage.name] = {"status": "interrupted"}
-            _write_state(run, state)
+            not_done(stage, StageRecord(stage.name, "interrupted",
+                                        seconds=time.perf_counter() - t0,
+                                        detail="interrupted"), "fail", before)
             raise
         dt = time.perf_counter() - t0
         rec = StageRecord(stage.name, "ran", seconds=dt, info=info or {})

@@ -25,7 +25,9 @@ from gprm._io import atomic_path
 from gprm.campaign.api import run_preprocess
 from gprm.campaign.files import load_campaign, write_campaign, write_means
 from gprm.campaign.synth import synth_campaign
+from gprm.errors import GprmInputError
 from gprm.fit.api import run_fit
+from gprm.fit.engine import remove_checkpoints
 from gprm.fit.files import FittedModel, load_model
 from gprm.flight.analysis import AnalysisOptions
 from gprm.flight.api import (ImpactOptions, TelemetryOptions, run_impact, run_synth_telemetry,
@@ -124,12 +126,21 @@ def _preprocess(run: Path, opts: RunOptions, step) -> dict:
     return {"signals": int(means.sizes.get("signal", 0)), "samples": int(means.sizes["time"])}
 
 
+#: the fit stage's checkpoint folder in the run directory
+FIT_CHECKPOINTS = "fit.json.ckpt"
+
+
 def _fit(run: Path, opts: RunOptions, step) -> dict:
-    ckpt = run / "fit.json.ckpt"
-    res = run_fit(run / "means.nc", opts.fit, workers=opts.workers, checkpoint_dir=ckpt,
-                  progress=step)
+    ckpt = run / FIT_CHECKPOINTS
+    existed = ckpt.exists()
+    try:
+        res = run_fit(run / "means.nc", opts.fit, workers=opts.workers, checkpoint_dir=ckpt,
+                      progress=step)
+    except GprmInputError:          # refused: no checkpoint folder of its own left behind
+        remove_checkpoints(ckpt, only_if_empty=existed)
+        raise
     res.write(run / "fit.json")
-    shutil.rmtree(ckpt, ignore_errors=True)
+    remove_checkpoints(ckpt)        # only what gprm wrote there, never other files
     return {"chi2": float(res.chi2), "reduced_chi2": float(res.reduced_chi2),
             "dof": int(res.dof), "n_at_best": int(res.starts.n_at_best())}
 

@@ -163,13 +163,15 @@ def default_max_lag(T: int) -> int:
 def alignment_sd(obj: Objective, y: np.ndarray, dy: np.ndarray) -> np.ndarray:
     """(n_signals,) s: the error of each signal's alignment, estimated from the data: the
     noise of the mean at the alignment time (sem there, or noise_std / sqrt(R)) over the
-    model's slope there. Zero where the alignment time is outside the window."""
+    slope there (the data's where it is steeper), at most one sample. Zero where the alignment
+    time is outside the window."""
     d = obj.data
     t_a = float(d.attrs.get("align_time", np.nan))
     out = np.zeros(len(d.signals))
     if not np.isfinite(t_a) or not (d.time[0] <= t_a <= d.time[-1]):
         return out
     k = int(np.argmin(np.abs(d.time - t_a)))
+    dt = float(np.median(np.diff(d.time)))
     for s in range(len(d.signals)):
         if d.runs is not None:
             noise = float(np.std(d.runs[s, :, k], ddof=1) / np.sqrt(d.runs.shape[1]))
@@ -177,8 +179,12 @@ def alignment_sd(obj: Objective, y: np.ndarray, dy: np.ndarray) -> np.ndarray:
             noise = float(d.sigma[s, k])
         else:
             noise = float(d.sigma[s, k]) / np.sqrt(float(d.attrs.get("n_runs", 10)))
-        slope = abs(float(dy[s, k]))
-        out[s] = noise / slope if slope > 0 else 0.0
+        # the slope there: the model's, or the data's where the model is flatter (a fit whose
+        # onset sits elsewhere); the estimate is capped at one sample, the resolution the
+        # crossing is bracketed to before its refinement
+        data_slope = abs(float(np.gradient(d.values[s], d.time)[k]))
+        slope = max(abs(float(dy[s, k])), data_slope)
+        out[s] = min(noise / slope, dt) if slope > 0 else dt
     return out
 
 

@@ -4,6 +4,7 @@ few starts with the fit library, and an impact result in the format of docs/spec
 
 from __future__ import annotations
 
+import hashlib
 from pathlib import Path
 
 import numpy as np
@@ -72,7 +73,6 @@ def make_fit(run: Path, *, starts: int = 40, seed: int = 0) -> None:
            "correlation": {"names": list(names), "matrix": np.eye(len(names)).tolist()},
            "starts": {"requested": starts, "converged": starts - 3, "best_index": 0,
                       "n_at_best": starts // 3, "spread": 0.2}}
-    write_json_atomic(run / "fit.json", fit)
     finals = np.concatenate([np.full(starts // 3, chi2), chi2 * (1 + rng.exponential(
         5.0, starts - starts // 3))])
     band = 0.03 * np.abs(best) + 1e-9
@@ -83,6 +83,10 @@ def make_fit(run: Path, *, starts: int = 40, seed: int = 0) -> None:
                        "band_sample_hi": (("signal", "time"), best + band)},
                       coords={"signal": list(data.signals), "time": data.time})
     write_netcdf_atomic(side, run / "fit.nc")
+    # as gprm.fit.files.write_fit: the sidecar first, then the JSON binding it by its hash
+    fit["sidecar"] = {"name": "fit.nc", "sha256": hashlib.sha256(
+        (run / "fit.nc").read_bytes()).hexdigest()}
+    write_json_atomic(run / "fit.json", fit)
 
 
 def make_impact(path: Path, *, releases: int = 11, seed: int = 0) -> None:

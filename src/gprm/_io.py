@@ -598,6 +598,14 @@ def text_errors(src: str, field: str):
                              field=field) from None
 
 
+def excerpt(text: object, limit: int = 40) -> str:
+    """A short, safe quotation of input text for an error message: printable ASCII only
+    (anything else shown as ``?``), at most ``limit`` characters (cut with ``...``), quoted.
+    Error lines never echo more of a file than this."""
+    s = "".join(c if " " <= c <= "~" else "?" for c in str(text))
+    return repr(s if len(s) <= limit else s[: limit - 3] + "...")
+
+
 def two_column_rows(path: Path, src: str, columns: str, field: str
                     ) -> tuple[list[tuple[float, float]], list[int]]:
     """The numeric rows of a two-column CSV text file (time and one value: a campaign's data
@@ -620,7 +628,8 @@ def two_column_rows(path: Path, src: str, columns: str, field: str
                 lines.append(lineno)
             except ValueError:
                 if rows:            # a non-numeric row after the data began
-                    raise GprmInputError(f"line {lineno}: not a number: {row[:2]}",
+                    raise GprmInputError(f"line {lineno}: not a number: "
+                                         f"{excerpt(','.join(row[:2]))}",
                                          source=src, field=field) from None
                 continue            # a header row
     if not rows:

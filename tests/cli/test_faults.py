@@ -544,3 +544,78 @@ def test_a_stop_signal_the_caller_ignores_stays_ignored():
         assert signal.getsignal(signal.SIGTERM) == term
     finally:
         signal.signal(signal.SIGHUP, old)
+
+
+# ------------------------------------------------------- issue 22: the fit's sidecar is bound
+
+@pytest.fixture(scope="module")
+def two_fits(tmp_path_factory):
+    """Two small fits (different seeds) with draws in their sidecars, written by write_fit."""
+    from gprm.fit.api import FitOptions, run_fit
+    from gprm.params import paper
+
+    d = tmp_path_factory.mktemp("sidecars")
+    means = make_means(paper(), seed=5)
+    for name, seed in (("a", 2), ("b", 3)):
+        (d / name).mkdir()
+        run_fit(means, FitOptions(starts=3, chunk=3, max_iter=6, band_samples=5, seed=seed,
+                                  uncertainty="laplace-prior")).write(d / name / "fit.json")
+    return d
+
+
+def _flip(p: Path, other: Path):
+    b = bytearray(p.read_bytes())
+    b[len(b) // 2] ^= 0x01
+    p.write_bytes(bytes(b))
+
+
+@pytest.mark.parametrize("damage, problem", [
+    (lambda p, o: p.write_bytes(p.read_bytes()[: p.stat().st_size // 2]), "does not match"),
+    (_flip, "does not match"),
+    (lambda p, o: p.write_bytes(b""), "does not match"),
+    (lambda p, o: p.write_bytes(b"not a NetCDF file at all"), "does not match"),
+    (lambda p, o: shutil.copyfile(o, p), "does not match"),          # another fit's sidecar
+    (lambda p, o: p.unlink(), "is missing"),
+], ids=["truncated", "bit-flipped", "empty", "foreign", "another-fits", "missing"])
+def test_a_sidecar_that_is_not_the_fits_own_is_refused_unless_ignored(two_fits, tmp_path,
+                                                                      damage, problem):
+    import xarray as xr
+
+    work = tmp_path / "w"
+    shutil.copytree(two_fits, work)
+    fit, side = work / "a" / "fit.json", work / "a" / "fit.nc"
+    good = _invoke(["predict", fit, "--out", tmp_path / "good.nc", "--samples", "40"],
+                   tmp_path)
+    assert good.exit_code == 0, good.output
+    damage(side, work / "b" / "fit.nc")
+    r = _invoke(["predict", fit, "--out", tmp_path / "p.nc", "--samples", "40"], tmp_path)
+    line = _one_error_line(r.output)
+    assert r.exit_code == 2 and str(fit) in line and str(side) in line and problem in line, line
+    assert "--ignore-sidecar" in line and not (tmp_path / "p.nc").exists()
+    r = _invoke(["predict", fit, "--out", tmp_path / "p.nc", "--samples", "40",
+                 "--ignore-sidecar"], tmp_path)
+    assert r.exit_code == 0, r.output
+    assert "note: --ignore-sidecar: sidecar fit.nc ignored" in r.output, r.output
+    ds = xr.open_dataset(tmp_path / "p.nc")
+    assert "fit.nc ignored" in ds.attrs["sidecar_ignored"]
+    assert "fit.nc ignored" in ds.attrs["uncertainty"]
+    assert "sidecar_ignored" not in xr.open_dataset(tmp_path / "good.nc").attrs
+
+
+def test_the_fit_records_its_sidecars_checksum_and_old_fits_read_with_a_warning(two_fits,
+                                                                                tmp_path):
+    import hashlib
+
+    work = tmp_path / "w"
+    shutil.copytree(two_fits, work)
+    fit = work / "a" / "fit.json"
+    doc = json.loads(fit.read_text())
+    assert doc["sidecar"] == {"name": "fit.nc", "sha256": hashlib.sha256(
+        (work / "a" / "fit.nc").read_bytes()).hexdigest()}
+    del doc["sidecar"]                     # a fit.json of an older gprm
+    fit.write_text(json.dumps(doc))
+    r = _gprm(["predict", str(fit), "--out", str(tmp_path / "p.nc"), "--samples", "20"],
+              tmp_path, env=_env(tmp_path), timeout=300)
+    assert r.returncode == 0, r.stderr
+    warn = [ln for ln in r.stderr.splitlines() if ln.startswith("gprm: warning:")]
+    assert len(warn) == 1 and "records no checksum of its sidecar" in warn[0], r.stderr

@@ -74,6 +74,37 @@ def _csv_binary_data(d: Path):
     data.write_bytes(b"\x00\x01\x02" * 100)
 
 
+def _edit_manifest(d: Path, edit):
+    m = d / "csv" / "manifest.csv"
+    m.write_text(edit(m.read_text()))
+
+
+def _manifest_units(d: Path):
+    """issue 22: a header ``units`` was ignored and micrometres read as metres."""
+    _edit_manifest(d, lambda t: t.replace(",unit\n", ",units\n", 1).replace(",m\n", ",um\n"))
+
+
+def _manifest_gain(d: Path):
+    lines = (d / "csv" / "manifest.csv").read_text().splitlines()
+    _edit_manifest(d, lambda t: "\n".join([lines[0] + ",gain"] + [ln + ",2" for ln in lines[1:]])
+                   + "\n")
+
+
+def _manifest_row_to(d: Path, name: str):
+    lines = (d / "csv" / "manifest.csv").read_text().splitlines()
+    first = lines[1].split(",")
+    (d / "outside").mkdir(exist_ok=True)
+    (d / "outside" / "x.csv").write_text((d / "csv" / first[3]).read_text()
+                                         + "secret-token-in-a-foreign-file,1\n")
+    first[3] = name
+    _edit_manifest(d, lambda t: "\n".join([lines[0], ",".join(first)] + lines[2:]) + "\n")
+
+
+def _manifest_symlink(d: Path):
+    _manifest_row_to(d, "x_lr/link.csv")
+    (d / "csv" / "x_lr" / "link.csv").symlink_to(d / "outside" / "x.csv")
+
+
 CASES = [
     # (id, argv, text expected in the line, setup)
     ("fit-seed", ["fit", "m.nc", "--out", "f.json", "--seed", "-1"], "--seed", None),
@@ -119,6 +150,20 @@ CASES = [
      "would overwrite the input", None),
     ("preprocess-over-csv-data", ["preprocess", "csv", "--out", "csv/x_head/actuated_00.csv"],
      "would overwrite the input", None),
+    # issue 22: a strict manifest schema; manifest files stay inside the campaign folder
+    ("preprocess-manifest-units", ["preprocess", "csv", "--out", "x.nc"],
+     "manifest.csv: field 'manifest': unknown column 'units' in the header (expected "
+     "position, kind, run, file, unit, 'unit' optional); did you mean 'unit'?", _manifest_units),
+    ("preprocess-manifest-gain", ["preprocess", "csv", "--out", "x.nc"],
+     "manifest.csv: field 'manifest': unknown column 'gain'", _manifest_gain),
+    ("preprocess-manifest-parent", ["preprocess", "csv", "--out", "x.nc"],
+     "manifest.csv: field 'file': row 2: file '../outside/x.csv' is outside the campaign "
+     "folder", lambda d: _manifest_row_to(d, "../outside/x.csv")),
+    ("preprocess-manifest-absolute", ["preprocess", "csv", "--out", "x.nc"],
+     "manifest.csv: field 'file': row 2: file '/", lambda d: _manifest_row_to(
+         d, str((d / "outside" / "x.csv").resolve()))),
+    ("preprocess-manifest-symlink", ["preprocess", "csv", "--out", "x.nc"],
+     "row 2: file 'x_lr/link.csv' is outside the campaign folder", _manifest_symlink),
     ("preprocess-align", ["preprocess", "c.nc", "--out", "x.nc", "--align-time", "-1ms"],
      "--align-time", None),
     ("predict-samples-huge", ["predict", "paper", "--out", "p.nc", "--samples", "1000000",
@@ -240,6 +285,22 @@ def test_bad_input_is_one_line_exit_2_nothing_written(inputs, tmp_path, monkeypa
     assert "Traceback" not in r.output
     assert _snapshot(work) == before          # nothing written, inputs unchanged
     assert not (tmp_path / "logs").exists()   # an input error is not an internal error
+
+
+def test_a_bad_data_row_is_quoted_short_and_sanitised(inputs, tmp_path, monkeypatch):
+    """issue 22: an error line quotes at most 40 printable characters of a bad row."""
+    import shutil
+
+    work = tmp_path / "work"
+    shutil.copytree(inputs, work)
+    data = sorted((work / "csv" / "x_head").glob("*.csv"))[0]
+    bad = "A" * 100 + "\x1b[31m" + "B" * 100
+    data.write_text(data.read_text() + f"{bad},1\n")
+    monkeypatch.chdir(work)
+    r = CliRunner().invoke(app, ["preprocess", "csv", "--out", "x.nc"])
+    assert r.exit_code == 2 and len(r.output.strip().splitlines()) == 1, r.output
+    assert "not a number: 'AAAA" in r.output and "B" * 10 not in r.output, r.output
+    assert "\x1b" not in r.output and "A" * 41 not in r.output, r.output
 
 
 def test_read_only_location_is_refused_before_any_work(tmp_path, monkeypatch):

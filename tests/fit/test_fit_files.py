@@ -34,6 +34,8 @@ def test_writer_and_reader_round_trip(saved):
     res, path, side = saved
     assert side == path.with_suffix(".nc") and side.is_file()
     doc = read_fit_document(path)
+    side_rec = doc.pop("sidecar")                   # the writer binds the sidecar (issue 22)
+    assert side_rec["name"] == "fit.nc" and len(side_rec["sha256"]) == 64
     assert doc == json.loads(json.dumps(res.to_json_dict()))        # what was written
     fm = load_fit(path)
     np.testing.assert_allclose(fm.params.vector(res.names), res.x, rtol=1e-15)

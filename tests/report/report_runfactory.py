@@ -4,6 +4,7 @@ few starts with the fit library, and an impact result in the format of docs/spec
 
 from __future__ import annotations
 
+import hashlib
 from pathlib import Path
 
 import numpy as np
@@ -72,7 +73,6 @@ def make_fit(run: Path, *, starts: int = 40, seed: int = 0) -> None:
            "correlation": {"names": list(names), "matrix": np.eye(len(names)).tolist()},
            "starts": {"requested": starts, "converged": starts - 3, "best_index": 0,
                       "n_at_best": starts // 3, "spread": 0.2}}
-    write_json_atomic(run / "fit.json", fit)
     finals = np.concatenate([np.full(starts // 3, chi2), chi2 * (1 + rng.exponential(
         5.0, starts - starts // 3))])
     band = 0.03 * np.abs(best) + 1e-9
@@ -83,10 +83,18 @@ def make_fit(run: Path, *, starts: int = 40, seed: int = 0) -> None:
                        "band_sample_hi": (("signal", "time"), best + band)},
                       coords={"signal": list(data.signals), "time": data.time})
     write_netcdf_atomic(side, run / "fit.nc")
+    # as gprm.fit.files.write_fit: the sidecar first, then the JSON binding it by its hash
+    fit["sidecar"] = {"name": "fit.nc", "sha256": hashlib.sha256(
+        (run / "fit.nc").read_bytes()).hexdigest()}
+    write_json_atomic(run / "fit.json", fit)
 
 
-def make_impact(path: Path, *, releases: int = 11, seed: int = 0) -> None:
-    """Impact times scattered around 1.05 ms with the same mean on every axis."""
+def make_impact(path: Path, *, releases: int = 11, seed: int = 0, truth: bool = True,
+                joint_rejected: tuple[str, ...] | None = None) -> None:
+    """Impact times scattered around 1.05 ms with the same mean on every axis. ``truth``:
+    synthetic releases with their true impact times (False: measured telemetry, no truth);
+    ``joint_rejected``: release ids whose joint chi-square test rejects (None: no joint
+    check recorded)."""
     rng = np.random.default_rng(seed)
     rel = []
     for i in range(releases):
@@ -97,9 +105,17 @@ def make_impact(path: Path, *, releases: int = 11, seed: int = 0) -> None:
                                         "stderr": 1e-5} for a in AXES}})
     pairs = [{"a": a, "b": b, "q": 0.5, "p": 0.9, "reject": False}
              for i, a in enumerate(AXES) for b in AXES[i + 1:]]
-    write_json_atomic(path, {"releases": rel, "tukey": {"alpha": 0.01, "k": 6, "df": 60,
-                                                        "q_critical": 5.2, "pairs": pairs},
-                             "truth": {"impact_time": [1.05e-3] * releases}})
+    doc = {"releases": rel, "tukey": {"alpha": 0.01, "k": 6, "df": 60, "q_critical": 5.2,
+                                      "pairs": pairs, "all_compatible": True}}
+    if truth:
+        doc["truth"] = {"impact_time": [1.05e-3] * releases}
+    if joint_rejected is not None:
+        for r in rel:
+            r["joint"] = {"value": 1.05e-3, "ci95": [1.04e-3, 1.06e-3], "chi2": 3.0, "df": 5,
+                          "p": 1e-4 if r["id"] in joint_rejected else 0.7}
+        doc["joint"] = {"alpha": 0.01, "n": releases, "rejected": list(joint_rejected),
+                        "all_consistent": not joint_rejected}
+    write_json_atomic(path, doc)
     # the sidecar: predicted velocity as a function of the impact time, per axis
     t = np.linspace(1.0e-3, 1.2e-3, 101)
     nominal = np.stack([1e-5 * np.sin(2 * np.pi * (t - 1e-3) / 1e-4 + k) for k in range(6)])

@@ -178,7 +178,7 @@ def test_run_time_card_leaves_out_the_report_stage(tmp_path):
                        "report": {"status": "ran", "seconds": 500.0}}}
     cards = {c.label: c for c in summary_cards(tmp_path, None, prov)}
     assert cards["run time"].value == "43 s"
-    assert cards["stages"].value == "2 / 2 done"
+    assert cards["stages"].value == "3 / 3 done"       # as the terminal: the report counts
 
 
 def test_identification_extras_render():

@@ -16,9 +16,10 @@ sys.path.insert(0, str(Path(__file__).parent))
 import report_runfactory as runfactory  # noqa: E402
 
 from gprm.report import figures as F  # noqa: E402
-from gprm.report.build import (campaign_section, git_commit, provenance_section,  # noqa: E402
-                               table3_rows)
-from gprm.report.html import pm  # noqa: E402
+from gprm.report.build import (build_report, campaign_section, flight_section,  # noqa: E402
+                               git_commit, provenance_section, summary_cards, table3_rows)
+from gprm.report.html import num, pm  # noqa: E402
+from gprm.report.summary import summarise  # noqa: E402
 
 
 @pytest.fixture(scope="module")
@@ -91,3 +92,106 @@ def test_git_commit_of_a_checkout_and_outside_one(tmp_path):
         assert re.fullmatch(r"[0-9a-f]{40}(\+dirty)?", here)
         assert here.startswith(head.stdout.strip())
     assert git_commit(tmp_path) == "not a git checkout"
+
+
+# ------------------------------------------------------------------ issue 22, item 15
+
+def test_provenance_omits_options_not_given_and_shows_times_with_units(run):
+    prov = {"options": {"campaign": None, "telemetry": None, "seed": 0,
+                        "preprocess": {"align_time": 0.00101, "threshold_factor": 2.0},
+                        "fit": {"window": [0.00097, 0.0012], "gain_sd": None,
+                                "timing_sd": 2e-7, "starts": 50}}}
+    text = "".join(map(str, provenance_section(run, prov).blocks))
+    assert "option campaign" not in text and "None" not in text
+    assert "1.01 ms" in text and "0.00101" not in text
+    assert "0.97, 1.2 ms" in text and "200 ns" in text
+    assert "option fit.starts" in text
+
+
+def test_table3_gives_every_lag_in_microseconds(run):
+    fit = json.loads((run / "fit.json").read_text())
+    rows = {r[0]: r for r in table3_rows(fit, {"t0": 4.2e-6})}
+    lags = [n for n in rows if n in ("t0", "t1") or n.startswith("dt_")]
+    assert "t0" in lags and "t1" in lags
+    for n in lags:
+        assert rows[n][1] == "µs", rows[n]
+        assert "10⁻" not in " ".join(rows[n][2:4]), rows[n]
+    t0 = fit["parameters"]["t0"]["value"]
+    assert rows["t0"][2] == num(t0 * 1e6) and rows["t0"][5] == "4.2"
+
+
+def test_the_stages_card_counts_the_stages_the_terminal_lists(run):
+    stages = {k: {"status": "ran", "seconds": 1.0} for k in
+              ("campaign", "preprocess", "fit", "predict", "telemetry", "impact")}
+    cards = {c.label: c for c in summary_cards(run, None, {"stages": stages})}
+    assert cards["stages"].value == "7 / 7 done"          # the report is the terminal's 7th
+    stages["fit"] = {"status": "failed"}
+    cards = {c.label: c for c in summary_cards(run, None, {"stages": stages})}
+    assert cards["stages"].value == "6 / 7 done" and "fit (failed)" in cards["stages"].note
+
+
+def test_real_telemetry_report_names_rejected_releases_and_claims_no_truth(tmp_path):
+    run = tmp_path / "real"
+    run.mkdir()
+    runfactory.make_means(run / "means.nc")
+    runfactory.make_fit(run, starts=6)
+    runfactory.make_impact(run / "impact.json", releases=4, truth=False,
+                           joint_rejected=("R03",))
+    cards = {c.label: c for c in summary_cards(run, None, {})}
+    assert cards["joint impact time"].value == "rejected: R03"
+    assert cards["joint impact time"].tone == "bad"
+    assert "R03" in summarise(run)["joint"]["verdict"]
+    html = build_report(run)
+    assert "R03" in html and "joint χ² test rejects" in html
+    flight = re.sub(r"base64,[A-Za-z0-9+/=]+", "",          # the text, not the images
+                    "".join(map(str, flight_section(run).blocks)))   # (telemetry: no truth)
+    assert "R03" in flight and "true impact time" not in flight
+    assert "synthetic" not in flight and "truth" not in flight
+
+
+def test_synthetic_telemetry_keeps_its_truth_captions(tmp_path):
+    run = tmp_path / "synth"
+    run.mkdir()
+    runfactory.make_impact(run / "impact.json", releases=3, joint_rejected=())
+    html = build_report(run)
+    assert "true impact times of the synthetic releases" in html
+    cards = {c.label: c for c in summary_cards(run, None, {})}
+    assert cards["joint impact time"].value == "every release consistent"
+
+
+@pytest.mark.slow
+def test_a_run_on_csv_telemetry_without_truth_claims_no_truth(tmp_path):
+    """``gprm run`` with measured (CSV) telemetry: the report's flight captions and summary
+    claim no true impact time, and the closing table counts the report among the stages."""
+    import csv
+
+    from typer.testing import CliRunner
+
+    from gprm.campaign.synth import SynthConfig, synth_campaign
+    from gprm.cli import app
+    from gprm.fit.files import paper_model
+    from gprm.flight.synth import SynthOptions, synth_telemetry
+
+    synth_campaign(seed=1, config=SynthConfig(n_runs=3, n_noise=2, nonlinear=False)
+                   ).to_netcdf(tmp_path / "c.nc")
+    tel = synth_telemetry(paper_model(2), SynthOptions(n_releases=3))
+    with (tmp_path / "tel.csv").open("w", newline="") as fh:    # the channels alone
+        w = csv.writer(fh)
+        chans = [c for c in ("x", "y", "z", "theta", "eta", "phi") if c in tel]
+        w.writerow(["release", "time [s]", "release_time [s]"]
+                   + [f"{c} [{tel[c].attrs['units']}]" for c in chans])
+        for i, rid in enumerate(tel["release"].values):
+            for k in range(tel.sizes["sample"]):
+                t = float(tel["time"].values[i, k])
+                if t == t:
+                    w.writerow([str(rid), repr(t), repr(float(tel["release_time"].values[i]))]
+                               + [repr(float(tel[c].values[i, k])) for c in chans])
+    r = CliRunner().invoke(app, ["run", str(tmp_path / "c.nc"), "--telemetry",
+                                 str(tmp_path / "tel.csv"), "--out", str(tmp_path / "run"),
+                                 "--quick", "--starts", "4", "--workers", "0"])
+    assert r.exit_code == 0, r.output
+    html = re.sub(r"base64,[A-Za-z0-9+/=]+", "", (tmp_path / "run" / "report.html").read_text())
+    flight = html[html.index('id="flight"'):html.index('id="provenance"')]
+    assert "true impact time" not in flight and "synthetic releases" not in flight
+    assert ">None<" not in html                   # options not given are left out
+    assert "7 / 7 done" in html

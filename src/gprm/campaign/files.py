@@ -39,6 +39,7 @@ from __future__ import annotations
 
 import csv
 import dataclasses
+import difflib
 import hashlib
 import os
 import shutil
@@ -48,7 +49,7 @@ from pathlib import Path
 import numpy as np
 import xarray as xr
 
-from gprm._io import open_netcdf, text_errors, two_column_rows, write_netcdf_atomic
+from gprm._io import excerpt, open_netcdf, text_errors, two_column_rows, write_netcdf_atomic
 from gprm.campaign.data import POSITIONS, RATE_RTOL, campaign_dataset, validate_campaign
 from gprm.errors import GprmInputError
 from gprm.validate import CAMPAIGN, MEANS, check_dataset, legacy_json_attr, unit_factor
@@ -456,7 +457,30 @@ def campaign_inputs(path: str | os.PathLike) -> list[Path]:
     return out
 
 
+MANIFEST_COLUMNS = ("position", "kind", "run", "file", "unit")
+
+
+def _check_inside(root: Path, name: str, src: str, row: int) -> None:
+    """A manifest's ``file`` must name a file inside the campaign folder: relative, and still
+    inside once resolved (``..`` and symbolic links followed)."""
+    if Path(name).is_absolute() or name.startswith(("/", "\\")):
+        raise GprmInputError(f"row {row}: file {excerpt(name)} is an absolute path; files must "
+                             "be named relative to the campaign folder", source=src,
+                             field="file")
+    try:
+        target = (root / name).resolve()
+    except (OSError, RuntimeError):       # a symbolic-link loop
+        target = None
+    if target is None or not target.is_relative_to(root):
+        raise GprmInputError(f"row {row}: file {excerpt(name)} is outside the campaign folder",
+                             source=src, field="file")
+
+
 def read_manifest(path: Path) -> list[dict]:
+    """The rows of a campaign's ``manifest.csv``, checked: the header names only the columns
+    of :data:`MANIFEST_COLUMNS` (an unknown or misspelt one is refused with the closest
+    name, so that ``units`` is not silently ignored), each row's kind, position and run are
+    valid, and its file lies inside the campaign folder."""
     src = str(path)
     if not path.is_file():
         raise GprmInputError("campaign directory has no manifest.csv", source=src,
@@ -467,27 +491,42 @@ def read_manifest(path: Path) -> list[dict]:
         raise GprmInputError("is not a text CSV file (holds NUL bytes)", source=src,
                              field="manifest")
     reader = csv.DictReader(lines)
-    need = {"position", "kind", "run", "file"}
-    if reader.fieldnames is None or not need <= {f.strip() for f in reader.fieldnames}:
-        raise GprmInputError(f"header must name the columns {sorted(need)} (optional 'unit')",
-                             source=src, field="manifest")
+    header = [(f or "").strip() for f in (reader.fieldnames or [])]
+    for name in header:
+        if name not in MANIFEST_COLUMNS:
+            close = difflib.get_close_matches(name, MANIFEST_COLUMNS, n=1, cutoff=0.5)
+            hint = f"; did you mean {close[0]!r}?" if close else ""
+            raise GprmInputError(f"unknown column {excerpt(name)} in the header (expected "
+                                 f"{', '.join(MANIFEST_COLUMNS)}, 'unit' optional){hint}",
+                                 source=src, field="manifest")
+    dup = sorted({n for n in header if header.count(n) > 1})
+    missing = [n for n in MANIFEST_COLUMNS[:4] if n not in header]
+    if dup or missing:
+        what = f"repeats the column(s) {dup}" if dup else f"lacks the column(s) {missing}"
+        raise GprmInputError(f"header {what} (expected {', '.join(MANIFEST_COLUMNS)}, 'unit' "
+                             "optional)", source=src, field="manifest")
+    root = path.parent.resolve()
     out = []
     for i, row in enumerate(reader, start=2):
+        if None in row:
+            raise GprmInputError(f"row {i}: more fields than the header's {len(header)}",
+                                 source=src, field="manifest")
         row = {k.strip(): (v or "").strip() for k, v in row.items() if k is not None}
         kind = row["kind"].lower()
         if kind not in KINDS:
-            raise GprmInputError(f"row {i}: kind {row['kind']!r} is not one of {KINDS}",
+            raise GprmInputError(f"row {i}: kind {excerpt(row['kind'])} is not one of {KINDS}",
                                  source=src, field="kind")
         if kind != "voltage" and row["position"] not in POSITIONS:
-            raise GprmInputError(f"row {i}: unknown position {row['position']!r}", source=src,
-                                 field="position")
+            raise GprmInputError(f"row {i}: unknown position {excerpt(row['position'])}",
+                                 source=src, field="position")
         try:
             run = int(row["run"])
         except ValueError:
-            raise GprmInputError(f"row {i}: run {row['run']!r} is not an integer", source=src,
-                                 field="run") from None
+            raise GprmInputError(f"row {i}: run {excerpt(row['run'])} is not an integer",
+                                 source=src, field="run") from None
         if not row["file"]:
             raise GprmInputError(f"row {i}: empty file name", source=src, field="file")
+        _check_inside(root, row["file"], src, i)
         out.append({"position": row["position"], "kind": kind, "run": run,
                     "file": row["file"], "unit": row.get("unit", "")})
     if not out:

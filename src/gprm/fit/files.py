@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import hashlib
 import os
+import sys
 from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -91,6 +92,9 @@ class FittedModel:
     source: a fit JSON path or ``paper``.
     covariance_message: the fit's note on its covariance (why there is none, parameters at a
         bound), ``""`` where not given.
+    sidecar_note: ``""``, or why the fit's sidecar was ignored (``load_fit(...,
+        ignore_sidecar=True)`` on a sidecar that is missing, unreadable or not the fit's own):
+        the draws it holds are then not used, and :attr:`uncertainty_note` says so.
     """
 
     params: ParameterSet
@@ -102,6 +106,7 @@ class FittedModel:
     identified: tuple[str, ...] | None = None
     uncertainty: str = "covariance"
     covariance_message: str = ""
+    sidecar_note: str = ""
 
     @property
     def names(self) -> tuple[str, ...]:
@@ -126,10 +131,11 @@ class FittedModel:
     @property
     def uncertainty_note(self) -> str:
         """One line for consoles, files and the report."""
+        extra = f"; {self.sidecar_note}" if self.sidecar_note else ""
         if self.has_uncertainty:
-            return f"parameter uncertainty from the fit ({self.uncertainty})"
+            return f"parameter uncertainty from the fit ({self.uncertainty}){extra}"
         return ("best fit only: this fit has no usable parameter uncertainty, so no bands "
-                "or intervals are drawn from it")
+                "or intervals are drawn from it" + extra)
 
     def sample(self, n: int, seed: int = 0) -> dict[str, np.ndarray]:
         """``n`` parameter sets as a batch ``{name: (n,)}`` that can all be simulated.
@@ -239,7 +245,7 @@ def read_fit_sidecar(path: str | os.PathLike) -> xr.Dataset:
     return check_dataset(open_netcdf(path, what="fit sidecar"), FIT_SIDECAR, str(path))
 
 
-def load_fit(path: str | os.PathLike) -> FittedModel:
+def load_fit(path: str | os.PathLike, *, ignore_sidecar: bool = False) -> FittedModel:
     """Read a fit result JSON (docs/spec.md) into a :class:`FittedModel`.
 
     Every fit ``gprm fit`` writes loads, with or without a covariance: where there is none
@@ -250,6 +256,12 @@ def load_fit(path: str | os.PathLike) -> FittedModel:
     A file of another model or format version, a value that is not a finite number, a matrix
     of the wrong shape, or a best fit that cannot be simulated (a zero spring or mass) is an
     input error naming the field (:func:`read_fit_document`).
+
+    The sidecar is bound to its JSON by the SHA-256 the writer records (``"sidecar"``): a
+    sidecar that is missing, unreadable or does not match is an input error naming both
+    files, unless ``ignore_sidecar``: then its draws are not used (the covariance stands in,
+    narrower where the draws are not Gaussian) and ``sidecar_note`` says so. A fit JSON of an
+    older gprm records no checksum: its sidecar is used unchecked, with a warning on stderr.
     """
     src = str(path)
     doc = read_fit_document(path)
@@ -307,8 +319,8 @@ def load_fit(path: str | os.PathLike) -> FittedModel:
     unc = unc if isinstance(unc, dict) else {}
     ident = doc.get("identified")
     ident = tuple(n for n in ident if n in names) if isinstance(ident, list) else None
-    draws = _read_draws(Path(src).with_suffix(".nc"), ps.fitted)
-    return FittedModel(ps, cov, piezo=int(piezo), source=src,
+    draws, note = _sidecar_draws(src, doc, ps.fitted, ignore_sidecar)
+    return FittedModel(ps, cov, piezo=int(piezo), source=src, sidecar_note=note,
                        z_bk_absolute=bool(doc.get("z_bk_absolute", False)), draws=draws,
                        identified=ident,
                        uncertainty=str(unc.get("method", "eq7" if cov is not None else "none")),
@@ -326,11 +338,11 @@ def model_inputs(source) -> list[Path]:
 
 
 def load_model(source: str | os.PathLike | FittedModel, *,
-               piezo: int | None = None) -> FittedModel:
+               piezo: int | None = None, ignore_sidecar: bool = False) -> FittedModel:
     """The model a command or stage runs on: a :class:`FittedModel` as it is, the word
     ``paper`` (:func:`paper_model`), a fit JSON (:func:`load_fit`) or a run folder (its
     ``fit.json``). ``piezo`` (1 or 2) overrides the piezo of the fitted campaign (``paper``:
-    default 2)."""
+    default 2). ``ignore_sidecar``: see :func:`load_fit`."""
     check_piezo(piezo, optional=True)
     if isinstance(source, FittedModel):
         fm = source
@@ -338,29 +350,77 @@ def load_model(source: str | os.PathLike | FittedModel, *,
         return paper_model(piezo or 2)
     else:
         path = Path(source)
-        fm = load_fit(path / "fit.json" if path.is_dir() else path)
+        fm = load_fit(path / "fit.json" if path.is_dir() else path,
+                      ignore_sidecar=ignore_sidecar)
     if piezo is not None and piezo != fm.piezo:
         fm = replace(fm, piezo=piezo)
     return fm
 
 
+def file_sha256(path: Path) -> str:
+    h = hashlib.sha256()
+    with path.open("rb") as fh:
+        for block in iter(lambda: fh.read(1 << 20), b""):
+            h.update(block)
+    return h.hexdigest()
+
+
+def _sidecar_draws(src: str, doc: dict, names: tuple[str, ...],
+                   ignore: bool) -> tuple[np.ndarray | None, str]:
+    """The draws of the fit JSON ``src``'s sidecar, checked against the SHA-256 its JSON
+    records (:func:`load_fit`), and the note of a sidecar ignored (``""`` where none was)."""
+    side = Path(src).with_suffix(".nc")
+    rec = doc.get("sidecar")
+    problem = ""
+    if rec is None:                              # a fit JSON of an older gprm
+        if not side.is_file():
+            return None, ""
+        print(f"gprm: warning: {src} records no checksum of its sidecar {side} (written by "
+              "an older gprm): the sidecar is used unchecked", file=sys.stderr)
+    elif not (isinstance(rec, dict) and isinstance(rec.get("sha256"), str)):
+        raise GprmInputError("expected an object with the sidecar's name and sha256",
+                             source=src, field="sidecar")
+    elif not side.is_file():
+        problem = "is missing"
+    else:
+        try:
+            ok = file_sha256(side) == rec["sha256"]
+        except OSError as exc:
+            ok, problem = True, f"cannot be read ({exc.strerror or exc})"
+        if not ok:
+            problem = ("does not match the SHA-256 the fit records (changed, damaged, or "
+                       "another fit's)")
+    draws = None
+    if not problem:
+        try:
+            draws = _read_draws(side, names)
+        except GprmInputError as exc:
+            problem = f"cannot be read ({exc.problem})"
+    if not problem:
+        return draws, ""
+    if not ignore:
+        raise GprmInputError(f"its sidecar {side} {problem}; pass --ignore-sidecar to use the "
+                             "fit without it (covariance bands, narrower)", source=src,
+                             field="sidecar")
+    return None, (f"sidecar {side.name} ignored ({problem}): parameter draws from the "
+                  "covariance, not the fit's own")
+
+
 def _read_draws(side: Path, names: tuple[str, ...]) -> np.ndarray | None:
-    """The uncertainty method's parameter draws from a fit's sidecar, or None (no sidecar, or
-    none stored). A sidecar that is there but unreadable is ignored: the JSON alone is the
-    documented result, and the covariance then stands in."""
-    if not side.is_file():
+    """The uncertainty method's parameter draws from a fit's sidecar, or None (none stored).
+    A sidecar that cannot be read is an input error (:func:`_sidecar_draws` decides)."""
+    ds = open_netcdf(side, what="fit sidecar")
+    if "posterior_draws" not in ds:
         return None
     try:                        # this variable only: the rest of the sidecar is not needed
-        ds = open_netcdf(side, what="fit sidecar")
-        if "posterior_draws" not in ds:
-            return None
         da = ds["posterior_draws"]
         have = [str(v) for v in da["param"].values]
         if not set(names) <= set(have):
             return None
         X = np.asarray(da.sel(param=list(names)).transpose("draw", "param").values, float)
-    except Exception:  # noqa: BLE001 - optional extra; see the docstring
-        return None
+    except Exception as exc:  # noqa: BLE001 - any failure of a damaged variable
+        raise GprmInputError(f"posterior_draws: {type(exc).__name__}", source=str(side),
+                             field="posterior_draws") from None
     return X if X.ndim == 2 and len(X) >= 2 and np.all(np.isfinite(X)) else None
 
 
@@ -555,8 +615,10 @@ def write_fit(res: FitResult, out: str | os.PathLike) -> Path:
     atomically; returns the sidecar's path."""
     out = Path(out)
     side = out.with_suffix(".nc")
-    write_netcdf_atomic(fit_sidecar(res), side)
-    write_json_atomic(out, fit_document(res))
+    write_netcdf_atomic(fit_sidecar(res), side)        # first the sidecar, then the JSON
+    doc = fit_document(res)                             # that binds it by its checksum
+    doc["sidecar"] = {"name": side.name, "sha256": file_sha256(side)}
+    write_json_atomic(out, doc)
     return side
 
 

@@ -100,6 +100,12 @@ def register(app: typer.Typer, synth_app: typer.Typer) -> None:
         whatif_out: Optional[Path] = typer.Option(None, "--whatif",
                                                   help="also write the standard what-if "
                                                        "table (JSON)"),
+        ignore_sidecar: bool = typer.Option(False, "--ignore-sidecar",
+                                            help="use the fit without its .nc sidecar where "
+                                                 "that is missing, damaged or not the fit's "
+                                                 "own (its draws are then not used: bands "
+                                                 "from the covariance, narrower); said in "
+                                                 "the output"),
     ):
         """Predict trajectories, kinetic energy, masses, overshoot and impact risk."""
         from gprm.errors import GprmInputError
@@ -132,7 +138,9 @@ def register(app: typer.Typer, synth_app: typer.Typer) -> None:
         except GprmInputError as exc:
             flag = None if exc.field is None else _FLAGS.get(exc.field, exc.field)
             raise GprmInputError(exc.problem, source=exc.source, field=flag) from None
-        fm = load_model(fit)
+        fm = load_model(fit, ignore_sidecar=ignore_sidecar)
+        if fm.sidecar_note:
+            typer.echo(f"note: --ignore-sidecar: {fm.sidecar_note}")
         if not fm.has_uncertainty:
             typer.echo(f"note: {fm.uncertainty_note}")
         pred = run_predict(fm, opts)

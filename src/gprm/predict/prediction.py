@@ -165,6 +165,7 @@ def prediction_dataset(pred: Prediction) -> xr.Dataset:
         "band": "2.5 % and 97.5 % quantiles over parameter sets drawn from the fit's "
                 "uncertainty method (FittedModel.sample)",
         "uncertainty": pred.fm.uncertainty_note,
+        **({"sidecar_ignored": pred.fm.sidecar_note} if pred.fm.sidecar_note else {}),
         "convention": "positions in the ground frame, origin at point A at rest; pos is the "
                       "change from the initial equilibrium position pos_initial",
         "overshoot_definition": DEFINITION,

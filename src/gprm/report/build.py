@@ -196,10 +196,13 @@ def table3_rows(fit: dict, truth: dict | None) -> list:
             continue
         spec = REGISTRY[name]
         unit_scale = from_si(1.0, name)
+        unit = spec.unit.replace("us", "µs")
+        if unit == "s":             # every lag in µs: t0, t1 as the offsets dt_* (issue 22)
+            unit_scale, unit = 1e6, "µs"
         iv = p.get("interval") or {}
         lo, hi = iv.get("lower"), iv.get("upper")
         ident = p.get("identified")
-        row = [name, pretty_unit(spec.unit.replace("us", "µs")), num(p["value"] * unit_scale),
+        row = [name, pretty_unit(unit), num(p["value"] * unit_scale),
                "—" if lo is None or hi is None else
                f"[{num(lo * unit_scale)}, {num(hi * unit_scale)}]",
                "—" if ident is None else ("yes" if ident else "not determined")]
@@ -364,9 +367,11 @@ def fit_section(run: Path) -> tuple[Section, dict | None]:
                           "shrink the weak prior by less than the identification threshold "
                           "(docs/fitting.md). The paper column is the published Table 3; the "
                           "initial values are the centre of the random starts and of the "
-                          "prior. For synthetic data the truth of the lags t0, t1 and of the "
-                          "alignment offsets dt_* is the one expected in the aligned time "
-                          "base of the means (docs/data-formats.md, docs/model.md)."))
+                          "prior. Lags (t0, t1, the alignment offsets dt_*) in µs."
+                          + ("" if truth is None else
+                             " The synthetic truth of the lags is the one expected in the "
+                             "aligned time base of the means (docs/data-formats.md, "
+                             "docs/model.md).")))
     combos = combination_rows(fit)
     if combos:
         s.blocks.append(table(["combination", "best fit", "95 % interval",
@@ -474,6 +479,12 @@ def whatif_section(run: Path) -> Section:
 
 # ----------------------------------------------------------------------------- flight
 
+def _has_truth(imp: dict) -> bool:
+    """Whether an impact result comes from telemetry with a truth (synthetic releases)."""
+    return bool((imp.get("truth") or {}).get("impact_time")) or any(
+        "truth_impact_time" in r for r in imp.get("releases", []))
+
+
 def flight_section(run: Path) -> Section:
     s = Section("Flight: impact analysis", "flight")
     imp = _load_json(run, "impact.json", "impact result")
@@ -510,23 +521,35 @@ def flight_section(run: Path) -> Section:
         s.blocks.append(fig_to_img(fig, "Telemetry of the first release: the test mass's x "
                                    "displacement and the line whose slope is the release "
                                    "velocity (cf. Fig. 11a)", "fig-release-fit"))
+    truth = _has_truth(imp)
     fig = F.fig_velocity_impact(imp, curves)
     if fig is not None:
         s.blocks.append(fig_to_img(fig, "Release velocity against the impact time, first "
                                    "release: velocity the impact model gives as a function of "
                                    "the impact time with its band, the measured velocity, "
-                                   "each axis' impact time (±1σ), the joint estimate with its "
-                                   "95 % interval (grey) and, for synthetic telemetry, the "
-                                   "true impact time (dotted) (cf. Fig. 11)",
+                                   "each axis' impact time (±1σ) and the joint estimate with "
+                                   "its 95 % interval (grey)"
+                                   + (", and the true impact time of the synthetic release "
+                                      "(dotted)" if truth else "") + " (cf. Fig. 11)",
                                    "fig-velocity-impact"))
     else:
         s.blocks.append(not_run("Velocity vs impact time", "impact.nc (the curves) is "
                                 "missing."))
     s.blocks.append(fig_to_img(F.fig_impact_times(imp), "All estimated impact times per "
                                "release and axis with 1σ errors; open diamonds: the joint "
-                               "estimate per release with its 95 % interval; black bars: the "
-                               "true impact times of the synthetic releases (cf. Fig. 12)",
+                               "estimate per release with its 95 % interval"
+                               + ("; black bars: the true impact times of the synthetic "
+                                  "releases" if truth else "") + " (cf. Fig. 12)",
                                "fig-impact-times"))
+    jc = imp.get("joint") or {}
+    if jc.get("all_consistent") is not None:
+        rej = [str(r) for r in jc.get("rejected") or ()]
+        s.blocks.append(paragraph(
+            f"Joint χ² check (α = {jc.get('alpha')}, {jc.get('n')} releases): "
+            + ("every release's axes agree on one impact time." if not rej else
+               f"the axes of release(s) {', '.join(rej)} do not agree on one impact time "
+               "(their joint χ² test rejects); their joint estimates are not to be "
+               "trusted.")))
     tk = imp.get("tukey")
     if tk and tk.get("pairs"):
         rows = []
@@ -571,6 +594,29 @@ def git_commit(where: Path | None = None) -> str:
     return rev.stdout.strip() + ("+dirty" if dirty else "")
 
 
+#: options that are times (SI seconds in run.json), shown with a unit in the provenance
+TIME_OPTIONS = frozenset({"align_time", "window", "timing_sd", "t_start", "t_end",
+                          "ke_window", "sync_window", "t_c"})
+
+
+def time_text(*seconds: float) -> str:
+    """Times with a readable unit, the one of the largest: ``1.01 ms``, ``4.2 µs``,
+    ``0.97, 1.2 ms``."""
+    a = max(abs(x) for x in seconds)
+    scale, unit = next(((sc, u) for sc, u in ((1.0, "s"), (1e-3, "ms"), (1e-6, "µs"))
+                        if a >= sc), (1e-9, "ns") if a else (1.0, "s"))
+    return ", ".join(f"{x / scale:.4g}" for x in seconds) + f" {unit}"
+
+
+def option_text(name: str, value):
+    """An option's value for the provenance table: times with their unit."""
+    if name in TIME_OPTIONS:
+        xs = value if isinstance(value, (list, tuple)) else [value]
+        if xs and all(isinstance(x, (int, float)) and not isinstance(x, bool) for x in xs):
+            return time_text(*(float(x) for x in xs))
+    return value
+
+
 def provenance_section(run: Path, prov: dict) -> Section:
     """``prov``: the run record (run.json; empty where there is none)."""
     s = Section("Provenance", "provenance")
@@ -580,9 +626,10 @@ def provenance_section(run: Path, prov: dict) -> Section:
             rows.append((key, prov[key]))
     for k, v in (prov.get("options") or {}).items():
         if isinstance(v, dict):          # a stage's options (gprm run: preprocess, fit)
-            rows.extend((f"option {k}.{k2}", v2) for k2, v2 in v.items())
-        else:
-            rows.append((f"option {k}", v))
+            rows.extend((f"option {k}.{k2}", option_text(k2, v2)) for k2, v2 in v.items()
+                        if v2 is not None)
+        elif v is not None:              # an option not given (no campaign, no telemetry)
+            rows.append((f"option {k}", option_text(k, v)))
     for k, v in (prov.get("versions") or {}).items():
         rows.append((f"version {k}", v))
     if prov.get("git"):
@@ -668,12 +715,20 @@ def summary_cards(run: Path, fit: dict | None, prov: dict) -> list[Card]:
         cards.append(Card("Tukey test", "compatible" if ok else f"{len(tk['rejected'])} "
                           "pairs differ", f"{s.get('releases')} releases, α = {tk['alpha']}",
                           "ok" if ok else "bad"))
+    if "joint" in s:
+        jt = s["joint"]
+        cards.append(Card("joint impact time", "every release consistent" if not
+                          jt["rejected"] else "rejected: " + ", ".join(jt["rejected"]),
+                          f"joint χ² test per release, α = {jt['alpha']}",
+                          "bad" if jt["rejected"] else "ok"))
     stages = {k: v for k, v in (prov.get("stages") or {}).items() if k != "report"}
     if stages:
-        done = [k for k, v in stages.items() if v.get("status") in ("ran", "skipped")]
-        bad = [k for k in stages if k not in done]
-        cards.append(Card("stages", f"{len(done)} / {len(stages)} done",
-                          ("not done: " + ", ".join(f"{k} ({stages[k].get('status')})"
+        # the stages the terminal lists, the report included (this file: it ran)
+        listed = {**stages, "report": {"status": "ran"}}
+        done = [k for k, v in listed.items() if v.get("status") in ("ran", "skipped")]
+        bad = [k for k in listed if k not in done]
+        cards.append(Card("stages", f"{len(done)} / {len(listed)} done",
+                          ("not done: " + ", ".join(f"{k} ({listed[k].get('status')})"
                                                     for k in bad)) if bad else
                           "every stage ran or was up to date", "bad" if bad else "ok"))
     total = sum(v.get("seconds", 0.0) or 0.0 for v in stages.values())

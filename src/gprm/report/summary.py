@@ -176,6 +176,14 @@ def summarise(run: str | Path) -> dict:
                                   "no test (" + str(tk.get("note", "no pairs")) + ")")}
         s["releases"] = len(imp.get("releases", []))
         s["impact_times_found"] = impact_times_found(imp)
+        jc = imp.get("joint")
+        if isinstance(jc, dict) and jc.get("all_consistent") is not None:
+            # the releases whose axes disagree (joint chi-square test): said in the summary,
+            # not only in a figure's title
+            rej = [str(r) for r in jc.get("rejected") or ()]
+            s["joint"] = {"alpha": jc.get("alpha"), "n": jc.get("n"), "rejected": rej,
+                          "verdict": ("every release's axes consistent (joint χ²)" if not rej
+                                      else "joint χ² rejects release(s) " + ", ".join(rej))}
     return s
 
 

@@ -264,6 +264,10 @@ def print_summary(console, res, titles: dict[str, str], name: str = "gprm run") 
         tk = s["tukey"]
         k.add_row(f"Tukey test (α = {tk.get('alpha')})", f"{tk['verdict']}; "
                   f"{s.get('releases', '?')} releases")
+    if "joint" in s:
+        jt = s["joint"]
+        k.add_row(f"joint impact time (α = {jt.get('alpha')})",
+                  ("[red]" if jt["rejected"] else "") + jt["verdict"])
     notes: dict[str, list[str]] = {}
     for r in res.records:
         for note in (r.info or {}).get("notes", []):

@@ -4,6 +4,7 @@ keep the Dask cluster local (issue #13 items 4-7)."""
 from __future__ import annotations
 
 import re
+import subprocess
 import sys
 from pathlib import Path
 
@@ -98,6 +99,7 @@ def test_local_cluster_binds_to_localhost_without_dashboard(obj, monkeypatch):
 
     class FakeCluster:
         scheduler = None
+        security = "the cluster's credentials"
 
         def __init__(self, **kw):
             seen.update(kw)
@@ -116,8 +118,9 @@ def test_local_cluster_binds_to_localhost_without_dashboard(obj, monkeypatch):
             return self.v
 
     class FakeClient:
-        def __init__(self, cluster):
+        def __init__(self, cluster, **kw):
             seen["client_of"] = cluster
+            seen.update({f"client_{k}": v for k, v in kw.items()})
 
         def submit(self, fn, task, pure=False):
             return FakeFuture(fn(task))
@@ -137,6 +140,12 @@ def test_local_cluster_binds_to_localhost_without_dashboard(obj, monkeypatch):
     assert seen["host"] == "127.0.0.1" and seen["dashboard_address"] == "127.0.0.1:0"
     assert seen["scheduler_kwargs"] == {"dashboard": False} and seen["stopped_http"]
     assert seen["ran"] == "_stop_http_server"
+    # TLS with temporary credentials, and gprm's client uses them (issue 22)
+    from distributed.security import Security
+
+    assert seen["protocol"] == "tls://" and isinstance(seen["security"], Security)
+    assert seen["security"].require_encryption
+    assert seen["client_security"] == FakeCluster.security
     np.testing.assert_array_equal(ref.x, out.x)
     from gprm.fit.commands import dask_dashboard
 
@@ -274,6 +283,50 @@ def test_the_real_local_cluster_listens_for_dask_only():
             assert ours == dask_ports, (ours, dask_ports)
     finally:
         cluster.close()
+
+
+# A plain client, with no credentials or other temporary ones ("other"): refused (OSError: connection reset, certificate mismatch, timeout) or
+# without a TLS context to try with (TypeError).
+_INTRUDER = """
+import sys
+from distributed import Client
+from distributed.security import Security
+try:
+    Client(sys.argv[1], timeout=5, security=Security.temporary() if sys.argv[2] == "other" else None).close()
+    print("connected")
+except (OSError, TypeError) as exc:
+    print("refused", type(exc).__name__)
+"""
+
+
+def test_the_real_local_cluster_refuses_clients_without_its_credentials(obj):
+    """Issue 22: the scheduler did not authenticate, so another user of the machine could
+    connect a client and run code in gprm's workers. Started as gprm starts it, the cluster
+    speaks TLS with temporary credentials: a client without them (plain TCP, TLS without a
+    certificate, or with other temporary credentials) cannot connect; gprm's fit through it
+    still works."""
+    from distributed import Client
+
+    from gprm.fit.engine import local_cluster
+
+    cluster = local_cluster(1)
+    try:
+        address = cluster.scheduler_address
+        assert address.startswith("tls://127.0.0.1:")
+        # each from its own process, as another user's would be (and distributed 2024.8
+        # leaves its client event loop unusable after a failed connection)
+        for addr, creds in ((address.replace("tls://", "tcp://"), "none"), (address, "none"),
+                            (address, "other")):
+            proc = subprocess.run([sys.executable, "-c", _INTRUDER, addr, creds],
+                                  capture_output=True, text=True, timeout=120)
+            assert proc.stdout.startswith("refused"), (addr, creds, proc.stdout, proc.stderr)
+        with Client(cluster) as client:                     # the cluster's own credentials
+            assert client.submit(sum, [1, 2]).result() == 3
+    finally:
+        cluster.close()
+    ref = run_multistart(obj, OPTS)
+    out = run_multistart(obj, OPTS, workers=1)              # gprm's fit over TLS
+    np.testing.assert_array_equal(ref.x, out.x)
 
 
 def test_a_dashboard_asked_for_is_served():

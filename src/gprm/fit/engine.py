@@ -341,13 +341,16 @@ def local_cluster(n_workers: int, dashboard: str | None = None):
     either (the caller stops them once connected: ``client.run(_stop_http_server)``). With
     ``dashboard`` (``--dashboard 127.0.0.1:8787``) the scheduler serves it there.
 
-    The scheduler does not authenticate: while a fit runs, another user of the machine who
-    finds the port could connect a client (distributed's TLS with temporary credentials needs
-    the ``cryptography`` package, which gprm does not depend on; docs/fitting.md). The
+    The cluster speaks TLS with temporary credentials (``Security.temporary()``: a key and
+    self-signed certificate made for this cluster, held in memory only and required of every
+    connection), so another user of the machine who finds the port cannot connect a client
+    and run code in the workers (issue 22; docs/fitting.md). Its scheduler address is
+    ``tls://``; a client of it needs ``cluster.security`` (``Client(cluster)`` takes it). The
     default ``--workers 0`` starts no cluster.
     """
     import dask
     from distributed import LocalCluster
+    from distributed.security import Security
 
     settings = dict(local_worker_config())
     extra: dict = {}
@@ -359,7 +362,8 @@ def local_cluster(n_workers: int, dashboard: str | None = None):
         extra = {"dashboard_address": dashboard}
     with dask.config.set(settings):
         cluster = LocalCluster(n_workers=n_workers, threads_per_worker=1, processes=True,
-                               host="127.0.0.1", silence_logs=40, **extra)
+                               host="127.0.0.1", protocol="tls://",
+                               security=Security.temporary(), silence_logs=40, **extra)
     if not dashboard:
         try:
             cluster.sync(_stop_server_http, cluster.scheduler)
@@ -389,7 +393,9 @@ def run_multistart(obj: Objective, opts: MultiStartOptions = MultiStartOptions()
                    stop_after: int | None = None) -> StartsOutcome:
     """Run all starts. ``workers=0`` runs in this process; ``workers>0`` starts a local Dask
     cluster with that many single-threaded worker processes; ``scheduler`` connects to an
-    existing cluster instead. ``progress(done, total)`` is called as chunks finish, counting
+    existing cluster instead, connected as distributed connects any client: with no security
+    object from gprm, so a ``tls://`` address takes its credentials from the user's Dask
+    configuration (``distributed.comm.tls.*``; docs/fitting.md). ``progress(done, total)`` is called as chunks finish, counting
     starts (finished, requested); a callback that takes a ``best_chi2`` keyword also gets
     the smallest chi-square reached so far (nan before the first chunk).
     ``stop_after`` stops (raising KeyboardInterrupt) after that many new chunks: used to test
@@ -434,7 +440,7 @@ def run_multistart(obj: Objective, opts: MultiStartOptions = MultiStartOptions()
                                      field="scheduler") from None
         else:
             cluster = local_cluster(workers, dask.config.get("gprm.dashboard-address", None))
-            client = Client(cluster)
+            client = Client(cluster, security=cluster.security)   # its TLS credentials
             if not dask.config.get("gprm.dashboard-address", None):
                 client.run(_stop_http_server)        # the workers': no listener left
         try:

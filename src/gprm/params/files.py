@@ -71,6 +71,20 @@ def si_unit_strings(names) -> list[str]:
     return out
 
 
+def read_toml(path: Path) -> dict:
+    """A parameter file's TOML document; an unreadable or invalid file is an input error
+    naming it."""
+    src = str(path)
+    check_input_file(path, what="parameter file")
+    try:
+        return tomllib.loads(path.read_text(encoding="utf-8"))
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError, RecursionError) as exc:
+        raise GprmInputError(f"invalid TOML ({type(exc).__name__}: {exc})",
+                             source=src) from None
+    except OSError as exc:
+        raise GprmInputError(f"cannot be read ({exc.strerror or exc})", source=src) from None
+
+
 def load_params(path: str | os.PathLike | None = None, *, base: ParameterSet | None = None) -> ParameterSet:
     """Resolve a parameter file on top of ``base`` (default: the ``paper`` set)."""
     base = paper() if base is None else base
@@ -78,15 +92,7 @@ def load_params(path: str | os.PathLike | None = None, *, base: ParameterSet | N
         return base
     path = Path(path)
     src = str(path)
-
-    check_input_file(path, what="parameter file")
-    try:
-        doc = tomllib.loads(path.read_text(encoding="utf-8"))
-    except (tomllib.TOMLDecodeError, UnicodeDecodeError, RecursionError) as exc:
-        raise GprmInputError(f"invalid TOML ({type(exc).__name__}: {exc})",
-                             source=src) from None
-    except OSError as exc:
-        raise GprmInputError(f"cannot be read ({exc.strerror or exc})", source=src) from None
+    doc = read_toml(path)
     table = doc.get("parameters")
     if not isinstance(table, dict):
         raise GprmInputError("missing [parameters] table", source=src)
@@ -221,13 +227,7 @@ def read_systematics(path: str | os.PathLike | None) -> dict:
         return {}
     path = Path(path)
     src = str(path)
-    check_input_file(path, what="parameter file")
-    try:
-        doc = tomllib.loads(path.read_text(encoding="utf-8"))
-    except (tomllib.TOMLDecodeError, UnicodeDecodeError, RecursionError) as exc:
-        raise GprmInputError(f"invalid TOML ({type(exc).__name__}: {exc})",
-                             source=src) from None
-    table = doc.get("systematics")
+    table = read_toml(path).get("systematics")
     if table is None:
         return {}
     if not isinstance(table, dict):

@@ -1,6 +1,6 @@
 """The identification's promise checked through the command line, as a user runs it (issue 12,
 "Done when"): for each campaign a truth drawn within +-10 % of Table 3's physical parameters
-(written to a TOML file, as ../shared/tools/chain-check does), then
+(written to a TOML file, as the project's CLI chain check does), then
 
     gprm synth campaign --truth truth.toml --seed S --out campaign.nc
     gprm preprocess campaign.nc --out means.nc

@@ -1,7 +1,7 @@
 """Coverage of the identification's uncertainty methods over synthetic campaigns (issue 12).
 
 For each campaign: a truth drawn within +-10 % of Table 3 (the 21 physical parameters, as
-../shared/tools/chain-check draws them), a synthetic campaign with every mismatch ingredient of
+the project's CLI chain check draws them), a synthetic campaign with every mismatch ingredient of
 `gprm synth campaign` on, preprocessing and fit with the CLI's defaults, and then for each
 method the fraction of 95 % and 68 % intervals that contain the truth:
 

@@ -1,6 +1,6 @@
 """sim2: a second, independent simulator of GPRM ground-test campaigns (validation data).
 
-Written from the model *definition* (docs/model.md sections 1, 2, 5-7; shared/spec/MODEL.md),
+Written from the model *definition* (docs/model.md sections 1, 2, 5-7; docs/spec.md),
 not from gprm's model code: nothing here imports ``gprm.model``, ``gprm.simulate``,
 ``gprm.campaign`` or ``gprm.fit``. Only ``gprm.params`` is used, to read the nominal values.
 

@@ -1,6 +1,6 @@
 """Sources of validation campaigns for the uncertainty study (issue 21): each a way of making
 a campaign with a known truth, and the truth's 21 physical parameters drawn within +-10 % of
-Table 3 (as ../shared/tools/chain-check draws them).
+Table 3 (as the project's CLI chain check draws them).
 
 - ``white``: the exact linear model with white interferometer noise (5e-10 m) and nothing
   else (gprm's generator with every other ingredient off);

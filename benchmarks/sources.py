@@ -29,10 +29,14 @@ from pathlib import Path
 import numpy as np
 
 from gprm.campaign.synth import SynthConfig, nonlinear_correction, synth_campaign
-from gprm.params import FITTED_DEFAULT, LAG_PARAMETERS, ParameterSet, paper
+from gprm.params import paper
 
-#: the 21 physical parameters of Table 3 (its 23 less the lags t0, t1)
-PHYSICAL = tuple(n for n in FITTED_DEFAULT if n not in LAG_PARAMETERS)
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+# the coverage study's truths: the 21 physical parameters, each x U(0.9, 1.1) of Table 3
+from bench_coverage import PHYSICAL, draw_truth  # noqa: E402
+
+__all__ = ["PHYSICAL", "SOURCES", "draw_truth", "make"]
+
 
 _OFF = dict(nonlinear=False, mode_rel=0.0, trigger_max=0.0, v0_rel=0.0, tau_rel=0.0,
             param_rel=0.0, noise_white=5e-10, noise_coloured=0.0, drift_offset=0.0,
@@ -61,16 +65,7 @@ SOURCES = (("white",) + tuple(f"{k}-{s}" for k in _ALONE for s in (1, 2))
            + ("generator", "sim2-white", "sim2"))
 
 
-def draw_truth(seed: int) -> ParameterSet:
-    rng = np.random.default_rng([seed, 77])
-    base = paper()
-    return base.with_values(**{n: base[n] * rng.uniform(0.9, 1.1) for n in PHYSICAL})
-
-
 def _sim2():
-    here = str(Path(__file__).resolve().parent)
-    if here not in sys.path:
-        sys.path.insert(0, here)
     import sim2
     return sim2
 

@@ -243,9 +243,9 @@ def run_deviations(runs: np.ndarray, sigma: np.ndarray) -> np.ndarray:
     """(S, R, T): each synchronised run's deviation from the mean, weighted by sigma.
 
     (Tried and rejected: adding back the part the synchronisation shift took out, s_r y'.
-    With true trigger offsets, as a lab's runs have, it counted the removed offsets as error:
-    on campaigns with +-2.5 samples of trigger offset the identified parameters fell from 17
-    to 7.5 per campaign, and it did not help where the drive amplitude varies.)"""
+    With true trigger offsets, as a lab's runs have, it counted the removed offsets as error,
+    and on trigger-offset campaigns most parameters stopped being identified; it did not help
+    where the drive amplitude varies.)"""
     return (runs - runs.mean(axis=1, keepdims=True)) / sigma[:, None, :]
 
 
@@ -325,12 +325,6 @@ def sandwich_parts(obj: Objective, x: np.ndarray, J: np.ndarray, r: np.ndarray,
     total = V_stat + V_gain + V_time + V_interp + V_prior
     return SandwichParts(V_runs, V_res, V_stat, V_gain, V_time, V_interp, V_prior,
                          0.5 * (total + total.T), t_sd, g_sd, g_est, a_sd, p_eff, L)
-
-
-def interval_u(u: np.ndarray, cov_u: np.ndarray, level: float) -> tuple[np.ndarray, np.ndarray]:
-    z = norm.ppf(0.5 + level / 2.0)
-    sd = np.sqrt(np.clip(np.diag(cov_u), 0.0, None))
-    return u - z * sd, u + z * sd
 
 
 #: steps along a parameter's posterior direction, in its standard deviations, at which the

@@ -170,11 +170,14 @@ def save_params(ps: ParameterSet, path: str | os.PathLike) -> None:
 SYSTEMATICS_SIGNALS = ("x_base", "x_head", "y_base", "y_head", "z_bk")
 
 
-def _dimensionless(value: Any, src: str, field: str) -> float:
+def _nonnegative(value: Any, src: str, field: str, unit: str, example: str) -> float:
+    """A number >= 0 in ``unit`` (SI, or "1" for a fraction) from a bare number (taken as
+    that unit) or a quantity string (``"0.5 %"``, ``"0.1 us"``); an input error naming
+    ``field`` otherwise."""
     u = ureg()
     if isinstance(value, bool) or not isinstance(value, (int, float, str)):
-        raise GprmInputError(f"expected a number or a quantity such as \"0.5 %\", got {value!r}",
-                             source=src, field=field)
+        raise GprmInputError(f"expected a number or a quantity such as {example}, got "
+                             f"{value!r}", source=src, field=field)
     if isinstance(value, str):
         try:
             q: Any = u.Quantity(value.replace("%", " percent"))
@@ -182,39 +185,24 @@ def _dimensionless(value: Any, src: str, field: str) -> float:
             raise GprmInputError(f"cannot parse {value!r} ({exc})", source=src,
                                  field=field) from None
         if isinstance(q, pint.Quantity):
-            if not q.dimensionless:
-                raise GprmInputError(f"{value!r} is not dimensionless (a relative error, e.g. "
-                                     "\"0.5 %\")", source=src, field=field)
-            value = float(q.to("dimensionless").magnitude)
+            if q.dimensionality != u.Quantity(1.0, unit).dimensionality:
+                raise GprmInputError(f"{value!r} is not in units of {unit!r} (e.g. {example})",
+                                     source=src, field=field)
+            value = float(q.to(unit).magnitude)
         else:
             value = float(q)
     v = float(value)
     if not (math.isfinite(v) and v >= 0):
         raise GprmInputError(f"must be finite and >= 0, got {value!r}", source=src, field=field)
     return v
+
+
+def _dimensionless(value: Any, src: str, field: str) -> float:
+    return _nonnegative(value, src, field, "dimensionless", '"0.5 %"')
 
 
 def _seconds(value: Any, src: str, field: str) -> float:
-    u = ureg()
-    if isinstance(value, bool) or not isinstance(value, (int, float, str)):
-        raise GprmInputError(f"expected a time such as \"0.1 us\", got {value!r}", source=src,
-                             field=field)
-    if isinstance(value, str):
-        try:
-            q: Any = u.Quantity(value)
-        except Exception as exc:
-            raise GprmInputError(f"cannot parse {value!r} ({exc})", source=src,
-                                 field=field) from None
-        if isinstance(q, pint.Quantity):
-            if q.dimensionality != u.Quantity(1.0, "s").dimensionality:
-                raise GprmInputError(f"{value!r} is not a time", source=src, field=field)
-            value = float(q.to("s").magnitude)
-        else:
-            value = float(q)
-    v = float(value)
-    if not (math.isfinite(v) and v >= 0):
-        raise GprmInputError(f"must be finite and >= 0, got {value!r}", source=src, field=field)
-    return v
+    return _nonnegative(value, src, field, "s", '"0.1 us"')
 
 
 def read_systematics(path: str | os.PathLike | None) -> dict:

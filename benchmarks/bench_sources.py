@@ -55,11 +55,20 @@ class Case:
     seconds: float
 
 
+class _CaseUnpickler(pickle.Unpickler):
+    """Reads a cached Case whichever script wrote it (run as __main__ or imported)."""
+
+    def find_class(self, module, name):
+        if name == "Case":
+            return Case
+        return super().find_class(module, name)
+
+
 def run_case(source: str, seed: int, starts: int, cache: str | None) -> Case:
     path = Path(cache) / f"{source}-{seed}-{starts}.pkl" if cache else None
     if path is not None and path.exists():
         with open(path, "rb") as f:
-            return pickle.load(f)
+            return _CaseUnpickler(f).load()
     t = time.perf_counter()
     with tempfile.TemporaryDirectory(prefix="gprm-src-") as tmp:
         camp, truth = sources.make(source, seed, workdir=tmp)

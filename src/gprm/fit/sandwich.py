@@ -48,6 +48,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.stats import norm
 
+from gprm.campaign.preprocess import alignment_shift
 from gprm.errors import GprmInputError
 from gprm.fit.methods import FitState
 from gprm.fit.objective import Objective
@@ -90,6 +91,9 @@ class Systematics:
     #: widen each side of an interval where the objective is flatter than its quadratic
     #: approximation (:func:`shape_factors`)
     shape_check: bool = True
+    #: stretch each side of an interval to z sds of the estimator linearised where the side
+    #: ends (:func:`variance_factors`)
+    variance_check: bool = True
 
     def __post_init__(self):
         for name in ("gain_sd", "timing_sd"):
@@ -113,6 +117,7 @@ class Systematics:
     def to_json(self) -> dict:
         return {"gain_sd": self.gain_sd, "timing_sd_s": self.timing_sd,
                 "estimate_gain": self.estimate_gain, "shape_check": self.shape_check,
+                "variance_check": self.variance_check,
                 "per_signal": {s: {"gain_sd": g, "timing_sd_s": t}
                                for s, g, t in self.per_signal}}
 
@@ -151,13 +156,35 @@ def _psd_part(A: np.ndarray) -> np.ndarray:
     return (V * np.clip(w, 0.0, None)) @ V.T
 
 
-def hac_meat(E: np.ndarray, max_lag: int) -> np.ndarray:
-    """Newey-West sum over one signal's scores E (T, P): sum_t e_t e_t^T plus the Bartlett-
-    weighted lag terms up to ``max_lag``."""
+def bartlett(lag: np.ndarray, max_lag: int) -> np.ndarray:
+    """Bartlett (Newey-West) lag weights 1 - lag / (max_lag + 1)."""
+    return np.clip(1.0 - lag / (max_lag + 1.0), 0.0, None)
+
+
+def parzen(lag: np.ndarray, max_lag: int) -> np.ndarray:
+    """Parzen lag weights at x = lag / (max_lag + 1): 1 - 6x^2 + 6x^3 up to x = 1/2,
+    2 (1 - x)^3 beyond. Like Bartlett's they give a covariance that is never negative
+    definite, but their spectral window's side lobes fall as 1/omega^4 instead of 1/omega^2,
+    so strong residual power away from zero frequency (an unmodelled resonance several
+    periods long inside the window) leaks far less into the estimate."""
+    x = np.asarray(lag, float) / (max_lag + 1.0)
+    return np.where(x <= 0.5, 1.0 - 6.0 * x ** 2 + 6.0 * x ** 3,
+                    np.where(x <= 1.0, 2.0 * (1.0 - x) ** 3, 0.0))
+
+
+KERNELS = {"bartlett": bartlett, "parzen": parzen}
+#: the residual HAC's lag window (docs/fitting.md: why Parzen)
+DEFAULT_KERNEL = "parzen"
+
+
+def hac_meat(E: np.ndarray, max_lag: int, kernel: str = "bartlett") -> np.ndarray:
+    """Kernel-weighted sum over one signal's scores E (T, P): sum_t e_t e_t^T plus the lag
+    terms up to ``max_lag`` weighted by ``kernel`` (``bartlett``: Newey-West)."""
     S = E.T @ E
-    for lag in range(1, min(max_lag, E.shape[0] - 1) + 1):
+    w = KERNELS[kernel](np.arange(1, min(max_lag, E.shape[0] - 1) + 1), max_lag)
+    for lag, wl in enumerate(w, start=1):
         G = E[lag:].T @ E[:-lag]
-        S += (1.0 - lag / (max_lag + 1.0)) * (G + G.T)
+        S += wl * (G + G.T)
     return S
 
 
@@ -195,26 +222,68 @@ def alignment_sd(obj: Objective, y: np.ndarray, dy: np.ndarray) -> np.ndarray:
     return out
 
 
+def crossing_offsets(obj: Objective, y: np.ndarray) -> np.ndarray:
+    """(n_signals,) s: how far the fitted model's own threshold crossing lies from the data's.
+
+    Preprocessing moved each mean so that its first sustained crossing of ``threshold_factor``
+    x its noise std is at ``align_time`` (the means file's attributes), and the fitted lags
+    live in that time base. The same rule applied to the model at the best fit (``y``, (S, T)
+    on the data's window) should find its crossing there too. Where it does not, the data's
+    crossing was moved by something the model does not have (an unmodelled resonance or
+    nonlinearity near the onset, a drive whose shape varies, a run-to-run offset the
+    synchronisation left), so the time origin of the aligned data, and with it every lag,
+    is uncertain by that much: the offset (align_time - the model's crossing) is a timing
+    error of that signal estimated from the data. Zero where the file lacks the rule's
+    attributes, the window does not hold the alignment time, or the model never crosses."""
+    d = obj.data
+    out = np.zeros(len(d.signals))
+    t_a = float(d.attrs.get("align_time", np.nan))
+    factor = float(d.attrs.get("threshold_factor", np.nan))
+    hold = int(d.attrs.get("hold", 1))
+    if d.noise_std is None or not (np.isfinite(t_a) and np.isfinite(factor)) \
+            or not (d.time[0] < t_a < d.time[-1]):
+        return out
+    for s in range(len(d.signals)):
+        thr = factor * float(d.noise_std[s])
+        if not (thr > 0 and np.all(np.isfinite(y[s]))):
+            continue
+        shift = alignment_shift(d.time, y[s], thr, align_time=t_a, hold=hold)
+        if shift is not None and np.isfinite(shift):
+            out[s] = float(shift)
+    return out
+
+
 def estimate_gain_sd(Ju: np.ndarray, Hinv: np.ndarray, R: np.ndarray, y: np.ndarray,
-                     sigma: np.ndarray, runs: np.ndarray | None) -> float:
+                     sigma: np.ndarray, runs: np.ndarray | None, *,
+                     max_lag: int | None = None) -> float:
     """The per-channel gain errors' standard deviation the residuals show: the square root of
     :func:`gain_variance`, clipped at 0."""
-    return float(np.sqrt(max(gain_variance(Ju, Hinv, R, y, sigma, runs), 0.0)))
+    return float(np.sqrt(max(gain_variance(Ju, Hinv, R, y, sigma, runs, max_lag=max_lag),
+                             0.0)))
 
 
 def gain_variance(Ju: np.ndarray, Hinv: np.ndarray, R: np.ndarray, y: np.ndarray,
-                  sigma: np.ndarray, runs: np.ndarray | None) -> float:
+                  sigma: np.ndarray, runs: np.ndarray | None, *,
+                  max_lag: int | None = None) -> float:
     """The variance of the per-channel gain errors the residuals show (method of moments,
     unbiased; may be negative by chance).
 
     A gain error g_s of signal s adds g_s G_s to the weighted data (G_s = y_s / sigma_s on
     that signal's rows). The fit absorbs what the parameters can mimic; what is left is
     m_s = (I - J H^-1 J^T) G_s. With independent g_s of variance v, E[(m_s^T r)^2] =
-    v sum_k (m_s^T m_k)^2 + m_s^T S m_s (S the data error covariance: the runs' where the file
-    has them, else the identity). Summed over the signals this gives v; the estimate is
-    clipped at 0. It assumes the part of the gain errors the data see has the size of the part
-    they do not. Ju: (N, P) data Jacobian in u; Hinv: the inverse of the fit's H; R: (S, T)
-    weighted residuals; y: (S, T) model signals; sigma: (S, T) weights; runs: (S, n, T)."""
+    v sum_k (m_s^T m_k)^2 + m_s^T S m_s (S the covariance of the residuals' other part).
+    Summed over the signals this gives v; the estimate is clipped at 0. It assumes the part
+    of the gain errors the data see has the size of the part they do not.
+
+    m_s^T S m_s is estimated from the data: from the runs' spread where the file has runs
+    (else white noise of unit weight), and, with ``max_lag``, also from the residuals left
+    when the best-fitting gains are taken out (the HAC sum of the scores m_s r_t, Bartlett
+    window ``max_lag``), the larger of the two: residual structure that is not a gain error
+    (an unmodelled resonance, a nonlinearity common to every run) projects on the gain
+    directions too, and without this it would be read as a gain error and counted twice
+    (once here, once in the residuals' own covariance). Ju: (N, P) data Jacobian in u;
+    Hinv: the inverse of the fit's H; R: (S, T) weighted residuals; y: (S, T) model
+    signals; sigma: (S, T) weights; runs: (S, n, T)."""
     S, T = R.shape
     N = S * T
     G = np.zeros((N, S))
@@ -233,6 +302,15 @@ def gain_variance(Ju: np.ndarray, Hinv: np.ndarray, R: np.ndarray, y: np.ndarray
             noise += np.sum(z * z, axis=0) / (n_r * (n_r - 1))
     else:
         noise = np.diag(MM)
+    if max_lag is not None:
+        g_hat = np.linalg.lstsq(MM, proj, rcond=None)[0]
+        e = (r - M @ g_hat).reshape(S, T)
+        other = np.zeros(S)
+        for s in range(S):
+            Ms = M[s * T:(s + 1) * T, :]
+            other += np.diag(hac_meat(prewhitened_scores(Ms.T, e[s], PREWHITEN_ORDER),
+                                      max_lag, DEFAULT_KERNEL))
+        noise = np.maximum(noise, other * N / max(N - S, 1))
     den = float(np.sum(MM * MM))
     if den <= 0:
         return 0.0
@@ -249,9 +327,68 @@ def run_deviations(runs: np.ndarray, sigma: np.ndarray) -> np.ndarray:
     return (runs - runs.mean(axis=1, keepdims=True)) / sigma[:, None, :]
 
 
+#: order of the autoregression each signal's residuals are prewhitened with before the HAC
+PREWHITEN_ORDER = 2
+#: largest modulus the prewhitening filter's roots may have (Andrews and Monahan's 0.97)
+MAX_ROOT = 0.97
+
+
+def ar_coefficients(r: np.ndarray, order: int) -> np.ndarray:
+    """(order,) least-squares autoregression r_t = sum_k a_k r_{t-k} + u_t of one residual
+    series, its characteristic roots shrunk to modulus <= :data:`MAX_ROOT` (a filter near a
+    unit root would turn a long-run variance into a division by almost zero)."""
+    r = np.asarray(r, float)
+    T = r.size
+    if order <= 0 or T <= 3 * order:
+        return np.zeros(max(order, 0))
+    X = np.column_stack([r[order - k - 1:T - k - 1] for k in range(order)])
+    a = np.linalg.lstsq(X, r[order:], rcond=None)[0]
+    roots = np.roots(np.concatenate([[1.0], -a]))
+    big = np.abs(roots) > MAX_ROOT
+    if big.any():
+        roots[big] *= MAX_ROOT / np.abs(roots[big])
+        a = -np.real(np.poly(roots))[1:]
+    return a
+
+
+def prewhitened_scores(B: np.ndarray, r: np.ndarray, order: int) -> np.ndarray:
+    """(T, P) scores whose sum is exactly sum_t B[:, t] r_t but whose terms are closer to
+    uncorrelated: the residuals r (T,) are written as an autoregression's impulse response h
+    driven by its innovations u (r = h * u, zero before the window), so that
+    sum_t B_t r_t = sum_s u_s (sum_k h_k B_{s+k}); the scores are u_s times that filtered B.
+
+    This is Andrews and Monahan's prewhitening applied inside the sum: residual structure
+    the autoregression captures (an oscillation, low-pass noise) is carried by the filter
+    exactly instead of by the HAC window's lag terms, where a window of a quarter of the
+    samples would leak an oscillation's power into the zero-frequency estimate or cut a slow
+    correlation short. ``order`` 0 returns the plain scores B_t r_t."""
+    B = np.asarray(B, float)
+    r = np.asarray(r, float)
+    a = ar_coefficients(r, order)
+    if not np.any(a):
+        return (B * r[None, :]).T
+    T = r.size
+    u = r.copy()
+    for k, ak in enumerate(a, start=1):
+        u[k:] -= ak * r[:-k]
+    h = np.zeros(T)
+    h[0] = 1.0
+    for t in range(1, T):
+        h[t] = sum(a[k - 1] * h[t - k] for k in range(1, min(len(a), t) + 1))
+    # Bt[:, s] = sum_k h_k B[:, s + k]
+    Bt = np.zeros_like(B)
+    for k in range(T):
+        Bt[:, :T - k] += h[k] * B[:, k:]
+    return (Bt * u[None, :]).T
+
+
 def statistical_covariance(Bs: np.ndarray, R: np.ndarray, dev: np.ndarray | None, max_lag: int,
-                           p_eff: float):
+                           p_eff: float, kernel: str = DEFAULT_KERNEL,
+                           prewhiten: int = PREWHITEN_ORDER):
     """(V_runs, V_res, V_stat) of the module docstring, from plain arrays.
+
+    The residual part is the kernel HAC sum over each signal's :func:`prewhitened_scores`
+    (AR order ``prewhiten``; 0: the plain scores B_t r_t).
 
     Bs: (P, S, T) the estimator's influence ``H^-1 J^T`` laid out per signal and time;
     R: (S, T) weighted residuals; dev: (S, n_runs, T) each run's deviation from the mean,
@@ -261,7 +398,7 @@ def statistical_covariance(Bs: np.ndarray, R: np.ndarray, dev: np.ndarray | None
     N = S * T
     V_res = np.zeros((P, P))
     for s in range(S):
-        V_res += hac_meat((Bs[:, s, :] * R[s][None, :]).T, max_lag)
+        V_res += hac_meat(prewhitened_scores(Bs[:, s, :], R[s], prewhiten), max_lag, kernel)
     V_res *= N / max(N - p_eff, 1.0)
     if dev is None:
         return None, V_res, V_res
@@ -273,43 +410,93 @@ def statistical_covariance(Bs: np.ndarray, R: np.ndarray, dev: np.ndarray | None
     return V_runs, V_res, V_runs + _psd_part(V_res - V_runs)
 
 
-def sandwich_parts(obj: Objective, x: np.ndarray, J: np.ndarray, r: np.ndarray,
-                   prior: Prior, systematics: Systematics = Systematics(), *,
-                   max_lag: int | None = None) -> SandwichParts:
-    """The default covariance of the fit at ``x`` (physical (P,)), in the prior's u.
+@dataclass(frozen=True)
+class ErrorModel:
+    """The weighted data's error as the campaign shows it, estimated once at the best fit and
+    then propagated through the estimator wherever it is linearised (:func:`propagate`).
 
-    J: (N, P) Jacobian of the weighted data residuals ``r`` (N,) in physical units (prior
-    rows excluded); ``prior``: the fit's prior with its weight."""
+    R: (S, T) weighted residuals at the best fit; dev: (S, n_runs, T) the runs' weighted
+    deviations from their mean (None: no runs); gain_sd, timing_sd, alignment_sd: (S,) the
+    per-signal systematics used; gain_estimated: what the residuals show; p_eff, max_lag: the
+    fit's effective number of parameters and the HAC's window."""
+
+    R: np.ndarray
+    dev: np.ndarray | None
+    gain_sd: np.ndarray
+    timing_sd: np.ndarray
+    alignment_sd: np.ndarray
+    gain_estimated: float
+    p_eff: float
+    max_lag: int
+    crossing_offset: np.ndarray | None = None
+    origin_sd: float = 0.0
+
+
+#: the signal whose lag is t0 (the others' lags are offsets from it, gprm.params.registry)
+REFERENCE_SIGNAL = "x_base"
+#: the lag that carries the aligned data's time origin
+ORIGIN_LAG = "t0"
+
+
+def _linearised(obj: Objective, x: np.ndarray, J: np.ndarray, prior: Prior,
+                y: np.ndarray | None = None):
+    """(Ju, Hinv, B (P, S, T), y (S, T), dy (S, T)): the estimator's linearisation at ``x``
+    (physical (P,)), J (N, P) the weighted data residuals' Jacobian there, y the model
+    signals there (computed when None)."""
+    d = obj.data
+    S, T = d.values.shape
+    Ju = J * prior.dx_du(x)[None, :]
+    lam = float(prior.weight) ** 2 / prior.sd ** 2
+    H = Ju.T @ Ju + np.diag(lam)
+    Hinv = np.linalg.inv(0.5 * (H + H.T))
+    B = (Hinv @ Ju.T).reshape(x.size, S, T)
+    if y is None:
+        y = obj.model(x[None]).y[0]                           # (S, T) m
+    dy = np.gradient(y, d.time, axis=1)
+    return Ju, Hinv, B, y, dy
+
+
+def error_model(obj: Objective, x: np.ndarray, J: np.ndarray, r: np.ndarray, prior: Prior,
+                systematics: Systematics = Systematics(), *,
+                max_lag: int | None = None) -> ErrorModel:
+    """Estimate the data's error at the best fit ``x`` (J, r: the weighted data residuals'
+    Jacobian (N, P) and values (N,) there, prior rows excluded)."""
     d = obj.data
     S, T = d.values.shape
     x = np.asarray(x, float)
-    Dx = prior.dx_du(x)
-    Ju = J * Dx[None, :]
-    w2 = float(prior.weight) ** 2
-    lam = w2 / prior.sd ** 2
-    H = Ju.T @ Ju + np.diag(lam)
-    Hinv = np.linalg.inv(0.5 * (H + H.T))
-    B = Hinv @ Ju.T                                           # (P, N)
-    P = x.size
-    p_eff = float(np.trace(Ju @ B))
+    Ju, Hinv, B, y, dy = _linearised(obj, x, J, prior)
+    p_eff = float(np.trace(Ju @ B.reshape(x.size, -1)))
     L = default_max_lag(T) if max_lag is None else int(max_lag)
-    Bs = B.reshape(P, S, T)
     R = r.reshape(S, T)
-    # model signals and slopes at the best fit
-    o = obj.model(x[None])
-    y = o.y[0]                                                # (S, T) m
-    dy = np.gradient(y, d.time, axis=1)
-    dev = None
-    if d.runs is not None:
-        dev = run_deviations(d.runs, d.sigma)
-    V_runs, V_res, V_stat = statistical_covariance(Bs, R, dev, L, p_eff)
+    dev = run_deviations(d.runs, d.sigma) if d.runs is not None else None
     a_sd = alignment_sd(obj, y, dy)
+    c_off = crossing_offsets(obj, y)
     g_sd = np.array([systematics.for_signal(s)[0] for s in d.signals])
     t_sd = np.array([np.hypot(systematics.for_signal(s)[1], a_sd[i])
                      for i, s in enumerate(d.signals)])
-    g_est = estimate_gain_sd(Ju, Hinv, R, y, d.sigma, d.runs)
+    # the aligned data's time origin: the reference signal's crossing offset beyond what its
+    # alignment noise (already in its timing term) explains
+    origin = 0.0
+    if REFERENCE_SIGNAL in d.signals:
+        i = list(d.signals).index(REFERENCE_SIGNAL)
+        origin = float(np.sqrt(max(c_off[i] ** 2 - a_sd[i] ** 2, 0.0)))
+    g_est = estimate_gain_sd(Ju, Hinv, R, y, d.sigma, d.runs, max_lag=L)
     if systematics.estimate_gain:
         g_sd = np.maximum(g_sd, g_est)
+    return ErrorModel(R, dev, g_sd, t_sd, a_sd, g_est, p_eff, L, c_off, origin)
+
+
+def propagate(obj: Objective, x: np.ndarray, J: np.ndarray, prior: Prior,
+              err: ErrorModel, y: np.ndarray | None = None) -> SandwichParts:
+    """The covariance in u of the estimator linearised at ``x`` (physical (P,), J (N, P)
+    there, y (S, T) the model signals there or None) for the data error ``err``: each
+    source's share, and their sum."""
+    d = obj.data
+    S, T = d.values.shape
+    x = np.asarray(x, float)
+    P = x.size
+    Ju, Hinv, Bs, y, dy = _linearised(obj, x, J, prior, y)
+    V_runs, V_res, V_stat = statistical_covariance(Bs, err.R, err.dev, err.max_lag, err.p_eff)
     V_gain = np.zeros((P, P))
     V_time = np.zeros((P, P))
     V_interp = np.zeros((P, P))
@@ -319,12 +506,30 @@ def sandwich_parts(obj: Objective, x: np.ndarray, J: np.ndarray, r: np.ndarray,
             V_interp += np.outer(bi, bi)
         bg = Bs[:, s, :] @ (y[s] / d.sigma[s])
         bt = Bs[:, s, :] @ (dy[s] / d.sigma[s])
-        V_gain += g_sd[s] ** 2 * np.outer(bg, bg)
-        V_time += t_sd[s] ** 2 * np.outer(bt, bt)
+        V_gain += err.gain_sd[s] ** 2 * np.outer(bg, bg)
+        V_time += err.timing_sd[s] ** 2 * np.outer(bt, bt)
+    names = tuple(getattr(obj, "names", ()))
+    if err.origin_sd > 0 and ORIGIN_LAG in names:
+        k = names.index(ORIGIN_LAG)
+        V_time[k, k] += (err.origin_sd / prior.dx_du(x)[k]) ** 2
+    w2 = float(prior.weight) ** 2
+    lam = w2 / prior.sd ** 2
     V_prior = Hinv @ np.diag(w2 * lam) @ Hinv
     total = V_stat + V_gain + V_time + V_interp + V_prior
     return SandwichParts(V_runs, V_res, V_stat, V_gain, V_time, V_interp, V_prior,
-                         0.5 * (total + total.T), t_sd, g_sd, g_est, a_sd, p_eff, L)
+                         0.5 * (total + total.T), err.timing_sd, err.gain_sd,
+                         err.gain_estimated, err.alignment_sd, err.p_eff, err.max_lag)
+
+
+def sandwich_parts(obj: Objective, x: np.ndarray, J: np.ndarray, r: np.ndarray,
+                   prior: Prior, systematics: Systematics = Systematics(), *,
+                   max_lag: int | None = None) -> SandwichParts:
+    """The default covariance of the fit at ``x`` (physical (P,)), in the prior's u.
+
+    J: (N, P) Jacobian of the weighted data residuals ``r`` (N,) in physical units (prior
+    rows excluded); ``prior``: the fit's prior with its weight."""
+    err = error_model(obj, x, J, r, prior, systematics, max_lag=max_lag)
+    return propagate(obj, np.asarray(x, float), J, prior, err)
 
 
 #: steps along a parameter's posterior direction, in its standard deviations, at which the
@@ -410,23 +615,103 @@ def shape_factors(obj: Objective, x: np.ndarray, Cu: np.ndarray, Ju: np.ndarray,
     return out[0], out[1]
 
 
+#: most standard deviations a side may be stretched to (as the shape check's farthest step)
+MAX_STRETCH = SHAPE_STEPS[-1]
+
+
+def variance_factors(obj: Objective, x: np.ndarray, Cu: np.ndarray, prior: Prior,
+                     err: ErrorModel, z: float, *, iterations: int = 4,
+                     tol: float = 0.02) -> tuple[np.ndarray,
+                                                                                 np.ndarray]:
+    """(lower, upper) (P,) >= 1: each side of parameter k's ``z``-interval stretched so that
+    it reaches ``z`` standard deviations *of the estimator linearised where the side ends*.
+
+    The sandwich's sd is the estimator's spread linearised at the best fit. Where the data's
+    sensitivity to a parameter changes across its interval (a sloppy direction whose
+    Jacobian turns, a lever arm that grows), the estimator's spread at a value on one side
+    differs from that at the best fit, and a value theta is compatible with the estimate
+    when ``|theta^ - theta| <= z sd(theta)``, with the spread evaluated *at theta*, as a
+    score interval evaluates the variance under the value tested (Wilson's interval for a
+    proportion does the same). Each side is found by fixed-point iteration along
+    parameter k's posterior direction v_k = Cu[:, k] / sd_k (the other parameters following
+    as expected): alpha <- z max(1, sd_k(u^ + alpha v_k) / sd_k(u^)), starting at z,
+    ``iterations`` times or until no side moves by more than ``tol`` z (each iteration one
+    batch of Jacobians), at most :data:`MAX_STRETCH` / 2 times z. The
+    spread at each point is the same data error ``err`` (runs, residuals, systematics,
+    all estimated at the best fit) propagated through the estimator linearised there. It
+    never narrows an interval; only the parameters the linearisation identifies are
+    checked."""
+    x = np.asarray(x, float)
+    P = x.size
+    d = obj.data
+    S, T = d.values.shape
+    u = prior.to_u(x)
+    sd = np.sqrt(np.clip(np.diag(Cu), 1e-300, None))
+    V = Cu / sd[None, :]
+    checked = np.nonzero(sd / prior.sd < CONTRACTION)[0]
+    f = np.ones((2, P))
+    if checked.size == 0:
+        return f[0], f[1]
+    lo_b, hi_b = obj.bounds()
+    w = 1.0 / d.sigma
+    alpha = np.full((2, checked.size), z)
+    active = np.ones((2, checked.size), bool)
+    for _ in range(iterations):
+        sides = np.array([-1.0, 1.0])[:, None] * alpha                       # (2, K)
+        U = u[None, None, :] + sides[:, :, None] * V.T[checked][None, :, :]  # (2, K, P)
+        X = prior.from_u(U.reshape(-1, P))
+        ok = np.all((X > lo_b) & (X < hi_b) & np.isfinite(X), axis=1) & active.reshape(-1)
+        if not ok.any():
+            break
+        try:
+            with np.errstate(all="ignore"):
+                obs = obj.model(X[ok], jacobian=True)
+        except (np.linalg.LinAlgError, FloatingPointError, ValueError):
+            break
+        ratio = np.ones(X.shape[0])
+        for j, i in enumerate(np.nonzero(ok)[0]):
+            Jp = (-obs.dy[j] * w[:, :, None]).reshape(S * T, P)
+            if not (np.all(np.isfinite(Jp)) and np.all(np.isfinite(obs.y[j]))):
+                ok[i] = False
+                continue
+            k = checked[i % checked.size]
+            C = propagate(obj, X[i], Jp, prior, err, y=obs.y[j]).total
+            ratio[i] = np.sqrt(max(C[k, k], 0.0)) / sd[k]
+        new = np.clip(z * np.maximum(ratio.reshape(2, -1), 1.0), z, z * MAX_STRETCH / 2.0)
+        new = np.where(ok.reshape(2, -1), new, alpha)
+        active &= np.abs(new - alpha) > tol * z
+        alpha = np.maximum(alpha, new)
+        if not active.any():
+            break
+    f[:, checked] = alpha / z
+    return f[0], f[1]
+
+
 def uncertainty(method: str, state: FitState) -> Uncertainty:
     """The ``sandwich`` method through the one interface (gprm.fit.methods)."""
     prior = state.prior
     if prior is None:
         raise ValueError("the sandwich uncertainty needs the fit's prior")
     syst = state.systematics if isinstance(state.systematics, Systematics) else Systematics()
-    parts = sandwich_parts(state.obj, state.x, state.J, state.r, prior, syst)
     x = np.asarray(state.x, float)
+    err = error_model(state.obj, x, state.J, state.r, prior, syst)
+    parts = propagate(state.obj, x, state.J, prior, err)
     u = prior.to_u(x)
     Cu = parts.total
     Ju = state.J * prior.dx_du(x)[None, :]
-    f_lo, f_hi = shape_factors(state.obj, x, Cu, Ju, prior) if syst.shape_check else \
-        (np.ones(x.size), np.ones(x.size))
+    ones = np.ones(x.size)
+    s_lo, s_hi = shape_factors(state.obj, x, Cu, Ju, prior) if syst.shape_check else \
+        (ones, ones)
     sd_u = np.sqrt(np.clip(np.diag(Cu), 0.0, None))
     z95, z68 = norm.ppf(0.975), norm.ppf(0.84)
+    v95 = variance_factors(state.obj, x, Cu, prior, err, z95) if syst.variance_check else \
+        (ones, ones)
+    v68 = variance_factors(state.obj, x, Cu, prior, err, z68) if syst.variance_check else \
+        (ones, ones)
+    f_lo, f_hi = np.maximum(s_lo, v95[0]), np.maximum(s_hi, v95[1])
     lo95, hi95 = u - z95 * sd_u * f_lo, u + z95 * sd_u * f_hi
-    lo68, hi68 = u - z68 * sd_u * f_lo, u + z68 * sd_u * f_hi
+    lo68 = u - z68 * sd_u * np.maximum(s_lo, v68[0])
+    hi68 = u + z68 * sd_u * np.maximum(s_hi, v68[1])
     contraction = sd_u * np.maximum(f_lo, f_hi) / prior.sd
     identified = contraction < CONTRACTION
     # the reported covariance carries the wider side
@@ -453,12 +738,16 @@ def uncertainty(method: str, state: FitState) -> Uncertainty:
             if parts.runs is not None else None),
         "systematics": {s: {"gain_sd": float(parts.gain_sd[i]),
                             "timing_sd_s": float(parts.timing_sd[i]),
-                            "alignment_sd_s": float(parts.alignment_sd[i])}
+                            "alignment_sd_s": float(parts.alignment_sd[i]),
+                            "crossing_offset_s": float(err.crossing_offset[i])}
                         for i, s in enumerate(state.obj.data.signals)},
+        "time_origin_sd_s": err.origin_sd,
         "stated": syst.to_json(),
         "gain_estimated": parts.gain_estimated,
         "max_lag": parts.max_lag, "p_eff": parts.p_eff,
-        "shape_factors": {"lower": [float(v) for v in f_lo], "upper": [float(v) for v in f_hi]},
+        "shape_factors": {"lower": [float(v) for v in s_lo], "upper": [float(v) for v in s_hi]},
+        "variance_factors": {"lower": [float(v) for v in v95[0]],
+                             "upper": [float(v) for v in v95[1]]},
     }
     return Uncertainty(method, state.names, 0.5 * (cov_x + cov_x.T), prior.from_u(lo95),
                        prior.from_u(hi95), prior.from_u(lo68), prior.from_u(hi68), identified,

@@ -274,7 +274,8 @@ def systematics_rows(unc: dict) -> list:
                      f"{100 * stated.get('gain_sd', 0.0):.3g} %" if stated else "–",
                      f"{100 * est:.3g} %" if isinstance(est, (int, float)) else "–",
                      f"{1e9 * v.get('timing_sd_s', float('nan')):.3g} ns",
-                     f"{1e9 * v.get('alignment_sd_s', float('nan')):.3g} ns"])
+                     f"{1e9 * v.get('alignment_sd_s', float('nan')):.3g} ns",
+                     f"{1e9 * v.get('crossing_offset_s', float('nan')):+.3g} ns"])
     return rows
 
 
@@ -335,13 +336,15 @@ def fit_section(run: Path) -> tuple[Section, dict | None]:
         if srows:
             s.blocks.append(table(["signal", "gain sd used", "gain sd stated",
                                    "gain sd from residuals", "timing sd used",
-                                   "of which alignment"], srows,
+                                   "alignment noise", "model crossing offset"], srows,
                                   "Instrument systematics marginalised", "table-systematics",
                                   note="Per-channel gain (calibration) and timing errors the "
                                   "intervals include: the stated prior (parameter file "
                                   "[systematics], --gain-sd, --timing-sd) or, where larger, "
                                   "the gain errors' size the residuals show; the timing adds "
-                                  "the alignment's own error, estimated from the data."))
+                                  "the alignment's own error, estimated from the data: the "
+                                  "larger of its noise and the offset of the fitted model's "
+                                  "own threshold crossing from the data's (docs/fitting.md)."))
     if side is not None:
         s.blocks.append(fig_to_img(F.fig_fit(side), "Best fit over the mean signals with "
                                    "±σ and the 95 % model band from the parameter covariance "

@@ -239,12 +239,14 @@ def _channel(item: Any, src: str, fld: str) -> Channel:
     if point and point not in NAMED_POINTS:
         raise GprmInputError(f"point must be one of {NAMED_POINTS}, got {point!r}",
                              source=src, field=f"{fld}.point")
-    xyz = None
+    xyz: tuple[float, float, float] | None = None
     if at is not None:
         if not isinstance(at, list) or len(at) != 3:
             raise GprmInputError("expected three lengths, e.g. [\"0 mm\", \"0 mm\", \"20 mm\"]",
                                  source=src, field=f"{fld}.at")
-        xyz = tuple(_q(v, "m", src, f"{fld}.at[{i}]", positive=False) for i, v in enumerate(at))
+        a0, a1, a2 = (_q(v, "m", src, f"{fld}.at[{i}]", positive=False)
+                      for i, v in enumerate(at))
+        xyz = (a0, a1, a2)
     name = item.get("name") or f"{body}_{point or 'point'}_{axis}"
     if not isinstance(name, str) or name in MODEL_CHANNELS:
         raise GprmInputError(f"bad channel name {name!r}", source=src, field=f"{fld}.name")
@@ -312,10 +314,12 @@ def read_design_config(path: str | Path | None, *, window=(0.97e-3, 1.2e-3)) -> 
     noise = _table(doc, "noise", src, {"white", "variability"})
     syst = _table(doc, "systematics", src, {"gain", "timing"})
     sett = _table(doc, "settings", src, {"draws", "seed", "calibrate", "identified_threshold"})
-    cm = CostModel(**{k: _q(v, "1", src, f"cost.{k}", positive=False, nonneg=True)
-                      for k, v in cost.items() if k != "max_additions"},
-                   **({"max_additions": _int(cost["max_additions"], src, "cost.max_additions",
-                                             1, 20)} if "max_additions" in cost else {}))
+    hours = {k: _q(v, "1", src, f"cost.{k}", positive=False, nonneg=True)
+             for k, v in cost.items() if k != "max_additions"}
+    cm = replace(CostModel(), **hours)  # type: ignore[arg-type]  # float fields only
+    if "max_additions" in cost:
+        cm = replace(cm, max_additions=_int(cost["max_additions"], src, "cost.max_additions",
+                                            1, 20))
     items = doc.get("candidate", [])
     if not isinstance(items, list):
         raise GprmInputError("expected [[candidate]] tables", source=src, field="candidate")

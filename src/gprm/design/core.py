@@ -11,7 +11,11 @@ with w the prior's sd (gprm.fit.prior), F_b the Fisher information of block b
 variance factor that makes the base campaign's predicted sd match the fit's reported sd, in
 median over the identified parameters; 1 without a fit). The reported sd is sqrt(mean_d
 diag C_d): the expected posterior variance over the fit's posterior, so that a design is not
-judged at a single point. The release predictions' sd is sqrt(diag(G C G^T)) with C the mean
+judged at a single point. Where there is a fit, each parameter's sd is then multiplied by
+s_k = (the fit's reported sd) / (the base campaign's sd from the line above): what the
+noise model misses of the fit's own error (model mismatch the fit's sandwich sees, a
+non-Gaussian valley) is carried over to every design, so that the base campaign reproduces
+the fit and a candidate changes it by its information. The release predictions' sd is sqrt(diag(G C G^T)) with C the mean
 of the C_d and G their gradients at the best fit (:mod:`gprm.design.predictions`).
 """
 
@@ -23,7 +27,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from gprm.design.config import MODEL_CHANNELS, Block, Candidate, Channel, DesignConfig
+from gprm.design.config import MODEL_CHANNELS, Block, Channel, DesignConfig
 from gprm.design.information import NoiseModel, block_information, estimate_noise
 from gprm.design.predictions import ReleasePredictions, release_predictions
 from gprm.fit.files import FittedModel, load_model, read_fit_document, read_fit_sidecar
@@ -68,6 +72,7 @@ class DesignResult:
     predictions: ReleasePredictions
     noise: NoiseModel
     fit_sd_u: np.ndarray | None
+    scale: np.ndarray
     config: DesignConfig
     source: str
     base_block: Block
@@ -246,6 +251,13 @@ def run_design(model, config: DesignConfig | None = None, *, candidates_path=Non
         if cfg.calibrate and ident.any():
             kappa = _calibrate(P0, F_base, fit_sd, ident)
     noise = replace(noise1, kappa=kappa)
+    # per parameter: what the noise model misses of the fit's sd, carried over to every design
+    scale = np.ones(len(names))
+    if fit_sd is not None and cfg.calibrate:
+        C0 = _posterior(P0, F_base, kappa)
+        raw = np.sqrt(np.mean(np.diagonal(C0, axis1=1, axis2=2), 0))
+        r = fit_sd / raw
+        scale = np.where(np.isfinite(r) & (r > 0), r, 1.0)
     t0 = time.perf_counter()
     preds = release_predictions(fm, sd0, log)
     t_pred = time.perf_counter() - t0
@@ -259,8 +271,8 @@ def run_design(model, config: DesignConfig | None = None, *, candidates_path=Non
     def evaluate(adds: tuple[str, ...], ref: DesignEvaluation | None) -> DesignEvaluation:
         F = F_base + sum((F_cand[a] for a in adds), np.zeros_like(F_base))
         C = _posterior(P0, F, kappa)
-        sd = np.sqrt(np.mean(np.diagonal(C, axis1=1, axis2=2), 0))
-        Cm = C.mean(0)
+        sd = np.minimum(np.sqrt(np.mean(np.diagonal(C, axis1=1, axis2=2), 0)) * scale, sd0)
+        Cm = C.mean(0) * np.outer(scale, scale)
         psd = np.sqrt(np.clip(np.einsum("kp,pq,kq->k", preds.gradient, Cm, preds.gradient),
                               1e-300, None))
         lo = prior.from_u(ub - Z95 * sd)
@@ -306,14 +318,13 @@ def run_design(model, config: DesignConfig | None = None, *, candidates_path=Non
             chosen, best = chosen + (opts[j],), evs[j]
     synth = synth_configuration(best.additions, cfg, base)
     if synth["block"] is not None:
-        ev = evaluate_block(fm, synth["block"], cfg, noise, P0, X, dx_du, prior, ub, sd0,
-                            lag_sd, fitted_lags)
-        synth["predicted"] = ev
+        synth["predicted"] = evaluate_block(fm, synth["block"], cfg, noise, P0, X, dx_du,
+                                            prior, ub, sd0, lag_sd, fitted_lags, scale)
     y = y_spring_statement(names, base_ev, cands, cfg)
     timings = {"information": round(t_info, 3), "predictions": round(t_pred, 3),
                "total": round(time.perf_counter() - t_start, 3)}
     return DesignResult(names, xb, sd0, log, base_ev, cands, ranking, best, selection, preds,
-                        noise, fit_sd, cfg, str(fm.source), base, synth, y, timings)
+                        noise, fit_sd, scale, cfg, str(fm.source), base, synth, y, timings)
 
 
 def _ncomb(n: int, k: int) -> int:
@@ -330,7 +341,8 @@ def _better(a: DesignEvaluation, b: DesignEvaluation) -> bool:
 
 
 def evaluate_block(fm: FittedModel, block: Block, cfg: DesignConfig, noise: NoiseModel,
-                   P0, X, dx_du, prior: Prior, ub, sd0, lag_sd, fitted_lags) -> dict:
+                   P0, X, dx_du, prior: Prior, ub, sd0, lag_sd, fitted_lags,
+                   scale) -> dict:
     """Predicted sd and 95 % intervals of a campaign made of ``block`` alone (what a fit of
     that campaign should report): the validation's prediction."""
     F = block_information(fm.params, fm.names, X, dx_du, block,
@@ -338,7 +350,7 @@ def evaluate_block(fm: FittedModel, block: Block, cfg: DesignConfig, noise: Nois
                           timing_sd=cfg.timing_sd, lag_sd=lag_sd,
                           fitted_lag_channels=fitted_lags, z_bk_absolute=fm.z_bk_absolute)
     C = _posterior(P0, F, noise.kappa)
-    sd = np.sqrt(np.mean(np.diagonal(C, axis1=1, axis2=2), 0))
+    sd = np.minimum(np.sqrt(np.mean(np.diagonal(C, axis1=1, axis2=2), 0)) * scale, sd0)
     return {"sd_u": sd, "identified": sd / sd0 < cfg.identified_threshold,
             "lower": prior.from_u(ub - Z95 * sd), "upper": prior.from_u(ub + Z95 * sd)}
 

@@ -285,3 +285,16 @@ def test_cli_on_a_fit_of_a_synthetic_campaign(tmp_path):
     assert doc["noise"]["kappa"] != 1.0
     assert doc["noise"]["white_m"] > 0
     assert doc["base"]["fit_sd_u"] is not None
+
+
+def test_report_section_only_where_a_design_is(tmp_path, paper_design):
+    from gprm.design.files import write_design
+    from gprm.report.design_section import design_section
+
+    assert design_section(tmp_path) is None
+    write_design(paper_design, tmp_path / "design.json")
+    s = design_section(tmp_path)
+    html = "".join(s.blocks)
+    assert 'id="fig-design"' in html and 'id="table-design"' in html
+    for name in paper_design.ranking:
+        assert name in html

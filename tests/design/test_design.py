@@ -298,3 +298,39 @@ def test_report_section_only_where_a_design_is(tmp_path, paper_design):
     assert 'id="fig-design"' in html and 'id="table-design"' in html
     for name in paper_design.ranking:
         assert name in html
+
+
+def _spring_null_direction(ps):
+    """The direction of (k_Cy, k_Dy, b1, b2) that keeps K0, K1, K2 (docs/fitting.md) fixed."""
+    kC, kD, b1, b2 = (ps[n] for n in ("k_Cy", "k_Dy", "b1", "b2"))
+    A = np.array([[1, 1, 0, 0], [b1, b1 + b2, kC + kD, kD],
+                  [b1 ** 2, (b1 + b2) ** 2, 2 * kC * b1 + 2 * kD * (b1 + b2),
+                   2 * kD * (b1 + b2)]])
+    s = np.array([kC, kD, b1, b2])
+    return np.linalg.svd(A * s)[2][-1] * s
+
+
+@pytest.mark.parametrize("dampers", [0.0, None])
+def test_no_candidate_sees_the_y_spring_direction_but_through_the_dampers(setup, dampers):
+    """The structural argument extended to every candidate: along the direction that keeps
+    K0, K1, K2 fixed, no channel of any default candidate (new points on plunger, tip and
+    runner, Piezo 1, other voltage profiles, longer record, faster sampling) changes at all
+    when the y dampers are zero; with them, only through them (a small fraction of what
+    k_Cy alone does)."""
+    ps, names, prior, x = setup
+    if dampers is not None:
+        ps = ps.with_values(c_Cy=dampers, c_Dy=dampers)
+        x = ps.vector(names)
+    v = _spring_null_direction(ps)
+    idx = [names.index(n) for n in ("k_Cy", "k_Dy", "b1", "b2")]
+    worst = 0.0
+    for c in default_candidates():
+        for d in c.block.drives:
+            _, D, _ = block_signals(ps, names, x[None], c.block, d)
+            along = np.einsum("bctp,p->bct", D[..., idx], v)
+            alone = D[..., idx[0]] * v[0]
+            worst = max(worst, np.abs(along).max() / np.abs(alone).max())
+    if dampers == 0.0:
+        assert worst < 1e-12
+    else:
+        assert 1e-12 < worst < 0.05

@@ -222,7 +222,7 @@ def main(argv=None) -> None:
     ap.add_argument("--from-log", type=Path, default=None,
                     help="only print the tables of a log written earlier")
     a = ap.parse_args(argv)
-    print(machine("numpy", "scipy"))
+    print(machine("scipy"))
     print(f"\ncommand: `.venv/bin/python benchmarks/bench_design.py {' '.join(sys.argv[1:])}`\n")
     if a.timing:
         timing(a.starts)

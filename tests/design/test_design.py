@@ -285,6 +285,14 @@ def test_cli_on_a_fit_of_a_synthetic_campaign(tmp_path):
     assert doc["noise"]["kappa"] != 1.0
     assert doc["noise"]["white_m"] > 0
     assert doc["base"]["fit_sd_u"] is not None
+    # the carry-over: the base design reproduces the fit's own sd (or the prior's, where
+    # the fit reports more than the prior)
+    for n, e in doc["base"]["parameters"].items():
+        prior_sd = e["sd_u"] / e["contraction"]
+        assert e["sd_u"] == pytest.approx(min(doc["base"]["fit_sd_u"][n], prior_sd), rel=1e-9)
+    # and every candidate only adds information
+    for c in doc["candidates"]:
+        assert all(v <= 1 + 1e-9 for v in c["width_ratio"].values()), c["name"]
 
 
 def test_report_section_only_where_a_design_is(tmp_path, paper_design):

@@ -299,9 +299,11 @@ def read_design_config(path: str | Path | None, *, window=(0.97e-3, 1.2e-3)) -> 
     problem is an input error naming the file and the field."""
     if path is None:
         return default_config(window)
+    from gprm._io import check_input_file
     from gprm.params.files import read_toml
 
     src = str(path)
+    check_input_file(path, what="candidates file")
     doc = read_toml(Path(path))
     extra = set(doc) - _TOP
     if extra:

@@ -342,3 +342,37 @@ def test_no_candidate_sees_the_y_spring_direction_but_through_the_dampers(setup,
         assert worst < 1e-12
     else:
         assert 1e-12 < worst < 0.05
+
+
+def test_overshoot_gradients_match_the_exact_point_jacobians():
+    """The release predictions' central-difference gradients (Piezo 2 scenario) against the
+    exact displacement Jacobians of gprm.predict (sensitivities + complex step) at the
+    time of the largest |displacement|."""
+    from gprm.design.core import prior_of
+    from gprm.design.predictions import release_predictions
+    from gprm.fit.files import paper_model
+    from gprm.predict.trajectories import (TRAJECTORY_POINTS, default_times,
+                                           linear_point_jacobians, sampled_points)
+
+    fm = paper_model()
+    prior = prior_of(fm)
+    pr = release_predictions(fm, prior.sd, prior.log)
+    t = default_times()
+    Jd, _ = linear_point_jacobians(fm, t, TRAJECTORY_POINTS, piezo=2)    # (P, pt, 3, T)
+    pos, _, _ = sampled_points({k: np.atleast_1d(v) for k, v in fm.params.values.items()},
+                               t, TRAJECTORY_POINTS, piezo=2)
+    x = fm.params.vector(fm.names)
+    dxdu = np.where(prior.log, x, 1.0)
+    checked = 0
+    for k, lab in enumerate(pr.label):
+        sc, point, axis = lab.split()
+        if sc != "piezo2":
+            continue
+        i, a = TRAJECTORY_POINTS.index(point), "xyz".index(axis)
+        j = int(np.argmax(np.abs(pos[0, i, a])))
+        exact = np.sign(pos[0, i, a, j]) * Jd[:, i, a, j] * dxdu
+        err = np.max(np.abs(pr.gradient[k] - exact)) / np.max(np.abs(exact))
+        assert err < 1e-3, (lab, err)
+        checked += 1
+    assert checked >= 6
+    assert {"overshoot", "velocity"} <= set(pr.group)

@@ -188,8 +188,11 @@ def tables(rows: list[dict]) -> None:
     print("\n| campaigns | comparisons | achieved / predicted sd: median (16-84 %) | within "
           "+-25 % | 95 % coverage, identified physical |")
     print("|---|---|---|---|---|")
-    for label, sel in (("control: the base design again", lambda r: r["rank"] == 0),
-                       ("top three recommendations", lambda r: r["rank"] > 0)):
+    names = sorted({r["name"] for r in rows if r["rank"] > 0})
+    groups = [("control: the base design again", lambda r: r["rank"] == 0),
+              ("top three recommendations", lambda r: r["rank"] > 0),
+              *((n, lambda r, n=n: r["name"] == n) for n in names)]
+    for label, sel in groups:
         rs = [r for r in rows if sel(r)]
         if not rs:
             continue

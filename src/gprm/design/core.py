@@ -79,6 +79,7 @@ class DesignResult:
     synth: dict
     y_springs: dict
     timings: dict
+    alone: tuple[dict, ...] = ()
 
     def evaluation(self, name: str) -> DesignEvaluation:
         for e in self.candidates:
@@ -195,10 +196,12 @@ def _gain(before: np.ndarray, after: np.ndarray, groups: np.ndarray) -> dict:
 
 # ----------------------------------------------------------------------------- entry point
 def run_design(model, config: DesignConfig | None = None, *, candidates_path=None,
-               progress=None) -> DesignResult:
+               progress=None, alone: tuple[Block, ...] = ()) -> DesignResult:
     """Evaluate the candidates of ``config`` (default: the documented set) as additions to
     the base campaign of ``model`` (a fit JSON, a run folder, ``paper`` or a FittedModel),
-    rank them and select the best additions within the cost budget (docs/design.md)."""
+    rank them and select the best additions within the cost budget (docs/design.md).
+    ``alone``: blocks whose prediction as a campaign of their own (what a fit of that
+    campaign alone should report) is wanted too: ``result.alone`` (the validation's)."""
     t_start = time.perf_counter()
     fm = load_model(model)
     window, rate, data = _fit_window_and_rate(fm)
@@ -320,11 +323,13 @@ def run_design(model, config: DesignConfig | None = None, *, candidates_path=Non
     if synth["block"] is not None:
         synth["predicted"] = evaluate_block(fm, synth["block"], cfg, noise, P0, X, dx_du,
                                             prior, ub, sd0, lag_sd, fitted_lags, scale)
+    alone_ev = tuple(evaluate_block(fm, b, cfg, noise, P0, X, dx_du, prior, ub, sd0, lag_sd,
+                                    fitted_lags, scale) for b in alone)
     y = y_spring_statement(names, base_ev, cands, cfg)
     timings = {"information": round(t_info, 3), "predictions": round(t_pred, 3),
                "total": round(time.perf_counter() - t_start, 3)}
     return DesignResult(names, xb, sd0, log, base_ev, cands, ranking, best, selection, preds,
-                        noise, fit_sd, scale, cfg, str(fm.source), base, synth, y, timings)
+                        noise, fit_sd, scale, cfg, str(fm.source), base, synth, y, timings, alone_ev)
 
 
 def _ncomb(n: int, k: int) -> int:

@@ -362,10 +362,11 @@ def evaluate_block(fm: FittedModel, block: Block, cfg: DesignConfig, noise: Nois
 
 def synth_configuration(additions: tuple[str, ...], cfg: DesignConfig, base: Block) -> dict:
     """The recommended campaign as ``gprm synth campaign`` options where the generator can
-    make it: the generator measures the ten positions with Piezo 2 at the nominal voltage
-    profile and 200 kHz, so the additions it can simulate are more runs of the five model
-    positions (and a longer record, fitted over a longer window); the others are listed as
-    not simulated, with the reason."""
+    make it as one campaign that ``gprm fit`` fits: the generator measures the ten positions
+    with one piezo at the nominal voltage profile and 200 kHz, so the additions it can
+    simulate within the base campaign are more runs of the five model positions (and a
+    longer record, fitted over a longer window); the others are listed as not simulated,
+    with the reason."""
     cands = {c.name: c for c in cfg.candidates}
     runs, noise_runs, t_end, w1 = base.runs, base.noise_runs, base.record, base.window[1]
     simulated, not_simulated = [], {}
@@ -374,8 +375,9 @@ def synth_configuration(additions: tuple[str, ...], cfg: DesignConfig, base: Blo
         why = []
         if set(b.channel_names) != set(MODEL_CHANNELS):
             why.append("channels other than the five model positions")
-        if b.drives != (2,):
-            why.append("a drive other than Piezo 2 alone")
+        if b.drives != base.drives:
+            why.append("another drive in the same campaign (a campaign of its own: "
+                       "gprm synth campaign --piezo 1; gprm fit fits one drive at a time)")
         if b.voltage != 1.0 or b.retraction != 1.0:
             why.append("a voltage profile other than the nominal one")
         if b.rate != 200e3:
@@ -392,17 +394,17 @@ def synth_configuration(additions: tuple[str, ...], cfg: DesignConfig, base: Blo
         w1 = max(w1, b.window[1])
     block = None
     if not not_simulated:
-        block = replace(base, drives=(2,), runs=runs, noise_runs=noise_runs, record=t_end,
+        block = replace(base, runs=runs, noise_runs=noise_runs, record=t_end,
                         window=(base.window[0], w1))
     t_end_arg = t_end if t_end > 1.2e-3 else 1.5e-3
     return {"simulated": simulated, "not_simulated": not_simulated, "runs": runs,
             "noise_runs": noise_runs, "t_end": t_end_arg,
             "window": (base.window[0], w1),
             "synth_command": (f"gprm synth campaign --runs {runs} --noise-runs {noise_runs} "
-                              f"--t-end {t_end_arg * 1e3:g}ms --truth TRUTH.toml --seed N "
-                              "--out campaign.nc"),
+                              f"--t-end {t_end_arg * 1e3:g}ms --piezo {base.drives[0]} "
+                              "--truth TRUTH.toml --seed N --out campaign.nc"),
             "fit_command": (f"gprm fit means.nc --window {base.window[0] * 1e3:g}ms,"
-                            f"{w1 * 1e3:g}ms --out fit.json"),
+                            f"{w1 * 1e3:g}ms --piezo {base.drives[0]} --out fit.json"),
             "block": block}
 
 

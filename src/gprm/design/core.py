@@ -196,7 +196,7 @@ def _gain(before: np.ndarray, after: np.ndarray, groups: np.ndarray) -> dict:
 
 # ----------------------------------------------------------------------------- entry point
 def run_design(model, config: DesignConfig | None = None, *, candidates_path=None,
-               progress=None, alone: tuple[Block, ...] = ()) -> DesignResult:
+               alone: tuple[Block, ...] = ()) -> DesignResult:
     """Evaluate the candidates of ``config`` (default: the documented set) as additions to
     the base campaign of ``model`` (a fit JSON, a run folder, ``paper`` or a FittedModel),
     rank them and select the best additions within the cost budget (docs/design.md).

@@ -399,3 +399,12 @@ def test_the_generator_drives_the_piezo_it_is_told(piezo):
     assert np.allclose(got, ref, rtol=0, atol=1e-9 * np.abs(ref).max())
     assert not np.allclose(got, other, rtol=0, atol=1e-3 * np.abs(ref).max())
     assert int(ds.attrs["generator_piezo"]) == piezo
+
+
+def test_greedy_selection_keeps_the_budget_and_never_beats_the_exhaustive(paper_design):
+    cfg = replace(read_design_config(None), exhaustive_limit=0)
+    r = run_design("paper", cfg)
+    assert r.selection.startswith("greedy")
+    assert 0 < len(r.recommended.additions) <= cfg.cost.max_additions
+    assert r.recommended.hours <= cfg.cost.budget
+    assert 1.0 < r.recommended.gain["release"] <= paper_design.recommended.gain["release"] + 1e-12

@@ -48,6 +48,7 @@ except ImportError:                    # older typer: click's
 from gprm.campaign import commands as campaign_commands
 from gprm.console import one_line as _one_line, one_line_errors
 from gprm.demo import commands as demo_commands
+from gprm.design import commands as design_commands
 from gprm.errors import GprmInputError
 from gprm.fit import commands as fit_commands
 from gprm.flight import commands as flight_commands
@@ -207,7 +208,7 @@ def _root(debug: bool = typer.Option(False, "--debug", help="print the traceback
 
 #: the stages' commands, registered in pipeline order (the order of ``gprm --help``)
 STAGE_COMMANDS = (params_commands, simulate_commands, campaign_commands, fit_commands,
-                  predict_commands, flight_commands, report_commands, run_commands,
+                  predict_commands, flight_commands, design_commands, report_commands, run_commands,
                   demo_commands)
 for _mod in STAGE_COMMANDS:
     _mod.register(app, synth_app)

@@ -31,6 +31,9 @@ def register(app: typer.Typer, synth_app: typer.Typer) -> None:
                                          "(bare: s)"),
         no_nonlinear: bool = typer.Option(False, "--no-nonlinear",
                                           help="skip the nonlinear correction (faster)"),
+        piezo: int = typer.Option(2, "--piezo", parser=Int(1, 2),
+                                  help="driven piezo: 1 (nominal) or 2 (as the paper's "
+                                       "campaign)"),
     ):
         """Synthetic ground-test campaign with known truth (richer model than the fit's)."""
         from gprm.campaign.files import write_campaign
@@ -51,7 +54,7 @@ def register(app: typer.Typer, synth_app: typer.Typer) -> None:
                      integer=True)
         ps = load_params(truth) if truth is not None else None
         cfg = SynthConfig(n_runs=runs, n_noise=noise_runs, t_end=t_end,
-                          nonlinear=not no_nonlinear)
+                          nonlinear=not no_nonlinear, piezo=piezo)
         ds = synth_campaign(ps, seed=seed, config=cfg)
         write_campaign(ds, out)
         typer.echo(f"wrote {out}: {ds.sizes['position']} positions x {ds.sizes['run']} "

@@ -72,6 +72,7 @@ class SynthConfig:
     mode_zeta: float = 0.01
     mode_rel: float = 0.015             # its amplitude relative to each signal's peak
     nonlinear: bool = True              # add the nonlinear correction (slow: ~seconds)
+    piezo: int = 2                      # the driven piezo (1 or 2; the campaign's drive)
     voltage_noise: float = 0.1          # V, white noise of the voltage traces
     runner_x: Support = field(default_factory=lambda: Support(6.5e7, 9e3, 0.05))
     runner_y: Support = field(default_factory=lambda: Support(5.2e7, 9e3, 0.05))
@@ -94,6 +95,8 @@ class SynthConfig:
                                  field="--t-end")
         if not (self.rate > 0 and np.isfinite(self.rate)):
             raise GprmInputError(f"must be positive, got {self.rate}", field="--rate")
+        if self.piezo not in (1, 2):
+            raise GprmInputError(f"must be 1 or 2, got {self.piezo!r}", field="--piezo")
 
 
 TRUTH_OVERSAMPLE = 10
@@ -159,8 +162,8 @@ def mechanism_signals(pb: dict, y: dict, cfg: SynthConfig, rate: float | None = 
     return out
 
 
-def _observe_states(pb: dict, times: np.ndarray, source: str) -> dict:
-    obs = observe(pb, times, _STATE_NAMES)
+def _observe_states(pb: dict, times: np.ndarray, source: str, piezo: int = 2) -> dict:
+    obs = observe(pb, times, _STATE_NAMES, piezo=piezo)
     if not obs.ok.all():
         b = int(np.argmin(obs.ok))
         raise GprmInputError(f"parameter set {b} cannot be simulated: {obs.reason[b]}",
@@ -168,15 +171,16 @@ def _observe_states(pb: dict, times: np.ndarray, source: str) -> dict:
     return {n: obs.y[:, i] for i, n in enumerate(_STATE_NAMES)}
 
 
-def nonlinear_correction(truth: ParameterSet, times: np.ndarray) -> dict:
-    """Full nonlinear minus linear response of the five model outputs for ``truth`` (m)."""
+def nonlinear_correction(truth: ParameterSet, times: np.ndarray, piezo: int = 2) -> dict:
+    """Full nonlinear minus linear response of the five model outputs for ``truth`` (m),
+    driven by ``piezo``."""
     from gprm.simulate import simulate
     from gprm.simulate.nonlinear import simulate_nonlinear
 
-    lin = simulate(truth, time=times)
+    lin = simulate(truth, time=times, piezo=piezo)
     # rtol 1e-5: the correction (<= 2e-10 m) is then accurate to ~1e-13 m (checked against
     # rtol 1e-9), at a fraction of the cost
-    nl = simulate_nonlinear(truth, time=times, rtol=1e-5)
+    nl = simulate_nonlinear(truth, time=times, rtol=1e-5, piezo=piezo)
     return {k: nl.outputs[k][0] - lin.outputs[k][0] for k in MODEL_POSITIONS}
 
 
@@ -241,12 +245,13 @@ def synth_campaign(truth: ParameterSet | None = None, *, seed: int = 0,
     # grid TRUTH_OVERSAMPLE times finer than the record (so checks need not interpolate it)
     fine = np.arange((n - 1) * TRUTH_OVERSAMPLE + 1) / (cfg.rate * TRUTH_OVERSAMPLE)
     tb = batch([truth])
-    nominal = mechanism_signals(tb, _observe_states(tb, fine, src), cfg,
+    nominal = mechanism_signals(tb, _observe_states(tb, fine, src, cfg.piezo), cfg,
                                 rate=cfg.rate * TRUTH_OVERSAMPLE)
     if not cfg.nonlinear:
         corr = {}
     else:
-        corr = nonlinear_correction(truth, times) if correction is None else correction
+        corr = (nonlinear_correction(truth, times, cfg.piezo) if correction is None
+                else correction)
     for k, c in corr.items():
         nominal[k] = nominal[k] + CubicSpline(times, c)(fine)[None]
     peak = {k: float(np.max(np.abs(nominal[k]))) for k in POSITIONS}
@@ -267,7 +272,7 @@ def synth_campaign(truth: ParameterSet | None = None, *, seed: int = 0,
         pb[name] = pb[name] * (1 + cfg.param_rel * rng.standard_normal(B))
     offset = rng.uniform(-cfg.trigger_max, cfg.trigger_max, B) * dt
     pb["t_c"] = pb["t_c"] + offset
-    runs = mechanism_signals(pb, _observe_states(pb, times, src), cfg)
+    runs = mechanism_signals(pb, _observe_states(pb, times, src, cfg.piezo), cfg)
     disp = np.empty((P, R, n))
     for i, k in enumerate(POSITIONS):
         sl = slice(i * R, (i + 1) * R)

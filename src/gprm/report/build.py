@@ -751,6 +751,11 @@ def build_report(run_dir: str | Path) -> str:
     fit_s, fit = fit_section(run)
     sections = [campaign_section(run), fit_s, predict_section(run), whatif_section(run),
                 flight_section(run)]
+    from gprm.report.design_section import design_section   # only where design.json is
+
+    design = design_section(run)
+    if design is not None:
+        sections.append(design)
     prov = _load_json(run, "run.json", "run record") or {}
     sections.append(provenance_section(run, prov))
     sub = f"gprm {__version__} · run directory {run.resolve().name}"

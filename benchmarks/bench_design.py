@@ -1,0 +1,292 @@
+"""Benchmark and validation of ``gprm design`` (issue 25; docs/design.md).
+
+    .venv/bin/python benchmarks/bench_design.py --timing
+        ``gprm design`` with the default candidates on the demo's fit (``gprm demo --quick``)
+        and on a fit of a CSV campaign (a generated campaign written as a CSV folder,
+        preprocessed and fitted with the CLI): wall time of the command.
+
+    .venv/bin/python benchmarks/bench_design.py --validate --truths 5 --starts 50 [--log F]
+        For each truth (benchmarks/bench_coverage.py's draws, seeds 1000...): the base
+        campaign (``gprm synth campaign``, every imperfection of the generator, 10 runs),
+        preprocessed and fitted with the CLI; ``gprm design`` on that fit with the candidates
+        the generator can make (more runs, three times more runs, a longer record fitted over a
+        longer window); each candidate's campaign (base + addition, as its design.json's
+        ``synth_campaign`` says) simulated with a new seed, preprocessed and fitted with the
+        CLI. Compared: achieved / predicted posterior sd (u) of the parameters both identify,
+        and the achieved 95 % intervals' coverage of the truth (the 21 physical parameters).
+        Control: the base design simulated again with a new seed and fitted, against the
+        base fit (the design's prediction for the base design): how closely two fits of the
+        same design agree, the floor of any such comparison. ``--from-log F`` prints the
+        tables of an earlier (or interrupted) run's JSON lines.
+
+Prints markdown (machine, command, tables).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+from _machine import machine
+
+GPRM = [sys.executable, "-m", "gprm.cli"]
+
+VALIDATION_CANDIDATES = """include_defaults = false
+[cost]
+max_additions = 1
+[[candidate]]
+name = "more-runs"
+note = "the five positions, 10 more runs"
+[[candidate]]
+name = "more-runs-x3"
+runs = 30
+note = "the five positions, 30 more runs"
+[[candidate]]
+name = "long-window"
+record = "2 ms"
+window = ["0.97 ms", "1.6 ms"]
+note = "10 more runs recorded to 2 ms, all fitted to 1.6 ms"
+"""
+
+
+def gprm(*args, cwd=None) -> float:
+    t = time.perf_counter()
+    r = subprocess.run([*GPRM, *map(str, args)], capture_output=True, text=True, cwd=cwd)
+    if r.returncode != 0:
+        raise RuntimeError(f"gprm {' '.join(map(str, args))}: {r.stderr or r.stdout}")
+    return time.perf_counter() - t
+
+
+def timing(starts: int) -> None:
+    from gprm.campaign.files import load_campaign, write_campaign_dir
+
+    with tempfile.TemporaryDirectory() as d:
+        d = Path(d)
+        gprm("demo", "--quick", "--out", d / "demo")
+        t_demo = gprm("design", d / "demo" / "fit.json", "--out", d / "design_demo.json")
+        gprm("synth", "campaign", "--seed", 11, "--out", d / "c.nc")
+        write_campaign_dir(load_campaign(d / "c.nc"), d / "csv")
+        gprm("preprocess", d / "csv", "--out", d / "means.nc")
+        gprm("fit", d / "means.nc", "--starts", starts, "--out", d / "fit.json")
+        t_csv = gprm("design", d / "fit.json", "--out", d / "design_csv.json")
+        doc = json.loads((d / "design_csv.json").read_text())
+        t_paper = gprm("design", "paper", "--out", d / "design_paper.json")
+    print("| fit | candidates | wall s (command) | of which design s |")
+    print("|---|---|---|---|")
+    print(f"| demo (`gprm demo --quick`) | default ({len(doc['candidates'])}) | {t_demo:.1f} | |")
+    print(f"| CSV campaign (seed 11, {starts} starts) | default ({len(doc['candidates'])}) | "
+          f"{t_csv:.1f} | {doc['timings_s']['total']:.1f} |")
+    print(f"| paper | default | {t_paper:.1f} | |")
+
+
+def _compare(res, pred_sd, pred_ident, fit: dict, truth) -> dict:
+    """Achieved (fit.json) against predicted sd in u; the 95 % coverage of the truth over the
+    identified physical parameters (fit.json intervals are SI)."""
+    from bench_coverage import PHYSICAL
+
+    ratios, cover, n_cov = {}, 0, 0
+    for i, n in enumerate(res.names):
+        e = fit["parameters"][n]
+        sd_ach = e["contraction"] * res.prior_sd[i]
+        if e["identified"] and pred_ident[i]:
+            ratios[n] = float(sd_ach / pred_sd[i])
+        if n in PHYSICAL and e["identified"]:
+            lo, hi = e["interval"]["lower"], e["interval"]["upper"]
+            cover += int(lo <= truth[n] <= hi)
+            n_cov += 1
+    return {"ratios": ratios, "cover": cover, "n_cover": n_cov,
+            "ident_pred": int(np.sum(pred_ident)),
+            "ident_ach": sum(bool(fit["parameters"][n]["identified"]) for n in res.names)}
+
+
+def validate(n_truths: int, starts: int, seed0: int, log: Path) -> list[dict]:
+    """Runs the validation (see the module docstring); one JSON line per campaign to
+    ``log`` as it goes."""
+    sys.path.insert(0, os.path.dirname(__file__))
+    from dataclasses import replace
+
+    from bench_coverage import draw_truth
+
+    from gprm.design.config import read_design_config
+    from gprm.design.core import run_design
+    from gprm.params.files import save_params
+
+    rows = []
+    with tempfile.TemporaryDirectory() as d, open(log, "a") as fh:
+        d = Path(d)
+        (d / "cands.toml").write_text(VALIDATION_CANDIDATES)
+        cfg_all = read_design_config(d / "cands.toml")
+
+        def campaign(tdir, name, seed, runs, noise_runs, t_end, window):
+            camp = tdir / f"{name}.nc"
+            gprm("synth", "campaign", "--truth", tdir / "truth.toml", "--seed", seed,
+                 "--runs", runs, "--noise-runs", noise_runs, "--t-end", f"{t_end * 1e3:g}ms",
+                 "--out", camp)
+            gprm("preprocess", camp, "--out", tdir / f"{name}_means.nc")
+            gprm("fit", tdir / f"{name}_means.nc", "--starts", starts, "--seed", seed,
+                 "--window", f"{window[0] * 1e3:g}ms,{window[1] * 1e3:g}ms",
+                 "--out", tdir / f"{name}_fit.json")
+            return json.loads((tdir / f"{name}_fit.json").read_text())
+
+        def emit(row):
+            rows.append(row)
+            fh.write(json.dumps(row) + "\n")
+            fh.flush()
+
+        for k in range(n_truths):
+            seed = seed0 + k
+            truth = draw_truth(seed)
+            tdir = d / f"t{seed}"
+            tdir.mkdir()
+            save_params(truth, tdir / "truth.toml")
+            base_fit = campaign(tdir, "base", seed, 10, 5, 1.5e-3, (0.97e-3, 1.2e-3))
+            gprm("design", tdir / "base_fit.json", "--candidates", d / "cands.toml",
+                 "--out", tdir / "design.json")
+            design = json.loads((tdir / "design.json").read_text())
+            res0 = run_design(tdir / "base_fit.json", replace(cfg_all, candidates=()))
+            # control: the same design again (a new seed); its prediction is the base fit
+            rep = campaign(tdir, "replicate", seed + 7000, 10, 5, 1.5e-3, (0.97e-3, 1.2e-3))
+            emit({"seed": seed, "rank": 0, "name": "base again (control)", "runs": 10,
+                  "window": [0.97e-3, 1.2e-3],
+                  **_compare(res0, res0.base.sd_u, res0.base.identified, rep, truth)})
+            for rank, name in enumerate(design["ranking"], 1):
+                # the prediction for exactly that campaign: a design of this one addition
+                cfg = replace(cfg_all, candidates=tuple(c for c in cfg_all.candidates
+                                                        if c.name == name))
+                res = run_design(tdir / "base_fit.json", cfg)
+                syn = res.synth
+                assert syn["simulated"] == [name], syn
+                pred = syn["predicted"]
+                fit = campaign(tdir, name, seed + 5000, syn["runs"], syn["noise_runs"],
+                               syn["t_end"], syn["window"])
+                emit({"seed": seed, "rank": rank, "name": name, "runs": syn["runs"],
+                      "window": list(syn["window"]),
+                      **_compare(res, pred["sd_u"], pred["identified"], fit, truth)})
+            del base_fit
+    return rows
+
+
+def validate_drive(n_truths: int, starts: int, seed0: int, log: Path) -> list[dict]:
+    """A Piezo 1 campaign of its own (``gprm synth campaign --piezo 1``, fitted with
+    ``gprm fit --piezo 1``) against the design's prediction for that block alone, made from
+    the fit of the truth's Piezo 2 base campaign (its noise model and per-parameter
+    carry-over transferred to the other drive, as the piezo1 candidate assumes)."""
+    sys.path.insert(0, os.path.dirname(__file__))
+    from bench_coverage import draw_truth
+
+    from gprm.design.config import MODEL_CHANNELS, Block, Channel
+    from gprm.design.core import run_design
+    from gprm.params.files import save_params
+
+    rows = []
+    block = Block(tuple(Channel(n) for n in MODEL_CHANNELS), drives=(1,), runs=10)
+    with tempfile.TemporaryDirectory() as d, open(log, "a") as fh:
+        d = Path(d)
+        for k in range(n_truths):
+            seed = seed0 + k
+            truth = draw_truth(seed)
+            tdir = d / f"t{seed}"
+            tdir.mkdir()
+            save_params(truth, tdir / "truth.toml")
+            for name, piezo, s in (("base", 2, seed), ("piezo1", 1, seed + 6000)):
+                gprm("synth", "campaign", "--truth", tdir / "truth.toml", "--seed", s,
+                     "--piezo", piezo, "--out", tdir / f"{name}.nc")
+                gprm("preprocess", tdir / f"{name}.nc", "--out", tdir / f"{name}_means.nc")
+                gprm("fit", tdir / f"{name}_means.nc", "--starts", starts, "--seed", seed,
+                     "--piezo", piezo, "--out", tdir / f"{name}_fit.json")
+            res = run_design(tdir / "base_fit.json", alone=(block,))
+            pred = res.alone[0]
+            fit = json.loads((tdir / "piezo1_fit.json").read_text())
+            row = {"seed": seed, "rank": -1, "name": "piezo1 alone", "runs": 10,
+                   "window": [0.97e-3, 1.2e-3],
+                   **_compare(res, pred["sd_u"], pred["identified"], fit, truth)}
+            rows.append(row)
+            fh.write(json.dumps(row) + "\n")
+            fh.flush()
+            print(json.dumps({k: v for k, v in row.items() if k != "ratios"}),
+                  file=sys.stderr, flush=True)
+    return rows
+
+
+def tables(rows: list[dict]) -> None:
+    print("| truth seed | rank | campaign | runs | window ms | identified: predicted / "
+          "achieved | compared | achieved / predicted sd, median | within +-25 % | "
+          "identified physical: 95 % coverage |")
+    print("|---|---|---|---|---|---|---|---|---|---|")
+    for r in rows:
+        v = np.array(list(r["ratios"].values()))
+        print(f"| {r['seed']} | {r['rank'] if r['rank'] > 0 else '-'} | {r['name']} | {r['runs']} | "
+              f"{r['window'][0] * 1e3:g}-{r['window'][1] * 1e3:g} | {r['ident_pred']} / "
+              f"{r['ident_ach']} | {len(v)} | {np.median(v):.2f} | "
+              f"{int(np.sum(np.abs(v - 1) <= 0.25))}/{len(v)} | {r['cover']}/{r['n_cover']} |")
+    print("\n| campaigns | comparisons | achieved / predicted sd: median (16-84 %) | within "
+          "+-25 % | 95 % coverage, identified physical |")
+    print("|---|---|---|---|---|")
+    names = sorted({r["name"] for r in rows if r["rank"] > 0})
+    groups = [("control: the base design again", lambda r: r["rank"] == 0),
+              ("top three recommendations", lambda r: r["rank"] > 0),
+              ("Piezo 1 campaign alone", lambda r: r["rank"] == -1),
+              *((n, lambda r, n=n: r["name"] == n) for n in names)]
+    for label, sel in groups:
+        rs = [r for r in rows if sel(r)]
+        if not rs:
+            continue
+        v = np.concatenate([list(r["ratios"].values()) for r in rs])
+        c = sum(r["cover"] for r in rs) / max(sum(r["n_cover"] for r in rs), 1)
+        q = np.percentile(v, [16, 84])
+        print(f"| {label} ({len(rs)}) | {len(v)} | {np.median(v):.2f} ({q[0]:.2f}-{q[1]:.2f})"
+              f" | {np.mean(np.abs(v - 1) <= 0.25):.0%} | {c:.1%} "
+              f"({sum(r['cover'] for r in rs)}/{sum(r['n_cover'] for r in rs)}) |")
+    per: dict[str, list] = {}
+    for r in rows:
+        if r["rank"] > 0:
+            for n, x in r["ratios"].items():
+                per.setdefault(n, []).append(x)
+    print("\n| parameter | comparisons | achieved / predicted sd: median (min .. max) |")
+    print("|---|---|---|")
+    for n, x in per.items():
+        print(f"| {n} | {len(x)} | {np.median(x):.2f} ({min(x):.2f} .. {max(x):.2f}) |")
+
+
+def main(argv=None) -> None:
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--timing", action="store_true")
+    ap.add_argument("--validate", action="store_true")
+    ap.add_argument("--validate-drive", action="store_true",
+                    help="a Piezo 1 campaign alone against its prediction")
+    ap.add_argument("--truths", type=int, default=1)
+    ap.add_argument("--starts", type=int, default=50)
+    ap.add_argument("--seed", type=int, default=1000)
+    ap.add_argument("--log", type=Path, default=Path("design-validation.jsonl"),
+                    help="JSON lines, one per campaign, appended as the validation goes")
+    ap.add_argument("--from-log", type=Path, default=None,
+                    help="only print the tables of a log written earlier")
+    a = ap.parse_args(argv)
+    print(machine("scipy"))
+    print(f"\ncommand: `.venv/bin/python benchmarks/bench_design.py {' '.join(sys.argv[1:])}`\n")
+    if a.timing:
+        timing(a.starts)
+    if a.from_log is not None:
+        tables([json.loads(x) for x in a.from_log.read_text().splitlines() if x.strip()])
+    elif a.validate_drive:
+        t = time.perf_counter()
+        rows = validate_drive(a.truths, a.starts, a.seed, a.log)
+        print(f"{a.truths} truths, {a.starts} starts per fit, {time.perf_counter() - t:.0f} s\n")
+        tables(rows)
+    elif a.validate:
+        t = time.perf_counter()
+        rows = validate(a.truths, a.starts, a.seed, a.log)
+        print(f"{a.truths} truths, {a.starts} starts per fit, {time.perf_counter() - t:.0f} s\n")
+        tables(rows)
+
+
+if __name__ == "__main__":
+    main()

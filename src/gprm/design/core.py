@@ -1,0 +1,433 @@
+"""Experimental design: which measurement determines what the fitted campaign could not
+(issue 25; docs/design.md).
+
+The measure of a design D (a set of blocks) is its expected posterior in the prior's
+coordinates u: for each of the fit's posterior draws x_d (and the best fit),
+
+    C_d(D) = [diag(1 / w^2) + sum_{b in D} F_b(x_d) / kappa]^-1,
+
+with w the prior's sd (gprm.fit.prior), F_b the Fisher information of block b
+(:mod:`gprm.design.information`) and kappa the calibration of the noise model to the fit (the
+variance factor that makes the base campaign's predicted sd match the fit's reported sd, in
+median over the identified parameters; 1 without a fit). The reported sd is sqrt(mean_d
+diag C_d): the expected posterior variance over the fit's posterior, so that a design is not
+judged at a single point. Where there is a fit, each parameter's sd is then multiplied by
+s_k = (the fit's reported sd) / (the base campaign's sd from the line above): what the
+noise model misses of the fit's own error (model mismatch the fit's sandwich sees, a
+non-Gaussian valley) is carried over to every design, so that the base campaign reproduces
+the fit and a candidate changes it by its information. The release predictions' sd is sqrt(diag(G C G^T)) with C the mean
+of the C_d and G their gradients at the best fit (:mod:`gprm.design.predictions`).
+"""
+
+from __future__ import annotations
+
+import itertools
+import time
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+
+from gprm.design.config import MODEL_CHANNELS, Block, Channel, DesignConfig
+from gprm.design.information import NoiseModel, block_information, estimate_noise
+from gprm.design.predictions import ReleasePredictions, release_predictions
+from gprm.fit.files import FittedModel, load_model, read_fit_document, read_fit_sidecar
+from gprm.fit.prior import DEFAULT_WIDTH, Prior, default_prior
+from gprm.params import ALIGNMENT_OFFSETS
+
+#: the generator's noise when there is no fit to estimate it from (SynthConfig: white and
+#: coloured interferometer noise; drive amplitude spread per run)
+DEFAULT_NOISE = NoiseModel(float(np.hypot(4e-10, 3e-10)), 0.02)
+Z95 = 1.959963984540054
+#: the y-plane spring pair and the structural statement about it (docs/fitting.md)
+Y_SPRINGS = ("k_Cy", "k_Dy")
+
+
+@dataclass(frozen=True)
+class DesignEvaluation:
+    """One design (the base campaign plus ``additions``): expected posterior sd in u (P,),
+    identified mask, 95 % intervals (SI), release predictions' sd (K,), cost in hours."""
+
+    additions: tuple[str, ...]
+    sd_u: np.ndarray
+    identified: np.ndarray
+    lower: np.ndarray
+    upper: np.ndarray
+    pred_sd: np.ndarray
+    hours: float
+    runs: int
+    gain: dict = field(default_factory=dict)
+
+
+@dataclass(frozen=True)
+class DesignResult:
+    names: tuple[str, ...]
+    best: np.ndarray
+    prior_sd: np.ndarray
+    log: np.ndarray
+    base: DesignEvaluation
+    candidates: tuple[DesignEvaluation, ...]
+    ranking: tuple[str, ...]
+    recommended: DesignEvaluation
+    selection: str
+    predictions: ReleasePredictions
+    noise: NoiseModel
+    fit_sd_u: np.ndarray | None
+    scale: np.ndarray
+    config: DesignConfig
+    source: str
+    base_block: Block
+    synth: dict
+    y_springs: dict
+    timings: dict
+    alone: tuple[dict, ...] = ()
+
+    def evaluation(self, name: str) -> DesignEvaluation:
+        for e in self.candidates:
+            if e.additions == (name,):
+                return e
+        raise KeyError(name)
+
+
+# ----------------------------------------------------------------------------- pieces
+def _fit_window_and_rate(fm: FittedModel) -> tuple[tuple[float, float], float, dict | None]:
+    """The fit's window, the data's sample rate and its sidecar data (sigma, model) where
+    the model is a fit file; the defaults for ``paper``."""
+    if fm.source == "paper":
+        return (0.97e-3, 1.2e-3), 200e3, None
+    doc = read_fit_document(fm.source)
+    w = doc.get("window") or [0.97e-3, 1.2e-3]
+    window = (float(w[0]), float(w[1]))
+    try:
+        side = read_fit_sidecar(fm.source)
+    except Exception:                 # no usable sidecar: the defaults for the noise
+        return window, 200e3, None
+    t = np.asarray(side["time"].values, float)
+    rate = float(np.round(1.0 / np.median(np.diff(t)))) if t.size > 1 else 200e3
+    sig = np.asarray(side["data_sigma"].values, float)
+    model = (np.asarray(side["model_best"].values, float) if "model_best" in side.variables
+             else np.asarray(side["data_mean"].values, float))
+    unc = doc.get("uncertainty") or {}
+    det = unc.get("details") or {}
+    syst = det.get("systematics") or {}
+    s2 = unc.get("s2")
+    return window, rate, {
+        "sigma": sig, "model": model,
+        "s2": float(s2) if isinstance(s2, (int, float)) and np.isfinite(s2) else 1.0,
+        "gain": tuple((k, float(v.get("gain_sd") or 0.0)) for k, v in syst.items()
+                      if isinstance(v, dict)),
+        "align": tuple((k, float(v.get("alignment_sd_s") or 0.0)) for k, v in syst.items()
+                       if isinstance(v, dict))}
+
+
+def prior_of(fm: FittedModel, width: float | None = None) -> Prior:
+    """The fit's prior (its documented default with the fit's width; gprm.fit.prior)."""
+    if width is None:
+        width = DEFAULT_WIDTH
+        if fm.source != "paper":
+            unc = read_fit_document(fm.source).get("uncertainty") or {}
+            width = float(((unc.get("prior") or {}).get("width")) or DEFAULT_WIDTH)
+    return default_prior(fm.params, fm.names, width)
+
+
+def draws_of(fm: FittedModel, n: int, seed: int) -> np.ndarray:
+    """(n, P) SI: the best fit and n - 1 of the fit's posterior draws."""
+    x = fm.params.vector(fm.names)
+    if n <= 1 or not fm.has_uncertainty:
+        return x[None]
+    pb = fm.sample(n - 1, seed)
+    return np.vstack([x[None], np.stack([pb[k] for k in fm.names], 1)])
+
+
+def block_hours(block: Block, cfg: DesignConfig, base: Block, name: str = "") -> float:
+    c = cfg.cost
+    per = block.runs * c.hours_per_run + block.noise_runs * c.hours_per_noise_run
+    hours = per * len(block.channels) * len(block.drives)
+    new_pos = [ch for ch in block.channels if ch.name not in base.channel_names]
+    hours += c.hours_per_new_position * len(new_pos)
+    same_profile = block.voltage == 1.0 and block.retraction == 1.0
+    new_drives = [d for d in block.drives if not (same_profile and d in base.drives)]
+    hours += c.hours_per_new_drive * len(new_drives)
+    return float(hours + cfg.extra(name))
+
+
+def _posterior(P0: np.ndarray, F: np.ndarray, kappa: float) -> np.ndarray:
+    """(D, P, P) posterior covariances for information F (D, P, P)."""
+    H = P0[None] + F / kappa
+    return np.linalg.inv(H)
+
+
+def _calibrate(P0: np.ndarray, F_base: np.ndarray, fit_sd: np.ndarray,
+               mask: np.ndarray) -> float:
+    """kappa such that median_k(sd_pred_k / sd_fit_k) = 1 over ``mask`` (bisection in
+    log kappa over 1e-3 .. 1e6)."""
+    def ratio(k):
+        C = _posterior(P0, F_base, k)
+        sd = np.sqrt(np.mean(np.diagonal(C, axis1=1, axis2=2), 0))
+        return float(np.median(sd[mask] / fit_sd[mask]))
+
+    lo, hi = np.log(1e-3), np.log(1e6)
+    if ratio(np.exp(lo)) >= 1:
+        return float(np.exp(lo))
+    if ratio(np.exp(hi)) <= 1:
+        return float(np.exp(hi))
+    for _ in range(50):
+        mid = 0.5 * (lo + hi)
+        if ratio(np.exp(mid)) < 1:
+            lo = mid
+        else:
+            hi = mid
+    return float(np.exp(0.5 * (lo + hi)))
+
+
+def _gain(before: np.ndarray, after: np.ndarray, groups: np.ndarray) -> dict:
+    """Geometric-mean factor by which the predictions' sd shrink, per group and overall
+    (the mean of the groups' log factors)."""
+    out = {}
+    logs = []
+    for g in ("overshoot", "velocity"):
+        m = groups == g
+        if m.any():
+            lg = float(np.mean(np.log(before[m] / after[m])))
+            out[g] = float(np.exp(lg))
+            logs.append(lg)
+    out["release"] = float(np.exp(np.mean(logs))) if logs else 1.0
+    return out
+
+
+# ----------------------------------------------------------------------------- entry point
+def run_design(model, config: DesignConfig | None = None, *, candidates_path=None,
+               alone: tuple[Block, ...] = ()) -> DesignResult:
+    """Evaluate the candidates of ``config`` (default: the documented set) as additions to
+    the base campaign of ``model`` (a fit JSON, a run folder, ``paper`` or a FittedModel),
+    rank them and select the best additions within the cost budget (docs/design.md).
+    ``alone``: blocks whose prediction as a campaign of their own (what a fit of that
+    campaign alone should report) is wanted too: ``result.alone`` (the validation's)."""
+    t_start = time.perf_counter()
+    fm = load_model(model)
+    window, rate, data = _fit_window_and_rate(fm)
+    if config is None:
+        from gprm.design.config import read_design_config
+
+        config = read_design_config(candidates_path, window=window)
+    cfg = config
+    names = fm.names
+    prior = prior_of(fm)
+    log = np.asarray(prior.log, bool)
+    sd0 = np.asarray(prior.sd, float)
+    P0 = np.diag(1.0 / sd0 ** 2)
+    X = draws_of(fm, cfg.n_draws, cfg.seed)
+    dx_du = np.where(log[None], X, 1.0)
+    # the noise model
+    if data is not None:
+        n0, v = estimate_noise(data["sigma"], data["model"], cfg.base_runs)
+        extra = {"mismatch": max(data["s2"] - 1.0, 0.0), "gain": data["gain"],
+                 "align": data["align"]}
+    else:
+        n0, v = DEFAULT_NOISE.white, DEFAULT_NOISE.variability
+        extra = {}
+    n0 = cfg.noise_white if cfg.noise_white is not None else n0
+    v = cfg.variability if cfg.variability is not None else v
+    noise1 = NoiseModel(n0, v, 1.0, base_runs=cfg.base_runs, base_rate=rate, **extra)
+    base = Block(tuple(Channel(n) for n in MODEL_CHANNELS), (fm.piezo,), runs=cfg.base_runs,
+                 noise_runs=cfg.base_noise_runs, record=max(1.5e-3, window[1]), rate=rate,
+                 window=window)
+    fitted_lags = tuple(ch for ch, off in ALIGNMENT_OFFSETS.items() if off in names)
+    lag_sd = float(default_prior(fm.params, ("dt_x_head",)).sd[0])
+
+    def info(block: Block) -> np.ndarray:
+        return block_information(fm.params, names, X, dx_du, block, noise1,
+                                 gain_sd=cfg.gain_sd, timing_sd=cfg.timing_sd, lag_sd=lag_sd,
+                                 fitted_lag_channels=fitted_lags,
+                                 z_bk_absolute=fm.z_bk_absolute)
+
+    t0 = time.perf_counter()
+    F_base = info(base)
+    F_cand = {c.name: info(c.block) for c in cfg.candidates}
+    t_info = time.perf_counter() - t0
+    # the fit's own sd in u, and the calibration
+    fit_sd = None
+    kappa = 1.0
+    if fm.covariance is not None and fm.source != "paper":
+        xb = fm.params.vector(names)
+        fit_sd = np.sqrt(np.clip(np.diag(fm.covariance), 0, None)) / np.where(log, xb, 1.0)
+        ident = np.array([n in (fm.identified or ()) for n in names])
+        if cfg.calibrate and ident.any():
+            kappa = _calibrate(P0, F_base, fit_sd, ident)
+    noise = replace(noise1, kappa=kappa)
+    # per parameter: what the noise model misses of the fit's sd, carried over to every design
+    scale = np.ones(len(names))
+    if fit_sd is not None and cfg.calibrate:
+        C0 = _posterior(P0, F_base, kappa)
+        raw = np.sqrt(np.mean(np.diagonal(C0, axis1=1, axis2=2), 0))
+        r = fit_sd / raw
+        scale = np.where(np.isfinite(r) & (r > 0), r, 1.0)
+    t0 = time.perf_counter()
+    preds = release_predictions(fm, sd0, log)
+    t_pred = time.perf_counter() - t0
+    groups = np.array(preds.group)
+    xb = fm.params.vector(names)
+    ub = prior.to_u(xb)
+    hours_of = {c.name: block_hours(c.block, cfg, base, c.name) for c in cfg.candidates}
+    runs_of = {c.name: c.block.runs * len(c.block.channels) * len(c.block.drives)
+               for c in cfg.candidates}
+
+    def evaluate(adds: tuple[str, ...], ref: DesignEvaluation | None) -> DesignEvaluation:
+        F = F_base + sum((F_cand[a] for a in adds), np.zeros_like(F_base))
+        C = _posterior(P0, F, kappa)
+        sd = np.minimum(np.sqrt(np.mean(np.diagonal(C, axis1=1, axis2=2), 0)) * scale, sd0)
+        Cm = C.mean(0) * np.outer(scale, scale)
+        psd = np.sqrt(np.clip(np.einsum("kp,pq,kq->k", preds.gradient, Cm, preds.gradient),
+                              1e-300, None))
+        lo = prior.from_u(ub - Z95 * sd)
+        hi = prior.from_u(ub + Z95 * sd)
+        gain = {} if ref is None else _gain(ref.pred_sd, psd, groups)
+        return DesignEvaluation(adds, sd, sd / sd0 < cfg.identified_threshold, lo, hi, psd,
+                                float(sum(hours_of[a] for a in adds)),
+                                int(sum(runs_of[a] for a in adds)), gain)
+
+    base_ev = evaluate((), None)
+    cands = tuple(evaluate((c.name,), base_ev) for c in cfg.candidates)
+    ranking = tuple(e.additions[0] for e in sorted(
+        cands, key=lambda e: (-e.gain["release"], e.hours, e.additions[0])))
+    # selection within the budget
+    budget, kmax = cfg.cost.budget, cfg.cost.max_additions
+    affordable = [c.name for c in cfg.candidates if hours_of[c.name] <= budget]
+    n_subsets = sum(_ncomb(len(affordable), k) for k in range(1, kmax + 1))
+    best = base_ev
+    if n_subsets <= cfg.exhaustive_limit:
+        selection = f"exhaustive over {n_subsets} subsets"
+        for k in range(1, min(kmax, len(affordable)) + 1):
+            for adds in itertools.combinations(affordable, k):
+                if sum(hours_of[a] for a in adds) > budget:
+                    continue
+                ev = evaluate(adds, base_ev)
+                if _better(ev, best):
+                    best = ev
+    else:
+        selection = "greedy (largest gain per added hour)"
+        chosen: tuple[str, ...] = ()
+        while len(chosen) < kmax:
+            spent = sum(hours_of[a] for a in chosen)
+            opts = [a for a in affordable if a not in chosen and spent + hours_of[a] <= budget]
+            if not opts:
+                break
+            evs = [evaluate(chosen + (a,), base_ev) for a in opts]
+            cur = best.gain.get("release", 1.0)
+            rate_ = [(np.log(e.gain["release"] / cur)) / max(hours_of[a], 1e-9)
+                     for e, a in zip(evs, opts)]
+            j = int(np.argmax(rate_))
+            if rate_[j] <= 0:
+                break
+            chosen, best = chosen + (opts[j],), evs[j]
+    synth = synth_configuration(best.additions, cfg, base)
+    if synth["block"] is not None:
+        synth["predicted"] = evaluate_block(fm, synth["block"], cfg, noise, P0, X, dx_du,
+                                            prior, ub, sd0, lag_sd, fitted_lags, scale)
+    alone_ev = tuple(evaluate_block(fm, b, cfg, noise, P0, X, dx_du, prior, ub, sd0, lag_sd,
+                                    fitted_lags, scale) for b in alone)
+    y = y_spring_statement(names, base_ev, cands, cfg)
+    timings = {"information": round(t_info, 3), "predictions": round(t_pred, 3),
+               "total": round(time.perf_counter() - t_start, 3)}
+    return DesignResult(names, xb, sd0, log, base_ev, cands, ranking, best, selection, preds,
+                        noise, fit_sd, scale, cfg, str(fm.source), base, synth, y, timings, alone_ev)
+
+
+def _ncomb(n: int, k: int) -> int:
+    from math import comb
+
+    return comb(n, k) if 0 <= k <= n else 0
+
+
+def _better(a: DesignEvaluation, b: DesignEvaluation) -> bool:
+    ga, gb = a.gain.get("release", 1.0), b.gain.get("release", 1.0)
+    if not np.isclose(ga, gb, rtol=1e-9):
+        return ga > gb
+    return a.hours < b.hours
+
+
+def evaluate_block(fm: FittedModel, block: Block, cfg: DesignConfig, noise: NoiseModel,
+                   P0, X, dx_du, prior: Prior, ub, sd0, lag_sd, fitted_lags,
+                   scale) -> dict:
+    """Predicted sd and 95 % intervals of a campaign made of ``block`` alone (what a fit of
+    that campaign should report): the validation's prediction."""
+    F = block_information(fm.params, fm.names, X, dx_du, block,
+                          replace(noise, kappa=1.0), gain_sd=cfg.gain_sd,
+                          timing_sd=cfg.timing_sd, lag_sd=lag_sd,
+                          fitted_lag_channels=fitted_lags, z_bk_absolute=fm.z_bk_absolute)
+    C = _posterior(P0, F, noise.kappa)
+    sd = np.minimum(np.sqrt(np.mean(np.diagonal(C, axis1=1, axis2=2), 0)) * scale, sd0)
+    return {"sd_u": sd, "identified": sd / sd0 < cfg.identified_threshold,
+            "lower": prior.from_u(ub - Z95 * sd), "upper": prior.from_u(ub + Z95 * sd)}
+
+
+def synth_configuration(additions: tuple[str, ...], cfg: DesignConfig, base: Block) -> dict:
+    """The recommended campaign as ``gprm synth campaign`` options where the generator can
+    make it as one campaign that ``gprm fit`` fits: the generator measures the ten positions
+    with one piezo at the nominal voltage profile and 200 kHz, so the additions it can
+    simulate within the base campaign are more runs of the five model positions (and a
+    longer record, fitted over a longer window); the others are listed as not simulated,
+    with the reason."""
+    cands = {c.name: c for c in cfg.candidates}
+    runs, noise_runs, t_end, w1 = base.runs, base.noise_runs, base.record, base.window[1]
+    simulated, not_simulated = [], {}
+    for a in additions:
+        b = cands[a].block
+        why = []
+        if set(b.channel_names) != set(MODEL_CHANNELS):
+            why.append("channels other than the five model positions")
+        if b.drives != base.drives:
+            why.append("another drive in the same campaign (a campaign of its own: "
+                       "gprm synth campaign --piezo 1; gprm fit fits one drive at a time)")
+        if b.voltage != 1.0 or b.retraction != 1.0:
+            why.append("a voltage profile other than the nominal one")
+        if b.rate != 200e3:
+            why.append("a sample rate other than 200 kHz")
+        if b.window[0] != base.window[0]:
+            why.append("another window start")
+        if why:
+            not_simulated[a] = "gprm synth campaign cannot make " + ", ".join(why)
+            continue
+        simulated.append(a)
+        runs += b.runs
+        noise_runs = max(noise_runs, b.noise_runs)
+        t_end = max(t_end, b.record)
+        w1 = max(w1, b.window[1])
+    block = None
+    if not not_simulated:
+        block = replace(base, runs=runs, noise_runs=noise_runs, record=t_end,
+                        window=(base.window[0], w1))
+    t_end_arg = t_end if t_end > 1.2e-3 else 1.5e-3
+    return {"simulated": simulated, "not_simulated": not_simulated, "runs": runs,
+            "noise_runs": noise_runs, "t_end": t_end_arg,
+            "window": (base.window[0], w1),
+            "synth_command": (f"gprm synth campaign --runs {runs} --noise-runs {noise_runs} "
+                              f"--t-end {t_end_arg * 1e3:g}ms --piezo {base.drives[0]} "
+                              "--truth TRUTH.toml --seed N --out campaign.nc"),
+            "fit_command": (f"gprm fit means.nc --window {base.window[0] * 1e3:g}ms,"
+                            f"{w1 * 1e3:g}ms --piezo {base.drives[0]} --out fit.json"),
+            "block": block}
+
+
+def y_spring_statement(names, base_ev: DesignEvaluation, cands, cfg: DesignConfig) -> dict:
+    """Whether any candidate determines the y-plane spring pair, and why none can."""
+    idx = [names.index(n) for n in Y_SPRINGS if n in names]
+    if not idx:
+        return {"fitted": False, "text": "k_Cy and k_Dy are not fitted"}
+    which = [e.additions[0] for e in cands if all(e.identified[i] for i in idx)]
+    contraction = {e.additions[0]: [float(e.sd_u[i]) for i in idx] for e in cands}
+    if which:
+        text = ("determined (posterior sd below "
+                f"{cfg.identified_threshold:g} of the prior's) by: {', '.join(which)}")
+    else:
+        text = ("no candidate in the set determines k_Cy and k_Dy separately. Structurally: "
+                "the two lateral springs at b1 and b1 + b2 act on the plunger, and on "
+                "anything a laser can see (plunger points, tip, runner, the force on the "
+                "runner), only through K0 = k_Cy + k_Dy, K1 = k_Cy b1 + k_Dy (b1 + b2) and "
+                "K2 = k_Cy b1^2 + k_Dy (b1 + b2)^2 (docs/fitting.md): four parameters, three "
+                "numbers, whatever the drive, voltage profile, position, record or sample "
+                "rate. Only the dampers at the same points break the tie, and they act at "
+                "the noise level. What determines the pair is information from outside the "
+                "dynamics: a measured attachment point (b1 or b2) or a static stiffness "
+                "test of one spring")
+    return {"fitted": True, "determined_by": which, "text": text,
+            "sd_u_base": [float(base_ev.sd_u[i]) for i in idx], "sd_u": contraction}

@@ -1,0 +1,209 @@
+"""Fisher information of a measurement block about the fitted parameters, in the prior's
+coordinates u (ln x for positive parameters, x for signed ones; gprm.fit.prior).
+
+For one channel c of a block, with mean signal y_c(t; x) over R runs at the samples t_i of
+the fit window, the noise model (docs/design.md) is
+
+    mean = model + e_white + a_c y_c + tau_c dy_c/dt,
+    e_white ~ N(0, n0^2 / R) per sample,
+    a_c ~ N(0, g^2 + v^2 / R)      (the channel's gain error g and the runs' amplitude
+                                    spread v, which averages down over R runs),
+    tau_c ~ N(0, s_t^2)            (its timing error; a channel not in the fitted set also
+                                    gets its own alignment lag, sd that of the fit's
+                                    alignment offsets' prior),
+
+and its information is J^T (n0^2/R I + V S V^T)^-1 J with J = d y_c / d u and V = [y_c,
+dy_c/dt]: the nuisances a_c and tau_c marginalised (Woodbury). Channels are measured in
+separate runs, so their information adds, and so does that of the block's drives.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from gprm.design.config import Block, Channel
+from gprm.params import ParameterSet, batch_from_vectors
+from gprm.simulate import observe
+from gprm.simulate.kinematics import actuation_axis, named_points
+
+#: the states a custom channel is built from (its linearised displacement)
+_STATES = ("x_A", "y_A", "z_lr", "z_A", "eta", "theta", "mu4")
+
+
+@dataclass(frozen=True)
+class NoiseModel:
+    """The data's error as the fit measured it (docs/design.md, "Noise model").
+
+    white: n0, m per sample and run; variability: v, the runs' relative amplitude spread;
+    mismatch: m2, the model mismatch's variance per sample in units of the base campaign's
+    squared standard error (n0^2 + v^2 y^2) / base_runs, at base_rate (the fit's s2 - 1):
+    it does not average down over runs, and its information per unit time does not grow with
+    the sample rate (the mismatch is smooth); gain: the per-channel gain sd the fit used
+    (stated and estimated from the residuals, which more runs do not reduce); align: the
+    alignment's timing sd per channel at base_runs (it falls as 1/sqrt(runs)).
+    ``kappa`` scales every variance (the calibration to the fit's reported sd).
+    """
+
+    white: float
+    variability: float
+    kappa: float = 1.0
+    mismatch: float = 0.0
+    base_runs: int = 10
+    base_rate: float = 200e3
+    gain: tuple[tuple[str, float], ...] = ()
+    align: tuple[tuple[str, float], ...] = ()
+
+    def gain_of(self, channel: str) -> float:
+        d = dict(self.gain)
+        if channel in d:
+            return d[channel]
+        return float(np.median(list(d.values()))) if d else 0.0
+
+    def align_of(self, channel: str) -> float:
+        return dict(self.align).get(channel, 0.0)
+
+
+def window_times(block: Block) -> np.ndarray:
+    """The sample times of the block's fit window (s)."""
+    k0 = int(np.ceil(block.window[0] * block.rate - 1e-9))
+    k1 = int(np.floor(block.window[1] * block.rate + 1e-9))
+    return np.arange(k0, k1 + 1) / block.rate
+
+
+def _channel_coefficients(ch: Channel, pb: dict, names: tuple[str, ...]):
+    """Coefficients (B, n_states) of the channel's displacement over ``_STATES`` and their
+    derivatives {name: (B, n_states)} w.r.t. the parameters they depend on (gamma, rho
+    through the actuation axis of a tip point)."""
+    B = pb["t0"].shape[0]
+    if ch.point:
+        r = named_points({k: v[:1] for k, v in pb.items()})[ch.point].r[0]
+        r = np.broadcast_to(r, (B, 3))      # the named point at the best fit, held fixed
+    else:
+        r = np.broadcast_to(np.asarray(ch.at, float), (B, 3))
+    rx, ry, rz = r[:, 0], r[:, 1], r[:, 2]
+    one, zero = np.ones(B), np.zeros(B)
+    if ch.body == "runner":
+        c = np.stack([zero, zero, one, zero, zero, zero, zero], -1)
+        return c, {}
+    if ch.axis == "x":
+        c = np.stack([one, zero, zero, zero, rz, zero, zero], -1)
+    elif ch.axis == "y":
+        c = np.stack([zero, one, zero, zero, zero, -rz, zero], -1)
+    else:
+        c = np.stack([zero, zero, one, one, -rx, ry, zero], -1)
+    dc: dict[str, np.ndarray] = {}
+    if ch.body == "tip":
+        k = "xyz".index(ch.axis)
+        u = actuation_axis(pb)
+        c[:, 6] = u[:, k]
+        g, rho = pb["gamma"], pb["rho"]
+        du = {"gamma": np.stack([np.cos(g), -np.sin(g) * np.sin(rho),
+                                 -np.sin(g) * np.cos(rho)], -1),
+              "rho": np.stack([zero, np.cos(g) * np.cos(rho), -np.cos(g) * np.sin(rho)], -1)}
+        for n, d in du.items():
+            if n in names:
+                m = np.zeros_like(c)
+                m[:, 6] = d[:, k]
+                dc[n] = m
+    return c, dc
+
+
+def block_signals(params: ParameterSet, names: tuple[str, ...], X: np.ndarray, block: Block,
+                  drive: int, *, z_bk_absolute: bool = False):
+    """Model signals y (B, C, T), their sensitivities dy/dx (B, C, T, P) and time
+    derivatives (B, C, T) of the block's channels under one drive, for parameter rows X
+    (B, P, SI). Rows that cannot be simulated come back as NaN."""
+    pb = batch_from_vectors(params, names, X)
+    pb["V0"] = pb["V0"] * block.voltage
+    pb["tau_v"] = pb["tau_v"] * block.retraction
+    t = window_times(block)
+    outs = tuple(c.name for c in block.channels if c.is_model_output)
+    custom = tuple(c for c in block.channels if not c.is_model_output)
+    obs_names = outs + (_STATES if custom else ())
+    extra = () if "t0" in names else ("t0",)
+    sens = tuple(names) + extra
+    obs = observe(pb, t, obs_names, piezo=drive, sensitivities=sens,
+                  z_bk_absolute=z_bk_absolute)
+    y, dy = obs.y, obs.dy
+    ys, dys = [], []
+    for i, _ in enumerate(outs):
+        ys.append(y[:, i])
+        dys.append(dy[:, i])
+    if custom:
+        s = y[:, len(outs):]                          # (B, 7, T)
+        ds = dy[:, len(outs):]                        # (B, 7, T, P+)
+        for ch in custom:
+            c, dc = _channel_coefficients(ch, pb, names)
+            ys.append(np.einsum("bk,bkt->bt", c, s))
+            d = np.einsum("bk,bktp->btp", c, ds)
+            for n, m in dc.items():
+                d[:, :, sens.index(n)] += np.einsum("bk,bkt->bt", m, s)
+            dys.append(d)
+    Y = np.stack(ys, 1)
+    D = np.stack(dys, 1)
+    ydot = -D[..., sens.index("t0")]                   # y(t - t0): dy/dt = -dy/dt0
+    return Y, D[..., :len(names)], ydot
+
+
+def block_information(params: ParameterSet, names: tuple[str, ...], X: np.ndarray,
+                      dx_du: np.ndarray, block: Block, noise: NoiseModel, *,
+                      gain_sd: float, timing_sd: float, lag_sd: float,
+                      fitted_lag_channels=(), z_bk_absolute: bool = False) -> np.ndarray:
+    """Fisher information (B, P, P) in u of one block at each parameter row X (B, P).
+
+    ``gain_sd``, ``timing_sd``: the instrument's systematics (the block's own where it states
+    them); ``lag_sd``: the sd of the own alignment lag of a channel that is neither one of
+    ``fitted_lag_channels`` (whose lags are fitted parameters) nor x_base (the reference of
+    t0)."""
+    g = block.gain_sd if block.gain_sd is not None else gain_sd
+    ts = block.timing_sd if block.timing_sd is not None else timing_sd
+    B, P = X.shape
+    F = np.zeros((B, P, P))
+    R = block.runs
+    k = noise.kappa
+    for drive in block.drives:
+        Y, D, Yd = block_signals(params, names, X, block, drive, z_bk_absolute=z_bk_absolute)
+        Ju = D * dx_du[:, None, None, :]                        # (B, C, T, P)
+        for ci, ch in enumerate(block.channels):
+            own_lag = not (ch.is_model_output and (ch.name == "x_base" or ch.name == "z_bk"
+                                                   or ch.name in fitted_lag_channels))
+            y = Y[:, ci]
+            sem2 = (noise.white ** 2 + noise.variability ** 2 * y ** 2) / noise.base_runs
+            var_w = k * (noise.white ** 2 / R
+                         + noise.mismatch * sem2 * block.rate / noise.base_rate)   # (B, T)
+            var_a = k * (g ** 2 + noise.gain_of(ch.name) ** 2 + noise.variability ** 2 / R)
+            var_t = k * (ts ** 2 + noise.align_of(ch.name) ** 2 * noise.base_runs / R
+                         + (lag_sd ** 2 if own_lag else 0.0))
+            w = 1.0 / np.sqrt(var_w)
+            J = Ju[:, ci] * w[..., None]                        # (B, T, P)
+            V, s2 = [], []
+            if var_a > 0:
+                V.append(y * w)
+                s2.append(var_a)
+            if var_t > 0:
+                V.append(Yd[:, ci] * w)
+                s2.append(var_t)
+            Fc = np.einsum("btp,btq->bpq", J, J)
+            if V:
+                Vm = np.stack(V, -1)                            # (B, T, k)
+                VJ = np.einsum("btk,btp->bkp", Vm, J)
+                M = np.einsum("btk,btl->bkl", Vm, Vm) + np.diag(1.0 / np.asarray(s2))[None]
+                Fc = Fc - np.einsum("bkp,bkq->bpq", VJ, np.linalg.solve(M, VJ))
+            F += Fc
+    return 0.5 * (F + np.swapaxes(F, 1, 2))
+
+
+def estimate_noise(data_sigma: np.ndarray, model: np.ndarray, runs: int) -> tuple[float, float]:
+    """(n0, v) of :class:`NoiseModel` from a fit's data: its sigma (the standard error of the
+    mean, per signal and sample) times sqrt(runs) is the runs' spread, modelled as
+    n0^2 + v^2 y^2 (non-negative least squares on the relative misfit)."""
+    from scipy.optimize import nnls
+
+    s2 = (np.asarray(data_sigma, float) ** 2 * runs).ravel()
+    y2 = (np.asarray(model, float) ** 2).ravel()
+    ok = np.isfinite(s2) & np.isfinite(y2) & (s2 > 0)
+    A = np.stack([np.ones(ok.sum()), y2[ok]], 1) / s2[ok, None]
+    sol, _ = nnls(A, np.ones(ok.sum()))
+    return float(np.sqrt(sol[0])), float(np.sqrt(sol[1]))

@@ -33,6 +33,10 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "tests" / "fit"))
 
 MAX_NFEV = 10_000
+#: the previous standalone defaults (ed5f611): Algorithm 1, MINPACK scaling, geodesic
+#: acceleration, ftol 1e-12, 1000 iterations, then the trust-region run from x0
+PREVIOUS = dict(control="algorithm1", geodesic=True, fallback=True, ftol=1e-12, xtol=1e-15,
+                gtol=0.0, max_nfev=10 ** 9, max_iter=1000)
 
 
 def solve(method: str, res, x0, jac):
@@ -51,8 +55,7 @@ def solve(method: str, res, x0, jac):
             return float(2 * s.cost), s.x, int(s.nfev), int(s.njev or 0), str(s.status)
         kw = {"max_nfev": MAX_NFEV}
         if method == "gprm-previous":
-            kw.update(control="algorithm1", geodesic=True, fallback=True, ftol=1e-12,
-                      xtol=0.0, gtol=0.0, max_nfev=None, max_iter=1000)
+            kw.update(PREVIOUS)
         r = levenberg_marquardt(res, x0, jac, **kw)
         return float(r.chi2), r.x, int(r.nfev), int(r.njev), r.status
 

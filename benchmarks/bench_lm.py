@@ -3,9 +3,12 @@ Hillstrom runs (35 problems from x0, 10 x0, 100 x0; ``tests/fit/mgh.py``) and th
 runs (27 problems x 2 official starts; ``tests/fit/nist.py``), exact Jacobians, for
 
 - ``gprm``: ``gprm.fit.levenberg_marquardt`` with its defaults;
-- ``gprm-previous``: the optimizer as it was at ed5f611 (``--previous``; Algorithm 1 with
-  MINPACK scaling, geodesic acceleration and the trust-region fallback run, i.e. the same
-  function called with ``control="algorithm1", geodesic=True, fallback=True``);
+- ``gprm-previous``: the previous defaults (``--previous``; Algorithm 1 with MINPACK scaling,
+  geodesic acceleration, ftol 1e-12, 1000 iterations and the trust-region fallback run: the
+  same function called with :data:`PREVIOUS`; it shares this version's evaluation of the
+  Jacobian without re-evaluating the residuals, so it counts fewer residual evaluations than
+  the previous code did -- the docstring's ``git checkout`` line measures that);
+- ``--mechanisms``: the previous options taken apart (:data:`VARIANTS`);
 - ``minpack``: scipy ``least_squares(method="lm")`` (MINPACK's lmder);
 - ``trf``: scipy ``least_squares(method="trf")``;
 
@@ -16,6 +19,11 @@ certified parameters are reached to 4 digits. Evaluations are counted on the run
 solvers shown solve.
 
     PYTHONPATH=src .venv/bin/python benchmarks/bench_lm.py [--previous] [--runs]
+
+The code of an earlier commit runs the same comparison (its own defaults and budget):
+
+    git checkout b4d0f0d -- src/gprm/fit/lm.py && PYTHONPATH=src .venv/bin/python \
+        benchmarks/bench_lm.py; git checkout HEAD -- src/gprm/fit/lm.py
 """
 
 from __future__ import annotations
@@ -37,6 +45,15 @@ MAX_NFEV = 10_000
 #: acceleration, ftol 1e-12, 1000 iterations, then the trust-region run from x0
 PREVIOUS = dict(control="algorithm1", geodesic=True, fallback=True, ftol=1e-12, xtol=1e-15,
                 gtol=0.0, max_nfev=10 ** 9, max_iter=1000)
+#: --mechanisms: the previous options taken apart one mechanism at a time, up to the default
+VARIANTS = {
+    "gprm": {},
+    "gprm-previous": PREVIOUS,
+    "previous, no fallback": dict(PREVIOUS, fallback=False),
+    "previous, no fallback, no geodesic": dict(PREVIOUS, fallback=False, geodesic=False),
+    "trust region, bound 100 |D x0|, no gtol": dict(step_bound=100.0, gtol=0.0),
+    "trust region, bound 1 |D x0|, no gtol": dict(gtol=0.0),
+}
 
 
 def solve(method: str, res, x0, jac):
@@ -53,9 +70,12 @@ def solve(method: str, res, x0, jac):
             except Exception as exc:                     # noqa: BLE001 -- recorded as failed
                 return np.inf, x0, 0, 0, f"error: {exc}"
             return float(2 * s.cost), s.x, int(s.nfev), int(s.njev or 0), str(s.status)
-        kw = {"max_nfev": MAX_NFEV}
-        if method == "gprm-previous":
-            kw.update(PREVIOUS)
+        import inspect
+
+        # an earlier version (--previous-code below) has no max_nfev: its own budget applies
+        kw = ({"max_nfev": MAX_NFEV}
+              if "max_nfev" in inspect.signature(levenberg_marquardt).parameters else {})
+        kw.update(VARIANTS[method])
         r = levenberg_marquardt(res, x0, jac, **kw)
         return float(r.chi2), r.x, int(r.nfev), int(r.njev), r.status
 
@@ -123,8 +143,17 @@ def main(argv=None) -> None:
     ap.add_argument("--previous", action="store_true",
                     help="add the previous optimizer (as at ed5f611) as a column")
     ap.add_argument("--runs", action="store_true", help="print every run")
+    ap.add_argument("--mechanisms", action="store_true",
+                    help="the previous options taken apart, one mechanism at a time (MGH only)")
     args = ap.parse_args(argv)
     methods = ["gprm"] + (["gprm-previous"] if args.previous else []) + ["minpack", "trf"]
+    if args.mechanisms:
+        print(machine())
+        print(f"command: {' '.join(sys.argv)}\n")
+        t, _ = mgh_table(list(VARIANTS)[1:] + ["gprm", "minpack"])
+        print("## Moré-Garbow-Hillstrom, 105 runs: mechanisms\n")
+        print(t)
+        return
     print(machine())
     print(f"command: {' '.join(sys.argv)}\n")
     t, out = mgh_table(methods)

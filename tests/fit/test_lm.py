@@ -461,3 +461,45 @@ def test_a_step_leaves_its_input_state_unchanged(variant):
             assert getattr(s0, k) is None
         else:
             np.testing.assert_array_equal(getattr(s0, k), v)
+
+
+def test_trust_region_gauss_newton_step_is_the_minimum_norm_solution_when_rank_deficient():
+    """lambda = 0 on a rank-deficient J (a zero column and two equal columns): the step is the
+    minimum-norm least-squares solution in the scaled variables, numpy's lstsq on J D^-1/2,
+    not a step of g / s with s at rounding level (``in_range`` drops those)."""
+    from gprm.fit.lm import TrustRegion, in_range, reduce_jacobian, scaled_svd
+
+    rng = np.random.default_rng(11)
+    J = rng.normal(size=(1, 9, 4))
+    J[0, :, 1] = 0.0
+    J[0, :, 3] = J[0, :, 2]
+    r = rng.normal(size=(1, 9))
+    R1, qtr, d = reduce_jacobian(J, r)
+    W, sv, g = scaled_svd(R1, qtr, d)
+    assert list(in_range(sv)[0]) == [True, True, False, False]
+    dx = TrustRegion().steps(W, sv, g, np.zeros(1))[0]
+    dd = np.where(d[0] > 0, d[0], 1.0)
+    y = np.linalg.lstsq(J[0] / np.sqrt(dd), -r[0], rcond=None)[0]
+    np.testing.assert_allclose(dx, y / np.sqrt(dd), rtol=1e-8, atol=1e-12)
+    assert dx[1] == 0.0
+
+
+def test_stop_at_point_judges_the_current_point_only():
+    """The point rules stop the rows they should and leave the others and the input alone."""
+    from gprm.fit.lm import (Problem, Settings, lm_init, refresh_factors, select_plugins,
+                             stop_at_point)
+
+    p = nist.load("Misra1a")
+
+    def fun(X):
+        return (np.stack([p.residuals(x) for x in X]), np.stack([p.jacobian(x) for x in X]))
+
+    X0 = np.stack([p.certified, p.starts[0]])
+    damp, control, _ = select_plugins(damping="max", step_bound=1.0)
+    s0 = refresh_factors(lm_init(Problem(fun), X0, Settings(), damp, control), damp)
+    s1 = stop_at_point(s0, Settings(gtol=1e-6))
+    assert list(s1.status) == ["gtol", ""] and list(s1.active) == [False, True]
+    assert list(s0.active) == [True, True]
+    s2 = stop_at_point(s0, Settings(chi2_tol=1.0))           # chi2 at certified ~0.12
+    assert list(s2.status) == ["chi2_tol", ""]
+    assert stop_at_point(s0, Settings()) is s0               # gtol 0 and chi2 > 0: nothing

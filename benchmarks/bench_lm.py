@@ -7,7 +7,7 @@ runs (27 problems x 2 official starts; ``tests/fit/nist.py``), exact Jacobians, 
   geodesic acceleration, ftol 1e-12, 1000 iterations and the trust-region fallback run: the
   same function called with :data:`PREVIOUS`; it shares this version's evaluation of the
   Jacobian without re-evaluating the residuals, so it counts fewer residual evaluations than
-  the previous code did -- the docstring's ``git checkout`` line measures that);
+  the previous code did -- the docstring's ``git archive`` line measures that);
 - ``--mechanisms``: the previous options taken apart (:data:`VARIANTS`);
 - ``minpack``: scipy ``least_squares(method="lm")`` (MINPACK's lmder);
 - ``trf``: scipy ``least_squares(method="trf")``;
@@ -22,8 +22,8 @@ solvers shown solve.
 
 The code of an earlier commit runs the same comparison (its own defaults and budget):
 
-    git checkout b4d0f0d -- src/gprm/fit/lm.py && PYTHONPATH=src .venv/bin/python \
-        benchmarks/bench_lm.py; git checkout HEAD -- src/gprm/fit/lm.py
+    mkdir -p /tmp/old && git archive b4d0f0d src | tar -x -C /tmp/old && \
+        PYTHONPATH=/tmp/old/src .venv/bin/python benchmarks/bench_lm.py
 """
 
 from __future__ import annotations

@@ -503,3 +503,47 @@ def test_stop_at_point_judges_the_current_point_only():
     s2 = stop_at_point(s0, Settings(chi2_tol=1.0))           # chi2 at certified ~0.12
     assert list(s2.status) == ["chi2_tol", ""]
     assert stop_at_point(s0, Settings()) is s0               # gtol 0 and chi2 > 0: nothing
+
+
+def test_trust_region_acceptance_and_bound_update():
+    """The trust region's acceptance rule and bound update on their own: on residuals linear
+    in x the linear model predicts the decrease exactly (ratio 1): the step is accepted and the
+    bound becomes 2 |D dx|; a trial that made chi-square worse is rejected and the bound cut to
+    at most half of min(delta, 10 |D dx|), never below a tenth; both decreases small -> the
+    ftol test holds."""
+    from gprm.fit.lm_algebra import _trust_region_update, reduce_jacobian, scaled_svd, svd_steps
+
+    rng = np.random.default_rng(2)
+    J = rng.normal(size=(1, 8, 3))
+    r = rng.normal(size=(1, 8))
+    R1, qtr, d = reduce_jacobian(J, r)
+    W, sv, g = scaled_svd(R1, qtr, d)
+    lam = np.array([0.5])
+    dx = svd_steps(W, sv, g, lam)
+    chi2 = np.array([float(r[0] @ r[0])])
+    rt = r[0] + J[0] @ dx[0]                                  # linear residuals: exact model
+    chi_t = np.array([float(rt @ rt)])
+    pnorm = float(np.sqrt(np.sum(d * dx * dx)))
+    delta = np.array([10.0 * pnorm])
+    ok, small, new = _trust_region_update(chi_t < chi2, chi_t, chi2, dx, R1, qtr, d, lam,
+                                          delta, np.array([0]), 1e-10)
+    assert ok[0] and not small[0]
+    assert new[0] == pytest.approx(2.0 * pnorm)
+    worse = np.array([2.0 * chi2[0]])
+    ok, small, new = _trust_region_update(worse < chi2, worse, chi2, dx, R1, qtr, d, lam,
+                                          delta, np.array([0]), 1e-10)
+    assert not ok[0] and not small[0]
+    cap = min(delta[0], 10.0 * pnorm)
+    assert 0.1 * cap * (1 - 1e-12) <= new[0] <= 0.5 * cap * (1 + 1e-12)
+    assert delta[0] == 10.0 * pnorm                           # the input is not changed
+    # at a minimum of the linear problem the step is ~0: both decreases within ftol
+    xs = np.linalg.lstsq(J[0], -r[0], rcond=None)[0]
+    r2 = (r[0] + J[0] @ xs)[None]
+    R1, qtr, d = reduce_jacobian(J, r2)
+    W, sv, g = scaled_svd(R1, qtr, d)
+    dx = svd_steps(W, sv, g, lam)
+    c2 = np.array([float(r2[0] @ r2[0])])
+    ct = np.array([float(np.sum((r2[0] + J[0] @ dx[0]) ** 2))])
+    _, small, _ = _trust_region_update(ct < c2, ct, c2, dx, R1, qtr, d, lam, delta,
+                                       np.array([0]), 1e-10)
+    assert small[0]

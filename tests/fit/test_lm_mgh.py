@@ -25,14 +25,16 @@ BUDGET = 10_000     # residual evaluations per run, as in benchmarks/bench_lm.py
 # (problem, factor): the runs the default optimizer does not solve, and where it ends. Most
 # end at points other solvers reach too (docs/fitting.md, the MGH table): a listed minimum at
 # infinity (Bard), stationary points that are not listed minima (Beale 0.452, Box 0.0756,
-# Biggs 0.306), overflow at the start (Jennrich-Sampson 100 x0: not finite, nothing done).
+# Biggs 0.306), a sum of squares that overflows at the start (Jennrich-Sampson 100 x0:
+# not finite, nothing done).
 KNOWN_FAILURES = {
     (3, 10.0): "Powell badly scaled: crawls to the budget at 1e-8 (MINPACK too)",
     (3, 100.0): "Powell badly scaled: stops at 1e-8 (MINPACK and trf too)",
     (5, 10.0): "Beale: a stationary point at 0.452 (MINPACK and trf too)",
     (5, 100.0): "Beale: a stationary point at 0.452 (MINPACK too)",
     (6, 10.0): "Jennrich-Sampson: 259.6, not the listed 124.36 (MINPACK too)",
-    (6, 100.0): "Jennrich-Sampson: residuals overflow at the start (every solver)",
+    (6, 100.0): "Jennrich-Sampson: the sum of squares overflows at the start (failed; "
+                "MINPACK and trf fail too)",
     (8, 10.0): "Bard: the listed minimum 17.43 at infinity (every solver)",
     (8, 100.0): "Bard: the listed minimum 17.43 at infinity (MINPACK too)",
     (11, 100.0): "Gulf: a flat start, zero gradient (every solver)",

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import functools
 import sys
+from pathlib import Path
 from typing import Callable
 
 
@@ -42,11 +43,16 @@ def map_seeds(fn: Callable, seeds, *, scheduler: str | None = None, workers: int
 
     from gprm.fit.engine import local_cluster
 
-    # this helper and the study's module are not importable in the workers (benchmarks/ is
-    # not a package): they travel by value
-    cloudpickle.register_pickle_by_value(sys.modules[__name__])
+    # the benchmarks' modules (this one, the study's, those it imports) are not importable in
+    # the workers (benchmarks/ is not a package): they travel by value
+    here = Path(__file__).resolve().parent
+    for name, mod in list(sys.modules.items()):
+        f = getattr(mod, "__file__", None)
+        if name != "__main__" and f and Path(f).resolve().parent == here:
+            cloudpickle.register_pickle_by_value(mod)
     mod = sys.modules.get(getattr(fn, "__module__", "") or "")
-    if mod is not None and mod.__name__ != "__main__" and not mod.__name__.startswith("gprm"):
+    if mod is not None and mod.__name__ not in ("__main__",) and not mod.__name__.startswith(
+            "gprm"):
         cloudpickle.register_pickle_by_value(mod)
     cluster = None
     if scheduler:

@@ -9,6 +9,10 @@ root mean square of z over the campaigns, floored at 1. Printed: the factors, th
 campaigns, the identified parameters' coverage measured on the other).
 
     .venv/bin/python benchmarks/bench_calibration.py [--campaigns 20] [--seeds 1000,2000]
+                                                     [--workers W | --scheduler ADDRESS]
+
+(--workers/--scheduler: the campaigns as Dask tasks, benchmarks/_studies.py; the numbers do
+not depend on them.)
 
 (``--campaigns`` per seed block; the table in gprm.fit.calibration is the default run.)
 """
@@ -76,18 +80,20 @@ def main(argv=None) -> None:
     ap.add_argument("--starts", type=int, default=200)
     ap.add_argument("--boot", type=int, default=30)
     ap.add_argument("--json", help="write every campaign's z here")
+    ap.add_argument("--workers", type=int, default=0,
+                    help="campaigns as Dask tasks on a local cluster of this many processes")
+    ap.add_argument("--scheduler", default=None,
+                    help="campaigns as Dask tasks on the cluster of this scheduler address")
     a = ap.parse_args(argv)
     from _machine import machine
+    from _studies import map_seeds
 
     t0 = time.perf_counter()
-    blocks = []
-    for s0 in (int(s) for s in a.seeds.split(",")):
-        block = []
-        for c in range(a.campaigns):
-            block.append(one_campaign(s0 + c, a.starts, a.boot))
-            print(f"seed {s0 + c} done, {time.perf_counter() - t0:.0f} s", file=sys.stderr,
-                  flush=True)
-        blocks.append(block)
+    firsts = [int(s) for s in a.seeds.split(",")]
+    seeds = [s0 + c for s0 in firsts for c in range(a.campaigns)]
+    flat = map_seeds(one_campaign, seeds, scheduler=a.scheduler, workers=a.workers,
+                     starts=a.starts, n_boot=a.boot)
+    blocks = [flat[i * a.campaigns:(i + 1) * a.campaigns] for i in range(len(firsts))]
     results = [r for b in blocks for r in b]
     if a.json:
         with open(a.json, "w") as fh:

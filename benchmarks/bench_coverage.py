@@ -19,6 +19,11 @@ Methods: ``eq7`` and ``eq7-corr`` on the paper's unregularised fit; ``laplace-pr
 (gprm.fit.uncertainty, gprm.fit.bootstrap).
 
     .venv/bin/python benchmarks/bench_coverage.py [--campaigns 20] [--starts 200] [--seed 1000] [--boot 30]
+                                                  [--workers W | --scheduler ADDRESS]
+
+--workers W runs the campaigns as Dask tasks on a local cluster of W single-threaded
+processes, --scheduler ADDRESS on an existing Dask cluster (issue 24; benchmarks/_studies.py,
+recipe for an institute cluster in docs/fitting.md); the numbers do not depend on either.
 
 Prints the table docs/fitting.md quotes and, for the default method, each column's Monte
 Carlo 95 % interval (campaigns resampled); --json F also writes every campaign's numbers,
@@ -327,12 +332,17 @@ def main(argv=None) -> None:
     ap.add_argument("--boot", type=int, default=30, help="refits per bootstrap")
     ap.add_argument("--from-json", nargs="+", help="print the tables of earlier --json "
                     "files (pooled) instead of running")
+    ap.add_argument("--workers", type=int, default=0,
+                    help="campaigns as Dask tasks on a local cluster of this many processes")
+    ap.add_argument("--scheduler", default=None,
+                    help="campaigns as Dask tasks on the cluster of this scheduler address")
     ap.add_argument("--methods", default="eq7,eq7-corr,laplace-prior,generator-bootstrap,"
                     "bootstrap-runs,mcmc", help="comma-separated methods (also "
                     "'uncalibrated': the default without the mismatch calibration)")
     a = ap.parse_args(argv)
     sys.path.insert(0, "benchmarks")
     from _machine import machine
+    from _studies import map_seeds
 
     if a.from_json:
         results = []
@@ -343,17 +353,16 @@ def main(argv=None) -> None:
         print(tables(results))
         return
     t0 = time.perf_counter()
-    results = []
-    for c in range(a.campaigns):
-        results.append(one_campaign(a.seed + c, a.starts, a.samples, a.boot,
-                                    a.methods.split(",")))
-        print(f"campaign {c + 1}/{a.campaigns} (seed {a.seed + c}) done, "
-              f"{time.perf_counter() - t0:.0f} s", file=sys.stderr, flush=True)
+    results = map_seeds(one_campaign, range(a.seed, a.seed + a.campaigns),
+                        scheduler=a.scheduler, workers=a.workers, starts=a.starts,
+                        samples=a.samples, n_boot=a.boot, methods=a.methods.split(","))
     if a.json:
         with open(a.json, "w") as fh:
             json.dump(results, fh, indent=1)
+    where = (f"scheduler {a.scheduler}" if a.scheduler else
+             f"{a.workers} Dask workers" if a.workers > 0 else "in process")
     print(f"{a.campaigns} campaigns, {a.starts} starts, seeds {a.seed}..{a.seed + a.campaigns - 1}"
-          f" ({time.perf_counter() - t0:.0f} s; {machine()})")
+          f" ({time.perf_counter() - t0:.0f} s, {where}; {machine()})")
     print(tables(results))
 
 

@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from gprm.fit import levenberg_marquardt
-from gprm.fit.lm import (finite_difference_jacobian, levenberg_marquardt_batch,
+from gprm.fit.lm import (MESSAGES, finite_difference_jacobian, levenberg_marquardt_batch,
                          trust_region_lambda)
 
 sys.path.insert(0, str(Path(__file__).parent))
@@ -23,7 +23,12 @@ PROBLEMS = nist.names()
 # multi-start fit uses. From MGH17's start 1 it runs b4 to infinity, where its Jacobian column
 # vanishes and its damping with it (test_mgh17_start1_plain_algorithm1_fails_honestly); the
 # standalone optimizer's defaults (MINPACK damping scale and geodesic acceleration) reach it.
-PLAIN = dict(damping="current", geodesic=False, fallback=False)
+PLAIN = dict(control="algorithm1", damping="current", geodesic=False, fallback=False,
+             ftol=1e-12, gtol=0.0, max_iter=1000, max_nfev=10 ** 9)
+# The standalone optimizer's defaults before issue 24 (Algorithm 1, MINPACK scale, geodesic
+# acceleration, the trust-region fallback run): kept as options and tested as such.
+PREVIOUS = dict(control="algorithm1", damping="max", geodesic=True, fallback=True, ftol=1e-12,
+                gtol=0.0, max_iter=1000, max_nfev=10 ** 9, step_bound=100.0)
 # Plain Algorithm 1 (iteration limit 1000) does not reach these (problem, start) pairs: see
 # test_plain_algorithm1_documented_failures.
 PLAIN_FAILS = {("MGH17", 0), ("BoxBOD", 0), ("MGH10", 0), ("Bennett5", 1)}
@@ -82,8 +87,8 @@ def test_mgh17_start1_plain_algorithm1_fails_honestly():
     from start 1 (it stops at a degenerate point with chi-square ~1.1, certified 5.5e-5)."""
     p = nist.load("MGH17")
     with np.errstate(all="ignore"):
-        res = levenberg_marquardt(p.residuals, p.starts[0], p.jacobian, max_iter=5000,
-                                  **PLAIN)
+        res = levenberg_marquardt(p.residuals, p.starts[0], p.jacobian,
+                                  **dict(PLAIN, max_iter=5000))
     assert nist.digits(res.x, p.certified) < 4
     assert res.chi2 > 1e3 * p.rss
 
@@ -101,29 +106,34 @@ def test_plain_algorithm1_documented_failures(name, start):
 
 
 def test_mgh10_start1_is_reached_through_the_trust_region_fallback():
-    """MGH10 from start 1: Algorithm 1 with the defaults crawls to the iteration limit along a
-    far valley (b1 -> 0); the trust-region step control alone reaches the certified values;
-    the default standalone run (fallback) returns that run and counts both runs' work."""
+    """MGH10 from start 1 with the previous defaults: Algorithm 1 crawls to the iteration limit
+    along a far valley (b1 -> 0); the trust-region step control alone reaches the certified
+    values; the fallback returns that run, reports the first one as ``first_run`` and counts
+    both runs' work."""
     p = nist.load("MGH10")
+    prev = dict(PREVIOUS, fallback=False)
     with np.errstate(all="ignore"):
-        first = levenberg_marquardt(p.residuals, p.starts[0], p.jacobian, fallback=False)
-        tr = levenberg_marquardt(p.residuals, p.starts[0], p.jacobian, step_bound=100.0,
-                                 geodesic=False)
-        both = levenberg_marquardt(p.residuals, p.starts[0], p.jacobian)
+        first = levenberg_marquardt(p.residuals, p.starts[0], p.jacobian, **prev)
+        tr = levenberg_marquardt(p.residuals, p.starts[0], p.jacobian,
+                                 **dict(prev, control="trust-region", geodesic=False))
+        both = levenberg_marquardt(p.residuals, p.starts[0], p.jacobian, **PREVIOUS)
     assert first.status == "max_iter" and nist.digits(first.x, p.certified) < 1
     assert first.x[0] < 1e-10                                # b1 running to 0
     assert tr.converged and nist.digits(tr.x, p.certified) >= 4
     np.testing.assert_array_equal(both.x, tr.x)
     assert both.iterations == first.iterations + tr.iterations
     assert both.nfev == first.nfev + tr.nfev
+    assert both.first_run is not None and both.first_run.status == "max_iter"
+    assert both.first_run.nfev == first.nfev and both.first_run.chi2 == first.chi2
 
 
 def test_fallback_runs_only_after_the_iteration_limit():
     """A converged run is returned as it is (the fallback does not touch it)."""
     p = nist.load("Rat43")
-    a = levenberg_marquardt(p.residuals, p.starts[0], p.jacobian)
-    b = levenberg_marquardt(p.residuals, p.starts[0], p.jacobian, fallback=False)
-    assert a.converged
+    a = levenberg_marquardt(p.residuals, p.starts[0], p.jacobian, **PREVIOUS)
+    b = levenberg_marquardt(p.residuals, p.starts[0], p.jacobian,
+                            **dict(PREVIOUS, fallback=False))
+    assert a.converged and a.first_run is None and a.second_run is None
     np.testing.assert_array_equal(a.x, b.x)
     assert (a.iterations, a.nfev, a.njev) == (b.iterations, b.nfev, b.njev)
 
@@ -164,7 +174,7 @@ def test_trust_region_step_control_never_increases_chi2_and_converges():
     def jac(x):
         return np.array([[-20 * x[0], 10.0], [-1.0, 0.0]])
 
-    out = levenberg_marquardt(res, [-1.2, 1.0], jac, step_bound=100.0, geodesic=False)
+    out = levenberg_marquardt(res, [-1.2, 1.0], jac, step_bound=100.0)
     assert out.converged
     np.testing.assert_allclose(out.x, [1, 1], atol=1e-6)
     assert out.chi2 == pytest.approx(min(hist))
@@ -194,27 +204,86 @@ def test_worse_steps_are_rejected_and_chi2_never_increases():
 
 def test_stopping_rules():
     p = nist.load("Misra1a")
-    r1 = levenberg_marquardt(p.residuals, p.starts[0], p.jacobian, max_iter=3, fallback=False)
-    assert r1.status == "max_iter" and not r1.converged and r1.iterations == 3
-    # with the fallback, the iteration limit starts a second run (trust region) from x0
-    r1f = levenberg_marquardt(p.residuals, p.starts[0], p.jacobian, max_iter=3)
+    r1 = levenberg_marquardt(p.residuals, p.starts[0], p.jacobian, max_iter=3)
+    assert r1.status == "max_iter" and not r1.converged and not r1.success
+    assert r1.iterations == 3 and r1.code == 0
+    # with the fallback, the budget starts a second run (the other control) from x0,
+    # reported separately
+    r1f = levenberg_marquardt(p.residuals, p.starts[0], p.jacobian, max_iter=3, fallback=True)
     assert r1f.iterations == 6 and r1f.chi2 <= r1.chi2
+    assert (r1f.first_run is None) != (r1f.second_run is None)
     r2 = levenberg_marquardt(p.residuals, p.starts[0], p.jacobian, chi2_tol=10.0)
-    assert r2.status == "chi2_tol" and r2.converged and r2.chi2 <= 10.0
+    assert r2.status == "chi2_tol" and r2.success and r2.chi2 <= 10.0 and r2.code == 4
     r3 = levenberg_marquardt(p.residuals, p.starts[0], p.jacobian)
-    assert r3.iterations > r2.iterations
+    assert r3.iterations > r2.iterations and r3.success
+    assert r3.message == MESSAGES[r3.status]
+    # max_nfev: the residual evaluations stop at the budget
+    r4 = levenberg_marquardt(p.residuals, p.starts[0], p.jacobian, max_nfev=5)
+    assert r4.status == "max_nfev" and not r4.success and r4.nfev == 5
+
+
+def test_each_convergence_test_stops_where_it_should():
+    """ftol, xtol and gtol each end a run on its own when the other two are off, at a point
+    that meets it; the result names it (status, code, message)."""
+    p = nist.load("Misra1a")
+    kw = dict(ftol=0.0, xtol=0.0, gtol=0.0, max_nfev=2000)
+    with np.errstate(all="ignore"):
+        rf = levenberg_marquardt(p.residuals, p.starts[0], p.jacobian, **dict(kw, ftol=1e-8))
+        rx = levenberg_marquardt(p.residuals, p.starts[0], p.jacobian, **dict(kw, xtol=1e-8))
+        rg = levenberg_marquardt(p.residuals, p.starts[0], p.jacobian, **dict(kw, gtol=1e-6))
+    assert (rf.status, rx.status, rg.status) == ("ftol", "xtol", "gtol")
+    assert (rf.code, rx.code, rg.code) == (2, 3, 1)
+    for r in (rf, rx, rg):
+        assert r.success and nist.digits(r.x, p.certified) >= 4
+        assert r.cost == pytest.approx(0.5 * float(np.sum(r.fun ** 2)))
+    from gprm.fit.lm import gradient_cosines, reduce_jacobian
+
+    R1, qtr, d = reduce_jacobian(rg.jac[None], rg.fun[None])
+    c2 = np.array([rg.chi2])
+    assert gradient_cosines(R1, qtr, d, c2)[0] <= 1e-6
+    # the cosine from the factors equals the direct formula
+    J, r = rg.jac, rg.fun
+    direct = np.max(np.abs(J.T @ r) / np.linalg.norm(J, axis=0) / np.linalg.norm(r))
+    assert gradient_cosines(R1, qtr, d, c2)[0] == pytest.approx(direct, rel=1e-6)
+
+
+def test_absolute_floor_ends_a_zero_residual_problem():
+    """Rosenbrock (minimum 0): with only the relative ftol, the absolute floor ``ftol_abs``
+    ends the run; an exact zero ends it with ``chi2_tol`` (0 <= 0)."""
+    def res(x):
+        return np.array([10 * (x[1] - x[0] ** 2), 1 - x[0]])
+
+    def jac(x):
+        return np.array([[-20 * x[0], 10.0], [-1.0, 0.0]])
+
+    a = levenberg_marquardt(res, [-1.2, 1.0], jac, xtol=0.0, gtol=0.0, ftol=1e-10,
+                            ftol_abs=1e-20)
+    assert a.success and a.chi2 <= 1e-18 and a.status in ("ftol", "chi2_tol")
+    b = levenberg_marquardt(res, [1.0, 1.0], jac)
+    assert b.status == "chi2_tol" and b.chi2 == 0.0 and b.success
+
+
+def test_non_finite_start_fails_at_once_and_says_so():
+    def res(x):
+        return np.array([np.log(x[0]), x[1]])
+
+    out = levenberg_marquardt(res, [-1.0, 1.0])
+    assert out.status == "failed" and out.code == -1 and not out.success
+    assert "not finite at the starting point" in out.message
+    np.testing.assert_array_equal(out.x, [-1.0, 1.0])
+    assert out.iterations == 0
 
 
 def test_bounds_are_respected():
     """A minimum outside the box: the result stays strictly inside, at the bound."""
     p = nist.load("Misra1a")
     hi = np.array([200.0, np.inf])           # certified b1 = 238.9
-    res = levenberg_marquardt(p.residuals, [150.0, 5e-4], p.jacobian, upper=hi)
+    res = levenberg_marquardt(p.residuals, [150.0, 5e-4], p.jacobian, upper=hi,
+                              **dict(PREVIOUS, fallback=False))
     assert res.x[0] < 200.0
     assert res.x[0] > 199.0
     # the trust-region step control keeps the same box (frozen parameter, projected trials)
-    tr = levenberg_marquardt(p.residuals, [150.0, 5e-4], p.jacobian, upper=hi,
-                             step_bound=100.0, geodesic=False)
+    tr = levenberg_marquardt(p.residuals, [150.0, 5e-4], p.jacobian, upper=hi)
     assert tr.converged and 199.0 < tr.x[0] < 200.0
     assert tr.chi2 == pytest.approx(res.chi2, rel=1e-6)
     with pytest.raises(ValueError):
@@ -355,7 +424,9 @@ def test_batched_lm_equals_the_single_problem_lm(variant):
         alone = levenberg_marquardt_batch(fun, X0[i:i + 1], residuals=res, **kw)
         np.testing.assert_array_equal(alone.x[0], together.x[i])
         assert alone.iterations[0] == together.iterations[i]
-        single = levenberg_marquardt(p.residuals, X0[i], p.jacobian, fallback=False, **kw)
+        one = dict(kw, xtol=1e-15, gtol=0.0, control="trust-region" if "step_bound" in kw
+                   else "algorithm1")
+        single = levenberg_marquardt(p.residuals, X0[i], p.jacobian, **one)
         np.testing.assert_array_equal(single.x, together.x[i])
         assert single.chi2 == together.chi2[i]
         assert single.iterations == together.iterations[i]
@@ -390,3 +461,89 @@ def test_a_step_leaves_its_input_state_unchanged(variant):
             assert getattr(s0, k) is None
         else:
             np.testing.assert_array_equal(getattr(s0, k), v)
+
+
+def test_trust_region_gauss_newton_step_is_the_minimum_norm_solution_when_rank_deficient():
+    """lambda = 0 on a rank-deficient J (a zero column and two equal columns): the step is the
+    minimum-norm least-squares solution in the scaled variables, numpy's lstsq on J D^-1/2,
+    not a step of g / s with s at rounding level (``in_range`` drops those)."""
+    from gprm.fit.lm import TrustRegion, in_range, reduce_jacobian, scaled_svd
+
+    rng = np.random.default_rng(11)
+    J = rng.normal(size=(1, 9, 4))
+    J[0, :, 1] = 0.0
+    J[0, :, 3] = J[0, :, 2]
+    r = rng.normal(size=(1, 9))
+    R1, qtr, d = reduce_jacobian(J, r)
+    W, sv, g = scaled_svd(R1, qtr, d)
+    assert list(in_range(sv)[0]) == [True, True, False, False]
+    dx = TrustRegion().steps(W, sv, g, np.zeros(1))[0]
+    dd = np.where(d[0] > 0, d[0], 1.0)
+    y = np.linalg.lstsq(J[0] / np.sqrt(dd), -r[0], rcond=None)[0]
+    np.testing.assert_allclose(dx, y / np.sqrt(dd), rtol=1e-8, atol=1e-12)
+    assert dx[1] == 0.0
+
+
+def test_stop_at_point_judges_the_current_point_only():
+    """The point rules stop the rows they should and leave the others and the input alone."""
+    from gprm.fit.lm import (Problem, Settings, lm_init, refresh_factors, select_plugins,
+                             stop_at_point)
+
+    p = nist.load("Misra1a")
+
+    def fun(X):
+        return (np.stack([p.residuals(x) for x in X]), np.stack([p.jacobian(x) for x in X]))
+
+    X0 = np.stack([p.certified, p.starts[0]])
+    damp, control, _ = select_plugins(damping="max", step_bound=1.0)
+    s0 = refresh_factors(lm_init(Problem(fun), X0, Settings(), damp, control), damp)
+    s1 = stop_at_point(s0, Settings(gtol=1e-6))
+    assert list(s1.status) == ["gtol", ""] and list(s1.active) == [False, True]
+    assert list(s0.active) == [True, True]
+    s2 = stop_at_point(s0, Settings(chi2_tol=1.0))           # chi2 at certified ~0.12
+    assert list(s2.status) == ["chi2_tol", ""]
+    assert stop_at_point(s0, Settings()) is s0               # gtol 0 and chi2 > 0: nothing
+
+
+def test_trust_region_acceptance_and_bound_update():
+    """The trust region's acceptance rule and bound update on their own: on residuals linear
+    in x the linear model predicts the decrease exactly (ratio 1): the step is accepted and the
+    bound becomes 2 |D dx|; a trial that made chi-square worse is rejected and the bound cut to
+    at most half of min(delta, 10 |D dx|), never below a tenth; both decreases small -> the
+    ftol test holds."""
+    from gprm.fit.lm_algebra import _trust_region_update, reduce_jacobian, scaled_svd, svd_steps
+
+    rng = np.random.default_rng(2)
+    J = rng.normal(size=(1, 8, 3))
+    r = rng.normal(size=(1, 8))
+    R1, qtr, d = reduce_jacobian(J, r)
+    W, sv, g = scaled_svd(R1, qtr, d)
+    lam = np.array([0.5])
+    dx = svd_steps(W, sv, g, lam)
+    chi2 = np.array([float(r[0] @ r[0])])
+    rt = r[0] + J[0] @ dx[0]                                  # linear residuals: exact model
+    chi_t = np.array([float(rt @ rt)])
+    pnorm = float(np.sqrt(np.sum(d * dx * dx)))
+    delta = np.array([10.0 * pnorm])
+    ok, small, new = _trust_region_update(chi_t < chi2, chi_t, chi2, dx, R1, qtr, d, lam,
+                                          delta, np.array([0]), 1e-10)
+    assert ok[0] and not small[0]
+    assert new[0] == pytest.approx(2.0 * pnorm)
+    worse = np.array([2.0 * chi2[0]])
+    ok, small, new = _trust_region_update(worse < chi2, worse, chi2, dx, R1, qtr, d, lam,
+                                          delta, np.array([0]), 1e-10)
+    assert not ok[0] and not small[0]
+    cap = min(delta[0], 10.0 * pnorm)
+    assert 0.1 * cap * (1 - 1e-12) <= new[0] <= 0.5 * cap * (1 + 1e-12)
+    assert delta[0] == 10.0 * pnorm                           # the input is not changed
+    # at a minimum of the linear problem the step is ~0: both decreases within ftol
+    xs = np.linalg.lstsq(J[0], -r[0], rcond=None)[0]
+    r2 = (r[0] + J[0] @ xs)[None]
+    R1, qtr, d = reduce_jacobian(J, r2)
+    W, sv, g = scaled_svd(R1, qtr, d)
+    dx = svd_steps(W, sv, g, lam)
+    c2 = np.array([float(r2[0] @ r2[0])])
+    ct = np.array([float(np.sum((r2[0] + J[0] @ dx[0]) ** 2))])
+    _, small, _ = _trust_region_update(ct < c2, ct, c2, dx, R1, qtr, d, lam, delta,
+                                       np.array([0]), 1e-10)
+    assert small[0]

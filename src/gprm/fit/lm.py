@@ -86,9 +86,14 @@ delta falls to ``xtol |D x|``. The bound keeps the first steps from a far start 
 MGH10's first start the unbounded Gauss-Newton-like steps of Algorithm 1 throw the point into
 a valley at b1 -> 0, b2, b3 -> infinity, where it crawls for thousands of iterations.
 
-The standalone :func:`levenberg_marquardt` runs Algorithm 1 (MINPACK damping, geodesic
-acceleration) and, only if that ends at the iteration limit, once more from the start with the
-trust-region step control (``fallback``), returning the run with the smaller chi-square.
+The standalone :func:`levenberg_marquardt` runs the trust-region step control by default
+(initial bound ``STEP_BOUND |D x0|``, MINPACK's scale, no acceleration, no second run) with
+MINPACK's three tests -- ``ftol`` on every evaluated step, ``xtol`` on the bound, ``gtol`` on
+the cosines between r and the columns of J (:func:`gradient_cosines`) -- a budget of residual
+evaluations ``max_nfev``, and the absolute floors ``ftol_abs`` and ``chi2_tol``; Algorithm 1,
+the acceleration and a fallback run (reported separately in the result) are options
+(docs/fitting.md, issue 24: it needs about MINPACK's evaluations where the previous defaults
+needed ~12 times as many).
 
 An iteration is one trial step (accepted or rejected), as ``i`` in Algorithm 1.
 """
@@ -100,13 +105,31 @@ from typing import Callable
 
 import numpy as np
 
+from gprm.fit.lm_algebra import (_chi2, _damping_diagonal, _scaled_norms,  # noqa: F401
+                                 _trust_region_update, damped_steps_reduced, gradient_cosines,
+                                 in_range, reduce_jacobian, scaled_svd, svd_steps,
+                                 trust_region_lambda)
+
 LAMBDA_MIN = 1e-15
 #: initial step bound (MINPACK's ``factor``) of the standalone optimizer's fallback run
 FALLBACK_STEP_BOUND = 100.0
 BOUND_MARGIN = 1e-9
+#: initial step bound of the standalone optimizer's trust region, ``STEP_BOUND |D x0|``:
+#: MINPACK's factor 100 lets the first, nearly Gauss-Newton steps throw a parameter to where
+#: its Jacobian column vanishes (NIST BoxBOD from start 1: b2 -> 110, then a stationary point
+#: at chi-square 9772); 1 solves all 54 NIST runs and 2 more MGH runs with fewer evaluations
+#: (benchmarks/bench_lm.py, docs/fitting.md)
+STEP_BOUND = 1.0
 
 #: statuses that count as converged
-CONVERGED = ("ftol", "chi2_tol", "lambda_max", "stalled", "xtol")
+CONVERGED = ("ftol", "chi2_tol", "lambda_max", "stalled", "xtol", "gtol")
+#: statuses that :attr:`LMResult.success` accepts: a convergence test met (``lambda_max`` and
+#: ``stalled`` are stops without one, reported by ``converged`` only)
+SUCCESS = ("ftol", "xtol", "gtol", "chi2_tol")
+#: integer status codes (:attr:`LMResult.code`): negative for a failure to start, 0 for a
+#: budget exhausted, positive for a stopping rule
+CODES = {"failed": -1, "max_iter": 0, "max_nfev": 0, "gtol": 1, "ftol": 2, "xtol": 3,
+         "chi2_tol": 4, "lambda_max": 5, "stalled": 6, "pruned": 7}
 
 MESSAGES = {
     "ftol": "chi-square changed by less than the tolerance on an accepted step",
@@ -115,8 +138,11 @@ MESSAGES = {
                   "machine precision, or against a bound)",
     "stalled": "chi-square fell by less than the tolerance over the last iterations (window)",
     "xtol": "the step bound (trust region) fell below xtol times the scaled size of x",
+    "gtol": "the gradient is orthogonal to the residuals to within gtol (a stationary point)",
     "max_iter": "iteration limit reached",
-    "failed": "residuals or Jacobian not finite at the starting point",
+    "max_nfev": "the budget of residual evaluations (max_nfev) is spent",
+    "failed": "residuals or Jacobian not finite at the starting point: nothing was done",
+    "pruned": "stopped by the caller's pruning rule",
 }
 
 
@@ -139,7 +165,18 @@ class LMBatchResult:
 
 @dataclass(frozen=True)
 class LMResult:
-    """Outcome of :func:`levenberg_marquardt` (one problem)."""
+    """Outcome of :func:`levenberg_marquardt` (one problem), named as SciPy's
+    ``OptimizeResult`` of ``least_squares`` where it has a name: ``x``, ``cost`` (half the sum
+    of squares), ``fun`` (residuals at x), ``jac``, ``nfev``, ``njev``, ``status`` (here the
+    key of the stopping rule; ``code`` is its integer, :data:`CODES`), ``message`` and
+    ``success`` (a convergence test met: :data:`SUCCESS`).
+
+    ``chi2`` is the full sum of squares (chi-square when the residuals are weighted, Eq. 6);
+    ``converged`` is true for any stop but a budget or a failed start (``lambda_max`` and
+    ``stalled`` included); ``nfev`` counts the calls of the residual function (finite
+    differences included), ``njev`` the Jacobians. With ``fallback`` a second run is never
+    hidden: the counts cover both runs, and the run not returned is ``first_run`` (the second
+    run won) or ``second_run`` (the first run won)."""
 
     x: np.ndarray
     chi2: float
@@ -153,180 +190,21 @@ class LMResult:
     njev: int
     fun: np.ndarray
     jac: np.ndarray | None
+    first_run: LMResult | None = None
+    second_run: LMResult | None = None
 
     @property
     def success(self) -> bool:
-        return self.converged
+        return self.status in SUCCESS
 
+    @property
+    def cost(self) -> float:
+        """Half the sum of squared residuals (SciPy's ``cost``)."""
+        return 0.5 * self.chi2
 
-def reduce_jacobian(J: np.ndarray, r: np.ndarray):
-    """Thin QR of a batch of Jacobians: ``R1`` (B, k, P), ``Q1^T r`` (B, k) and diag(J^T J)
-    (B, P), k = min(N, P); R1 and Q1^T r come from the R factor of ``[J, r]``. The damped
-    step depends on J and r only through these (an orthogonal change of the residual space),
-    so they are computed once per Jacobian and reused while a start's steps are rejected and
-    only lambda changes."""
-    B, N, P = J.shape
-    k = min(N, P)
-    # R of [J, r] is [[R1, Q1^T r], [0, rho]]: one factorisation without forming Q
-    # numpy's stubs type every mode as a QRResult; mode="r" returns the array R alone
-    R: np.ndarray = np.linalg.qr(  # type: ignore[assignment]
-        np.concatenate([J, r[:, :, None]], axis=2), mode="r")
-    return R[:, :k, :P], R[:, :k, P], np.einsum("bnp,bnp->bp", J, J)
-
-
-def _damping_diagonal(d: np.ndarray, dfloor: np.ndarray | None = None):
-    """The damping diagonal (B, P) used with diag(J^T J) = ``d``: raised to ``dfloor`` (the
-    ``damping="max"`` variant) and, for a zero column (a parameter with no effect, or held
-    fixed by zeroing its column), to a tiny fraction of the row's largest entry so the system
-    stays solvable; also returns the mask of zero columns, whose steps are set to exactly 0."""
-    zero = d == 0
-    if dfloor is not None:
-        d = np.maximum(d, dfloor)
-    dmax = np.max(d, axis=1, keepdims=True)
-    return np.maximum(d, np.where(dmax > 0, dmax, 1.0) * 1e-30), zero
-
-
-def damped_steps_reduced(R1: np.ndarray, qtr: np.ndarray, d: np.ndarray, lam: np.ndarray,
-                         dfloor: np.ndarray | None = None) -> np.ndarray:
-    """Steps of Algorithm 1 from :func:`reduce_jacobian`'s factors: the least-squares
-    solution of ``[R1; sqrt(lam) diag(sqrt(d))] dx ~ [-Q1^T r; 0]``, i.e. of
-    ``[J^T J + lam diag(J^T J)] dx = -J^T r``, with the damping diagonal of
-    :func:`_damping_diagonal`. Used for the rows with parameters frozen at a bound (their
-    columns of R1 and entries of d zeroed: J with those columns zeroed is Q1 times R1 with
-    them zeroed, so Q1^T r is unchanged)."""
-    B, k, P = R1.shape
-    d, zero = _damping_diagonal(d, dfloor)
-    A = np.concatenate([R1, np.sqrt(lam[:, None, None] * d[:, None, :])
-                        * np.eye(P)[None]], axis=1)           # (B, k+P, P)
-    Q, R = np.linalg.qr(A)
-    rhs = -np.einsum("bkp,bk->bp", Q[:, :k, :], qtr)
-    try:
-        out = np.linalg.solve(R, rhs[..., None])[..., 0]
-    except np.linalg.LinAlgError:
-        out = np.full((B, P), np.nan)
-        for b in range(B):
-            try:
-                out[b] = np.linalg.solve(R[b], rhs[b])
-            except np.linalg.LinAlgError:
-                pass
-    out[zero] = 0.0
-    return out
-
-
-def scaled_svd(R1: np.ndarray, qtr: np.ndarray, d: np.ndarray,
-               dfloor: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Factors of the damped steps at one Jacobian for every lambda (module docstring).
-
-    From :func:`reduce_jacobian`'s ``R1`` (B, k, P), ``Q1^T r`` (B, k) and ``d`` = diag(J^T J)
-    (B, P), with the same damping diagonal as :func:`damped_steps_reduced` (``dfloor``, a
-    tiny floor for zero columns): the SVD ``R1 diag(d)^-1/2 = U S V^T`` gives
-    ``W = diag(d)^-1/2 V`` (B, P, m), ``s`` (B, m) and ``g = U^T Q1^T r`` (B, m); then
-    :func:`svd_steps` returns the step for any lambda. Rows of W of parameters with a zero
-    Jacobian column are zero (their step is exactly 0). A row whose SVD fails (non-finite
-    Jacobian) gets NaN factors, hence a NaN step, which the optimiser rejects."""
-    d, zero = _damping_diagonal(d, dfloor)
-    sq = np.sqrt(d)
-    A = R1 / sq[:, None, :]
-    B, k, P = A.shape
-    m = min(k, P)
-    try:
-        U, sv, Vt = np.linalg.svd(A, full_matrices=False)
-    except np.linalg.LinAlgError:
-        U, sv, Vt = np.full((B, k, m), np.nan), np.full((B, m), np.nan), np.full((B, m, P), np.nan)
-        for b in range(B):
-            try:
-                U[b], sv[b], Vt[b] = np.linalg.svd(A[b], full_matrices=False)
-            except np.linalg.LinAlgError:
-                pass
-    W = Vt.transpose(0, 2, 1) / sq[:, :, None]
-    W[zero] = 0.0
-    return W, sv, np.einsum("bkm,bk->bm", U, qtr)
-
-
-def svd_steps(W: np.ndarray, sv: np.ndarray, g: np.ndarray, lam: np.ndarray) -> np.ndarray:
-    """Steps ``[J^T J + lam diag(J^T J)] dx = -J^T r`` from :func:`scaled_svd`'s factors:
-    ``dx = -W (s g / (s^2 + lam))``, O(P^2) per row."""
-    return -np.einsum("bpm,bm->bp", W, sv * g / (sv * sv + lam[:, None]))
-
-
-def _scaled_norms(sv: np.ndarray, g: np.ndarray, lam: np.ndarray) -> np.ndarray:
-    """``|D dx|`` of the damped steps of :func:`svd_steps` (D = sqrt of the damping diagonal):
-    D W has orthonormal columns, so it is ``|s g / (s^2 + lam)|``; singular values 0 give 0
-    (their direction is not in the range of J)."""
-    with np.errstate(divide="ignore", invalid="ignore"):
-        c = np.where(sv > 0, sv * g / (sv * sv + lam[:, None]), 0.0)
-    return np.sqrt(np.sum(c * c, axis=1))
-
-
-def trust_region_lambda(sv: np.ndarray, g: np.ndarray, delta: np.ndarray,
-                        n_iter: int = 40) -> np.ndarray:
-    """The damping lambda whose step has scaled length ``|D dx| = delta`` (rows (B,)), or 0
-    where the Gauss-Newton step (lambda = 0) is already within 1.1 delta: the step-bound
-    (trust-region) form of Levenberg-Marquardt (More 1978, as MINPACK's ``lmpar``).
-
-    ``phi(lambda) = |s g / (s^2 + lambda)|`` decreases from phi(0) to 0; Newton's method on
-    ``1/phi(lambda) - 1/delta`` (concave in lambda) from lambda = 0 increases monotonically
-    to the root; it stops within 10 percent of delta, as MINPACK does."""
-    lam = np.zeros(delta.shape)
-    phi = _scaled_norms(sv, g, lam)
-    todo = phi > 1.1 * delta
-    for _ in range(n_iter):
-        if not todo.any():
-            break
-        i = np.nonzero(todo)[0]
-        s2 = sv[i] * sv[i]
-        with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
-            c = np.where(sv[i] > 0, sv[i] * g[i] / (s2 + lam[i, None]), 0.0)
-            ph = np.sqrt(np.sum(c * c, axis=1))
-            dph = -np.sum(c * c / (s2 + lam[i, None]), axis=1) / ph      # d phi / d lambda
-            # Newton on 1/phi - 1/delta: lambda += (phi - delta) phi / (delta |phi'|)
-            step = (ph - delta[i]) * ph / (delta[i] * -dph)
-        step = np.where(np.isfinite(step) & (step > 0), step, 0.0)
-        lam[i] = lam[i] + step
-        phi[i] = _scaled_norms(sv[i], g[i], lam[i])
-        todo[i] = (np.abs(phi[i] - delta[i]) > 0.1 * delta[i]) & (step > 0)
-    return lam
-
-
-def _chi2(r: np.ndarray) -> np.ndarray:
-    with np.errstate(over="ignore", invalid="ignore"):
-        c = np.sum(r * r, axis=1)
-    return np.where(np.isfinite(c), c, np.inf)
-
-
-def _trust_region_update(better, chi_t, chi2, dx, R1, qtr, dd, lam, delta, idx, ftol):
-    """Trust-region bookkeeping for the rows ``idx`` of one iteration: the ratio of the actual
-    to the predicted decrease of chi-square (predicted by the linear model, ``|Q1^T r|^2 -
-    |Q1^T r + R1 dx|^2``), acceptance (chi-square decreases by at least 1e-4 of the
-    prediction) and the updated step bound ``delta`` (a new array), after More (1978):
-    shrink it when the ratio is below 1/4 (by 1/2, or by the factor a quadratic along the
-    step suggests, never below 1/10), double it when the ratio is above 3/4 or the step was
-    a Gauss-Newton step. Returns the accepted rows, per row whether both the actual and the
-    predicted decrease are within ``ftol`` of chi-square (MINPACK's ftol test), and the new
-    ``delta``."""
-    pnorm = np.sqrt(np.sum(dd * dx * dx, axis=1))
-    with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
-        lin = qtr + np.einsum("bkp,bp->bk", R1, dx)
-        pred = np.sum(qtr * qtr, axis=1) - np.sum(lin * lin, axis=1)
-        act = chi2 - chi_t                                   # -inf for rejected trials
-        ratio = np.where(pred > 0, act / pred, -np.inf)
-        # directional derivative of chi2 along dx at 0: 2 r^T J dx = -2 (|J dx|^2 + lam|D dx|^2)
-        jdx = np.sum((lin - qtr) ** 2, axis=1)
-        dirder = -(jdx + lam * pnorm * pnorm)
-        # step length that minimises the quadratic through chi2, dirder and chi_t, relative
-        shrink = np.where(np.isfinite(act) & (act < 0), 0.5 * dirder / (dirder + 0.5 * act), 0.5)
-    shrink = np.where(np.isfinite(shrink), shrink, 0.1)
-    shrink = np.where((chi_t >= 100.0 * chi2) | (shrink < 0.1), 0.1, np.minimum(shrink, 0.5))
-    d = delta[idx]
-    low = ~(ratio >= 0.25)
-    grow = ~low & ((lam == 0) | (ratio >= 0.75))
-    d = np.where(low, shrink * np.minimum(d, 10.0 * pnorm), d)
-    d = np.where(grow, 2.0 * pnorm, d)
-    new = delta.copy()
-    new[idx] = np.where(np.isfinite(d) & (d > 0), d, delta[idx] * 0.1)
-    accepted = better & (ratio >= 1e-4)
-    small_pred = (np.abs(act) <= ftol * chi2) & (pred <= ftol * chi2) & (ratio <= 2.0)
-    return accepted, small_pred, new
+    @property
+    def code(self) -> int:
+        return CODES.get(self.status, 0)
 
 
 # ----------------------------------------------------------------------------- the pieces
@@ -344,10 +222,19 @@ def _trust_region_update(better, chi_t, chi2, dx, R1, qtr, dd, lam, delta, idx, 
 @dataclass(frozen=True)
 class Problem:
     """The residual function of a batch: ``fun(X) -> (r, J)`` and, optionally, a cheaper
-    ``residuals(X) -> r`` used for trial points (then ``fun`` runs at accepted points only)."""
+    ``residuals(X) -> r`` used for trial points (then ``fun`` runs at accepted points only)
+    and ``jacobian(X, R) -> J``, the Jacobians at points whose residuals R are already known
+    (then the residuals of an accepted point are not evaluated a second time)."""
 
     fun: Callable
     residuals: Callable | None = None
+    jacobian: Callable | None = None
+
+    def jacobians(self, X: np.ndarray, R: np.ndarray) -> np.ndarray:
+        """Jacobians at points with known residuals R (``jacobian`` if given, else ``fun``)."""
+        if self.jacobian is not None:
+            return np.asarray(self.jacobian(X, R), float)
+        return np.asarray(self.fun(X)[1], float)
 
     def values(self, X: np.ndarray) -> np.ndarray:
         """Residuals only (``residuals`` if given, else the first output of ``fun``)."""
@@ -464,7 +351,7 @@ class Algorithm1Lambda:
     def steps(self, W: np.ndarray, s: np.ndarray, g: np.ndarray, lam: np.ndarray):
         return svd_steps(W, s, g, lam)
 
-    def judge(self, better, chi_t, chi2, dx, R1, qtr, dd, lam, delta, idx, ftol):
+    def judge(self, better, chi_t, chi2, dx, R1, qtr, dd, lam, delta, idx, ftol, ftol_abs=0.0):
         """(accepted rows, per-row 'predicted decrease small' or None, new control state)."""
         return better, None, delta
 
@@ -498,11 +385,12 @@ class TrustRegion:
 
     def steps(self, W: np.ndarray, s: np.ndarray, g: np.ndarray, lam: np.ndarray):
         with np.errstate(divide="ignore", invalid="ignore"):   # lambda 0: pseudo-inverse
-            c = np.where(s > 0, s * g / (s ** 2 + lam[:, None]), 0.0)
+            c = np.where(in_range(s), s * g / (s ** 2 + lam[:, None]), 0.0)
         return -np.einsum("bpm,bm->bp", W, c)
 
-    def judge(self, better, chi_t, chi2, dx, R1, qtr, dd, lam, delta, idx, ftol):
-        return _trust_region_update(better, chi_t, chi2, dx, R1, qtr, dd, lam, delta, idx, ftol)
+    def judge(self, better, chi_t, chi2, dx, R1, qtr, dd, lam, delta, idx, ftol, ftol_abs=0.0):
+        return _trust_region_update(better, chi_t, chi2, dx, R1, qtr, dd, lam, delta, idx, ftol,
+                                    ftol_abs)
 
     def next_lambda(self, lam: np.ndarray, idx, lam_idx, acc, rej) -> np.ndarray:
         lam = lam.copy()
@@ -586,6 +474,8 @@ class Settings:
     stall_window: int = 0
     stall_tol: float = 0.0
     keep_jacobian: bool = False
+    gtol: float = 0.0               # stop when every column's cosine with r is <= gtol
+    max_nfev: int | None = None     # stop a row once its residual evaluations reach it
 
 
 # ----------------------------------------------------------------------------- the state
@@ -683,7 +573,7 @@ def refresh_jacobians(state: LMState, problem: Problem, damping) -> LMState:
     st = idx[state.stale[idx]]
     if not st.size:
         return state
-    _, JJ = problem.fun(state.x[st])
+    JJ = problem.jacobians(state.x[st], state.r[st])
     J = state.J.copy()
     J[st] = JJ
     njev = state.njev.copy()
@@ -764,7 +654,8 @@ def accept(state: LMState, prop: Proposal, trial: Trial, settings: Settings, dam
     better = trial.chi2 < state.chi2[idx]
     better, small_pred, delta = control.judge(better, trial.chi2, state.chi2[idx], prop.dx,
                                               f.R1[idx], f.qtr[idx], prop.dd, prop.lam,
-                                              state.delta, idx, settings.ftol)
+                                              state.delta, idx, settings.ftol,
+                                              settings.ftol_abs)
     if trial.J is not None:
         better[trial.ev] &= np.all(np.isfinite(trial.J), axis=(1, 2))
     acc_local = np.nonzero(better)[0]
@@ -797,6 +688,12 @@ def accept(state: LMState, prop: Proposal, trial: Trial, settings: Settings, dam
     small = (old - chi2[acc]) <= settings.ftol * chi2[acc] + settings.ftol_abs
     if small_pred is not None:
         small &= small_pred[acc_local]
+        # the trust region's ftol test judges every evaluated step, as MINPACK's does: near
+        # the minimum a step whose change is at rounding level may be rejected (its chi-square
+        # not smaller) while both the actual and the predicted change are within ftol
+        rej_small = idx[small_pred & ~better & np.isfinite(trial.chi2)]
+        status[rej_small] = "ftol"
+        active[rej_small] = False
     low = chi2[acc] <= settings.chi2_tol
     status[acc[low]] = "chi2_tol"
     status[acc[small & ~low]] = "ftol"
@@ -804,6 +701,10 @@ def accept(state: LMState, prop: Proposal, trial: Trial, settings: Settings, dam
     done, why = control.finished(X, active, delta, idx, rej, lam, prop.dd)
     status[done] = why
     active[done] = False
+    if settings.max_nfev is not None:
+        spent = idx[active[idx] & (nfev[idx] >= int(settings.max_nfev))]
+        status[spent] = "max_nfev"
+        active[spent] = False
     it = state.it + 1
     ring = state.ring
     if ring is not None:
@@ -821,11 +722,35 @@ def accept(state: LMState, prop: Proposal, trial: Trial, settings: Settings, dam
                    factors=factors, scale=scale, delta=delta, ring=ring)
 
 
+def stop_at_point(state: LMState, settings: Settings) -> LMState:
+    """The rules that judge the current point alone, before a step is proposed: active rows
+    with chi-square at most ``settings.chi2_tol`` stop (``chi2_tol``; a start at an exact
+    zero-residual point), then those whose gradient cosine (:func:`gradient_cosines`, at their
+    current, factorised Jacobian) is at most ``settings.gtol`` (``gtol``; off when 0)."""
+    idx = np.nonzero(state.active)[0]
+    low = state.chi2[idx] <= settings.chi2_tol
+    flat = np.zeros(idx.size, bool)
+    if settings.gtol > 0:
+        f = state.factors
+        flat = gradient_cosines(f.R1[idx], f.qtr[idx], f.d[idx],
+                                state.chi2[idx]) <= settings.gtol
+    if not (low.any() or flat.any()):
+        return state
+    status, active = state.status.copy(), state.active.copy()
+    status[idx[flat]] = "gtol"
+    status[idx[low]] = "chi2_tol"
+    active[idx[low | flat]] = False
+    return replace(state, status=status, active=active)
+
+
 def lm_step(state: LMState, problem: Problem, box: Box, settings: Settings, damping, control,
             acceleration) -> LMState:
     """One iteration (one trial step) of every active row."""
     state = refresh_jacobians(state, problem, damping)
     state = refresh_factors(state, damping)
+    state = stop_at_point(state, settings)
+    if not state.active.any():
+        return state
     prop = propose(state, problem, box, damping, control, acceleration)
     return accept(state, prop, evaluate(prop, problem), settings, damping, control)
 
@@ -841,7 +766,7 @@ def lm_finish(state: LMState, problem: Problem, settings: Settings) -> LMBatchRe
         jac = state.J
         st = np.nonzero(state.stale)[0]
         if st.size:
-            _, JJ = problem.fun(state.x[st])
+            JJ = problem.jacobians(state.x[st], state.r[st])
             jac = jac.copy()
             jac[st] = JJ
             njev = njev.copy()
@@ -878,7 +803,8 @@ def levenberg_marquardt_batch(fun: Callable, X0: np.ndarray, *, residuals: Calla
                               stall_tol: float = 0.0, geodesic: bool = False,
                               geo_h: float = 0.1, geo_alpha: float = 0.75,
                               step_bound: float | None = None,
-                              xtol: float = 1e-15) -> LMBatchResult:
+                              xtol: float = 1e-15, jacobian: Callable | None = None,
+                              gtol: float = 0.0, max_nfev: int | None = None) -> LMBatchResult:
     """Algorithm 1 for B starting points in lock-step (see the module docstring).
 
     fun: ``fun(X (b, P)) -> (r (b, N), J (b, N, P))`` for any number b of rows.
@@ -905,6 +831,12 @@ def levenberg_marquardt_batch(fun: Callable, X0: np.ndarray, *, residuals: Calla
         is accepted if chi-square decreases by at least 1e-4 of the predicted decrease; ``ftol``
         then needs both decreases small, and a row stops with status ``xtol`` once delta
         falls to ``xtol * |D x|``. Not used by the multi-start fit.
+    jacobian: optional ``jacobian(X (b, P), R (b, N)) -> J (b, N, P)`` at points whose
+        residuals R are known (with ``residuals``: the accepted points' residuals are then not
+        evaluated again).
+    gtol: stop a row (status ``gtol``) when every column of its Jacobian has a cosine of at
+        most gtol with its residuals (0: off). max_nfev: stop a row (status ``max_nfev``) once
+        its residual evaluations reach it (None: off).
     prune: optional ``prune(chi2 (B,), active (B,)) -> (B,) bool`` called each iteration;
         rows it marks stop with status ``pruned`` (used by the multi-start driver, which
         documents its rule).
@@ -914,8 +846,8 @@ def levenberg_marquardt_batch(fun: Callable, X0: np.ndarray, *, residuals: Calla
                                           xtol=xtol, lambda_max=lambda_max)
     settings = Settings(max_iter=int(max_iter), lambda0=lambda0, ftol=ftol, ftol_abs=ftol_abs,
                         chi2_tol=chi2_tol, stall_window=int(stall_window), stall_tol=stall_tol,
-                        keep_jacobian=keep_jacobian)
-    return minimize_batch(Problem(fun, residuals), X0, settings, damping=damp, control=control,
+                        keep_jacobian=keep_jacobian, gtol=gtol, max_nfev=max_nfev)
+    return minimize_batch(Problem(fun, residuals, jacobian), X0, settings, damping=damp, control=control,
                           acceleration=accel, lower=lower, upper=upper, prune=prune)
 
 
@@ -957,38 +889,49 @@ def finite_difference_jacobian(residuals: Callable, x: np.ndarray, r0: np.ndarra
 
 
 def levenberg_marquardt(residuals: Callable, x0, jacobian: Callable | None = None, *,
-                        args: tuple = (), max_iter: int = 1000, lambda0: float = 1e-2,
-                        ftol: float = 1e-12, ftol_abs: float = 0.0, chi2_tol: float = 0.0,
+                        args: tuple = (), control: str = "trust-region",
+                        max_nfev: int | None = None, max_iter: int | None = None,
+                        ftol: float = 1e-10, xtol: float = 1e-10, gtol: float = 1e-10,
+                        ftol_abs: float = 0.0, chi2_tol: float = 0.0,
+                        step_bound: float = STEP_BOUND, lambda0: float = 1e-2,
                         lambda_max: float = 1e16, lower=None, upper=None,
                         fd_method: str = "central", damping: str = "max",
-                        stall_window: int = 0, stall_tol: float = 0.0, geodesic: bool = True,
+                        stall_window: int = 0, stall_tol: float = 0.0, geodesic: bool = False,
                         geo_h: float = 0.1, geo_alpha: float = 0.75,
-                        step_bound: float | None = None, xtol: float = 1e-15,
-                        fallback: bool = True) -> LMResult:
-    """Minimise ``sum(residuals(x)**2)`` by Algorithm 1 (Levenberg-Marquardt).
+                        fallback: bool = False) -> LMResult:
+    """Minimise ``sum(residuals(x)**2)`` by Levenberg-Marquardt.
 
     residuals: ``residuals(x, *args) -> (N,)``.
     jacobian: ``jacobian(x, *args) -> (N, P)`` (d residuals / d x); None: finite differences
         (``fd_method`` central or forward).
-    max_iter, lambda0, ftol, ftol_abs, chi2_tol, lambda_max, lower, upper, damping,
-        stall_window, stall_tol, geodesic, geo_h, geo_alpha: see
-        :func:`levenberg_marquardt_batch` (this is the batch of one). Defaults here: the
-        MINPACK damping (``max``) and geodesic acceleration (plain Algorithm 1,
-        ``damping="current", geodesic=False``, loses MGH17 from start 1 to parameter
-        evaporation).
-    step_bound, xtol: trust-region step control instead of Algorithm 1's lambda updates
-        (``levenberg_marquardt_batch``); None (default): Algorithm 1.
-    fallback: when the run (Algorithm 1) stops at ``max_iter``, run once more from ``x0``
-        with trust-region step control (step bound ``FALLBACK_STEP_BOUND`` = 100, MINPACK's
-        ``factor``; no geodesic acceleration; the other options unchanged) and return the run
-        with the smaller chi-square; ``iterations``, ``nfev`` and ``njev`` then count both
-        runs. With these defaults all 27 NIST StRD problems reach their certified values to
-        at least 4 digits from both starts (MGH10 from start 1 through the fallback).
+    control: ``"trust-region"`` (default) -- lambda from a bound on the scaled step, the bound
+        updated from the ratio of the actual to the predicted decrease (module docstring; the
+        More 1978 form that MINPACK implements); ``"algorithm1"`` -- the paper's Algorithm 1
+        (lambda / 10 on an accepted step, x 10 on a rejected one), as the multi-start fit
+        runs it.
+    max_nfev: budget of residual evaluations (those at trial points and of the geodesic
+        correction; the evaluations of finite differences are not counted against it);
+        None: ``1000 (P + 1)``. max_iter: budget of trial steps; None: no limit but max_nfev.
+    ftol: stop when an accepted step decreased chi-square by at most ``ftol chi2 + ftol_abs``
+        (trust region: the predicted decrease too). xtol: stop when the step bound is at most
+        ``xtol |D x|`` (trust region only). gtol: stop when every column of J has a cosine
+        of at most gtol with the residual vector (:func:`gradient_cosines`). chi2_tol: stop
+        when chi-square falls to it or below (the absolute floor; 0: only an exact zero).
+    step_bound: the trust region's initial bound, ``step_bound |D x0|`` (MINPACK's factor).
+    lambda0, lambda_max, lower, upper, damping, stall_window, stall_tol, geodesic, geo_h,
+        geo_alpha: see :func:`levenberg_marquardt_batch`.
+    fallback: when the run ends at a budget (``max_iter``/``max_nfev``), run once more from
+        ``x0`` with the other control and return the run with the smaller chi-square; the
+        first run is then reported as ``first_run`` and the counts of the result cover both.
+        Off by default.
 
-    Returns an :class:`LMResult` with ``x``, ``chi2`` (sum of squared residuals),
-    ``converged``, ``iterations``, ``status``, ``message``, ``nfev``, ``njev``.
+    Returns an :class:`LMResult` (``x``, ``cost`` = chi2 / 2 as SciPy's, ``chi2``, ``success``,
+    ``status``, ``code``, ``message``, ``nfev``, ``njev``, ``iterations``). A start whose
+    residuals or Jacobian are not finite returns at once with status ``failed`` (code -1).
     """
     x0 = np.atleast_1d(np.asarray(x0, float))
+    if control not in ("trust-region", "algorithm1"):
+        raise ValueError(f"control must be 'trust-region' or 'algorithm1', got {control!r}")
     counter = {"nfev": 0}
 
     def res1(x):
@@ -996,42 +939,58 @@ def levenberg_marquardt(residuals: Callable, x0, jacobian: Callable | None = Non
         return np.atleast_1d(np.asarray(residuals(x, *args), float))
 
     def jac1(x, r0):
+        if not np.all(np.isfinite(r0)):
+            return np.full((r0.size, x.size), np.nan)
         if jacobian is not None:
             return np.atleast_2d(np.asarray(jacobian(x, *args), float)).reshape(r0.size, x.size)
         return finite_difference_jacobian(res1, x, r0, method=fd_method, lower=lower,
                                           upper=upper)
 
     def fun(X):
-        rs, Js = [], []
-        for x in X:
-            r = res1(x)
-            rs.append(r)
-            Js.append(jac1(x, r) if np.all(np.isfinite(r)) else np.full((r.size, x.size),
-                                                                         np.nan))
-        return np.stack(rs), np.stack(Js)
+        rs = [res1(x) for x in X]
+        return np.stack(rs), np.stack([jac1(x, r) for x, r in zip(X, rs)])
 
     def resb(X):
         return np.stack([res1(x) for x in X])
 
-    opts = dict(residuals=resb, max_iter=max_iter, lambda0=lambda0, ftol=ftol,
-                ftol_abs=ftol_abs, chi2_tol=chi2_tol, lambda_max=lambda_max, lower=lower,
-                upper=upper, keep_jacobian=True, damping=damping, stall_window=stall_window,
-                stall_tol=stall_tol, geo_h=geo_h, geo_alpha=geo_alpha, xtol=xtol)
-    b = levenberg_marquardt_batch(fun, x0[None], geodesic=geodesic, step_bound=step_bound,
-                                  **opts)
-    iterations, njev = int(b.iterations[0]), int(b.njev[0])
-    if fallback and step_bound is None and b.status[0] == "max_iter":
-        # Restart from x0 with MINPACK's step control: the bound on |D dx| keeps the first
-        # steps from throwing the point into a far valley it then crawls along (MGH10 from
-        # its first start); the better of the two runs is returned.
-        b2 = levenberg_marquardt_batch(fun, x0[None], geodesic=False,
-                                       step_bound=FALLBACK_STEP_BOUND, **opts)
-        iterations += int(b2.iterations[0])
-        njev += int(b2.njev[0])
-        if b2.chi2[0] < b.chi2[0] or (b2.converged[0] and b2.chi2[0] <= b.chi2[0]):
-            b = b2
-    st = str(b.status[0])
-    return LMResult(b.x[0], float(b.chi2[0]), float(b.chi2_0[0]), iterations,
-                    bool(b.converged[0]), st, MESSAGES.get(st, st), float(b.lam[0]),
-                    counter["nfev"], njev,
-                    b.fun[0], None if b.jac is None else b.jac[0])
+    def jacb(X, R):
+        return np.stack([jac1(x, r) for x, r in zip(X, R)])
+
+    budget = int(max_nfev) if max_nfev is not None else 1000 * (x0.size + 1)
+    iters = int(max_iter) if max_iter is not None else 10 * budget + 10
+
+    def run(ctrl: str, accel: bool) -> tuple[LMBatchResult, int]:
+        n0 = counter["nfev"]
+        damp, ctl, acc = select_plugins(damping=damping, geodesic=accel, geo_h=geo_h,
+                                        geo_alpha=geo_alpha,
+                                        step_bound=step_bound if ctrl == "trust-region" else None,
+                                        xtol=xtol, lambda_max=lambda_max)
+        settings = Settings(max_iter=iters, lambda0=lambda0, ftol=ftol, ftol_abs=ftol_abs,
+                            chi2_tol=chi2_tol, stall_window=int(stall_window),
+                            stall_tol=stall_tol, keep_jacobian=True, gtol=gtol,
+                            max_nfev=budget)
+        b = minimize_batch(Problem(fun, resb, jacb), x0[None], settings, damping=damp,
+                           control=ctl, acceleration=acc, lower=lower, upper=upper)
+        return b, counter["nfev"] - n0
+
+    def result(b: LMBatchResult, nfev: int, first: LMResult | None = None) -> LMResult:
+        st = str(b.status[0])
+        return LMResult(b.x[0], float(b.chi2[0]), float(b.chi2_0[0]), int(b.iterations[0]),
+                        bool(b.converged[0]), st, MESSAGES.get(st, st), float(b.lam[0]),
+                        nfev, int(b.njev[0]), b.fun[0], None if b.jac is None else b.jac[0],
+                        first_run=first)
+
+    b, n1 = run(control, geodesic)
+    out = result(b, n1)
+    if fallback and out.status in ("max_iter", "max_nfev"):
+        other = "algorithm1" if control == "trust-region" else "trust-region"
+        b2, n2 = run(other, False)
+        second = result(b2, n2)
+        if second.chi2 < out.chi2 or (second.converged and second.chi2 <= out.chi2):
+            out = replace(second, first_run=out, iterations=out.iterations + second.iterations,
+                          nfev=out.nfev + second.nfev, njev=out.njev + second.njev)
+        else:
+            out = replace(out, first_run=None, iterations=out.iterations + second.iterations,
+                          nfev=out.nfev + second.nfev, njev=out.njev + second.njev,
+                          second_run=second)
+    return out

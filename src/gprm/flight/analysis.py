@@ -86,7 +86,9 @@ class ImpactResult:
     range test over the axes; ``joint``: the joint estimates' chi-square check; ``curves``:
     the predicted velocity-vs-impact-time curves used (:class:`VelocityCurves`);
     ``multiple_impacts``: the second-impact report (``--multi``), ``notes``: sentences the
-    report shows, ``sidecar``: the curves' NetCDF file name once written.
+    report shows, ``sidecar``: the curves' NetCDF file name once written, ``scenarios``: the
+    paper's observations and the impact-scenario posterior
+    (:func:`gprm.flight.inference.scenario_document`).
 
     ``to_json()`` is the impact document (docs/data-formats.md), ``to_xarray()`` the curves'
     sidecar dataset; :meth:`from_json` reads a document back.
@@ -110,6 +112,7 @@ class ImpactResult:
     multiple_impacts: dict | None = None
     notes: tuple[str, ...] = ()
     sidecar: str | None = None
+    scenarios: dict | None = None
 
     FORMAT = IMPACT_FORMAT
     FORMAT_VERSION = 1
@@ -138,6 +141,8 @@ class ImpactResult:
             doc["multiple_impacts"] = copy.deepcopy(self.multiple_impacts)
         if self.notes:
             doc["notes"] = list(self.notes)
+        if self.scenarios is not None:
+            doc["scenarios"] = copy.deepcopy(self.scenarios)
         return doc
 
     def to_xarray(self) -> xr.Dataset:
@@ -168,7 +173,8 @@ class ImpactResult:
                        truth_impact_time=(None if truth is None
                                           else tuple(truth["impact_time"])),
                        multiple_impacts=copy.deepcopy(doc.get("multiple_impacts")),
-                       notes=tuple(doc.get("notes", ())), sidecar=c.get("sidecar"))
+                       notes=tuple(doc.get("notes", ())), sidecar=c.get("sidecar"),
+                       scenarios=copy.deepcopy(doc.get("scenarios")))
         except KeyError as exc:
             raise GprmInputError("missing in the impact document",
                                  field=str(exc.args[0])) from None

@@ -24,6 +24,7 @@ from gprm.flight.analysis import AnalysisOptions, ImpactResult, analyze
 from gprm.flight.multi import multi_impact_report
 from gprm.flight.synth import SynthOptions, synth_telemetry
 from gprm.flight.files import load_telemetry
+from gprm.flight.inference import InferenceOptions, scenario_document
 from gprm.flight.telemetry import Telemetry
 from gprm.model.piezo import check_piezo
 
@@ -32,16 +33,22 @@ from gprm.model.piezo import check_piezo
 class ImpactOptions:
     """What defines ``gprm impact``: the analysis (:class:`AnalysisOptions`, validated
     there), the driven ``piezo`` (1, 2 or None for the fit's own) and ``multi`` (also
-    integrate plunger and TM with contact detection at each estimated impact)."""
+    integrate plunger and TM with contact detection at each estimated impact);
+    ``scenarios``: the impact-scenario posterior (:mod:`gprm.flight.inference`), None: not
+    computed."""
 
     analysis: AnalysisOptions = field(default_factory=AnalysisOptions)
     piezo: int | None = None
     multi: bool = False
+    scenarios: InferenceOptions | None = field(default_factory=InferenceOptions)
 
     def __post_init__(self):
         if not isinstance(self.analysis, AnalysisOptions):
             raise GprmInputError(f"expected AnalysisOptions, got "
                                  f"{type(self.analysis).__name__}", field="analysis")
+        if self.scenarios is not None and not isinstance(self.scenarios, InferenceOptions):
+            raise GprmInputError(f"expected InferenceOptions or None, got "
+                                 f"{type(self.scenarios).__name__}", field="scenarios")
         check_piezo(self.piezo, optional=True)
         if not isinstance(self.multi, bool):
             raise GprmInputError(f"must be true or false, got {self.multi!r}", field="multi")
@@ -75,6 +82,10 @@ def run_impact(model: FittedModel | str | os.PathLike, telemetry: Telemetry | st
     fm = load_model(model, piezo=opts.piezo)
     tel = telemetry if isinstance(telemetry, Telemetry) else load_telemetry(telemetry)
     res = analyze(fm, tel, opts.analysis)
+    if opts.scenarios is not None:
+        res = replace(res, scenarios=scenario_document(
+            fm, tel, opts.scenarios, fit_window=opts.analysis.fit_window,
+            min_samples=opts.analysis.min_samples))
     if opts.multi:
         res = replace(res, multiple_impacts=multi_impact_report(fm, res.to_json()))
     return replace(res, notes=tuple(notes)) if notes else res

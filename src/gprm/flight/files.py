@@ -278,7 +278,8 @@ def telemetry_from_dataset(ds, *, source: str = "telemetry", min_releases: int =
         releases.append(Release(rid, float(trel[i]), t, data, sig))
     truth_t = (np.asarray(ds["truth_impact_time"].values, float)
                if "truth_impact_time" in ds.variables else None)
-    return Telemetry(tuple(releases), source, dict(ds.attrs), truth_t, _truth_velocity(ds))
+    return Telemetry(tuple(releases), source, dict(ds.attrs), truth_t, _truth_velocity(ds),
+                     _scenario_truth(ds) or None)
 
 
 def _join_axes(lin: xr.DataArray, ang: xr.DataArray, *, axis: int) -> np.ndarray:
@@ -394,6 +395,19 @@ def truth_attrs_and_vars(truth: dict) -> tuple[dict, tuple[dict, dict]]:
     coords = {"tm_axis": ("tm_axis", list(TM_LINEAR), {"long_name": "test-mass axis"}),
               "tm_angular_axis": ("tm_angular_axis", list(TM_ANGULAR),
                                   {"long_name": "test-mass rotation axis"})}
+    if truth.get("scenario") is not None:     # scenario truths (issue 23)
+        names = list(truth["scenario_params"])
+        data["truth_scenario"] = (("release",), np.array([str(x) for x in truth["scenario"]]),
+                                  {"long_name": "true impact scenario (docs/flight.md §10)"})
+        data["truth_scenario_param"] = (
+            ("release", "scenario_param"),
+            np.stack([np.asarray(truth["scenario_params"][k], float) for k in names], 1),
+            {"long_name": "true values of the scenario's unknowns (SI: f 1, s m, phi rad, "
+             "mu 1, e 1)"})
+        data["truth_contacts"] = (("release",), np.asarray(truth["contacts"], int),
+                                  {"long_name": "number of contacts that pushed"})
+        coords["scenario_param"] = ("scenario_param", names,
+                                    {"long_name": "scenario unknown"})
     return attrs, (data, coords)
 
 
@@ -412,9 +426,21 @@ def read_truth(ds) -> dict | None:
                 "tm_velocity": {c: tm[c] for c in ("vx", "vy", "vz", "wx", "wy", "wz")},
                 "z_from": None if z == "none" else z,
                 "truth_model": str(ds.attrs["truth_model"]),
-                "truth_spread": bool(int(ds.attrs["truth_spread"]))}
+                "truth_spread": bool(int(ds.attrs["truth_spread"])),
+                **_scenario_truth(ds)}
     return legacy_json_attr(ds.attrs, "truth_json",
                             source=str(ds.attrs.get("source", "telemetry")))
+
+
+def _scenario_truth(ds) -> dict:
+    """The scenario part of a synthetic truth (empty for older truths)."""
+    if "truth_scenario" not in ds.variables:
+        return {}
+    par = ds["truth_scenario_param"]
+    return {"scenario": [str(x) for x in ds["truth_scenario"].values],
+            "scenario_params": {str(k): [float(x) for x in par.sel(scenario_param=k).values]
+                                for k in par["scenario_param"].values},
+            "contacts": [int(x) for x in ds["truth_contacts"].values]}
 
 
 SYNTH_PREFIX = "synth_"

@@ -224,8 +224,13 @@ def excursion(frame: Frame, r: np.ndarray, n: np.ndarray) -> np.ndarray:
     grid time (the head at rest at the retraction command)."""
     dA = frame.A - frame.A[:, :, :1]                               # (B, 3, T)
     dR = frame.R - frame.R[:, :1]                                  # (B, T, 3, 3)
-    return (np.einsum("kj,bjt->bkt", n, dA)
-            + np.einsum("kj,btji,ki->bkt", n, dR, r))
+    B, T = dR.shape[:2]
+    K = n.shape[0]
+    # one product: [n, n_j r_i] (K, 12) times [dA; dR] (12, B T)
+    lhs = np.concatenate([n, (n[:, :, None] * r[:, None, :]).reshape(K, 9)], 1)
+    rhs = np.concatenate([np.moveaxis(dA, 1, 0).reshape(3, B * T),
+                          np.moveaxis(dR.reshape(B, T, 9), 2, 0).reshape(9, B * T)], 0)
+    return np.moveaxis((lhs @ rhs).reshape(K, B, T), 0, 1)
 
 
 def gap_time(frame: Frame, r: np.ndarray, n: np.ndarray, f: np.ndarray):

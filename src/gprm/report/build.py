@@ -37,6 +37,7 @@ from gprm.fit.report_text import pretty_unit
 from gprm.report import figures as F
 from gprm.report.html import (Card, Section, fig_to_img, not_run, num, paragraph, pm, render,
                               table)
+from gprm.report.scenarios import scenario_section, voltage_section
 from gprm.report.summary import (current_file, earlier_outputs, impact_times_found,
                                  summarise, truth_for_fit, truth_from_means)
 
@@ -748,6 +749,10 @@ def build_report(run_dir: str | Path) -> str:
     fit_s, fit = fit_section(run)
     sections = [campaign_section(run), fit_s, predict_section(run), whatif_section(run),
                 flight_section(run)]
+    sections += [x for x in (voltage_section(run),
+                             scenario_section(run, _load_json(run, "impact.json",
+                                                              "impact result")))
+                 if x is not None]
     prov = _load_json(run, "run.json", "run record") or {}
     sections.append(provenance_section(run, prov))
     sub = f"gprm {__version__} · run directory {run.resolve().name}"

@@ -1,0 +1,140 @@
+"""Benchmark of the impact scenarios (issue 23, docs/flight.md §10-11):
+`.venv/bin/python benchmarks/bench_scenarios.py [--observations] [--recovery]
+[--seeds N] [--seed0 S] [--releases R] [--draws K]`.
+
+`--observations`: for every scenario of `gprm.flight.scenario.SCENARIOS`, N campaigns of R
+releases (seeds S .. S+N-1, truths as `gprm synth telemetry paper --scenario NAME --seed s`
+draws them), the paper's three observations counted over the releases: z not the largest
+velocity component, the x–z share of the momentum (v_x² + v_z²)/|v|², every analysed component
+(v_x, v_y, v_z, ω_x, ω_y) non-compliant (> 5 µm/s, > 100 µrad/s); ω_z's compliance apart.
+
+`--recovery`: N campaigns, each with R releases of every compared scenario (xz, yz, two),
+written as telemetry and read back (`gprm synth telemetry paper --scenario NAME --seed s`),
+release velocities fitted, then the scenario posterior (`gprm.flight.inference`, K prior draws
+per scenario): the right scenario chosen, and each unknown's truth inside its 95 % interval.
+Prints markdown."""
+
+from __future__ import annotations
+
+import argparse
+import time
+
+import numpy as np
+
+from _machine import machine
+
+
+def observations(fm, seeds, releases: int) -> list[dict]:
+    from gprm.flight.scenario import SCENARIOS, draw_truths
+
+    rows = []
+    for kind in SCENARIOS:
+        v = np.concatenate([draw_truths(fm, [kind] * releases, s).velocity for s in seeds])
+        av = np.abs(v)
+        share = (v[:, 0] ** 2 + v[:, 2] ** 2) / np.sum(v[:, :3] ** 2, 1)
+        lim = np.array([5e-6] * 3 + [100e-6] * 3)
+        rows.append({"scenario": kind, "n": len(v),
+                     "z_not_largest": int(np.sum(av[:, 2] < np.maximum(av[:, 0], av[:, 1]))),
+                     "share_median": float(np.median(share)),
+                     "share_ge_0.9": int(np.sum(share >= 0.9)),
+                     "all5_noncompliant": int(np.sum((av[:, :5] > lim[:5]).all(1))),
+                     "compliant": [int(x) for x in np.sum(av <= lim, 0)],
+                     "mean_abs": [float(x) for x in av.mean(0)]})
+    return rows
+
+
+def recovery(fm, seeds, releases: int, draws: int) -> dict:
+    from gprm.flight.files import telemetry_from_dataset
+    from gprm.flight.inference import InferenceOptions, infer_scenarios, measured_components
+    from gprm.flight.scenario import COMPARED, PARAMS
+    from gprm.flight.synth import SynthOptions, synth_telemetry
+
+    out = {"n": 0, "right": 0, "by_truth": {k: [0, 0] for k in COMPARED},
+           "covered": {k: 0 for k in PARAMS + ("t",)}, "ess_median": [], "confusion": {}}
+    opts = InferenceOptions(n_draws=draws)
+    for s in seeds:
+        for kind in COMPARED:
+            ds = synth_telemetry(fm, SynthOptions(n_releases=releases, seed=s, scenario=kind))
+            tel = telemetry_from_dataset(ds, source=f"seed {s}")
+            truth = ds  # truth variables
+            y, sig = measured_components(tel)
+            res = infer_scenarios(fm, [r.id for r in tel.releases], y, sig, opts)
+            tp = truth["truth_scenario_param"]
+            for i in range(len(tel.releases)):
+                out["n"] += 1
+                ok = res.chosen[i] == kind
+                out["right"] += ok
+                out["by_truth"][kind][0] += ok
+                out["by_truth"][kind][1] += 1
+                key = f"{kind}->{res.chosen[i]}"
+                out["confusion"][key] = out["confusion"].get(key, 0) + 1
+                f = res.fits[i][kind]
+                out["ess_median"].append(f.ess)
+                for p in PARAMS + ("t",):
+                    tv = (float(truth["truth_impact_time"].values[i]) if p == "t"
+                          else float(tp.sel(scenario_param=p).values[i]))
+                    _, lo, hi = f.summary[p]
+                    out["covered"][p] += lo <= tv <= hi
+    out["ess_median"] = float(np.median(out["ess_median"]))
+    return out
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--observations", action="store_true")
+    ap.add_argument("--recovery", action="store_true")
+    ap.add_argument("--seeds", type=int, default=10)
+    ap.add_argument("--seed0", type=int, default=2000)
+    ap.add_argument("--releases", type=int, default=11)
+    ap.add_argument("--draws", type=int, default=6000)
+    a = ap.parse_args()
+    from gprm.fit.files import paper_model
+
+    fm = paper_model()
+    seeds = range(a.seed0, a.seed0 + a.seeds)
+    print("## Impact scenarios (`gprm.flight.scenario`, `gprm.flight.inference`)\n")
+    print(machine("numpy", "scipy"))
+    print(f"- command: `.venv/bin/python benchmarks/bench_scenarios.py "
+          f"{'--observations ' if a.observations else ''}{'--recovery ' if a.recovery else ''}"
+          f"--seeds {a.seeds} --seed0 {a.seed0} --releases {a.releases} --draws {a.draws}`\n")
+    if a.observations:
+        t0 = time.perf_counter()
+        rows = observations(fm, seeds, a.releases)
+        print(f"### The paper's three observations ({a.seeds} campaigns × {a.releases} "
+              f"releases, seeds {a.seed0}–{a.seed0 + a.seeds - 1}; "
+              f"{time.perf_counter() - t0:.1f} s)\n")
+        print("| scenario | z not the largest | x–z share median | share ≥ 0.9 | v_x, v_y, v_z, "
+              "ω_x, ω_y all non-compliant | compliant v_x, v_y, v_z, ω_x, ω_y, ω_z | "
+              "mean abs v (µm/s) | mean abs ω (µrad/s) |")
+        print("|---|---|---|---|---|---|---|---|")
+        for r in rows:
+            n = r["n"]
+            pc = lambda k: f"{r[k]}/{n} ({100 * r[k] / n:.0f} %)"  # noqa: E731
+            m = r["mean_abs"]
+            print(f"| {r['scenario']} | {pc('z_not_largest')} | {r['share_median']:.3f} | "
+                  f"{pc('share_ge_0.9')} | {pc('all5_noncompliant')} | "
+                  f"{', '.join(str(c) for c in r['compliant'])} | "
+                  f"{m[0] * 1e6:.1f}, {m[1] * 1e6:.1f}, {m[2] * 1e6:.1f} | "
+                  f"{m[3] * 1e6:.0f}, {m[4] * 1e6:.0f}, {m[5] * 1e6:.0f} |")
+        print()
+    if a.recovery:
+        t0 = time.perf_counter()
+        out = recovery(fm, seeds, a.releases, a.draws)
+        n = out["n"]
+        print(f"### Scenario posterior: recovery ({a.seeds} campaigns × {a.releases} releases "
+              f"of each of xz, yz, two; {a.draws} prior draws per scenario; "
+              f"{time.perf_counter() - t0:.0f} s)\n")
+        print(f"- right scenario chosen: {out['right']}/{n} "
+              f"({100 * out['right'] / n:.1f} %); by truth: "
+              + ", ".join(f"{k} {v[0]}/{v[1]}" for k, v in out["by_truth"].items()))
+        print(f"- confusion (truth->chosen): {out['confusion']}")
+        print(f"- median effective number of draws (true scenario): {out['ess_median']:.0f}\n")
+        print("| unknown | truth inside the 95 % interval |")
+        print("|---|---|")
+        for k, c in out["covered"].items():
+            print(f"| {k} | {c}/{n} ({100 * c / n:.1f} %) |")
+        print()
+
+
+if __name__ == "__main__":
+    main()

@@ -45,20 +45,23 @@ def observations(fm, seeds, releases: int) -> list[dict]:
 
 def recovery(fm, seeds, releases: int, draws: int) -> dict:
     from gprm.flight.files import telemetry_from_dataset
-    from gprm.flight.inference import InferenceOptions, infer_scenarios, measured_components
+    from gprm.flight.inference import (InferenceOptions, infer_scenarios, measured_components,
+                                      prior_predictives)
     from gprm.flight.scenario import COMPARED, PARAMS
     from gprm.flight.synth import SynthOptions, synth_telemetry
 
     out = {"n": 0, "right": 0, "by_truth": {k: [0, 0] for k in COMPARED},
            "covered": {k: 0 for k in PARAMS + ("t",)}, "ess_median": [], "confusion": {}}
     opts = InferenceOptions(n_draws=draws)
+    pps = prior_predictives(fm, opts)         # once: it depends on the model and options only
     for s in seeds:
         for kind in COMPARED:
             ds = synth_telemetry(fm, SynthOptions(n_releases=releases, seed=s, scenario=kind))
             tel = telemetry_from_dataset(ds, source=f"seed {s}")
             truth = ds  # truth variables
             y, sig = measured_components(tel)
-            res = infer_scenarios(fm, [r.id for r in tel.releases], y, sig, opts)
+            res = infer_scenarios(fm, [r.id for r in tel.releases], y, sig, opts,
+                                  predictive=pps)
             tp = truth["truth_scenario_param"]
             for i in range(len(tel.releases)):
                 out["n"] += 1

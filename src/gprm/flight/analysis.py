@@ -17,7 +17,9 @@ from gprm.errors import GprmInputError
 from gprm.flight.files import IMPACT_FORMAT, impact_curves_dataset
 from gprm.flight.impact_time import ImpactTimeMC, impact_time_mc
 from gprm.flight.joint import joint_impact_time
-from gprm.flight.predicted import ImpactGeometry, VelocityCurves, velocity_curves
+from gprm.flight.predicted import (IMPACT_MODELS, ImpactGeometry, VelocityCurves,
+                                   scenario_geometry, velocity_curves)
+from gprm.flight.scenario import COMPARED
 from gprm.flight.telemetry import AXES, AXIS_CHANNEL, AXIS_UNIT, release_velocities
 from gprm.flight.tukey import tukey_range_test
 from gprm.validate import check_int
@@ -38,7 +40,8 @@ class AnalysisOptions:
     window: impact-time window (start, end) in s, 0 <= start < end; None: t_c .. t_c + 0.2 ms.
     fit_window: the release-velocity line fit over this long after the release (s, > 0);
         None: all. min_samples: fewest telemetry samples for a release velocity (>= 2).
-    impact_model: ``"3d"`` (one contact) or ``"planar"`` (the paper's two planes).
+    impact_model: ``"3d"`` (one corner contact), ``"planar"`` (the paper's two planes), or a
+        rim-contact scenario ``"xz"``, ``"yz"``, ``"two"`` (docs/flight.md §10).
     """
 
     alpha: float = 0.01
@@ -68,9 +71,9 @@ class AnalysisOptions:
                                             or self.fit_window <= 0):
             raise GprmInputError(f"must be a time > 0 (s), got {self.fit_window!r}",
                                  field="fit_window")
-        if self.impact_model not in ("3d", "planar"):
-            raise GprmInputError(f"must be 3d or planar, got {self.impact_model!r}",
-                                 field="impact_model")
+        if self.impact_model not in IMPACT_MODELS:
+            raise GprmInputError(f"must be one of {', '.join(IMPACT_MODELS)}, got "
+                                 f"{self.impact_model!r}", field="impact_model")
 
     def to_json(self) -> dict:
         return {k: (list(v) if isinstance(v, tuple) else v) for k, v in self.__dict__.items()}
@@ -217,7 +220,9 @@ def analyze(model, tel, opts: AnalysisOptions = AnalysisOptions(),
     if curves is None:
         curves = velocity_curves(model, window=opts.window, n_times=opts.n_times,
                                  n_samples=opts.n_samples, seed=opts.seed,
-                                 geometry=ImpactGeometry(impact_model=opts.impact_model))
+                                 geometry=(scenario_geometry(opts.impact_model)
+                                           if opts.impact_model in COMPARED else
+                                           ImpactGeometry(impact_model=opts.impact_model)))
     if curves.samples is None:
         raise GprmInputError("curves without their joint draws", field="curves")
     has_unc = bool(getattr(model, "has_uncertainty", True))

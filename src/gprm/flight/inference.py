@@ -252,23 +252,32 @@ def _probs(logz: dict) -> dict:
     return {k: float(x) for k, x in zip(logz, p)}
 
 
-def infer_scenarios(model, ids, y, sigma, opts: InferenceOptions = InferenceOptions(),
-                    prior: ScenarioPrior | None = None) -> ScenarioInference:
-    """The scenario posterior of every release: ``y`` (R, 6) measured velocity components
-    (:data:`~gprm.flight.scenario.COMPONENTS`, NaN where not measured), ``sigma`` (R, 6)
-    their standard errors (module docstring)."""
+def prior_predictives(model, opts: InferenceOptions = InferenceOptions(),
+                      prior: ScenarioPrior | None = None) -> dict:
+    """:func:`prior_predictive` of every scenario of ``opts`` (they depend on the model and
+    the options only: computed once, they serve any number of releases)."""
     from gprm.params import batch
 
+    pb0 = batch([model.params])
+    frame = model_frame(model, opts, pb0)
+    return {s: prior_predictive(model, s, opts, prior, frame=frame, pb0=pb0)
+            for s in opts.scenarios}
+
+
+def infer_scenarios(model, ids, y, sigma, opts: InferenceOptions = InferenceOptions(),
+                    prior: ScenarioPrior | None = None, *,
+                    predictive: dict | None = None) -> ScenarioInference:
+    """The scenario posterior of every release: ``y`` (R, 6) measured velocity components
+    (:data:`~gprm.flight.scenario.COMPONENTS`, NaN where not measured), ``sigma`` (R, 6)
+    their standard errors (module docstring); ``predictive``: :func:`prior_predictives` of
+    this model and these options, if already computed."""
     if not isinstance(opts, InferenceOptions):
         raise GprmInputError(f"expected InferenceOptions, got {type(opts).__name__}",
                              field="opts")
     y = np.asarray(y, float)
     sigma = np.nan_to_num(np.asarray(sigma, float), nan=0.0)
     use = np.isfinite(y)
-    pb0 = batch([model.params])
-    frame = model_frame(model, opts, pb0)
-    pps = {s: prior_predictive(model, s, opts, prior, frame=frame, pb0=pb0)
-           for s in opts.scenarios}
+    pps = predictive if predictive is not None else prior_predictives(model, opts, prior)
     rng = np.random.default_rng([opts.seed, 99])
     fits, probs, chosen = [], [], []
     total = {s: 0.0 for s in opts.scenarios}

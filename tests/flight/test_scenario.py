@@ -169,14 +169,24 @@ def _observations(kind, seeds, prior=None):
 
 
 def test_default_scenario_shows_the_papers_observations_over_seeds():
-    """The default truth (one rim contact in x–z with friction) on 5 seeds × 11 releases
-    (docs/flight.md §10 has the table over 20 seeds): z not the largest component in most
-    releases, the momentum almost totally in x–z, every analysed component non-compliant in
-    a good part of them (v_y is the one that stays compliant, measured there)."""
-    z_not, share, nonc = _observations("xz", range(100, 105))
-    assert z_not >= 0.9, z_not
-    assert np.median(share) >= 0.9 and np.mean(share >= 0.9) >= 0.6, np.median(share)
-    assert nonc >= 0.3, nonc
+    """The default truth (the head's side against both rim sides, with friction) on 5 seeds
+    × 11 releases (docs/flight.md §10 has the table over 20 seeds): z not the largest
+    component in most releases, the momentum almost totally in x–z (median share >= 0.9),
+    every analysed component non-compliant in most releases."""
+    from gprm.flight.synth import SynthOptions
+    assert SynthOptions().truth_model == "scenario" and SynthOptions().scenario == "two"
+    z_not, share, nonc = _observations("two", range(100, 105))
+    assert z_not >= 0.8, z_not
+    assert np.median(share) >= 0.9, np.median(share)
+    assert nonc >= 0.7, nonc
+
+
+def test_one_xz_contact_gives_z_not_largest_and_xz_momentum():
+    """One rim contact in x–z: z never the largest, the momentum in x–z; v_y (from the
+    azimuth only) is what stays compliant in about half the releases (§10)."""
+    z_not, share, nonc = _observations("xz", range(100, 103))
+    assert z_not >= 0.95 and np.median(share) >= 0.93, (z_not, np.median(share))
+    assert 0.2 <= nonc <= 0.8, nonc
 
 
 def test_face_contacts_cannot_give_the_pattern():

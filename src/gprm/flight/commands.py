@@ -47,7 +47,7 @@ def register(app: typer.Typer, synth_app: typer.Typer) -> None:
                                         help="impact of the truth: scenario (see "
                                              "--scenario), 3d (one corner contact, issue 14) "
                                              "or planar (paper)"),
-        scenario: str = typer.Option("xz", "--scenario",
+        scenario: str = typer.Option("two", "--scenario",
                                      help="contact scenario of the truth (--truth-model "
                                           "scenario): xz, yz, two (rim contacts), xz-face, "
                                           "yz-face, two-face, corner, or mixed (each release "

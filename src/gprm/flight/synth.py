@@ -68,7 +68,7 @@ class SynthOptions:
     grid_step: float = 1e-7
     window_mode: str = "identifiable"
     truth_model: str = "scenario"
-    scenario: str = "xz"
+    scenario: str = "two"
 
     def __post_init__(self):
         for name, lo in (("n_releases", 1), ("seed", 0)):

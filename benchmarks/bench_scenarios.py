@@ -43,7 +43,7 @@ def observations(fm, seeds, releases: int) -> list[dict]:
     return rows
 
 
-def recovery(fm, seeds, releases: int, draws: int) -> dict:
+def recovery(fm, seeds, releases: int, draws: int, rel_floor: float | None = None) -> dict:
     from gprm.flight.files import telemetry_from_dataset
     from gprm.flight.inference import (InferenceOptions, infer_scenarios, measured_components,
                                       prior_predictives)
@@ -52,7 +52,8 @@ def recovery(fm, seeds, releases: int, draws: int) -> dict:
 
     out = {"n": 0, "right": 0, "by_truth": {k: [0, 0] for k in COMPARED},
            "covered": {k: 0 for k in PARAMS + ("t",)}, "ess_median": [], "confusion": {}}
-    opts = InferenceOptions(n_draws=draws)
+    opts = InferenceOptions(n_draws=draws, **({} if rel_floor is None
+                                              else {"rel_floor": rel_floor}))
     pps = prior_predictives(fm, opts)         # once: it depends on the model and options only
     for s in seeds:
         for kind in COMPARED:
@@ -89,7 +90,8 @@ def main() -> None:
     ap.add_argument("--seeds", type=int, default=10)
     ap.add_argument("--seed0", type=int, default=2000)
     ap.add_argument("--releases", type=int, default=11)
-    ap.add_argument("--draws", type=int, default=6000)
+    ap.add_argument("--draws", type=int, default=20000)
+    ap.add_argument("--rel-floor", type=float, default=None)
     a = ap.parse_args()
     from gprm.fit.files import paper_model
 
@@ -99,7 +101,8 @@ def main() -> None:
     print(machine("numpy", "scipy"))
     print(f"- command: `.venv/bin/python benchmarks/bench_scenarios.py "
           f"{'--observations ' if a.observations else ''}{'--recovery ' if a.recovery else ''}"
-          f"--seeds {a.seeds} --seed0 {a.seed0} --releases {a.releases} --draws {a.draws}`\n")
+          f"--seeds {a.seeds} --seed0 {a.seed0} --releases {a.releases} --draws {a.draws}"
+          + ("" if a.rel_floor is None else f" --rel-floor {a.rel_floor}") + "`\n")
     if a.observations:
         t0 = time.perf_counter()
         rows = observations(fm, seeds, a.releases)
@@ -122,7 +125,7 @@ def main() -> None:
         print()
     if a.recovery:
         t0 = time.perf_counter()
-        out = recovery(fm, seeds, a.releases, a.draws)
+        out = recovery(fm, seeds, a.releases, a.draws, a.rel_floor)
         n = out["n"]
         print(f"### Scenario posterior: recovery ({a.seeds} campaigns × {a.releases} releases "
               f"of each of xz, yz, two; {a.draws} prior draws per scenario; "

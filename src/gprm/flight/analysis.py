@@ -40,8 +40,9 @@ class AnalysisOptions:
     window: impact-time window (start, end) in s, 0 <= start < end; None: t_c .. t_c + 0.2 ms.
     fit_window: the release-velocity line fit over this long after the release (s, > 0);
         None: all. min_samples: fewest telemetry samples for a release velocity (>= 2).
-    impact_model: ``"3d"`` (one corner contact), ``"planar"`` (the paper's two planes), or a
-        rim-contact scenario ``"xz"``, ``"yz"``, ``"two"`` (docs/flight.md §10).
+    impact_model: ``"3d"`` (one corner contact), ``"planar"`` (the paper's two planes), a
+        rim-contact scenario ``"xz"``, ``"yz"``, ``"two"`` (docs/flight.md §10), or ``"auto"``
+        (``run_impact``: the scenario the posterior chooses jointly over the releases).
     """
 
     alpha: float = 0.01
@@ -71,9 +72,9 @@ class AnalysisOptions:
                                             or self.fit_window <= 0):
             raise GprmInputError(f"must be a time > 0 (s), got {self.fit_window!r}",
                                  field="fit_window")
-        if self.impact_model not in IMPACT_MODELS:
-            raise GprmInputError(f"must be one of {', '.join(IMPACT_MODELS)}, got "
-                                 f"{self.impact_model!r}", field="impact_model")
+        if self.impact_model not in IMPACT_MODELS + ("auto",):
+            raise GprmInputError(f"must be one of {', '.join(IMPACT_MODELS + ('auto',))}, "
+                                 f"got {self.impact_model!r}", field="impact_model")
 
     def to_json(self) -> dict:
         return {k: (list(v) if isinstance(v, tuple) else v) for k, v in self.__dict__.items()}
@@ -216,6 +217,9 @@ def analyze(model, tel, opts: AnalysisOptions = AnalysisOptions(),
     if not isinstance(opts, AnalysisOptions):
         raise GprmInputError(f"expected AnalysisOptions, got {type(opts).__name__}",
                              field="opts")
+    if opts.impact_model == "auto" and curves is None:
+        raise GprmInputError("auto is resolved by run_impact (the scenario posterior "
+                             "chooses the model); analyze needs a model", field="impact_model")
     vel = release_velocities(tel, fit_window=opts.fit_window, min_samples=opts.min_samples)
     if curves is None:
         curves = velocity_curves(model, window=opts.window, n_times=opts.n_times,

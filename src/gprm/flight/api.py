@@ -35,7 +35,8 @@ class ImpactOptions:
     there), the driven ``piezo`` (1, 2 or None for the fit's own) and ``multi`` (also
     integrate plunger and TM with contact detection at each estimated impact);
     ``scenarios``: the impact-scenario posterior (:mod:`gprm.flight.inference`), None: not
-    computed."""
+    computed; with ``analysis.impact_model == "auto"`` the impact times use the curves of the
+    scenario chosen jointly over the releases (the corner model ``3d`` if none)."""
 
     analysis: AnalysisOptions = field(default_factory=AnalysisOptions)
     piezo: int | None = None
@@ -50,6 +51,9 @@ class ImpactOptions:
             raise GprmInputError(f"expected InferenceOptions or None, got "
                                  f"{type(self.scenarios).__name__}", field="scenarios")
         check_piezo(self.piezo, optional=True)
+        if self.analysis.impact_model == "auto" and self.scenarios is None:
+            raise GprmInputError("auto needs the scenario posterior (scenarios)",
+                                 field="impact_model")
         if not isinstance(self.multi, bool):
             raise GprmInputError(f"must be true or false, got {self.multi!r}", field="multi")
 
@@ -81,11 +85,17 @@ def run_impact(model: FittedModel | str | os.PathLike, telemetry: Telemetry | st
                              field="opts")
     fm = load_model(model, piezo=opts.piezo)
     tel = telemetry if isinstance(telemetry, Telemetry) else load_telemetry(telemetry)
-    res = analyze(fm, tel, opts.analysis)
+    sc = None
     if opts.scenarios is not None:
-        res = replace(res, scenarios=scenario_document(
-            fm, tel, opts.scenarios, fit_window=opts.analysis.fit_window,
-            min_samples=opts.analysis.min_samples))
+        sc = scenario_document(fm, tel, opts.scenarios, fit_window=opts.analysis.fit_window,
+                               min_samples=opts.analysis.min_samples)
+    analysis = opts.analysis
+    if analysis.impact_model == "auto":     # the curves of the jointly chosen scenario
+        chosen = (sc or {}).get("joint", {}).get("chosen") or "3d"
+        analysis = replace(analysis, impact_model=chosen)
+    res = analyze(fm, tel, analysis)
+    if sc is not None:
+        res = replace(res, scenarios=sc)
     if opts.multi:
         res = replace(res, multiple_impacts=multi_impact_report(fm, res.to_json()))
     return replace(res, notes=tuple(notes)) if notes else res

@@ -107,8 +107,10 @@ def register(app: typer.Typer, synth_app: typer.Typer) -> None:
         piezo: Optional[int] = typer.Option(None, "--piezo", parser=Int(1, 2),
                                             help="driven piezo: 1 or 2 (default: fit's)"),
         impact_model: str = typer.Option("3d", "--impact-model",
-                                         help="3d (one contact, consistent with a 3D truth) "
-                                              "or planar (the paper's two planes)"),
+                                         help="curves of the impact times: 3d (one corner "
+                                              "contact), planar (the paper's two planes), xz, "
+                                              "yz, two (rim-contact scenarios), or auto (the "
+                                              "scenario chosen jointly over the releases)"),
         multi: bool = typer.Option(False, "--multi",
                                    help="also integrate plunger and TM with contact detection "
                                         "at each estimated impact (second impacts)"),

@@ -498,9 +498,12 @@ def flight_section(run: Path) -> Section:
     s.blocks.append(paragraph(
         f"{n} releases: the release velocity per axis from the telemetry, and the impact time "
         "at which the impact model ("
-        + ("one contact of the plunger tip on the indent face in 3D, with restitution and "
-           "friction" if imp.get("impact_model") == "3d" else "the planar impacts of "
-           "Appendix B")
+        + {"3d": "one contact of the plunger tip on the indent face in 3D, with restitution "
+                 "and friction", "planar": "the planar impacts of Appendix B",
+           "xz": "scenario: one rim contact in x–z, with restitution and friction",
+           "yz": "scenario: one rim contact in y–z, with restitution and friction",
+           "two": "scenario: two rim contacts, x–z and y–z, with restitution and friction"
+           }.get(imp.get("impact_model"), str(imp.get("impact_model")))
         + ") applied to the predicted plunger state gives that velocity (crossing on the "
         f"rising branch of the curve): {n_ok} of {6 * n} impact times found; each error bar "
         "combines the telemetry's error and the model band (parameter and geometry draws). "

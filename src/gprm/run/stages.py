@@ -210,7 +210,8 @@ def scenario_draws(o: RunOptions) -> int:
 def _impact(run: Path, opts: RunOptions, step) -> dict:
     fm = load_model(run)
     notes = model_notes(fm)
-    iopts = ImpactOptions(AnalysisOptions(n_samples=opts.predict_samples, seed=opts.seed),
+    iopts = ImpactOptions(AnalysisOptions(n_samples=opts.predict_samples, seed=opts.seed,
+                                          impact_model="auto"),
                           scenarios=InferenceOptions(n_draws=scenario_draws(opts),
                                                      seed=opts.seed))
     res = write_impact(run_impact(fm, run / "telemetry.nc", iopts, notes=notes),
@@ -242,7 +243,8 @@ def chain(opts: RunOptions) -> tuple[Stage, ...]:
         Stage("impact", "impact + Tukey test", ("fit.json", "telemetry.nc"),
               ("impact.json", "impact.nc"),
               lambda o: {"samples": o.predict_samples, "seed": o.seed,
-                         "scenario_draws": scenario_draws(o)}, _impact),
+                         "scenario_draws": scenario_draws(o), "impact_model": "auto"},
+              _impact),
     )
 
 

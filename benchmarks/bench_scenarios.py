@@ -38,6 +38,9 @@ def observations(fm, seeds, releases: int) -> list[dict]:
                      "share_median": float(np.median(share)),
                      "share_ge_0.9": int(np.sum(share >= 0.9)),
                      "all5_noncompliant": int(np.sum((av[:, :5] > lim[:5]).all(1))),
+                     "all_three": int(np.sum((av[:, 2] < np.maximum(av[:, 0], av[:, 1]))
+                                             & (share >= 0.9)
+                                             & (av[:, :5] > lim[:5]).all(1))),
                      "compliant": [int(x) for x in np.sum(av <= lim, 0)],
                      "mean_abs": [float(x) for x in av.mean(0)]})
     return rows
@@ -83,6 +86,46 @@ def recovery(fm, seeds, releases: int, draws: int, rel_floor: float | None = Non
     return out
 
 
+def impact_times(fm, seeds, releases: int, models, scenario: str = "two",
+                 samples: int = 200) -> dict:
+    """The impact-time analysis (issue 14's, `gprm impact --impact-model MODEL`) on scenario
+    truths (`gprm synth telemetry --scenario SCENARIO`): per model, the totals of
+    :func:`gprm.flight.analysis.truth_summary`, the joint chi2 and Tukey rejections; the
+    curves of each model are computed once (they depend on the model and the seed only)."""
+    from gprm.flight import AnalysisOptions, SynthOptions, analyze, synth_telemetry
+    from gprm.flight.files import telemetry_from_dataset
+
+    out = {}
+    curves = {}
+    for model in models:
+        out[model] = {"campaigns": 0, "impact_times": 0, "found": 0, "within_2sigma": 0,
+                      "joint_releases": 0, "joint_truth_in_ci95": 0, "chi2_rejects": 0,
+                      "chi2_tests": 0, "tukey_rejecting": 0, "errors_us": []}
+    for s in seeds:
+        ds = synth_telemetry(fm, SynthOptions(n_releases=releases, seed=s, scenario=scenario))
+        tel = telemetry_from_dataset(ds, source=f"seed {s}")
+        for model in models:
+            res = analyze(fm, tel, AnalysisOptions(impact_model=model, n_samples=samples),
+                          curves=curves.get(model))
+            curves[model] = res.curves
+            doc = res.to_json()
+            t = out[model]
+            sm = doc["truth"]["summary"]
+            for k in ("impact_times", "found", "within_2sigma", "joint_releases",
+                      "joint_truth_in_ci95"):
+                t[k] += sm[k]
+            t["campaigns"] += 1
+            for r in doc["releases"]:
+                p = r["joint"].get("p")
+                if p is not None:
+                    t["chi2_tests"] += 1
+                    t["chi2_rejects"] += p < 0.01
+                if r["joint"].get("value") is not None:
+                    t["errors_us"].append((r["joint"]["value"] - r["truth_impact_time"]) * 1e6)
+            t["tukey_rejecting"] += not doc["tukey"].get("all_compatible", True)
+    return out
+
+
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--observations", action="store_true")
@@ -92,6 +135,8 @@ def main() -> None:
     ap.add_argument("--releases", type=int, default=11)
     ap.add_argument("--draws", type=int, default=20000)
     ap.add_argument("--rel-floor", type=float, default=None)
+    ap.add_argument("--impact-times", action="store_true")
+    ap.add_argument("--scenario", default="two")
     a = ap.parse_args()
     from gprm.fit.files import paper_model
 
@@ -101,6 +146,8 @@ def main() -> None:
     print(machine("numpy", "scipy"))
     print(f"- command: `.venv/bin/python benchmarks/bench_scenarios.py "
           f"{'--observations ' if a.observations else ''}{'--recovery ' if a.recovery else ''}"
+          f"{'--impact-times ' if a.impact_times else ''}"
+          f"{'--scenario ' + a.scenario + ' ' if a.scenario != 'two' else ''}"
           f"--seeds {a.seeds} --seed0 {a.seed0} --releases {a.releases} --draws {a.draws}"
           + ("" if a.rel_floor is None else f" --rel-floor {a.rel_floor}") + "`\n")
     if a.observations:
@@ -110,18 +157,40 @@ def main() -> None:
               f"releases, seeds {a.seed0}–{a.seed0 + a.seeds - 1}; "
               f"{time.perf_counter() - t0:.1f} s)\n")
         print("| scenario | z not the largest | x–z share median | share ≥ 0.9 | v_x, v_y, v_z, "
-              "ω_x, ω_y all non-compliant | compliant v_x, v_y, v_z, ω_x, ω_y, ω_z | "
-              "mean abs v (µm/s) | mean abs ω (µrad/s) |")
-        print("|---|---|---|---|---|---|---|---|")
+              "ω_x, ω_y all non-compliant | all three at once | compliant v_x, v_y, v_z, "
+              "ω_x, ω_y, ω_z | mean abs v (µm/s) | mean abs ω (µrad/s) |")
+        print("|---|---|---|---|---|---|---|---|---|")
         for r in rows:
             n = r["n"]
             pc = lambda k: f"{r[k]}/{n} ({100 * r[k] / n:.0f} %)"  # noqa: E731
             m = r["mean_abs"]
             print(f"| {r['scenario']} | {pc('z_not_largest')} | {r['share_median']:.3f} | "
-                  f"{pc('share_ge_0.9')} | {pc('all5_noncompliant')} | "
+                  f"{pc('share_ge_0.9')} | {pc('all5_noncompliant')} | {pc('all_three')} | "
                   f"{', '.join(str(c) for c in r['compliant'])} | "
                   f"{m[0] * 1e6:.1f}, {m[1] * 1e6:.1f}, {m[2] * 1e6:.1f} | "
                   f"{m[3] * 1e6:.0f}, {m[4] * 1e6:.0f}, {m[5] * 1e6:.0f} |")
+        print()
+    if a.impact_times:
+        t0 = time.perf_counter()
+        models = ("two", "xz", "3d", "planar")
+        out = impact_times(fm, seeds, a.releases, models, a.scenario)
+        print(f"### Impact times on scenario truths ({a.seeds} campaigns × {a.releases} "
+              f"releases of scenario {a.scenario}, seeds {a.seed0}–{a.seed0 + a.seeds - 1}; "
+              f"{time.perf_counter() - t0:.0f} s)\n")
+        print("| analysis (impact model) | found | within 2σ of truth | joint 95 % interval "
+              "contains truth | joint error median, 90 % range (µs) | joint χ² rejects "
+              "(α = 0.01) | campaigns where Tukey rejects |")
+        print("|---|---|---|---|---|---|---|")
+        for m, t in out.items():
+            e = np.array(t["errors_us"])
+            q = (np.percentile(e, [50, 5, 95]) if e.size else [np.nan] * 3)
+            f = lambda a, b: f"{a}/{b} ({100 * a / max(b, 1):.1f} %)"  # noqa: E731
+            print(f"| {m} | {f(t['found'], t['impact_times'])} | "
+                  f"{f(t['within_2sigma'], t['found'])} | "
+                  f"{f(t['joint_truth_in_ci95'], t['joint_releases'])} | "
+                  f"{q[0]:+.1f} [{q[1]:+.1f}, {q[2]:+.1f}] | "
+                  f"{f(t['chi2_rejects'], t['chi2_tests'])} | "
+                  f"{t['tukey_rejecting']}/{t['campaigns']} |")
         print()
     if a.recovery:
         t0 = time.perf_counter()

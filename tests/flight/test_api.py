@@ -27,8 +27,9 @@ def telemetry(tmp_path_factory):
 
 @pytest.fixture(scope="module")
 def result(telemetry):
-    return run_impact("paper", telemetry[0],
-                      ImpactOptions(AnalysisOptions(n_samples=20, n_times=151, seed=3)))
+    return run_impact("paper", telemetry[0],   # the analysis only (scenarios: test_inference)
+                      ImpactOptions(AnalysisOptions(n_samples=20, n_times=151, seed=3),
+                                    scenarios=None))
 
 
 @pytest.mark.parametrize("kw, field", [
@@ -124,7 +125,7 @@ def test_run_impact_is_analyze_on_the_loaded_inputs(telemetry, result):
     assert result.to_json() == direct
     mem = run_impact(paper_model(), telemetry_from_dataset(telemetry[1],
                                                            source=str(telemetry[0])),
-                     ImpactOptions(opts))
+                     ImpactOptions(opts, scenarios=None))
     assert mem.to_json() == direct
 
 

@@ -114,7 +114,7 @@ def register(app: typer.Typer, synth_app: typer.Typer) -> None:
         multi: bool = typer.Option(False, "--multi",
                                    help="also integrate plunger and TM with contact detection "
                                         "at each estimated impact (second impacts)"),
-        scenario_draws: int = typer.Option(6000, "--scenario-draws",
+        scenario_draws: int = typer.Option(20000, "--scenario-draws",
                                            parser=Int(min=0, max=1_000_000),
                                            help="prior draws per scenario of the impact-"
                                                 "scenario posterior (0: not computed)"),

@@ -53,13 +53,13 @@ class InferenceOptions:
     give an impact at a draw; ``grid_step`` (s) of the motion."""
 
     scenarios: tuple[str, ...] = COMPARED
-    n_draws: int = 6000
+    n_draws: int = 20000
     n_model: int = 48
     seed: int = 0
     floor: tuple[float, float] = (0.2e-6, 10e-6)
-    rel_floor: float = 0.03
+    rel_floor: float = 0.02
     min_valid: float = 0.75
-    grid_step: float = 2.5e-7
+    grid_step: float = 1e-7
 
     def __post_init__(self):
         sc = tuple(self.scenarios)

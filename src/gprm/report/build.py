@@ -49,9 +49,10 @@ FIGURE_IDS = {
     "fig-release-fit": "Fig. 11a", "fig-velocity-impact": "Fig. 11b",
     "fig-impact-times": "Fig. 12",
     "fig-whatif-piezo1": "Fig. 13", "fig-whatif-eccentricity": "Fig. 14",
+    "fig-voltage": "Fig. 5 right",
 }
 TABLE_IDS = ("table-1", "table-3", "table-whatif", "table-tukey", "table-provenance",
-             "table-timings")
+             "table-timings", "table-observations", "table-scenarios")
 
 _PAPER_T1 = {"x_head/x_lr": 3, "x_head/x_fl": 17, "y_head/y_lr": 3, "y_head/y_fl": 21,
              "z_bk/z_fl": 26}

@@ -203,8 +203,8 @@ def _telemetry(run: Path, opts: RunOptions, step) -> dict:
 
 def scenario_draws(o: RunOptions) -> int:
     """Prior draws per scenario of the impact-scenario posterior: 2000 with ``quick``, else
-    6000 (``gprm impact``'s default)."""
-    return 2000 if o.quick else 6000
+    20000 (``gprm impact``'s default, the measured recovery's, docs/flight.md §11)."""
+    return 2000 if o.quick else 20000
 
 
 def _impact(run: Path, opts: RunOptions, step) -> dict:

@@ -162,7 +162,8 @@ def main() -> None:
         print("|---|---|---|---|---|---|---|---|---|")
         for r in rows:
             n = r["n"]
-            pc = lambda k: f"{r[k]}/{n} ({100 * r[k] / n:.0f} %)"  # noqa: E731
+            def pc(k, r=r, n=n):
+                return f"{r[k]}/{n} ({100 * r[k] / n:.0f} %)"
             m = r["mean_abs"]
             print(f"| {r['scenario']} | {pc('z_not_largest')} | {r['share_median']:.3f} | "
                   f"{pc('share_ge_0.9')} | {pc('all5_noncompliant')} | {pc('all_three')} | "

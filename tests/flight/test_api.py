@@ -144,7 +144,8 @@ def test_write_impact_writes_the_document_and_its_sidecar(result, tmp_path):
 
 
 def test_notes_and_multi_are_carried(telemetry):
-    opts = ImpactOptions(AnalysisOptions(n_samples=20, n_times=151, seed=3), multi=True)
+    opts = ImpactOptions(AnalysisOptions(n_samples=20, n_times=151, seed=3), multi=True,
+                         scenarios=None)
     res = run_impact("paper", telemetry[0], opts, notes=["best fit only"])
     doc = res.to_json()
     assert doc["notes"] == ["best fit only"]

@@ -34,8 +34,8 @@ import numpy as np
 
 from gprm.errors import GprmInputError
 from gprm.flight.impact import _perp, impact_3d, planar_impact
-from gprm.flight.scenario import (COMPARED, Frame, ScenarioPrior, plunger_frame,
-                                  scenario_velocity)
+from gprm.flight.scenario import (COMPARED, Frame, ScenarioPrior,
+                                  default_window, plunger_frame, scenario_velocity)
 from gprm.flight.telemetry import AXES
 from gprm.params import batch
 from gprm.simulate.kinematics import body_motion, named_points, point_motion, static_position
@@ -401,12 +401,6 @@ def _repeat_motion(motion, n: int):
                    rates=rep(motion.rates), mu_eq=rep(motion.mu_eq),
                    R=np.repeat(motion.R, n, axis=0), omega=np.repeat(motion.omega, n, axis=0),
                    ok=np.repeat(motion.ok, n))
-
-
-def default_window(pb) -> tuple[float, float]:
-    """[t_c, t_c + 0.2 ms]: from the retraction command to the end of the paper's record."""
-    tc = float(np.asarray(pb["t_c"]).ravel()[0])
-    return (tc, tc + 0.2e-3)
 
 
 def velocity_curves(model, *, window=None, n_times: int = 401, n_samples: int = 200,

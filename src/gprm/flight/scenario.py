@@ -96,9 +96,10 @@ class ScenarioPrior:
 
     def bounds(self) -> dict[str, tuple[float, float]]:
         """Support of each of :data:`PARAMS`."""
-        return {"f": tuple(self.gap), "s": (-self.height, self.height),
-                "phi": (-self.azimuth, self.azimuth), "mu": tuple(self.friction),
-                "e": tuple(self.restitution)}
+        return {"f": (self.gap[0], self.gap[1]), "s": (-self.height, self.height),
+                "phi": (-self.azimuth, self.azimuth),
+                "mu": (self.friction[0], self.friction[1]),
+                "e": (self.restitution[0], self.restitution[1])}
 
     def draw(self, n: int, rng: np.random.Generator) -> dict[str, np.ndarray]:
         """``n`` independent draws of :data:`PARAMS` (each (n,))."""
@@ -422,7 +423,7 @@ def scenario_velocity(kind: str, frame: Frame, pb0, p: dict[str, np.ndarray],
                         else np.asarray(p["e"], float)[:, None], (B, Kx))
     zero = np.zeros((B, Kx, 3))
     rhoA, vAs, rhoB, ns = [], [], [], []
-    for (r, nn), (P, vP, w, G) in zip(cons, states):
+    for (_, nn), (P, vP, w, G) in zip(cons, states):
         ra = P - G
         rhoA.append(ra)
         vAs.append(vP - np.cross(w, ra))
@@ -430,22 +431,25 @@ def scenario_velocity(kind: str, frame: Frame, pb0, p: dict[str, np.ndarray],
         rhoB.append(P - C[:, None, :])
         ns.append(np.broadcast_to(nn if not per_set else nn[:, 0][:, None, :], (B, Kx, 3)))
     w = states[0][2]
+    ncon = None
     if len(cons) == 1:
-        res = impact_3d(Mp, IA, rhoA[0], vAs[0], w, mt, IB, rhoB[0], zero, zero, ns[0], e, mu)
-        un = np.sum(res.u_before * ns[0], -1)
-        ok = (un < 0) & (res.Jn > 0)
+        one = impact_3d(Mp, IA, rhoA[0], vAs[0], w, mt, IB, rhoB[0], zero, zero, ns[0], e, mu)
+        un = np.sum(one.u_before * ns[0], -1)
+        ok = (un < 0) & (one.Jn > 0)
+        vB, wB = one.vB, one.wB
     else:
         # one rigid plunger: the two contact points share its CoM velocity field
-        res = impact_3d_two(Mp, IA, np.stack(rhoA, -2), vAs[0], w, mt, IB,
+        two = impact_3d_two(Mp, IA, np.stack(rhoA, -2), vAs[0], w, mt, IB,
                             np.stack(rhoB, -2), zero, zero, np.stack(ns, -2), e, mu)
-        ok = res.active.all(-1)     # the scenario is two contacts: both must push
+        ok = two.active.all(-1)     # the scenario is two contacts: both must push
+        vB, wB, ncon = two.vB, two.wB, two.active.sum(-1)
     ok = ok & np.isfinite(t) & frame.ok[:, None]
-    out = {c: np.where(ok, res.vB[..., i], np.nan) for i, c in enumerate(COMPONENTS[:3])}
-    out.update({c: np.where(ok, res.wB[..., i], np.nan) for i, c in enumerate(COMPONENTS[3:])})
+    out = {c: np.where(ok, vB[..., i], np.nan) for i, c in enumerate(COMPONENTS[:3])}
+    out.update({c: np.where(ok, wB[..., i], np.nan) for i, c in enumerate(COMPONENTS[3:])})
     out["t"] = t
     out["ok"] = ok
-    if len(cons) == 2:
-        out["contacts"] = res.active.sum(-1)
+    if ncon is not None:
+        out["contacts"] = ncon
     return out
 
 
@@ -459,6 +463,13 @@ def _state_per_set(frame: Frame, r: np.ndarray, t: np.ndarray):
 
 
 # ----------------------------------------------------------------------------- truths
+def default_window(pb) -> tuple[float, float]:
+    """[t_c, t_c + 0.2 ms]: from the retraction command to the end of the paper's record (the
+    impact-time window of the analysis, :mod:`gprm.flight.predicted`)."""
+    tc = float(np.asarray(pb["t_c"]).ravel()[0])
+    return (tc, tc + 0.2e-3)
+
+
 SCENARIO_GRID_STEP = 1e-7
 """Grid step (s) of the plunger motion the gap rule and the contact state are read on."""
 
@@ -466,7 +477,6 @@ SCENARIO_GRID_STEP = 1e-7
 def scenario_grid(pb0, window=None, step: float = SCENARIO_GRID_STEP) -> np.ndarray:
     """The time grid of the scenarios: ``window`` (default [t_c, t_c + 0.2 ms], the window of
     the impact-time analysis) at ``step``; the first time is the head at rest (t_c)."""
-    from gprm.flight.predicted import default_window
     w = default_window(pb0) if window is None else window
     return np.arange(float(w[0]), float(w[1]) + 0.5 * step, step)
 

@@ -80,7 +80,9 @@ def observation_rows(imp: dict) -> list:
     rows = []
     for r in ob["releases"]:
         v = vel.get(r["id"], {})
-        val = lambda a: abs(v[a]["value"]) if a in v and v[a]["value"] is not None else None  # noqa: E731,E501
+        def val(a, v=v):
+            return abs(v[a]["value"]) if a in v and v[a]["value"] is not None else None
+
         comp = r["components"]
         bad = [c for c, k in comp.items() if k != "non-compliant"]
         rows.append((r["id"], _um(val("vx")), _um(val("vy")), _um(val("vz_xz")),

@@ -123,7 +123,8 @@ def scenario_rows(imp: dict) -> list:
         row = [r["id"], SCENARIO_TEXT.get(c, c),
                "—" if pr.get(c) is None else f"{pr[c]:.3f}", bf,
                _ci(fit, "t", MS, ".4f"), _ci(fit, "mu", 1, ".2f"),
-               _ci(fit, "phi", 180 / np.pi, ".0f")]
+               _ci(fit, "phi", 180 / np.pi, ".0f"),
+               "—" if not fit or fit.get("ess") is None else f"{fit['ess']:.0f}"]
         if "truth" in r:
             t = r["truth"]
             row.append(f"{t['scenario']} ({'right' if t['chosen_right'] else 'wrong'})")
@@ -167,12 +168,15 @@ def scenario_section(run: Path, imp: dict | None) -> Section | None:
            f"{sc['truth_summary']['chosen_right']}/{sc['truth_summary']['releases']} releases."
            if truth else "")))
     head = ["release", "chosen scenario", "probability", "ln Bayes factor vs runner-up",
-            "impact time [ms] (95 %)", "friction μ (95 %)", "azimuth φ [°] (95 %)"]
+            "impact time [ms] (95 %)", "friction μ (95 %)", "azimuth φ [°] (95 %)",
+            "effective draws"]
     if truth:
         head.append("true scenario")
     s.blocks.append(table(head, scenario_rows(imp), "The scenario behind each release",
                           "table-scenarios",
-                          note="Medians with 95 % intervals under the chosen scenario. "
+                          note="Medians with 95 % intervals under the chosen scenario; "
+                               "effective draws: the importance sample's effective size "
+                               "(intervals from a few tens of draws are rough). "
                                + ("The true scenario is shown because this telemetry is "
                                   "synthetic." if truth else
                                   "Measured telemetry: no truth exists to compare with.")))

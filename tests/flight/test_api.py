@@ -162,6 +162,11 @@ def test_notes_and_multi_are_carried(telemetry):
     (["synth", "telemetry", "paper", "--out", "{tmp}/t.nc", "--z-from", "xy"], "--z-from"),
     (["synth", "telemetry", "paper", "--out", "{tmp}/t.nc", "--truth-model", "2d"],
      "--truth-model"),
+    (["synth", "telemetry", "paper", "--out", "{tmp}/t.nc", "--scenario", "xy"], "--scenario"),
+    (["impact", "paper", "{tel}", "--out", "{tmp}/o.json", "--scenario-draws", "5"],
+     "--scenario-draws"),
+    (["impact", "paper", "{tel}", "--out", "{tmp}/o.json", "--impact-model", "auto",
+      "--scenario-draws", "0"], "--impact-model"),
 ])
 def test_commands_name_a_bad_option_by_its_flag(telemetry, tmp_path, args, flag):
     """The options' own checks, reached through the commands: one line naming the flag as

@@ -52,8 +52,8 @@ class ImpactOptions:
                                  f"{type(self.scenarios).__name__}", field="scenarios")
         check_piezo(self.piezo, optional=True)
         if self.analysis.impact_model == "auto" and self.scenarios is None:
-            raise GprmInputError("auto needs the scenario posterior (scenarios)",
-                                 field="impact_model")
+            raise GprmInputError("auto needs the scenario posterior (gprm impact: "
+                                 "--scenario-draws above 0)", field="impact_model")
         if not isinstance(self.multi, bool):
             raise GprmInputError(f"must be true or false, got {self.multi!r}", field="multi")
 

@@ -2,29 +2,28 @@
 friction and restitution, and when (issue 23; docs/flight.md §10).
 
 A *scenario* is a contact configuration between the plunger head and the test-mass (TM)
-indent; its continuous unknowns are drawn from documented distributions
-(:class:`ScenarioPrior`):
+indent; its continuous unknowns (:data:`PARAMS`) are drawn from documented distributions
+(:class:`ScenarioPrior`); the geometry of each is in :func:`contacts`:
 
-* ``"xz"``: one contact on the x–z contact line (the paper's blue line, Fig. 9): the face whose
-  normal is n = (sgn(dist_x) sin α, 0, cos α) (α the indent angle, Sec. 4);
-* ``"yz"``: one contact on the y–z line, n = (0, sgn(dist_y) sin α, cos α);
-* ``"two"``: both lines at once (the TM offset so that both faces close together), one
-  impulse per contact solved jointly (:func:`impact_3d_two`);
-* ``"corner"``: the head's corner M = C_p + (dist_x, dist_y, dist_z) on the face
+* ``"xz"``: one contact of the indent's rim edge on the round side of the head, on the x–z
+  side: horizontal normal (sgn(dist_x) cos φ, sin φ, 0), φ the contact's azimuth;
+* ``"yz"``: the same on the y–z side;
+* ``"two"`` (the default truth): both rim sides at once, one impulse per contact solved
+  jointly (:func:`impact_3d_two`);
+* ``"xz-face"``, ``"yz-face"``, ``"two-face"``: the paper's contact lines (Fig. 9) on the
+  indent faces, normals at the indent angle α to z (Sec. 4);
+* ``"corner"``: the tip corner C_p + (dist_x, dist_y, dist_z) on the face
   n ∝ (sgn dist_x tan α, sgn dist_y tan α, 1) (the issue-14 truth, docs/flight.md §2).
 
-Contact location: ``s`` along the contact line in its plane (down the face, direction
-l = sgn·(cos α, 0, −sin α) for x–z) and ``w`` across it (y for the x–z line, x for the
-y–z line): the TM's lateral offset in the indent moves the contact there.
+Impact time (the **gap rule**): before the release the head stands a gap g from the contact
+surface along its normal; the first contact is the first time the contact point's
+displacement along n, d_n(t) = (P(t) − P(t_c))·n, reaches g, with g = f · max d_n (the
+largest excursion of that parameter set in the window).
 
-Impact time (the **gap rule**): before the release the head stands a gap g from the face
-along its normal; the first contact is the first time the contact point's displacement
-along n, d_n(t) = (P(t) − P(t_c))·n, reaches g. The gap is drawn as a fraction ``f`` of the
-largest excursion along n in the window, d_max: ``f`` near 1 is a *grazing* contact near the
-turning point of the head's motion along n, where the normal approach speed is small and the
-sliding (tangential) speed is not. Coulomb friction then drags the TM along the head's
-sliding direction, which near the turning point is lateral and away from the TM: this is what
-makes v_x exceed v_z with the x–z line (docs/flight.md §10, measured there).
+Why the rim contacts give the paper's pattern (measured in docs/flight.md §10): their normal
+is horizontal, so the normal impulse moves the TM laterally, while the head slides axially
+against the rim and Coulomb friction gives v_z at most μ times the normal impulse's share;
+the face contacts' 45° normals make v_z the largest component.
 
 All numerics are batched plain functions over arrays (SI).
 """

@@ -46,11 +46,12 @@ PARAM_UNIT = {"f": "1", "s": "m", "phi": "rad", "mu": "1", "e": "1", "t": "s"}
 @dataclass(frozen=True)
 class InferenceOptions:
     """What defines the scenario inference (SI). ``scenarios``: the compared scenarios;
-    ``n_draws``: prior draws of the unknowns per scenario; ``n_model``: parameter sets drawn
-    from the fit; ``seed``; ``floor``: model-form standard deviation added to every
-    component, (linear m/s, angular rad/s); ``rel_floor``: and this fraction of each
-    component's model mean; ``min_valid``: fewest fraction of the parameter sets that must
-    give an impact at a draw; ``grid_step`` (s) of the motion."""
+    ``n_draws``: prior draws of the unknowns per scenario (the recovery of docs/flight.md §11
+    is measured with the default); ``n_model``: parameter sets drawn from the fit; ``seed``;
+    ``floor``: model-form standard deviation added to every component (linear m/s, angular
+    rad/s); ``rel_floor``: and this fraction of each component's model mean; ``min_valid``:
+    the fraction of the parameter sets that must give an impact at a draw; ``grid_step`` (s)
+    of the motion."""
 
     scenarios: tuple[str, ...] = COMPARED
     n_draws: int = 20000
@@ -97,7 +98,6 @@ def prior_predictive(model, kind: str, opts: InferenceOptions,
     """The prior draws of scenario ``kind`` and the model's mean and covariance of the TM
     velocity and the impact time at each (module docstring)."""
     from gprm.params import batch
-    from gprm.simulate.kinematics import body_motion
 
     prior = prior or ScenarioPrior()
     pb0 = batch([model.params]) if pb0 is None else pb0
@@ -129,7 +129,6 @@ def prior_predictive(model, kind: str, opts: InferenceOptions,
             mean[k], cov[k] = mu[:6], C[:6, :6]
             tm[k], tc[k], tv[k] = mu[6], C[6, :6], C[6, 6]
             valid[k] = True
-    del body_motion
     return PriorPredictive(kind, p, mean, cov, tm, tc, tv, valid)
 
 

@@ -66,7 +66,6 @@ def recovery(fm, seeds, releases: int, draws: int, rel_floor: float | None = Non
             y, sig = measured_components(tel)
             res = infer_scenarios(fm, [r.id for r in tel.releases], y, sig, opts,
                                   predictive=pps)
-            tp = truth["truth_scenario_param"]
             for i in range(len(tel.releases)):
                 out["n"] += 1
                 ok = res.chosen[i] == kind
@@ -79,7 +78,7 @@ def recovery(fm, seeds, releases: int, draws: int, rel_floor: float | None = Non
                 out["ess_median"].append(f.ess)
                 for p in PARAMS + ("t",):
                     tv = (float(truth["truth_impact_time"].values[i]) if p == "t"
-                          else float(tp.sel(scenario_param=p).values[i]))
+                          else float(truth[f"truth_scenario_{p}"].values[i]))
                     _, lo, hi = f.summary[p]
                     out["covered"][p] += lo <= tv <= hi
     out["ess_median"] = float(np.median(out["ess_median"]))

@@ -396,19 +396,23 @@ def truth_attrs_and_vars(truth: dict) -> tuple[dict, tuple[dict, dict]]:
               "tm_angular_axis": ("tm_angular_axis", list(TM_ANGULAR),
                                   {"long_name": "test-mass rotation axis"})}
     if truth.get("scenario") is not None:     # scenario truths (issue 23)
-        names = list(truth["scenario_params"])
         data["truth_scenario"] = (("release",), np.array([str(x) for x in truth["scenario"]]),
                                   {"long_name": "true impact scenario (docs/flight.md §10)"})
-        data["truth_scenario_param"] = (
-            ("release", "scenario_param"),
-            np.stack([np.asarray(truth["scenario_params"][k], float) for k in names], 1),
-            {"long_name": "true values of the scenario's unknowns (SI: f 1, s m, phi rad, "
-             "mu 1, e 1)"})
+        for k, v in truth["scenario_params"].items():
+            unit, name = SCENARIO_PARAM_UNITS[k]
+            data[f"truth_scenario_{k}"] = (("release",), np.asarray(v, float),
+                                           {"units": unit, "long_name": f"true {name}"})
         data["truth_contacts"] = (("release",), np.asarray(truth["contacts"], int),
                                   {"long_name": "number of contacts that pushed"})
-        coords["scenario_param"] = ("scenario_param", names,
-                                    {"long_name": "scenario unknown"})
     return attrs, (data, coords)
+
+
+SCENARIO_PARAM_UNITS = {"f": ("1", "gap as a fraction of the largest excursion"),
+                        "s": ("m", "contact height on the head"),
+                        "phi": ("rad", "azimuth of the contact on the head"),
+                        "mu": ("1", "friction coefficient"), "e": ("1", "restitution")}
+"""Unit and meaning of each scenario unknown in the telemetry file
+(``truth_scenario_<name>``)."""
 
 
 def read_truth(ds) -> dict | None:
@@ -436,10 +440,10 @@ def _scenario_truth(ds) -> dict:
     """The scenario part of a synthetic truth (empty for older truths)."""
     if "truth_scenario" not in ds.variables:
         return {}
-    par = ds["truth_scenario_param"]
     return {"scenario": [str(x) for x in ds["truth_scenario"].values],
-            "scenario_params": {str(k): [float(x) for x in par.sel(scenario_param=k).values]
-                                for k in par["scenario_param"].values},
+            "scenario_params": {k: [float(x) for x in ds[f"truth_scenario_{k}"].values]
+                                for k in SCENARIO_PARAM_UNITS
+                                if f"truth_scenario_{k}" in ds.variables},
             "contacts": [int(x) for x in ds["truth_contacts"].values]}
 
 

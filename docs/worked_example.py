@@ -81,17 +81,26 @@ for r in wi.ratios[1:]:
 # %% 6. Flight: synthetic releases, release velocities, impact times, Tukey test (Sec. 4.1)
 from gprm.flight import (AnalysisOptions, ImpactOptions, SynthOptions, TelemetryOptions,
                          run_impact, run_synth_telemetry, write_impact, write_telemetry)
+from gprm.flight.inference import InferenceOptions
 
 # the entry points gprm synth telemetry, gprm impact and gprm run call; bad options raise
 # GprmInputError naming them
 tele = run_synth_telemetry(fm, TelemetryOptions(SynthOptions(n_releases=11, seed=1)))
 write_telemetry(tele, OUT / "telemetry.nc")
-imp = run_impact(fm, OUT / "telemetry.nc", ImpactOptions(AnalysisOptions(n_samples=20, seed=1)),
+# the impact-scenario posterior (docs/flight.md §11) with 2000 prior draws here for speed (the
+# measured recovery uses the default, 20000); impact_model="auto": the chosen scenario's curves
+imp = run_impact(fm, OUT / "telemetry.nc",
+                 ImpactOptions(AnalysisOptions(n_samples=20, seed=1, impact_model="auto"),
+                               scenarios=InferenceOptions(n_draws=2000, seed=1)),
                  notes=notes)
 print(*notes, sep="\n")
 imp = write_impact(imp, OUT / "impact.json")      # + impact.nc (the curves: imp.to_xarray())
 tk = imp.tukey
-print("Tukey: all compatible" if tk.get("all_compatible") else f"Tukey: {tk}")
+print("Tukey: all compatible" if tk.get("all_compatible") else
+      f"Tukey: {sum(p['reject'] for p in tk['pairs'])} pair(s) rejected")
+sc = imp.scenarios
+print("scenario per release:", ", ".join(r["chosen"] for r in sc["releases"]),
+      "| jointly:", sc["joint"]["chosen"])
 
 # %% 7. The report of this run directory (one self-contained HTML file)
 from gprm.report.build import write_report

@@ -38,7 +38,8 @@ def test_cli_chain_on_a_random_truth(tmp_path, monkeypatch, seed):
         ["predict", "fit.json", "--piezo", "1", "--scale-eccentricity", "0.1", "--samples",
          "20", "--out", "whatif.nc"],
         ["synth", "telemetry", "fit.json", "--seed", str(seed), "--out", "telemetry.nc"],
-        ["impact", "fit.json", "telemetry.nc", "--samples", "40", "--out", "impact.json"],
+        ["impact", "fit.json", "telemetry.nc", "--samples", "40", "--scenario-draws", "300",
+         "--out", "impact.json"],
     ]
     for argv in steps:
         r = CliRunner().invoke(app, argv)

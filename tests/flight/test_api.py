@@ -27,8 +27,9 @@ def telemetry(tmp_path_factory):
 
 @pytest.fixture(scope="module")
 def result(telemetry):
-    return run_impact("paper", telemetry[0],
-                      ImpactOptions(AnalysisOptions(n_samples=20, n_times=151, seed=3)))
+    return run_impact("paper", telemetry[0],   # the analysis only (scenarios: test_inference)
+                      ImpactOptions(AnalysisOptions(n_samples=20, n_times=151, seed=3),
+                                    scenarios=None))
 
 
 @pytest.mark.parametrize("kw, field", [
@@ -124,7 +125,7 @@ def test_run_impact_is_analyze_on_the_loaded_inputs(telemetry, result):
     assert result.to_json() == direct
     mem = run_impact(paper_model(), telemetry_from_dataset(telemetry[1],
                                                            source=str(telemetry[0])),
-                     ImpactOptions(opts))
+                     ImpactOptions(opts, scenarios=None))
     assert mem.to_json() == direct
 
 
@@ -143,7 +144,8 @@ def test_write_impact_writes_the_document_and_its_sidecar(result, tmp_path):
 
 
 def test_notes_and_multi_are_carried(telemetry):
-    opts = ImpactOptions(AnalysisOptions(n_samples=20, n_times=151, seed=3), multi=True)
+    opts = ImpactOptions(AnalysisOptions(n_samples=20, n_times=151, seed=3), multi=True,
+                         scenarios=None)
     res = run_impact("paper", telemetry[0], opts, notes=["best fit only"])
     doc = res.to_json()
     assert doc["notes"] == ["best fit only"]
@@ -160,6 +162,11 @@ def test_notes_and_multi_are_carried(telemetry):
     (["synth", "telemetry", "paper", "--out", "{tmp}/t.nc", "--z-from", "xy"], "--z-from"),
     (["synth", "telemetry", "paper", "--out", "{tmp}/t.nc", "--truth-model", "2d"],
      "--truth-model"),
+    (["synth", "telemetry", "paper", "--out", "{tmp}/t.nc", "--scenario", "xy"], "--scenario"),
+    (["impact", "paper", "{tel}", "--out", "{tmp}/o.json", "--scenario-draws", "5"],
+     "--scenario-draws"),
+    (["impact", "paper", "{tel}", "--out", "{tmp}/o.json", "--impact-model", "auto",
+      "--scenario-draws", "0"], "--impact-model"),
 ])
 def test_commands_name_a_bad_option_by_its_flag(telemetry, tmp_path, args, flag):
     """The options' own checks, reached through the commands: one line naming the flag as

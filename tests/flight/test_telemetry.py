@@ -254,11 +254,17 @@ def test_cli_reads_csv(tmp_path):
     p = _to_csv(ds, tmp_path / "rel.csv", with_std=True)
     before = p.read_bytes()
     res = CliRunner().invoke(app, ["impact", "paper", str(p), "--out",
-                                   str(tmp_path / "o.json"), "--samples", "40"])
+                                   str(tmp_path / "o.json"), "--samples", "40",
+                                   "--scenario-draws", "500"])
     assert res.exit_code == 0, res.output
     import json
     doc = json.loads((tmp_path / "o.json").read_text())
     assert "truth" not in doc and len(doc["releases"]) == 3
+    # the same scenario analysis as a synthetic file, and no truth claimed (issue 23, item 5)
+    sc = doc["scenarios"]
+    assert len(sc["releases"]) == 3 and sc["joint"]["chosen"] in ("xz", "yz", "two")
+    assert "truth_summary" not in sc and not any("truth" in r for r in sc["releases"])
+    assert "truth (synthetic)" not in res.output and "scenarios: chosen" in res.output
     assert sum(v["value"] is not None for r in doc["releases"]
                for v in r["impact_time"].values()) >= 15
     assert p.read_bytes() == before                       # input never modified

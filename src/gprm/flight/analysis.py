@@ -17,7 +17,9 @@ from gprm.errors import GprmInputError
 from gprm.flight.files import IMPACT_FORMAT, impact_curves_dataset
 from gprm.flight.impact_time import ImpactTimeMC, impact_time_mc
 from gprm.flight.joint import joint_impact_time
-from gprm.flight.predicted import ImpactGeometry, VelocityCurves, velocity_curves
+from gprm.flight.predicted import (IMPACT_MODELS, ImpactGeometry, VelocityCurves,
+                                   scenario_geometry, velocity_curves)
+from gprm.flight.scenario import COMPARED
 from gprm.flight.telemetry import AXES, AXIS_CHANNEL, AXIS_UNIT, release_velocities
 from gprm.flight.tukey import tukey_range_test
 from gprm.validate import check_int
@@ -38,7 +40,9 @@ class AnalysisOptions:
     window: impact-time window (start, end) in s, 0 <= start < end; None: t_c .. t_c + 0.2 ms.
     fit_window: the release-velocity line fit over this long after the release (s, > 0);
         None: all. min_samples: fewest telemetry samples for a release velocity (>= 2).
-    impact_model: ``"3d"`` (one contact) or ``"planar"`` (the paper's two planes).
+    impact_model: ``"3d"`` (one corner contact), ``"planar"`` (the paper's two planes), a
+        rim-contact scenario ``"xz"``, ``"yz"``, ``"two"`` (docs/flight.md §10), or ``"auto"``
+        (``run_impact``: the scenario the posterior chooses jointly over the releases).
     """
 
     alpha: float = 0.01
@@ -68,9 +72,9 @@ class AnalysisOptions:
                                             or self.fit_window <= 0):
             raise GprmInputError(f"must be a time > 0 (s), got {self.fit_window!r}",
                                  field="fit_window")
-        if self.impact_model not in ("3d", "planar"):
-            raise GprmInputError(f"must be 3d or planar, got {self.impact_model!r}",
-                                 field="impact_model")
+        if self.impact_model not in IMPACT_MODELS + ("auto",):
+            raise GprmInputError(f"must be one of {', '.join(IMPACT_MODELS + ('auto',))}, "
+                                 f"got {self.impact_model!r}", field="impact_model")
 
     def to_json(self) -> dict:
         return {k: (list(v) if isinstance(v, tuple) else v) for k, v in self.__dict__.items()}
@@ -86,7 +90,9 @@ class ImpactResult:
     range test over the axes; ``joint``: the joint estimates' chi-square check; ``curves``:
     the predicted velocity-vs-impact-time curves used (:class:`VelocityCurves`);
     ``multiple_impacts``: the second-impact report (``--multi``), ``notes``: sentences the
-    report shows, ``sidecar``: the curves' NetCDF file name once written.
+    report shows, ``sidecar``: the curves' NetCDF file name once written, ``scenarios``: the
+    paper's observations and the impact-scenario posterior
+    (:func:`gprm.flight.inference.scenario_document`).
 
     ``to_json()`` is the impact document (docs/data-formats.md), ``to_xarray()`` the curves'
     sidecar dataset; :meth:`from_json` reads a document back.
@@ -110,6 +116,7 @@ class ImpactResult:
     multiple_impacts: dict | None = None
     notes: tuple[str, ...] = ()
     sidecar: str | None = None
+    scenarios: dict | None = None
 
     FORMAT = IMPACT_FORMAT
     FORMAT_VERSION = 1
@@ -138,6 +145,8 @@ class ImpactResult:
             doc["multiple_impacts"] = copy.deepcopy(self.multiple_impacts)
         if self.notes:
             doc["notes"] = list(self.notes)
+        if self.scenarios is not None:
+            doc["scenarios"] = copy.deepcopy(self.scenarios)
         return doc
 
     def to_xarray(self) -> xr.Dataset:
@@ -168,7 +177,8 @@ class ImpactResult:
                        truth_impact_time=(None if truth is None
                                           else tuple(truth["impact_time"])),
                        multiple_impacts=copy.deepcopy(doc.get("multiple_impacts")),
-                       notes=tuple(doc.get("notes", ())), sidecar=c.get("sidecar"))
+                       notes=tuple(doc.get("notes", ())), sidecar=c.get("sidecar"),
+                       scenarios=copy.deepcopy(doc.get("scenarios")))
         except KeyError as exc:
             raise GprmInputError("missing in the impact document",
                                  field=str(exc.args[0])) from None
@@ -207,11 +217,16 @@ def analyze(model, tel, opts: AnalysisOptions = AnalysisOptions(),
     if not isinstance(opts, AnalysisOptions):
         raise GprmInputError(f"expected AnalysisOptions, got {type(opts).__name__}",
                              field="opts")
+    if opts.impact_model == "auto" and curves is None:
+        raise GprmInputError("auto is resolved by run_impact (the scenario posterior "
+                             "chooses the model); analyze needs a model", field="impact_model")
     vel = release_velocities(tel, fit_window=opts.fit_window, min_samples=opts.min_samples)
     if curves is None:
         curves = velocity_curves(model, window=opts.window, n_times=opts.n_times,
                                  n_samples=opts.n_samples, seed=opts.seed,
-                                 geometry=ImpactGeometry(impact_model=opts.impact_model))
+                                 geometry=(scenario_geometry(opts.impact_model)
+                                           if opts.impact_model in COMPARED else
+                                           ImpactGeometry(impact_model=opts.impact_model)))
     if curves.samples is None:
         raise GprmInputError("curves without their joint draws", field="curves")
     has_unc = bool(getattr(model, "has_uncertainty", True))

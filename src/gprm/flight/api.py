@@ -24,6 +24,7 @@ from gprm.flight.analysis import AnalysisOptions, ImpactResult, analyze
 from gprm.flight.multi import multi_impact_report
 from gprm.flight.synth import SynthOptions, synth_telemetry
 from gprm.flight.files import load_telemetry
+from gprm.flight.inference import InferenceOptions, scenario_document
 from gprm.flight.telemetry import Telemetry
 from gprm.model.piezo import check_piezo
 
@@ -32,17 +33,27 @@ from gprm.model.piezo import check_piezo
 class ImpactOptions:
     """What defines ``gprm impact``: the analysis (:class:`AnalysisOptions`, validated
     there), the driven ``piezo`` (1, 2 or None for the fit's own) and ``multi`` (also
-    integrate plunger and TM with contact detection at each estimated impact)."""
+    integrate plunger and TM with contact detection at each estimated impact);
+    ``scenarios``: the impact-scenario posterior (:mod:`gprm.flight.inference`), None: not
+    computed; with ``analysis.impact_model == "auto"`` the impact times use the curves of the
+    scenario chosen jointly over the releases (the corner model ``3d`` if none)."""
 
     analysis: AnalysisOptions = field(default_factory=AnalysisOptions)
     piezo: int | None = None
     multi: bool = False
+    scenarios: InferenceOptions | None = field(default_factory=InferenceOptions)
 
     def __post_init__(self):
         if not isinstance(self.analysis, AnalysisOptions):
             raise GprmInputError(f"expected AnalysisOptions, got "
                                  f"{type(self.analysis).__name__}", field="analysis")
+        if self.scenarios is not None and not isinstance(self.scenarios, InferenceOptions):
+            raise GprmInputError(f"expected InferenceOptions or None, got "
+                                 f"{type(self.scenarios).__name__}", field="scenarios")
         check_piezo(self.piezo, optional=True)
+        if self.analysis.impact_model == "auto" and self.scenarios is None:
+            raise GprmInputError("auto needs the scenario posterior (gprm impact: "
+                                 "--scenario-draws above 0)", field="impact_model")
         if not isinstance(self.multi, bool):
             raise GprmInputError(f"must be true or false, got {self.multi!r}", field="multi")
 
@@ -74,7 +85,17 @@ def run_impact(model: FittedModel | str | os.PathLike, telemetry: Telemetry | st
                              field="opts")
     fm = load_model(model, piezo=opts.piezo)
     tel = telemetry if isinstance(telemetry, Telemetry) else load_telemetry(telemetry)
-    res = analyze(fm, tel, opts.analysis)
+    sc = None
+    if opts.scenarios is not None:
+        sc = scenario_document(fm, tel, opts.scenarios, fit_window=opts.analysis.fit_window,
+                               min_samples=opts.analysis.min_samples)
+    analysis = opts.analysis
+    if analysis.impact_model == "auto":     # the curves of the jointly chosen scenario
+        chosen = (sc or {}).get("joint", {}).get("chosen") or "3d"
+        analysis = replace(analysis, impact_model=chosen)
+    res = analyze(fm, tel, analysis)
+    if sc is not None:
+        res = replace(res, scenarios=sc)
     if opts.multi:
         res = replace(res, multiple_impacts=multi_impact_report(fm, res.to_json()))
     return replace(res, notes=tuple(notes)) if notes else res

@@ -43,9 +43,15 @@ def register(app: typer.Typer, synth_app: typer.Typer) -> None:
                                        help="truth from the best fit and nominal geometry"),
         z_from: str = typer.Option("sum", "--z-from",
                                    help="TM v_z with --truth-model planar: sum, xz or yz"),
-        truth_model: str = typer.Option("3d", "--truth-model",
-                                        help="impact of the truth: 3d (one contact, "
-                                             "restitution and friction) or planar (paper)"),
+        truth_model: str = typer.Option("scenario", "--truth-model",
+                                        help="impact of the truth: scenario (see "
+                                             "--scenario), 3d (one corner contact, issue 14) "
+                                             "or planar (paper)"),
+        scenario: str = typer.Option("two", "--scenario",
+                                     help="contact scenario of the truth (--truth-model "
+                                          "scenario): xz, yz, two (rim contacts), xz-face, "
+                                          "yz-face, two-face, corner, or mixed (each release "
+                                          "one of xz, yz, two)"),
     ):
         """Synthetic in-flight releases with known impact times (telemetry NetCDF)."""
         from gprm._io import check_outputs
@@ -58,7 +64,7 @@ def register(app: typer.Typer, synth_app: typer.Typer) -> None:
         opts = cli_options(TelemetryOptions, piezo=piezo, synth=cli_options(
             SynthOptions, _SYNTH_FLAGS, n_releases=releases, seed=seed, rate=rate, post=post,
             pos_noise=pos_noise, att_noise=att_noise, truth_spread=not no_spread,
-            z_from=z_from, truth_model=truth_model))
+            z_from=z_from, truth_model=truth_model, scenario=scenario))
         check_outputs({out: "--out"}, inputs=model_inputs(fit))
         # 150 B per record sample (tracemalloc peak: 96 B per sample between 2 x 1e4 and
         # 2 x 4e4 samples; docs/README.md) plus a fixed 50 MB
@@ -72,8 +78,9 @@ def register(app: typer.Typer, synth_app: typer.Typer) -> None:
         note = ("" if getattr(m, "has_uncertainty", True) or no_spread else
                 "; the fit has no usable covariance: truth parameters are the best fit "
                 "(geometry still drawn)")
+        kind = truth_model if truth_model != "scenario" else f"scenario {scenario}"
         typer.echo(f"wrote {out}: {releases} releases, impact times {tt.min():.4f}-"
-                   f"{tt.max():.4f} ms ({truth_model} impact truth){note}")
+                   f"{tt.max():.4f} ms ({kind} impact truth){note}")
 
     @app.command("impact")
     @one_line_errors
@@ -100,11 +107,17 @@ def register(app: typer.Typer, synth_app: typer.Typer) -> None:
         piezo: Optional[int] = typer.Option(None, "--piezo", parser=Int(1, 2),
                                             help="driven piezo: 1 or 2 (default: fit's)"),
         impact_model: str = typer.Option("3d", "--impact-model",
-                                         help="3d (one contact, consistent with a 3D truth) "
-                                              "or planar (the paper's two planes)"),
+                                         help="curves of the impact times: 3d (one corner "
+                                              "contact), planar (the paper's two planes), xz, "
+                                              "yz, two (rim-contact scenarios), or auto (the "
+                                              "scenario chosen jointly over the releases)"),
         multi: bool = typer.Option(False, "--multi",
                                    help="also integrate plunger and TM with contact detection "
                                         "at each estimated impact (second impacts)"),
+        scenario_draws: int = typer.Option(20000, "--scenario-draws",
+                                           parser=Int(min=0, max=1_000_000),
+                                           help="prior draws per scenario of the impact-"
+                                                "scenario posterior (0: not computed)"),
     ):
         """Release velocities, impact times and Tukey's test from telemetry (JSON)."""
         from gprm._io import check_outputs
@@ -113,10 +126,14 @@ def register(app: typer.Typer, synth_app: typer.Typer) -> None:
         from gprm.fit.files import load_model, model_inputs
         from gprm.flight.api import ImpactOptions, run_impact, write_impact
         from gprm.flight.files import impact_sidecar
+        from gprm.flight.inference import InferenceOptions
 
         opts = cli_options(ImpactOptions, piezo=piezo, multi=multi, analysis=cli_options(
             AnalysisOptions, _IMPACT_FLAGS, alpha=alpha, n_samples=samples, seed=seed,
-            window=window, fit_window=fit_window, impact_model=impact_model))
+            window=window, fit_window=fit_window, impact_model=impact_model),
+            scenarios=(None if scenario_draws == 0 else cli_options(
+                InferenceOptions, {"n_draws": "--scenario-draws"}, n_draws=scenario_draws,
+                seed=seed)))
         try:
             side = impact_sidecar(out)
         except GprmInputError as exc:
@@ -141,6 +158,19 @@ def register(app: typer.Typer, synth_app: typer.Typer) -> None:
         if not getattr(m, "has_uncertainty", True):
             typer.echo("note: the fit has no usable covariance: best fit only; error bars "
                        "carry the impact geometry's uncertainty and the telemetry's only")
+        sc = doc.get("scenarios")
+        if sc:
+            ob = sc["observations"]
+            jc = sc["joint"]["chosen"]
+            typer.echo(f"scenarios: chosen per release {', '.join(r['chosen'] for r in sc['releases'])}; "
+                       f"jointly {jc}; paper's observations: z not the largest in "
+                       f"{ob['z_not_largest']}/{ob['n']}, momentum almost all in x-z in "
+                       f"{ob['xz_almost_all']}/{ob['n']}, every component non-compliant in "
+                       f"{ob['all_non_compliant']}/{ob['n']}")
+            if "truth_summary" in sc:
+                ts = sc["truth_summary"]
+                typer.echo(f"truth (synthetic): scenario chosen right in "
+                           f"{ts['chosen_right']}/{ts['releases']}")
         if "truth" in doc:
             s = doc["truth"]["summary"]
             typer.echo(f"truth (synthetic): {s['found']}/{s['impact_times']} found, "

@@ -278,7 +278,8 @@ def telemetry_from_dataset(ds, *, source: str = "telemetry", min_releases: int =
         releases.append(Release(rid, float(trel[i]), t, data, sig))
     truth_t = (np.asarray(ds["truth_impact_time"].values, float)
                if "truth_impact_time" in ds.variables else None)
-    return Telemetry(tuple(releases), source, dict(ds.attrs), truth_t, _truth_velocity(ds))
+    return Telemetry(tuple(releases), source, dict(ds.attrs), truth_t, _truth_velocity(ds),
+                     _scenario_truth(ds) or None)
 
 
 def _join_axes(lin: xr.DataArray, ang: xr.DataArray, *, axis: int) -> np.ndarray:
@@ -394,7 +395,24 @@ def truth_attrs_and_vars(truth: dict) -> tuple[dict, tuple[dict, dict]]:
     coords = {"tm_axis": ("tm_axis", list(TM_LINEAR), {"long_name": "test-mass axis"}),
               "tm_angular_axis": ("tm_angular_axis", list(TM_ANGULAR),
                                   {"long_name": "test-mass rotation axis"})}
+    if truth.get("scenario") is not None:     # scenario truths (issue 23)
+        data["truth_scenario"] = (("release",), np.array([str(x) for x in truth["scenario"]]),
+                                  {"long_name": "true impact scenario (docs/flight.md §10)"})
+        for k, v in truth["scenario_params"].items():
+            unit, name = SCENARIO_PARAM_UNITS[k]
+            data[f"truth_scenario_{k}"] = (("release",), np.asarray(v, float),
+                                           {"units": unit, "long_name": f"true {name}"})
+        data["truth_contacts"] = (("release",), np.asarray(truth["contacts"], int),
+                                  {"long_name": "number of contacts that pushed"})
     return attrs, (data, coords)
+
+
+SCENARIO_PARAM_UNITS = {"f": ("1", "gap as a fraction of the largest excursion"),
+                        "s": ("m", "contact height on the head"),
+                        "phi": ("rad", "azimuth of the contact on the head"),
+                        "mu": ("1", "friction coefficient"), "e": ("1", "restitution")}
+"""Unit and meaning of each scenario unknown in the telemetry file
+(``truth_scenario_<name>``)."""
 
 
 def read_truth(ds) -> dict | None:
@@ -412,9 +430,21 @@ def read_truth(ds) -> dict | None:
                 "tm_velocity": {c: tm[c] for c in ("vx", "vy", "vz", "wx", "wy", "wz")},
                 "z_from": None if z == "none" else z,
                 "truth_model": str(ds.attrs["truth_model"]),
-                "truth_spread": bool(int(ds.attrs["truth_spread"]))}
+                "truth_spread": bool(int(ds.attrs["truth_spread"])),
+                **_scenario_truth(ds)}
     return legacy_json_attr(ds.attrs, "truth_json",
                             source=str(ds.attrs.get("source", "telemetry")))
+
+
+def _scenario_truth(ds) -> dict:
+    """The scenario part of a synthetic truth (empty for older truths)."""
+    if "truth_scenario" not in ds.variables:
+        return {}
+    return {"scenario": [str(x) for x in ds["truth_scenario"].values],
+            "scenario_params": {k: [float(x) for x in ds[f"truth_scenario_{k}"].values]
+                                for k in SCENARIO_PARAM_UNITS
+                                if f"truth_scenario_{k}" in ds.variables},
+            "contacts": [int(x) for x in ds["truth_contacts"].values]}
 
 
 SYNTH_PREFIX = "synth_"

@@ -34,9 +34,15 @@ import numpy as np
 
 from gprm.errors import GprmInputError
 from gprm.flight.impact import _perp, impact_3d, planar_impact
+from gprm.flight.scenario import (COMPARED, Frame, ScenarioPrior,
+                                  default_window, plunger_frame, scenario_velocity)
 from gprm.flight.telemetry import AXES
 from gprm.params import batch
 from gprm.simulate.kinematics import body_motion, named_points, point_motion, static_position
+
+IMPACT_MODELS = ("3d", "planar") + COMPARED
+"""The impact models of the curves: the corner contact, the paper's planes, and the
+rim-contact scenarios of :mod:`gprm.flight.scenario`."""
 
 PLANES = ("xz", "yz")
 PLANE_AXES = {"xz": ("vx", "vz_xz", "wy"), "yz": ("vy", "vz_yz", "wx")}
@@ -51,7 +57,10 @@ class ImpactGeometry:
     face, one impulse, restitution and Coulomb friction ``friction`` (nominal 0.1, an
     assumption; :func:`_tm_velocity_3d`); ``"planar"`` the paper's two independent planar
     impacts (Appendix B) at M_xz and M_yz (frictionless). ``contact_offset_3d`` moves the 3D
-    contact point, ``contact_offset_xz``/``_yz`` the planar ones."""
+    contact point, ``contact_offset_xz``/``_yz`` the planar ones. ``"xz"``, ``"yz"``, ``"two"``:
+    the rim-contact scenarios of :mod:`gprm.flight.scenario` (issue 23) at ``contact_height``
+    and ``azimuth``, with ``friction`` and ``restitution`` (:func:`scenario_geometry` gives
+    their nominal values, the middle of :class:`~gprm.flight.scenario.ScenarioPrior`)."""
 
     indent_angle: float | None = None
     indent_depth: float = 3.0e-3
@@ -64,6 +73,8 @@ class ImpactGeometry:
     impact_model: str = "3d"
     friction: float = 0.1
     contact_offset_3d: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    contact_height: float = 0.0
+    azimuth: float = 0.0
 
     def resolved(self, pb) -> "ImpactGeometry":
         ang = float(np.asarray(pb["indent_angle"]).ravel()[0]) if self.indent_angle is None \
@@ -103,10 +114,13 @@ def tm_velocity_vs_time(motion, geometry: ImpactGeometry | list | None = None) -
     if len(geoms) != B:
         raise GprmInputError(f"{len(geoms)} geometries for {B} parameter sets", field="geometry")
     kinds = {g.impact_model for g in geoms}
-    if len(kinds) != 1 or not kinds <= {"3d", "planar"}:
-        raise GprmInputError("must be one of '3d', 'planar' for all sets", field="impact_model")
+    if len(kinds) != 1 or not kinds <= set(IMPACT_MODELS):
+        raise GprmInputError(f"must be one of {', '.join(IMPACT_MODELS)} for all sets",
+                             field="impact_model")
     if kinds == {"3d"}:
         return _tm_velocity_3d(motion, geoms)
+    if kinds <= set(COMPARED):
+        return _tm_velocity_scenario(motion, geoms)
     geoms = [g.resolved({k: v[i:i + 1] for k, v in pb.items()}) for i, g in enumerate(geoms)]
     alpha = np.array([g.indent_angle for g in geoms])
     H = np.array([g.tm_com_height for g in geoms])
@@ -266,6 +280,45 @@ def _tm_velocity_3d(motion, geoms) -> dict:
     return out
 
 
+def scenario_geometry(kind: str, prior: ScenarioPrior | None = None) -> ImpactGeometry:
+    """The nominal geometry of scenario impact model ``kind`` (``xz``, ``yz``, ``two``): the
+    middle of each unknown's prior (contact height 0, azimuth 0, friction and restitution the
+    middles of their ranges)."""
+    pr = prior or ScenarioPrior()
+    return ImpactGeometry(impact_model=kind, friction=float(np.mean(pr.friction)),
+                          restitution=float(np.mean(pr.restitution)))
+
+
+def _tm_velocity_scenario(motion, geoms) -> dict:
+    """The rim-contact scenarios (:class:`ImpactGeometry` ``impact_model`` ``xz``, ``yz``,
+    ``two``): :func:`gprm.flight.scenario.scenario_velocity` at every time of the motion
+    (the impact as if it happened there; no gap rule), per parameter set with its geometry."""
+    pb = motion.params
+    B, T = motion.size, motion.time.size
+    kind = geoms[0].impact_model
+    frame = plunger_frame(motion)
+    keys = ("vx", "vy", "vz", "wx", "wy", "wz")
+    out = {k: np.full((B, T), np.nan) for k in keys}
+    ok = np.zeros((B, T), bool)
+    prior = ScenarioPrior()
+    for b, g in enumerate(geoms):
+        sub = Frame(frame.time, frame.A[b:b + 1], frame.Ad[b:b + 1], frame.R[b:b + 1],
+                    frame.omega[b:b + 1], frame.G[b:b + 1], frame.ok[b:b + 1])
+        p = {"f": np.full(T, 0.5), "s": np.full(T, g.contact_height),
+             "phi": np.full(T, g.azimuth), "mu": np.full(T, g.friction),
+             "e": np.full(T, g.restitution)}
+        r = scenario_velocity(kind, sub, {k: np.atleast_1d(v)[b:b + 1] for k, v in pb.items()},
+                              p, prior, times=motion.time[None, :])
+        for k in keys:
+            out[k][b] = r[k][0]
+        ok[b] = r["ok"][0]
+    res = {"vx": out["vx"], "vy": out["vy"], "vz_xz": out["vz"], "vz_yz": out["vz"].copy(),
+           "wx": out["wx"], "wy": out["wy"], "wz": out["wz"],
+           "approaching_xz": ok, "approaching_yz": ok.copy(),
+           "impulse_xz": np.full((B, T), np.nan), "impulse_yz": np.full((B, T), np.nan)}
+    return res
+
+
 def sample_geometries(geometry: ImpactGeometry, unc: GeometryUncertainty, n: int, seed: int,
                       pb) -> list[ImpactGeometry]:
     """``n`` geometries drawn from independent normals about ``geometry`` (resolved with ``pb``).
@@ -274,6 +327,11 @@ def sample_geometries(geometry: ImpactGeometry, unc: GeometryUncertainty, n: int
     g0 = geometry.resolved(pb)
     assert g0.indent_angle is not None and g0.tm_com_height is not None  # resolved
     rng = np.random.default_rng(seed)
+    if g0.impact_model in COMPARED:     # the scenario's own prior (issue 23)
+        d = ScenarioPrior().draw(n, rng)
+        return [replace(g0, contact_height=float(d["s"][i]), azimuth=float(d["phi"][i]),
+                        friction=float(d["mu"][i]), restitution=float(d["e"][i]))
+                for i in range(n)]
     out = []
     for _ in range(n):
         a = float(np.clip(g0.indent_angle + unc.indent_angle * rng.standard_normal(),
@@ -343,12 +401,6 @@ def _repeat_motion(motion, n: int):
                    rates=rep(motion.rates), mu_eq=rep(motion.mu_eq),
                    R=np.repeat(motion.R, n, axis=0), omega=np.repeat(motion.omega, n, axis=0),
                    ok=np.repeat(motion.ok, n))
-
-
-def default_window(pb) -> tuple[float, float]:
-    """[t_c, t_c + 0.2 ms]: from the retraction command to the end of the paper's record."""
-    tc = float(np.asarray(pb["t_c"]).ravel()[0])
-    return (tc, tc + 0.2e-3)
 
 
 def velocity_curves(model, *, window=None, n_times: int = 401, n_samples: int = 200,

@@ -31,6 +31,7 @@ from gprm.errors import GprmInputError
 from gprm.flight.predicted import (GeometryUncertainty, ImpactGeometry, sample_geometries,
                                    tm_velocity_vs_time, default_window)
 from gprm.flight.files import synth_option_attrs, telemetry_dataset
+from gprm.flight.scenario import COMPARED, PARAMS, SCENARIOS, draw_truths, scenario_grid
 from gprm.flight.telemetry import AXES
 from gprm.params import batch
 from gprm.simulate.kinematics import body_motion
@@ -49,7 +50,10 @@ class SynthOptions:
     (rad); ``truth_spread``: truth parameters and geometry drawn per release (else the best
     fit and nominal geometry); ``z_from``: the TM v_z with a planar truth (``sum``, ``xz``,
     ``yz``); ``grid_step`` (s) of the impact-time grid; ``window_mode``: ``identifiable`` or
-    ``approach`` (:func:`plausible_window`); ``truth_model``: ``3d`` or ``planar``.
+    ``approach`` (:func:`plausible_window`); ``truth_model``: ``scenario`` (default, issue 23:
+    :mod:`gprm.flight.scenario`, with ``scenario`` one of its
+    :data:`~gprm.flight.scenario.SCENARIOS` or ``mixed``, each release's drawn from
+    :data:`~gprm.flight.scenario.COMPARED`), ``3d`` or ``planar`` (issue 14).
     """
 
     n_releases: int = 11
@@ -63,7 +67,8 @@ class SynthOptions:
     z_from: str = "sum"
     grid_step: float = 1e-7
     window_mode: str = "identifiable"
-    truth_model: str = "3d"
+    truth_model: str = "scenario"
+    scenario: str = "two"
 
     def __post_init__(self):
         for name, lo in (("n_releases", 1), ("seed", 0)):
@@ -73,9 +78,12 @@ class SynthOptions:
             check_number(name, getattr(self, name), positive=positive)
         if self.z_from not in ("sum", "xz", "yz"):
             raise GprmInputError(f"must be sum, xz or yz, got {self.z_from!r}", field="z_from")
-        if self.truth_model not in ("3d", "planar"):
-            raise GprmInputError(f"must be 3d or planar, got {self.truth_model!r}",
+        if self.truth_model not in ("scenario", "3d", "planar"):
+            raise GprmInputError(f"must be scenario, 3d or planar, got {self.truth_model!r}",
                                  field="truth_model")
+        if self.scenario not in SCENARIOS + ("mixed",):
+            raise GprmInputError(f"must be one of {', '.join(SCENARIOS + ('mixed',))}, got "
+                                 f"{self.scenario!r}", field="scenario")
         if self.window_mode not in ("identifiable", "approach"):
             raise GprmInputError(f"must be identifiable or approach, got "
                                  f"{self.window_mode!r}", field="window_mode")
@@ -116,6 +124,8 @@ def synth_telemetry(model, opts: SynthOptions = SynthOptions(), *, geometry=None
     """Generate the synthetic telemetry :class:`xarray.Dataset` (see the module docstring)."""
     if not isinstance(opts, SynthOptions):
         raise GprmInputError(f"expected SynthOptions, got {type(opts).__name__}", field="opts")
+    if opts.truth_model == "scenario":
+        return _synth_scenarios(model, opts)
     geometry = replace(geometry or ImpactGeometry(), impact_model=opts.truth_model)
     uncertainty = uncertainty or GeometryUncertainty()
     rng = np.random.default_rng(opts.seed)
@@ -160,6 +170,36 @@ def synth_telemetry(model, opts: SynthOptions = SynthOptions(), *, geometry=None
         vz = {"sum": a["vz_xz"] + a["vz_yz"], "xz": a["vz_xz"], "yz": a["vz_yz"]}[opts.z_from]
         z_from = opts.z_from
     tm = np.stack([a["vx"], a["vy"], vz, a["wx"], a["wy"], wz], 1)
+    truth = {"impact_time": list(map(float, chosen_t)), "window": list(win),
+             "tm_velocity": {c: tm[:, i].tolist() for i, c in enumerate(TM_COMPONENTS)},
+             "z_from": z_from, "truth_model": opts.truth_model,
+             "truth_spread": opts.truth_spread}
+    return _sampled(model, opts, rng, np.array(chosen_t), tm, tv, truth)
+
+
+def _synth_scenarios(model, opts: SynthOptions):
+    """Truths from the impact scenarios (:func:`gprm.flight.scenario.draw_truths`)."""
+    rng = np.random.default_rng(opts.seed)
+    R = int(opts.n_releases)
+    kinds = (list(rng.choice(COMPARED, size=R)) if opts.scenario == "mixed"
+             else [opts.scenario] * R)
+    tr = draw_truths(model, [str(k) for k in kinds], opts.seed, spread=opts.truth_spread)
+    tm = tr.velocity                                       # vx vy vz wx wy wz
+    comp = dict(zip(TM_COMPONENTS, tm.T))
+    tv = np.stack([comp["vx"], comp["vz"], comp["wy"], comp["vy"], comp["vz"], comp["wx"]], 1)
+    grid = scenario_grid(batch([model.params]))
+    truth = {"impact_time": tr.t.tolist(), "window": [float(grid[0]), float(grid[-1])],
+             "tm_velocity": {c: tm[:, i].tolist() for i, c in enumerate(TM_COMPONENTS)},
+             "z_from": None, "truth_model": "scenario", "truth_spread": opts.truth_spread,
+             "scenario": list(tr.scenario),
+             "scenario_params": {k: tr.params[k].tolist() for k in PARAMS},
+             "contacts": tr.contacts.tolist()}
+    return _sampled(model, opts, rng, tr.t, tm, tv, truth)
+
+
+def _sampled(model, opts: SynthOptions, rng, chosen_t, tm, tv, truth):
+    """The GRS samples of releases with TM velocities ``tm`` (R, 6) (module docstring)."""
+    R = tm.shape[0]
     # sampling
     n_pre = int(round(opts.pre * opts.rate))
     n_post = int(round(opts.post * opts.rate))
@@ -176,10 +216,6 @@ def synth_telemetry(model, opts: SynthOptions = SynthOptions(), *, geometry=None
         scale = 1e-6 if c in ("x", "y", "z") else 1e-5
         off = rng.normal(0, scale, R)
         data[c] = off[:, None] + v[:, None] * dt + rng.normal(0, sig, (R, S))
-    truth = {"impact_time": list(map(float, chosen_t)), "window": list(win),
-             "tm_velocity": {c: tm[:, i].tolist() for i, c in enumerate(TM_COMPONENTS)},
-             "z_from": z_from, "truth_model": opts.truth_model,
-             "truth_spread": opts.truth_spread}
     attrs = {"title": "synthetic GPRM release telemetry (gprm synth telemetry)",
              "source": f"synthetic from {model.source}", "seed": int(opts.seed),
              "sample_rate": float(opts.rate), "piezo": int(model.piezo),

@@ -51,6 +51,7 @@ class Telemetry:
     attrs: dict
     truth_impact_time: np.ndarray | None = None   # (R,) synthetic only
     truth_velocity: np.ndarray | None = None      # (R, 6) synthetic only
+    truth_scenario: dict | None = None            # synthetic scenario truths (issue 23)
 
 
 @dataclass(frozen=True)

@@ -37,6 +37,7 @@ from gprm.fit.report_text import pretty_unit
 from gprm.report import figures as F
 from gprm.report.html import (Card, Section, fig_to_img, not_run, num, paragraph, pm, render,
                               table)
+from gprm.report.scenarios import scenario_section, voltage_section
 from gprm.report.summary import (current_file, earlier_outputs, impact_times_found,
                                  summarise, truth_for_fit, truth_from_means)
 
@@ -48,9 +49,10 @@ FIGURE_IDS = {
     "fig-release-fit": "Fig. 11a", "fig-velocity-impact": "Fig. 11b",
     "fig-impact-times": "Fig. 12",
     "fig-whatif-piezo1": "Fig. 13", "fig-whatif-eccentricity": "Fig. 14",
+    "fig-voltage": "Fig. 5 right",
 }
 TABLE_IDS = ("table-1", "table-3", "table-whatif", "table-tukey", "table-provenance",
-             "table-timings")
+             "table-timings", "table-observations", "table-scenarios")
 
 _PAPER_T1 = {"x_head/x_lr": 3, "x_head/x_fl": 17, "y_head/y_lr": 3, "y_head/y_fl": 21,
              "z_bk/z_fl": 26}
@@ -500,9 +502,12 @@ def flight_section(run: Path) -> Section:
     s.blocks.append(paragraph(
         f"{n} releases: the release velocity per axis from the telemetry, and the impact time "
         "at which the impact model ("
-        + ("one contact of the plunger tip on the indent face in 3D, with restitution and "
-           "friction" if imp.get("impact_model") == "3d" else "the planar impacts of "
-           "Appendix B")
+        + {"3d": "one contact of the plunger tip on the indent face in 3D, with restitution "
+                 "and friction", "planar": "the planar impacts of Appendix B",
+           "xz": "scenario: one rim contact in x–z, with restitution and friction",
+           "yz": "scenario: one rim contact in y–z, with restitution and friction",
+           "two": "scenario: two rim contacts, x–z and y–z, with restitution and friction"
+           }.get(imp.get("impact_model"), str(imp.get("impact_model")))
         + ") applied to the predicted plunger state gives that velocity (crossing on the "
         f"rising branch of the curve): {n_ok} of {6 * n} impact times found; each error bar "
         "combines the telemetry's error and the model band (parameter and geometry draws). "
@@ -756,6 +761,10 @@ def build_report(run_dir: str | Path) -> str:
     design = design_section(run)
     if design is not None:
         sections.append(design)
+    sections += [x for x in (voltage_section(run),
+                             scenario_section(run, _load_json(run, "impact.json",
+                                                              "impact result")))
+                 if x is not None]
     prov = _load_json(run, "run.json", "run record") or {}
     sections.append(provenance_section(run, prov))
     sub = f"gprm {__version__} · run directory {run.resolve().name}"

@@ -32,6 +32,7 @@ from gprm.fit.files import FittedModel, load_model
 from gprm.flight.analysis import AnalysisOptions
 from gprm.flight.api import (ImpactOptions, TelemetryOptions, run_impact, run_synth_telemetry,
                              write_impact)
+from gprm.flight.inference import InferenceOptions
 from gprm.flight.synth import SynthOptions
 from gprm.flight.files import (load_telemetry, telemetry_csv_dataset, telemetry_from_dataset,
                                write_telemetry)
@@ -200,10 +201,19 @@ def _telemetry(run: Path, opts: RunOptions, step) -> dict:
     return _with_notes({"source": "synthetic", "releases": opts.releases}, notes)
 
 
+def scenario_draws(o: RunOptions) -> int:
+    """Prior draws per scenario of the impact-scenario posterior: 2000 with ``quick``, else
+    20000 (``gprm impact``'s default, the measured recovery's, docs/flight.md §11)."""
+    return 2000 if o.quick else 20000
+
+
 def _impact(run: Path, opts: RunOptions, step) -> dict:
     fm = load_model(run)
     notes = model_notes(fm)
-    iopts = ImpactOptions(AnalysisOptions(n_samples=opts.predict_samples, seed=opts.seed))
+    iopts = ImpactOptions(AnalysisOptions(n_samples=opts.predict_samples, seed=opts.seed,
+                                          impact_model="auto"),
+                          scenarios=InferenceOptions(n_draws=scenario_draws(opts),
+                                                     seed=opts.seed))
     res = write_impact(run_impact(fm, run / "telemetry.nc", iopts, notes=notes),
                        run / "impact.json")
     rej = [p for p in res.tukey.get("pairs", []) if p.get("reject")]
@@ -232,7 +242,9 @@ def chain(opts: RunOptions) -> tuple[Stage, ...]:
               _telemetry),
         Stage("impact", "impact + Tukey test", ("fit.json", "telemetry.nc"),
               ("impact.json", "impact.nc"),
-              lambda o: {"samples": o.predict_samples, "seed": o.seed}, _impact),
+              lambda o: {"samples": o.predict_samples, "seed": o.seed,
+                         "scenario_draws": scenario_draws(o), "impact_model": "auto"},
+              _impact),
     )
 
 

@@ -1,0 +1,215 @@
+"""Benchmark of the impact scenarios (issue 23, docs/flight.md §10-11):
+`.venv/bin/python benchmarks/bench_scenarios.py [--observations] [--recovery]
+[--seeds N] [--seed0 S] [--releases R] [--draws K]`.
+
+`--observations`: for every scenario of `gprm.flight.scenario.SCENARIOS`, N campaigns of R
+releases (seeds S .. S+N-1, truths as `gprm synth telemetry paper --scenario NAME --seed s`
+draws them), the paper's three observations counted over the releases: z not the largest
+velocity component, the x–z share of the momentum (v_x² + v_z²)/|v|², every analysed component
+(v_x, v_y, v_z, ω_x, ω_y) non-compliant (> 5 µm/s, > 100 µrad/s); ω_z's compliance apart.
+
+`--recovery`: N campaigns, each with R releases of every compared scenario (xz, yz, two),
+written as telemetry and read back (`gprm synth telemetry paper --scenario NAME --seed s`),
+release velocities fitted, then the scenario posterior (`gprm.flight.inference`, K prior draws
+per scenario): the right scenario chosen, and each unknown's truth inside its 95 % interval.
+Prints markdown."""
+
+from __future__ import annotations
+
+import argparse
+import time
+
+import numpy as np
+
+from _machine import machine
+
+
+def observations(fm, seeds, releases: int) -> list[dict]:
+    from gprm.flight.scenario import SCENARIOS, draw_truths
+
+    rows = []
+    for kind in SCENARIOS:
+        v = np.concatenate([draw_truths(fm, [kind] * releases, s).velocity for s in seeds])
+        av = np.abs(v)
+        share = (v[:, 0] ** 2 + v[:, 2] ** 2) / np.sum(v[:, :3] ** 2, 1)
+        lim = np.array([5e-6] * 3 + [100e-6] * 3)
+        rows.append({"scenario": kind, "n": len(v),
+                     "z_not_largest": int(np.sum(av[:, 2] < np.maximum(av[:, 0], av[:, 1]))),
+                     "share_median": float(np.median(share)),
+                     "share_ge_0.9": int(np.sum(share >= 0.9)),
+                     "all5_noncompliant": int(np.sum((av[:, :5] > lim[:5]).all(1))),
+                     "all_three": int(np.sum((av[:, 2] < np.maximum(av[:, 0], av[:, 1]))
+                                             & (share >= 0.9)
+                                             & (av[:, :5] > lim[:5]).all(1))),
+                     "compliant": [int(x) for x in np.sum(av <= lim, 0)],
+                     "mean_abs": [float(x) for x in av.mean(0)]})
+    return rows
+
+
+def recovery(fm, seeds, releases: int, draws: int, rel_floor: float | None = None) -> dict:
+    from gprm.flight.files import telemetry_from_dataset
+    from gprm.flight.inference import (InferenceOptions, infer_scenarios, measured_components,
+                                      prior_predictives)
+    from gprm.flight.scenario import COMPARED, PARAMS
+    from gprm.flight.synth import SynthOptions, synth_telemetry
+
+    out = {"n": 0, "right": 0, "by_truth": {k: [0, 0] for k in COMPARED},
+           "covered": {k: 0 for k in PARAMS + ("t",)}, "ess_median": [], "confusion": {}}
+    opts = InferenceOptions(n_draws=draws, **({} if rel_floor is None
+                                              else {"rel_floor": rel_floor}))
+    pps = prior_predictives(fm, opts)         # once: it depends on the model and options only
+    for s in seeds:
+        for kind in COMPARED:
+            ds = synth_telemetry(fm, SynthOptions(n_releases=releases, seed=s, scenario=kind))
+            tel = telemetry_from_dataset(ds, source=f"seed {s}")
+            truth = ds  # truth variables
+            y, sig = measured_components(tel)
+            res = infer_scenarios(fm, [r.id for r in tel.releases], y, sig, opts,
+                                  predictive=pps)
+            for i in range(len(tel.releases)):
+                out["n"] += 1
+                ok = res.chosen[i] == kind
+                out["right"] += ok
+                out["by_truth"][kind][0] += ok
+                out["by_truth"][kind][1] += 1
+                key = f"{kind}->{res.chosen[i]}"
+                out["confusion"][key] = out["confusion"].get(key, 0) + 1
+                f = res.fits[i][kind]
+                out["ess_median"].append(f.ess)
+                for p in PARAMS + ("t",):
+                    tv = (float(truth["truth_impact_time"].values[i]) if p == "t"
+                          else float(truth[f"truth_scenario_{p}"].values[i]))
+                    _, lo, hi = f.summary[p]
+                    out["covered"][p] += lo <= tv <= hi
+    out["ess_median"] = float(np.median(out["ess_median"]))
+    return out
+
+
+def impact_times(fm, seeds, releases: int, models, scenario: str = "two",
+                 samples: int = 200) -> dict:
+    """The impact-time analysis (issue 14's, `gprm impact --impact-model MODEL`) on scenario
+    truths (`gprm synth telemetry --scenario SCENARIO`): per model, the totals of
+    :func:`gprm.flight.analysis.truth_summary`, the joint chi2 and Tukey rejections; the
+    curves of each model are computed once (they depend on the model and the seed only)."""
+    from gprm.flight import AnalysisOptions, SynthOptions, analyze, synth_telemetry
+    from gprm.flight.files import telemetry_from_dataset
+
+    out = {}
+    curves = {}
+    for model in models:
+        out[model] = {"campaigns": 0, "impact_times": 0, "found": 0, "within_2sigma": 0,
+                      "joint_releases": 0, "joint_truth_in_ci95": 0, "chi2_rejects": 0,
+                      "chi2_tests": 0, "tukey_rejecting": 0, "errors_us": []}
+    for s in seeds:
+        ds = synth_telemetry(fm, SynthOptions(n_releases=releases, seed=s, scenario=scenario))
+        tel = telemetry_from_dataset(ds, source=f"seed {s}")
+        for model in models:
+            res = analyze(fm, tel, AnalysisOptions(impact_model=model, n_samples=samples),
+                          curves=curves.get(model))
+            curves[model] = res.curves
+            doc = res.to_json()
+            t = out[model]
+            sm = doc["truth"]["summary"]
+            for k in ("impact_times", "found", "within_2sigma", "joint_releases",
+                      "joint_truth_in_ci95"):
+                t[k] += sm[k]
+            t["campaigns"] += 1
+            for r in doc["releases"]:
+                p = r["joint"].get("p")
+                if p is not None:
+                    t["chi2_tests"] += 1
+                    t["chi2_rejects"] += p < 0.01
+                if r["joint"].get("value") is not None:
+                    t["errors_us"].append((r["joint"]["value"] - r["truth_impact_time"]) * 1e6)
+            t["tukey_rejecting"] += not doc["tukey"].get("all_compatible", True)
+    return out
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--observations", action="store_true")
+    ap.add_argument("--recovery", action="store_true")
+    ap.add_argument("--seeds", type=int, default=10)
+    ap.add_argument("--seed0", type=int, default=2000)
+    ap.add_argument("--releases", type=int, default=11)
+    ap.add_argument("--draws", type=int, default=20000)
+    ap.add_argument("--rel-floor", type=float, default=None)
+    ap.add_argument("--impact-times", action="store_true")
+    ap.add_argument("--scenario", default="two")
+    a = ap.parse_args()
+    from gprm.fit.files import paper_model
+
+    fm = paper_model()
+    seeds = range(a.seed0, a.seed0 + a.seeds)
+    print("## Impact scenarios (`gprm.flight.scenario`, `gprm.flight.inference`)\n")
+    print(machine("numpy", "scipy"))
+    print(f"- command: `.venv/bin/python benchmarks/bench_scenarios.py "
+          f"{'--observations ' if a.observations else ''}{'--recovery ' if a.recovery else ''}"
+          f"{'--impact-times ' if a.impact_times else ''}"
+          f"{'--scenario ' + a.scenario + ' ' if a.scenario != 'two' else ''}"
+          f"--seeds {a.seeds} --seed0 {a.seed0} --releases {a.releases} --draws {a.draws}"
+          + ("" if a.rel_floor is None else f" --rel-floor {a.rel_floor}") + "`\n")
+    if a.observations:
+        t0 = time.perf_counter()
+        rows = observations(fm, seeds, a.releases)
+        print(f"### The paper's three observations ({a.seeds} campaigns × {a.releases} "
+              f"releases, seeds {a.seed0}–{a.seed0 + a.seeds - 1}; "
+              f"{time.perf_counter() - t0:.1f} s)\n")
+        print("| scenario | z not the largest | x–z share median | share ≥ 0.9 | v_x, v_y, v_z, "
+              "ω_x, ω_y all non-compliant | all three at once | compliant v_x, v_y, v_z, "
+              "ω_x, ω_y, ω_z | mean abs v (µm/s) | mean abs ω (µrad/s) |")
+        print("|---|---|---|---|---|---|---|---|---|")
+        for r in rows:
+            n = r["n"]
+            def pc(k, r=r, n=n):
+                return f"{r[k]}/{n} ({100 * r[k] / n:.0f} %)"
+            m = r["mean_abs"]
+            print(f"| {r['scenario']} | {pc('z_not_largest')} | {r['share_median']:.3f} | "
+                  f"{pc('share_ge_0.9')} | {pc('all5_noncompliant')} | {pc('all_three')} | "
+                  f"{', '.join(str(c) for c in r['compliant'])} | "
+                  f"{m[0] * 1e6:.1f}, {m[1] * 1e6:.1f}, {m[2] * 1e6:.1f} | "
+                  f"{m[3] * 1e6:.0f}, {m[4] * 1e6:.0f}, {m[5] * 1e6:.0f} |")
+        print()
+    if a.impact_times:
+        t0 = time.perf_counter()
+        models = ("two", "xz", "3d", "planar")
+        out = impact_times(fm, seeds, a.releases, models, a.scenario)
+        print(f"### Impact times on scenario truths ({a.seeds} campaigns × {a.releases} "
+              f"releases of scenario {a.scenario}, seeds {a.seed0}–{a.seed0 + a.seeds - 1}; "
+              f"{time.perf_counter() - t0:.0f} s)\n")
+        print("| analysis (impact model) | found | within 2σ of truth | joint 95 % interval "
+              "contains truth | joint error median, 90 % range (µs) | joint χ² rejects "
+              "(α = 0.01) | campaigns where Tukey rejects |")
+        print("|---|---|---|---|---|---|---|")
+        for m, t in out.items():
+            e = np.array(t["errors_us"])
+            q = (np.percentile(e, [50, 5, 95]) if e.size else [np.nan] * 3)
+            f = lambda a, b: f"{a}/{b} ({100 * a / max(b, 1):.1f} %)"  # noqa: E731
+            print(f"| {m} | {f(t['found'], t['impact_times'])} | "
+                  f"{f(t['within_2sigma'], t['found'])} | "
+                  f"{f(t['joint_truth_in_ci95'], t['joint_releases'])} | "
+                  f"{q[0]:+.1f} [{q[1]:+.1f}, {q[2]:+.1f}] | "
+                  f"{f(t['chi2_rejects'], t['chi2_tests'])} | "
+                  f"{t['tukey_rejecting']}/{t['campaigns']} |")
+        print()
+    if a.recovery:
+        t0 = time.perf_counter()
+        out = recovery(fm, seeds, a.releases, a.draws, a.rel_floor)
+        n = out["n"]
+        print(f"### Scenario posterior: recovery ({a.seeds} campaigns × {a.releases} releases "
+              f"of each of xz, yz, two; {a.draws} prior draws per scenario; "
+              f"{time.perf_counter() - t0:.0f} s)\n")
+        print(f"- right scenario chosen: {out['right']}/{n} "
+              f"({100 * out['right'] / n:.1f} %); by truth: "
+              + ", ".join(f"{k} {v[0]}/{v[1]}" for k, v in out["by_truth"].items()))
+        print(f"- confusion (truth->chosen): {out['confusion']}")
+        print(f"- median effective number of draws (true scenario): {out['ess_median']:.0f}\n")
+        print("| unknown | truth inside the 95 % interval |")
+        print("|---|---|")
+        for k, c in out["covered"].items():
+            print(f"| {k} | {c}/{n} ({100 * c / n:.1f} %) |")
+        print()
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,46 @@
+"""Issue 23's report sections: Fig. 5 right (the mean voltage of the campaign's voltage runs
+with its spread) and the impact scenarios' section only when impact.json has them."""
+
+from __future__ import annotations
+
+import numpy as np
+import xarray as xr
+
+from gprm.report.scenarios import fig_voltage, scenario_section, voltage_section
+
+
+def _campaign(path, volt=True):
+    t = np.arange(50) * 1e-6
+    rng = np.random.default_rng(0)
+    v = 100 * np.exp(-t / 2e-5)[None, :] + rng.normal(0, 0.5, (8, 50))
+    ds = xr.Dataset({"voltage": (("vrun", "vtime"), v)} if volt else {},
+                    coords={"vtime": t} if volt else {})
+    ds.to_netcdf(path)
+    return v
+
+
+def test_fig5_right_shows_the_runs_mean_and_spread(tmp_path):
+    v = _campaign(tmp_path / "campaign.nc")
+    with xr.open_dataset(tmp_path / "campaign.nc") as camp:
+        fig = fig_voltage(camp.load())
+    ax = fig.axes[0]
+    mean_line = [ln for ln in ax.get_lines() if "mean of 8 runs" in ln.get_label()][0]
+    np.testing.assert_allclose(mean_line.get_ydata(), v.mean(0))
+    np.testing.assert_allclose(mean_line.get_xdata(), np.arange(50) * 1e-3)   # ms
+    bands = ax.collections
+    assert len(bands) == 2                              # ±σ and the 2.5–97.5 % range
+    s = voltage_section(tmp_path)
+    assert s is not None and "fig-voltage" in "".join(s.blocks)
+    assert f"{v.mean(0)[0]:.1f} V" in "".join(s.blocks)
+
+
+def test_voltage_section_without_runs_or_campaign(tmp_path):
+    assert voltage_section(tmp_path) is None            # no campaign file: no section
+    _campaign(tmp_path / "campaign.nc", volt=False)
+    s = voltage_section(tmp_path)
+    assert "not run" in "".join(s.blocks)
+
+
+def test_no_scenario_section_without_scenarios(tmp_path):
+    assert scenario_section(tmp_path, None) is None
+    assert scenario_section(tmp_path, {"releases": []}) is None

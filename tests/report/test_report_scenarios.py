@@ -44,3 +44,19 @@ def test_voltage_section_without_runs_or_campaign(tmp_path):
 def test_no_scenario_section_without_scenarios(tmp_path):
     assert scenario_section(tmp_path, None) is None
     assert scenario_section(tmp_path, {"releases": []}) is None
+
+
+def test_scenario_summary_line_counts_the_papers_observations():
+    """The console summary's scenario line: the jointly chosen scenario with its probability
+    and, over the releases, how many show each of the paper's three observations."""
+    from gprm.report.summary import scenario_text
+
+    sc = {"joint": {"chosen": "two", "probability": {"two": 0.98, "xz": 0.02}},
+          "observations": {"releases": [
+              {"z_not_largest": True, "xz_almost_all": True, "all_non_compliant": True},
+              {"z_not_largest": False, "xz_almost_all": True, "all_non_compliant": False},
+              {"z_not_largest": True, "xz_almost_all": False, "all_non_compliant": True}]}}
+    assert scenario_text(sc) == ("two (probability 0.98); z not the largest in 2/3, momentum "
+                                 "almost all in x–z in 2/3, every component but ω_z "
+                                 "non-compliant in 2/3")
+    assert scenario_text({"joint": {"chosen": "xz"}}) == "xz"

@@ -39,7 +39,7 @@ def register(app: typer.Typer, synth_app: typer.Typer) -> None:
                                                   help="candidates TOML (default: the "
                                                        "documented set, docs/design.md)"),
     ):
-        """Rank candidate ground-test additions by what they would determine (issue 25)."""
+        """Rank candidate ground-test additions by what they would determine."""
         from gprm._io import check_outputs
         from gprm.design.core import run_design
         from gprm.design.files import design_document, write_design

@@ -738,7 +738,8 @@ def uncertainty(method: str, state: FitState) -> Uncertainty:
         "systematics": {s: {"gain_sd": float(parts.gain_sd[i]),
                             "timing_sd_s": float(parts.timing_sd[i]),
                             "alignment_sd_s": float(parts.alignment_sd[i]),
-                            "crossing_offset_s": float(err.crossing_offset[i])}
+                            "crossing_offset_s": (float(err.crossing_offset[i])
+                                                  if err.crossing_offset is not None else 0.0)}
                         for i, s in enumerate(state.obj.data.signals)},
         "time_origin_sd_s": err.origin_sd,
         "stated": syst.to_json(),

@@ -184,7 +184,29 @@ def summarise(run: str | Path) -> dict:
             s["joint"] = {"alpha": jc.get("alpha"), "n": jc.get("n"), "rejected": rej,
                           "verdict": ("every release's axes consistent (joint χ²)" if not rej
                                       else "joint χ² rejects release(s) " + ", ".join(rej))}
+        sc = imp.get("scenarios")
+        if isinstance(sc, dict) and isinstance(sc.get("joint"), dict):
+            s["scenario"] = scenario_text(sc)
     return s
+
+
+def scenario_text(sc: dict) -> str:
+    """One line: the impact scenario chosen jointly over the releases (with its probability)
+    and how many releases show each of the paper's three observations (docs/flight.md)."""
+    jt = sc["joint"]
+    chosen = jt.get("chosen", "?")
+    prob = (jt.get("probability") or {}).get(chosen)
+    txt = f"{chosen}" + (f" (probability {prob:.3g})" if isinstance(prob, (int, float)) else "")
+    obs = [r for r in ((sc.get("observations") or {}).get("releases") or [])
+           if isinstance(r, dict)]
+    if obs:
+        n = len(obs)
+        txt += (f"; z not the largest in {sum(bool(r.get('z_not_largest')) for r in obs)}/{n}, "
+                f"momentum almost all in x–z in "
+                f"{sum(bool(r.get('xz_almost_all')) for r in obs)}/{n}, "
+                f"every component but ω_z non-compliant in "
+                f"{sum(bool(r.get('all_non_compliant')) for r in obs)}/{n}")
+    return txt
 
 
 def truth_recovery_text(tr: dict) -> str:

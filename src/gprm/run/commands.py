@@ -268,6 +268,8 @@ def print_summary(console, res, titles: dict[str, str], name: str = "gprm run") 
         jt = s["joint"]
         k.add_row(f"joint impact time (α = {jt.get('alpha')})",
                   ("[red]" if jt["rejected"] else "") + jt["verdict"])
+    if "scenario" in s:
+        k.add_row("impact scenario (joint)", s["scenario"])
     notes: dict[str, list[str]] = {}
     for r in res.records:
         for note in (r.info or {}).get("notes", []):

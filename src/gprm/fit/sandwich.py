@@ -18,9 +18,10 @@ independent ways, each from the data:
     noise, drift: whatever differs between runs, with its full time correlation.
 ``residuals``
     the fit's own residuals, with their time correlation: a heteroskedasticity- and
-    autocorrelation-consistent (HAC, Newey-West) estimate per signal over the scores
-    ``B[:, t] r_t`` with a Bartlett window of ``max_lag`` samples, and the small-sample
-    factor N / (N - p_eff) (p_eff the trace of the hat matrix). This is what sees model
+    autocorrelation-consistent (HAC) estimate per signal over the scores ``B[:, t] r_t``,
+    prewhitened by an AR(2) of the residuals (:func:`prewhitened_scores`) and summed with a
+    Parzen window of ``max_lag`` samples, and the small-sample factor N / (N - p_eff) (p_eff
+    the trace of the hat matrix). This is what sees model
     mismatch common to all runs (an unmodelled resonance, a nonlinearity, a gain error that
     the shared parameters cannot absorb): residuals that are larger or more correlated than
     the runs' spread explains.
@@ -30,15 +31,18 @@ independent ways, each from the data:
     its data by g y_s (the model signal), a timing error by -tau dy_s/dt. Each is a rank-one
     term ``sd^2 (B v)(B v)^T``; a gain error the parameters can absorb therefore widens
     exactly what it would bias. The timing sd of each signal also carries the alignment's
-    own error, estimated from the data: the mean's noise at the alignment time over its slope.
+    own error, estimated from the data: the mean's noise at the alignment time over its slope;
+    and t0 carries the aligned data's time origin (:func:`crossing_offsets`).
 
 The statistical part is the larger of the first two in the matrix sense (``V_runs +
 [V_res - V_runs]_+``): with a model that describes the data both estimate the same thing and
 agree; where the model does not, the residuals are larger than the runs' spread and their
 estimate takes over. Systematics and the prior's share add to it. The intervals are centred
-on the best fit (u^ +/- z sd): nothing is re-centred, so the best fit lies inside every
-interval. Nothing here depends on how a campaign was made (no generator, no constant measured
-on synthetic data).
+on the best fit: nothing is re-centred, so the best fit lies inside every interval; each
+side is stretched where the objective is flatter than its quadratic model
+(:func:`shape_factors`) or where the estimator's spread grows toward that side
+(:func:`variance_factors`). Nothing here depends on how a campaign was made (no generator,
+no constant measured on synthetic data).
 """
 
 from __future__ import annotations

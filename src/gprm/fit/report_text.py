@@ -84,9 +84,9 @@ def fit_report(d: dict, *, min_correl: float = DEFAULT_MIN_CORREL) -> str:
         det = unc.get("details") or {}
         syst = det.get("systematics") if isinstance(det, dict) else None
         if isinstance(syst, dict) and syst:
-            lines.append("    systematics marginalised (1 sd; timing = stated (+) the larger of "
-                         "the alignment's noise and the model's crossing offset, both from the "
-                         "data):")
+            lines.append("    systematics marginalised (1 sd; timing = stated (+) the alignment's "
+                         "noise, from the data; the crossing offset is where the fitted model "
+                         "crosses the alignment threshold against the data):")
             for sig, v in syst.items():
                 if isinstance(v, dict):
                     lines.append(f"      {sig:>7}: gain {_g(100 * v.get('gain_sd', math.nan), '.3g')}"
@@ -94,6 +94,10 @@ def fit_report(d: dict, *, min_correl: float = DEFAULT_MIN_CORREL) -> str:
                                  f" (alignment {_g(1e9 * v.get('alignment_sd_s', math.nan), '.3g')}"
                                  f" ns, crossing offset "
                                  f"{_g(1e9 * v.get('crossing_offset_s', math.nan), '+.3g')} ns)")
+            if _finite(det.get("time_origin_sd_s")):
+                lines.append(f"    time origin of the aligned data (on t0): "
+                             f"{_g(1e9 * det['time_origin_sd_s'], '.3g')} ns (the reference "
+                             "signal's crossing offset beyond its alignment noise)")
             if det.get("statistical_from"):
                 lines.append(f"    statistical part from the {det['statistical_from']}")
         factors = (unc.get("calibration") or {}).get("factors") or {}

@@ -344,9 +344,11 @@ def fit_section(run: Path) -> tuple[Section, dict | None]:
                                   "intervals include: the stated prior (parameter file "
                                   "[systematics], --gain-sd, --timing-sd) or, where larger, "
                                   "the gain errors' size the residuals show; the timing adds "
-                                  "the alignment's own error, estimated from the data: the "
-                                  "larger of its noise and the offset of the fitted model's "
-                                  "own threshold crossing from the data's (docs/fitting.md)."))
+                                  "the alignment's noise, estimated from the data. The model "
+                                  "crossing offset is where the fitted model crosses the "
+                                  "alignment threshold against the data; the reference "
+                                  "signal's offset beyond its noise is the aligned data's time "
+                                  "origin error, carried by t0 (docs/fitting.md)."))
     if side is not None:
         s.blocks.append(fig_to_img(F.fig_fit(side), "Best fit over the mean signals with "
                                    "±σ and the 95 % model band from the parameter covariance "

@@ -15,7 +15,11 @@ fitted to the data at the truth's physical parameters:
   direction, which is what the variance check can see without the truth.
 
     .venv/bin/python benchmarks/bench_linearisation.py [--source drive-1] [--campaigns 6]
-        [--params k_Bx,d2,c_Bx,m1] [--starts 100] [--cache DIR]
+        [--params k_Bx,d2,c_Bx,m1] [--starts 100] [--cache DIR] [--t0]
+
+``--t0``: instead, per campaign, the fitted lag t0's error against the truth's lag in the
+fit's time base, the reference signal's crossing offset (gprm.fit.sandwich.crossing_offsets)
+and t0's 95 % interval, relative to the truth.
 
 Where ``lin`` matches ``z`` the estimate's error is linear in the data's error, just not at
 the best fit; where ``sd(t)/sd(^)`` is far from 1 the spread at the best fit understates the
@@ -37,8 +41,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 import bench_sources  # noqa: E402
 
 from gprm.fit.methods import state_of  # noqa: E402
-from gprm.fit.sandwich import (Systematics, error_model, propagate,  # noqa: E402
-                               run_deviations)
+from gprm.fit.methods import uncertainty_of  # noqa: E402
+from gprm.fit.sandwich import Systematics, error_model, propagate  # noqa: E402
 
 
 def truth_point(case) -> np.ndarray:
@@ -62,21 +66,11 @@ def truth_point(case) -> np.ndarray:
     return x
 
 
-def runs_sd(obj, x, prior) -> np.ndarray:
+def runs_sd(obj, x, prior, err) -> np.ndarray:
     """(P,) the runs' spread propagated through the estimator linearised at x (u units)."""
-    d = obj.data
-    n = d.n_obs
+    n = obj.data.n_obs
     _, Jn = obj(obj.to_normalised(x)[None])
-    Ju = Jn[0, :n] / obj.scale * prior.dx_du(x)[None, :]
-    H = Ju.T @ Ju + np.diag(float(prior.weight) ** 2 / prior.sd ** 2)
-    B = np.linalg.solve(H, Ju.T).reshape(x.size, *d.values.shape)
-    dev = run_deviations(d.runs, d.sigma)
-    R = dev.shape[1]
-    V = np.zeros(x.size)
-    for s in range(len(d.signals)):
-        Z = dev[s] @ B[:, s, :].T
-        V += np.sum(Z * Z, axis=0) / (R * (R - 1))
-    return np.sqrt(V)
+    return np.sqrt(np.diag(propagate(obj, x, Jn[0, :n] / obj.scale, prior, err).runs))
 
 
 def diagnose(case, params) -> list[str]:
@@ -96,16 +90,29 @@ def diagnose(case, params) -> list[str]:
     Ju = Jn[0, :n] / obj.scale * prior.dx_du(xt)[None, :]
     H = Ju.T @ Ju + np.diag(float(prior.weight) ** 2 / prior.sd ** 2)
     lin = -np.linalg.solve(H, Ju.T @ rt[0, :n])
-    s_h, s_t = runs_sd(obj, xh, prior), runs_sd(obj, xt, prior)
+    s_h, s_t = runs_sd(obj, xh, prior, err), runs_sd(obj, xt, prior, err)
     out = []
     for nm in params:
         k = names.index(nm)
         v = Cu[:, k] / sd[k]
-        side = [runs_sd(obj, prior.from_u(uh + a * v), prior)[k] / s_h[k] for a in (-2, 2)]
+        side = [runs_sd(obj, prior.from_u(uh + a * v), prior, err)[k] / s_h[k]
+                for a in (-2, 2)]
         out.append(f"| {case.source} | {case.seed} | {nm} | {(uh - ut)[k] / sd[k]:+.2f} | "
                    f"{lin[k] / sd[k]:+.2f} | {s_t[k] / s_h[k]:.2f} | "
                    f"{side[0]:.2f} / {side[1]:.2f} |")
     return out
+
+
+def t0_row(case) -> str:
+    """The fitted t0's error against the truth's lag in the fit's time base, next to the
+    reference signal's crossing offset and the 95 % interval the default now gives t0."""
+    u = uncertainty_of(case.fit, "sandwich")
+    _, truth_t = bench_sources.truth_in_fit_time(case)
+    k = list(case.fit.names).index("t0")
+    off = u.details["systematics"]["x_base"]["crossing_offset_s"]
+    t = truth_t["t0"]
+    return (f"| {case.source} | {case.seed} | {1e6 * (case.fit.x[k] - t):+.2f} | "
+            f"{1e6 * off:+.2f} | [{1e6 * (u.lower95[k] - t):+.2f}, {1e6 * (u.upper95[k] - t):+.2f}] |")
 
 
 def main(argv=None) -> int:
@@ -116,7 +123,17 @@ def main(argv=None) -> int:
     ap.add_argument("--params", default="k_Bx,d2,c_Bx,m1")
     ap.add_argument("--starts", type=int, default=100)
     ap.add_argument("--cache")
+    ap.add_argument("--t0", action="store_true",
+                    help="instead: t0's error, x_base's crossing offset and t0's 95 % interval")
     a = ap.parse_args(argv)
+    if a.t0:
+        print("| source | seed | t0 fit - truth (us) | x_base crossing offset (us) | "
+              "t0 95 % interval - truth (us) |")
+        print("|---|---|---|---|---|")
+        for i in range(a.campaigns):
+            print(t0_row(bench_sources.run_case(a.source, a.seed + i, a.starts, a.cache)),
+                  flush=True)
+        return 0
     params = [p for p in a.params.split(",") if p]
     print("| source | seed | parameter | z (best fit - truth) / sd | lin (at truth) / sd | "
           "sd(t)/sd(^) | +-2 sd: sd/sd(^) |")

@@ -344,6 +344,17 @@ class _Squared:
         return SimpleNamespace(y=y, dy=dy if jacobian else None)
 
 
+class _Linear(_Squared):
+    """y(t) = theta g(t): the sensitivity g does not depend on theta."""
+
+    def model(self, X, *, jacobian=False):
+        from types import SimpleNamespace
+        th = np.atleast_2d(X)[:, 0]
+        y = (th[:, None] * self.g[None])[:, None, :]
+        dy = np.broadcast_to(self.g[None, None, :, None], (th.size, 1, self.g.size, 1))
+        return SimpleNamespace(y=y, dy=dy if jacobian else None)
+
+
 def test_variance_factors_solve_the_score_interval_where_sensitivity_changes():
     """On y = theta^2 g with unit white error the value theta below theta^ is compatible when
     theta^ - theta = z sd0 theta^ / theta: alpha = (theta^ - sqrt(theta^2 - 4 sd0 z theta^)) /
@@ -374,10 +385,7 @@ def test_variance_factors_solve_the_score_interval_where_sensitivity_changes():
         assert lo[0] * z == pytest.approx(alpha, rel=1e-3)
         assert hi[0] == 1.0
     # with constant sensitivity (y = theta g) nothing is stretched
-    lin = _Squared()
-    lin.model = lambda X, jacobian=False: __import__("types").SimpleNamespace(
-        y=(np.atleast_2d(X)[:, 0][:, None] * lin.g[None])[:, None, :],
-        dy=np.broadcast_to(lin.g[None, None, :, None], (np.atleast_2d(X).shape[0], 1, T, 1)))
+    lin = _Linear()
     J = -lin.model(x, jacobian=True).dy[0].reshape(T, 1)
     Cu = propagate(lin, x, J, prior, err).total
     lo, hi = variance_factors(lin, x, Cu, prior, err, 1.96)

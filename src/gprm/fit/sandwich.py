@@ -524,17 +524,6 @@ def propagate(obj: Objective, x: np.ndarray, J: np.ndarray, prior: Prior,
                          err.gain_estimated, err.alignment_sd, err.p_eff, err.max_lag)
 
 
-def sandwich_parts(obj: Objective, x: np.ndarray, J: np.ndarray, r: np.ndarray,
-                   prior: Prior, systematics: Systematics = Systematics(), *,
-                   max_lag: int | None = None) -> SandwichParts:
-    """The default covariance of the fit at ``x`` (physical (P,)), in the prior's u.
-
-    J: (N, P) Jacobian of the weighted data residuals ``r`` (N,) in physical units (prior
-    rows excluded); ``prior``: the fit's prior with its weight."""
-    err = error_model(obj, x, J, r, prior, systematics, max_lag=max_lag)
-    return propagate(obj, np.asarray(x, float), J, prior, err)
-
-
 #: steps along a parameter's posterior direction, in its standard deviations, at which the
 #: objective's actual rise is compared with its quadratic approximation
 SHAPE_STEPS = (0.5, 1.0, 1.5, 2.0, 3.0, 4.0, 6.0, 8.0)
@@ -618,8 +607,8 @@ def shape_factors(obj: Objective, x: np.ndarray, Cu: np.ndarray, Ju: np.ndarray,
     return out[0], out[1]
 
 
-#: most standard deviations a side may be stretched to (as the shape check's farthest step)
-MAX_STRETCH = SHAPE_STEPS[-1]
+#: the most a side is stretched (the shape check's farthest step over its reach of 2 sd)
+MAX_STRETCH = SHAPE_STEPS[-1] / 2.0
 
 
 def variance_factors(obj: Objective, x: np.ndarray, Cu: np.ndarray, prior: Prior,
@@ -639,7 +628,7 @@ def variance_factors(obj: Objective, x: np.ndarray, Cu: np.ndarray, prior: Prior
     parameter k's posterior direction v_k = Cu[:, k] / sd_k (the other parameters following
     as expected): alpha <- z max(1, sd_k(u^ + alpha v_k) / sd_k(u^)), starting at z,
     ``iterations`` times or until no side moves by more than ``tol`` z (each iteration one
-    batch of Jacobians), at most :data:`MAX_STRETCH` / 2 times z. The
+    batch of Jacobians), at most :data:`MAX_STRETCH` times z. The
     spread at each point is the same data error ``err`` (runs, residuals, systematics,
     all estimated at the best fit) propagated through the estimator linearised there. It
     never narrows an interval; only the parameters the linearisation identifies are
@@ -680,7 +669,7 @@ def variance_factors(obj: Objective, x: np.ndarray, Cu: np.ndarray, prior: Prior
             k = checked[i % checked.size]
             C = propagate(obj, X[i], Jp, prior, err, y=obs.y[j]).total
             ratio[i] = np.sqrt(max(C[k, k], 0.0)) / sd[k]
-        new = np.clip(z * np.maximum(ratio.reshape(2, -1), 1.0), z, z * MAX_STRETCH / 2.0)
+        new = np.clip(z * np.maximum(ratio.reshape(2, -1), 1.0), z, z * MAX_STRETCH)
         new = np.where(ok.reshape(2, -1), new, alpha)
         active &= np.abs(new - alpha) > tol * z
         alpha = np.maximum(alpha, new)

@@ -147,7 +147,7 @@ def validate(n_truths: int, starts: int, seed0: int, log: Path) -> list[dict]:
             tdir = d / f"t{seed}"
             tdir.mkdir()
             save_params(truth, tdir / "truth.toml")
-            base_fit = campaign(tdir, "base", seed, 10, 5, 1.5e-3, (0.97e-3, 1.2e-3))
+            campaign(tdir, "base", seed, 10, 5, 1.5e-3, (0.97e-3, 1.2e-3))
             gprm("design", tdir / "base_fit.json", "--candidates", d / "cands.toml",
                  "--out", tdir / "design.json")
             design = json.loads((tdir / "design.json").read_text())
@@ -170,7 +170,6 @@ def validate(n_truths: int, starts: int, seed0: int, log: Path) -> list[dict]:
                 emit({"seed": seed, "rank": rank, "name": name, "runs": syn["runs"],
                       "window": list(syn["window"]),
                       **_compare(res, pred["sd_u"], pred["identified"], fit, truth)})
-            del base_fit
     return rows
 
 

@@ -42,11 +42,13 @@ def register(app: typer.Typer, synth_app: typer.Typer) -> None:
         """Rank candidate ground-test additions by what they would determine."""
         from gprm._io import check_outputs
         from gprm.design.core import run_design
-        from gprm.design.files import design_document, write_design
+        from gprm.design.files import design_document
+        from gprm._io import write_json_atomic
         from gprm.fit.files import model_inputs
 
         check_outputs({out: "--out"}, inputs=[*model_inputs(fit), candidates])
         res = run_design(fit, candidates_path=candidates)
-        write_design(res, out)
-        typer.echo(summary_text(design_document(res)))
+        doc = design_document(res)
+        write_json_atomic(out, doc)
+        typer.echo(summary_text(doc))
         typer.echo(f"wrote {out} ({res.timings['total']:.1f} s)")

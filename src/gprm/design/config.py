@@ -16,6 +16,7 @@ from pathlib import Path
 from typing import Any
 
 from gprm.errors import GprmInputError
+from gprm.fit.objective import DEFAULT_WINDOW
 from gprm.options import parse_quantity
 
 #: the five positions the model describes (Eq. 3), which ``gprm fit`` fits
@@ -58,7 +59,7 @@ class Block:
     noise_runs: int = 5
     record: float = 1.5e-3        # s, record length from the trigger
     rate: float = 200e3           # Hz
-    window: tuple[float, float] = (0.97e-3, 1.2e-3)
+    window: tuple[float, float] = DEFAULT_WINDOW
     gain_sd: float | None = None  # None: the design's systematics
     timing_sd: float | None = None
 
@@ -119,7 +120,7 @@ def _five() -> tuple[Channel, ...]:
     return tuple(Channel(n) for n in MODEL_CHANNELS)
 
 
-def default_candidates(window=(0.97e-3, 1.2e-3)) -> tuple[Candidate, ...]:
+def default_candidates(window=DEFAULT_WINDOW) -> tuple[Candidate, ...]:
     """The documented default set (docs/design.md): each adds one block of 10 runs (5 noise
     runs) per channel at 200 kHz in the fit's window unless it says otherwise."""
     w = tuple(window)
@@ -156,7 +157,7 @@ def default_candidates(window=(0.97e-3, 1.2e-3)) -> tuple[Candidate, ...]:
     )
 
 
-def default_config(window=(0.97e-3, 1.2e-3)) -> DesignConfig:
+def default_config(window=DEFAULT_WINDOW) -> DesignConfig:
     return DesignConfig(default_candidates(window))
 
 
@@ -294,7 +295,7 @@ def _block(c: dict, src: str, fld: str, window) -> Block:
                                                     positive=False, nonneg=True))
 
 
-def read_design_config(path: str | Path | None, *, window=(0.97e-3, 1.2e-3)) -> DesignConfig:
+def read_design_config(path: str | Path | None, *, window=DEFAULT_WINDOW) -> DesignConfig:
     """The candidates file (docs/design.md); ``None``: the documented defaults. Every
     problem is an input error naming the file and the field."""
     if path is None:

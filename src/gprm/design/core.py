@@ -22,6 +22,7 @@ of the C_d and G their gradients at the best fit (:mod:`gprm.design.predictions`
 from __future__ import annotations
 
 import itertools
+import math
 import time
 from dataclasses import dataclass, field, replace
 
@@ -31,6 +32,7 @@ from gprm.design.config import MODEL_CHANNELS, Block, Channel, DesignConfig
 from gprm.design.information import NoiseModel, block_information, estimate_noise
 from gprm.design.predictions import ReleasePredictions, release_predictions
 from gprm.fit.files import FittedModel, load_model, read_fit_document, read_fit_sidecar
+from gprm.fit.objective import DEFAULT_WINDOW
 from gprm.fit.prior import DEFAULT_WIDTH, Prior, default_prior
 from gprm.params import ALIGNMENT_OFFSETS
 
@@ -93,9 +95,9 @@ def _fit_window_and_rate(fm: FittedModel) -> tuple[tuple[float, float], float, d
     """The fit's window, the data's sample rate and its sidecar data (sigma, model) where
     the model is a fit file; the defaults for ``paper``."""
     if fm.source == "paper":
-        return (0.97e-3, 1.2e-3), 200e3, None
+        return DEFAULT_WINDOW, 200e3, None
     doc = read_fit_document(fm.source)
-    w = doc.get("window") or [0.97e-3, 1.2e-3]
+    w = doc.get("window") or list(DEFAULT_WINDOW)
     window = (float(w[0]), float(w[1]))
     try:
         side = read_fit_sidecar(fm.source)
@@ -162,7 +164,7 @@ def _calibrate(P0: np.ndarray, F_base: np.ndarray, fit_sd: np.ndarray,
     log kappa over 1e-3 .. 1e6)."""
     def ratio(k):
         C = _posterior(P0, F_base, k)
-        sd = np.sqrt(np.mean(np.diagonal(C, axis1=1, axis2=2), 0))
+        sd = _mean_sd(C)
         return float(np.median(sd[mask] / fit_sd[mask]))
 
     lo, hi = np.log(1e-3), np.log(1e6)
@@ -247,8 +249,8 @@ def run_design(model, config: DesignConfig | None = None, *, candidates_path=Non
     # the fit's own sd in u, and the calibration
     fit_sd = None
     kappa = 1.0
+    xb = fm.params.vector(names)
     if fm.covariance is not None and fm.source != "paper":
-        xb = fm.params.vector(names)
         fit_sd = np.sqrt(np.clip(np.diag(fm.covariance), 0, None)) / np.where(log, xb, 1.0)
         ident = np.array([n in (fm.identified or ()) for n in names])
         if cfg.calibrate and ident.any():
@@ -258,14 +260,13 @@ def run_design(model, config: DesignConfig | None = None, *, candidates_path=Non
     scale = np.ones(len(names))
     if fit_sd is not None and cfg.calibrate:
         C0 = _posterior(P0, F_base, kappa)
-        raw = np.sqrt(np.mean(np.diagonal(C0, axis1=1, axis2=2), 0))
+        raw = _mean_sd(C0)
         r = fit_sd / raw
         scale = np.where(np.isfinite(r) & (r > 0), r, 1.0)
     t0 = time.perf_counter()
     preds = release_predictions(fm, sd0, log)
     t_pred = time.perf_counter() - t0
     groups = np.array(preds.group)
-    xb = fm.params.vector(names)
     ub = prior.to_u(xb)
     hours_of = {c.name: block_hours(c.block, cfg, base, c.name) for c in cfg.candidates}
     runs_of = {c.name: c.block.runs * len(c.block.channels) * len(c.block.drives)
@@ -274,7 +275,7 @@ def run_design(model, config: DesignConfig | None = None, *, candidates_path=Non
     def evaluate(adds: tuple[str, ...], ref: DesignEvaluation | None) -> DesignEvaluation:
         F = F_base + sum((F_cand[a] for a in adds), np.zeros_like(F_base))
         C = _posterior(P0, F, kappa)
-        sd = np.minimum(np.sqrt(np.mean(np.diagonal(C, axis1=1, axis2=2), 0)) * scale, sd0)
+        sd = np.minimum(_mean_sd(C) * scale, sd0)
         Cm = C.mean(0) * np.outer(scale, scale)
         psd = np.sqrt(np.clip(np.einsum("kp,pq,kq->k", preds.gradient, Cm, preds.gradient),
                               1e-300, None))
@@ -292,7 +293,7 @@ def run_design(model, config: DesignConfig | None = None, *, candidates_path=Non
     # selection within the budget
     budget, kmax = cfg.cost.budget, cfg.cost.max_additions
     affordable = [c.name for c in cfg.candidates if hours_of[c.name] <= budget]
-    n_subsets = sum(_ncomb(len(affordable), k) for k in range(1, kmax + 1))
+    n_subsets = sum(math.comb(len(affordable), k) for k in range(1, kmax + 1))
     best = base_ev
     if n_subsets <= cfg.exhaustive_limit:
         selection = f"exhaustive over {n_subsets} subsets"
@@ -332,10 +333,10 @@ def run_design(model, config: DesignConfig | None = None, *, candidates_path=Non
                         noise, fit_sd, scale, cfg, str(fm.source), base, synth, y, timings, alone_ev)
 
 
-def _ncomb(n: int, k: int) -> int:
-    from math import comb
-
-    return comb(n, k) if 0 <= k <= n else 0
+def _mean_sd(C: np.ndarray) -> np.ndarray:
+    """(P,) the sd in u from a stack of posterior covariances (D, P, P): each parameter's
+    variance averaged over the draws D, then its square root."""
+    return np.sqrt(np.mean(np.diagonal(C, axis1=1, axis2=2), 0))
 
 
 def _better(a: DesignEvaluation, b: DesignEvaluation) -> bool:
@@ -355,7 +356,7 @@ def evaluate_block(fm: FittedModel, block: Block, cfg: DesignConfig, noise: Nois
                           timing_sd=cfg.timing_sd, lag_sd=lag_sd,
                           fitted_lag_channels=fitted_lags, z_bk_absolute=fm.z_bk_absolute)
     C = _posterior(P0, F, noise.kappa)
-    sd = np.minimum(np.sqrt(np.mean(np.diagonal(C, axis1=1, axis2=2), 0)) * scale, sd0)
+    sd = np.minimum(_mean_sd(C) * scale, sd0)
     return {"sd_u": sd, "identified": sd / sd0 < cfg.identified_threshold,
             "lower": prior.from_u(ub - Z95 * sd), "upper": prior.from_u(ub + Z95 * sd)}
 

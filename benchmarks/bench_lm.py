@@ -18,7 +18,7 @@ defaults). A MGH run is *solved* when its final sum of squares is within 1e-4 re
 certified parameters are reached to 4 digits. Evaluations are counted on the runs that all
 solvers shown solve.
 
-    PYTHONPATH=src .venv/bin/python benchmarks/bench_lm.py [--previous] [--runs]
+    PYTHONPATH=src .venv/bin/python benchmarks/bench_lm.py [--previous] [--runs] [--mechanisms]
 
 The code of an earlier commit runs the same comparison (its own defaults and budget):
 
@@ -72,7 +72,8 @@ def solve(method: str, res, x0, jac):
             return float(2 * s.cost), s.x, int(s.nfev), int(s.njev or 0), str(s.status)
         import inspect
 
-        # an earlier version (--previous-code below) has no max_nfev: its own budget applies
+        # an earlier commit's code (the git archive line of the docstring) has no max_nfev:
+        # its own budget applies
         kw = ({"max_nfev": MAX_NFEV}
               if "max_nfev" in inspect.signature(levenberg_marquardt).parameters else {})
         kw.update(VARIANTS[method])
@@ -147,27 +148,22 @@ def main(argv=None) -> None:
                     help="the previous options taken apart, one mechanism at a time (MGH only)")
     args = ap.parse_args(argv)
     methods = ["gprm"] + (["gprm-previous"] if args.previous else []) + ["minpack", "trf"]
+    print(machine())
+    print(f"command: {' '.join(sys.argv)}\n")
     if args.mechanisms:
-        print(machine())
-        print(f"command: {' '.join(sys.argv)}\n")
         t, _ = mgh_table(list(VARIANTS)[1:] + ["gprm", "minpack"])
         print("## Moré-Garbow-Hillstrom, 105 runs: mechanisms\n")
         print(t)
         return
-    print(machine())
-    print(f"command: {' '.join(sys.argv)}\n")
-    t, out = mgh_table(methods)
-    print("## Moré-Garbow-Hillstrom, 105 runs\n")
-    print(t)
-    if args.runs:
+    for title, table in (("Moré-Garbow-Hillstrom, 105 runs", mgh_table),
+                         ("NIST StRD, 54 runs", nist_table)):
+        t, out = table(methods)
+        print(f"## {title}\n")
+        print(t)
+        if args.runs:
+            print()
+            print(run_lines(out))
         print()
-        print(run_lines(out))
-    t, out = nist_table(methods)
-    print("\n## NIST StRD, 54 runs\n")
-    print(t)
-    if args.runs:
-        print()
-        print(run_lines(out))
 
 
 if __name__ == "__main__":

@@ -78,18 +78,23 @@ def test_the_set_is_the_papers():
     assert len(RUNS) == 105
     for p in PROBLEMS:
         assert p.f(p.x0).shape == (p.m,) and p.m >= p.n
-    assert len(KNOWN_FAILURES) <= 15                    # >= 90 of 105 solved
+    # every other run is checked solved and every listed one failing (below), so this is
+    # the count of solved runs: >= 90 of 105
+    assert len(KNOWN_FAILURES) <= 15
 
 
 @pytest.mark.parametrize("number,factor", RUNS, ids=[f"{n}-x{f:g}" for n, f in RUNS])
 def test_mgh_run_is_solved(number, factor):
-    """The default optimizer (exact Jacobian) reaches a listed minimum, unless the run is a
-    documented failure."""
-    if (number, factor) in KNOWN_FAILURES:
-        pytest.skip(f"documented failure: {KNOWN_FAILURES[(number, factor)]}")
+    """The default optimizer (exact Jacobian) reaches a listed minimum; a documented failure
+    still fails (so the list, and the count of solved runs it implies, stays exact: a run
+    that starts to be solved, or to fail, changes this test's outcome)."""
     p = PROBLEMS[number - 1]
     with np.errstate(all="ignore"):
         res = levenberg_marquardt(p.residuals, p.start(factor), p.jacobian, max_nfev=BUDGET)
+    if (number, factor) in KNOWN_FAILURES:
+        assert not (p.solved(res.chi2) and res.success), \
+            f"now solved; remove it from KNOWN_FAILURES ({KNOWN_FAILURES[(number, factor)]})"
+        return
     assert p.solved(res.chi2), (res.chi2, p.minima, res.status, res.nfev)
     assert res.success, res.message
     assert res.chi2 == pytest.approx(float(np.sum(res.fun ** 2)), rel=1e-12, abs=1e-300)

@@ -105,7 +105,7 @@ from typing import Callable
 
 import numpy as np
 
-from gprm.fit.lm_algebra import (_chi2, _damping_diagonal, _scaled_norms,  # noqa: F401
+from gprm.fit.lm_algebra import (_chi2, _damping_diagonal,  # noqa: F401
                                  _trust_region_update, damped_steps_reduced, gradient_cosines,
                                  in_range, reduce_jacobian, scaled_svd, svd_steps,
                                  trust_region_lambda)
@@ -946,15 +946,15 @@ def levenberg_marquardt(residuals: Callable, x0, jacobian: Callable | None = Non
         return finite_difference_jacobian(res1, x, r0, method=fd_method, lower=lower,
                                           upper=upper)
 
-    def fun(X):
-        rs = [res1(x) for x in X]
-        return np.stack(rs), np.stack([jac1(x, r) for x, r in zip(X, rs)])
-
     def resb(X):
         return np.stack([res1(x) for x in X])
 
     def jacb(X, R):
         return np.stack([jac1(x, r) for x, r in zip(X, R)])
+
+    def fun(X):
+        R = resb(X)
+        return R, jacb(X, R)
 
     budget = int(max_nfev) if max_nfev is not None else 1000 * (x0.size + 1)
     iters = int(max_iter) if max_iter is not None else 10 * budget + 10
@@ -986,11 +986,10 @@ def levenberg_marquardt(residuals: Callable, x0, jacobian: Callable | None = Non
         other = "algorithm1" if control == "trust-region" else "trust-region"
         b2, n2 = run(other, False)
         second = result(b2, n2)
+        total = dict(iterations=out.iterations + second.iterations,
+                     nfev=out.nfev + second.nfev, njev=out.njev + second.njev)
         if second.chi2 < out.chi2 or (second.converged and second.chi2 <= out.chi2):
-            out = replace(second, first_run=out, iterations=out.iterations + second.iterations,
-                          nfev=out.nfev + second.nfev, njev=out.njev + second.njev)
+            out = replace(second, first_run=out, **total)
         else:
-            out = replace(out, first_run=None, iterations=out.iterations + second.iterations,
-                          nfev=out.nfev + second.nfev, njev=out.njev + second.njev,
-                          second_run=second)
+            out = replace(out, second_run=second, **total)
     return out

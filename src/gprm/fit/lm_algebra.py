@@ -112,15 +112,6 @@ def in_range(sv: np.ndarray) -> np.ndarray:
         return sv > top * max(m, 1) * np.finfo(float).eps
 
 
-def _scaled_norms(sv: np.ndarray, g: np.ndarray, lam: np.ndarray) -> np.ndarray:
-    """``|D dx|`` of the damped steps of :func:`svd_steps` (D = sqrt of the damping diagonal):
-    D W has orthonormal columns, so it is ``|s g / (s^2 + lam)|``; singular values that are
-    numerically 0 (:func:`in_range`) give 0 (their direction is not in the range of J)."""
-    with np.errstate(divide="ignore", invalid="ignore"):
-        c = np.where(in_range(sv), sv * g / (sv * sv + lam[:, None]), 0.0)
-    return np.sqrt(np.sum(c * c, axis=1))
-
-
 def trust_region_lambda(sv: np.ndarray, g: np.ndarray, delta: np.ndarray,
                         n_iter: int = 40) -> np.ndarray:
     """The damping lambda whose step has scaled length ``|D dx| = delta`` (rows (B,)), or 0
@@ -131,22 +122,31 @@ def trust_region_lambda(sv: np.ndarray, g: np.ndarray, delta: np.ndarray,
     ``1/phi(lambda) - 1/delta`` (concave in lambda) from lambda = 0 increases monotonically
     to the root; it stops within 10 percent of delta, as MINPACK does."""
     lam = np.zeros(delta.shape)
-    phi = _scaled_norms(sv, g, lam)
+    rng = in_range(sv)                   # per row; sv does not change in the iteration
+
+    def steps(i):
+        """(c, s^2) of rows i at their current lambda: phi = |c|."""
+        s2 = sv[i] * sv[i]
+        with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+            return np.where(rng[i], sv[i] * g[i] / (s2 + lam[i, None]), 0.0), s2
+
+    c, _ = steps(np.arange(delta.size))
+    phi = np.sqrt(np.sum(c * c, axis=1))
     todo = phi > 1.1 * delta
     for _ in range(n_iter):
         if not todo.any():
             break
         i = np.nonzero(todo)[0]
-        s2 = sv[i] * sv[i]
+        c, s2 = steps(i)
+        ph = phi[i]
         with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
-            c = np.where(in_range(sv[i]), sv[i] * g[i] / (s2 + lam[i, None]), 0.0)
-            ph = np.sqrt(np.sum(c * c, axis=1))
             dph = -np.sum(c * c / (s2 + lam[i, None]), axis=1) / ph      # d phi / d lambda
             # Newton on 1/phi - 1/delta: lambda += (phi - delta) phi / (delta |phi'|)
             step = (ph - delta[i]) * ph / (delta[i] * -dph)
         step = np.where(np.isfinite(step) & (step > 0), step, 0.0)
         lam[i] = lam[i] + step
-        phi[i] = _scaled_norms(sv[i], g[i], lam[i])
+        c, _ = steps(i)
+        phi[i] = np.sqrt(np.sum(c * c, axis=1))
         todo[i] = (np.abs(phi[i] - delta[i]) > 0.1 * delta[i]) & (step > 0)
     return lam
 

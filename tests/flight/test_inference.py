@@ -69,9 +69,6 @@ def test_scenarios_and_unknowns_recovered(recovered):
             v = tr.t[i] if p == "t" else tr.params[p][i]
             inside += lo <= v <= hi
         assert inside >= 7, (p, inside)
-    for pr in res.probability:
-        assert abs(sum(pr.values()) - 1) < 1e-9
-    assert res.joint["chosen"] in ("xz", "yz", "two")
 
 
 def test_paper_observations_from_components():
@@ -91,7 +88,7 @@ def test_paper_observations_from_components():
     assert ob["components"] == ["vx", "vy", "vz", "wx", "wy"]
 
 
-def test_impact_document_has_truth_only_for_synthetic_telemetry(tmp_path):
+def test_impact_document_has_truth_only_for_synthetic_telemetry():
     from dataclasses import replace
 
     from gprm.flight import AnalysisOptions, ImpactOptions, run_impact
@@ -115,9 +112,9 @@ def test_impact_document_has_truth_only_for_synthetic_telemetry(tmp_path):
     assert "truth" not in doc2
     assert [r["chosen"] for r in sc2["releases"]] == [r["chosen"] for r in sc["releases"]]
     from gprm.report.scenarios import scenario_section
-    html = "".join(scenario_section(tmp_path, doc2).blocks)
+    html = "".join(scenario_section(doc2).blocks)
     assert "no truth exists" in html and "true scenario" not in html
-    html = "".join(scenario_section(tmp_path, doc).blocks)
+    html = "".join(scenario_section(doc).blocks)
     assert "true scenario" in html
 
 

@@ -55,7 +55,7 @@ def test_two_contacts_match_an_independent_constrained_solve():
         n /= np.linalg.norm(n, axis=1, keepdims=True)
         vA, wA = rng.normal(0, 1e-2, 3), rng.normal(0, 1, 3)
         e = rng.uniform(0, 1)
-        P, q2 = _kkt_two(mA, IA, vA * 0 + rA, vA, wA, mB, IB, rB, n, e)
+        P, q2 = _kkt_two(mA, IA, rA, vA, wA, mB, IB, rB, n, e)
         res = impact_3d_two(mA, IA, rA, vA, wA, mB, IB, rB, np.zeros(3), np.zeros(3), n, e, 0.0)
         if not bool(res.active.all()):
             continue          # one contact separates: solved alone (tested below)
@@ -74,7 +74,6 @@ def test_two_contacts_match_an_independent_constrained_solve():
 
 
 def test_two_contacts_with_one_separating_is_the_single_impact():
-    rng = np.random.default_rng(5)
     mA, mB = 0.3, 1.9
     IA, IB = np.eye(3) * 2e-4, np.eye(3) * 7e-4
     rA = np.array([[0.004, 0.0, 0.01], [0.0, 0.004, 0.01]])
@@ -88,7 +87,6 @@ def test_two_contacts_with_one_separating_is_the_single_impact():
     assert res.active.tolist() == [True, False]
     np.testing.assert_allclose(res.vB, one.vB, rtol=1e-12)
     np.testing.assert_allclose(res.wB, one.wB, rtol=1e-12)
-    del rng
 
 
 @pytest.fixture(scope="module")

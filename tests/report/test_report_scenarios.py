@@ -41,9 +41,9 @@ def test_voltage_section_without_runs_or_campaign(tmp_path):
     assert "not run" in "".join(s.blocks)
 
 
-def test_no_scenario_section_without_scenarios(tmp_path):
-    assert scenario_section(tmp_path, None) is None
-    assert scenario_section(tmp_path, {"releases": []}) is None
+def test_no_scenario_section_without_scenarios():
+    assert scenario_section(None) is None
+    assert scenario_section({"releases": []}) is None
 
 
 def test_scenario_summary_line_counts_the_papers_observations():

@@ -986,10 +986,10 @@ def levenberg_marquardt(residuals: Callable, x0, jacobian: Callable | None = Non
         other = "algorithm1" if control == "trust-region" else "trust-region"
         b2, n2 = run(other, False)
         second = result(b2, n2)
-        total = dict(iterations=out.iterations + second.iterations,
-                     nfev=out.nfev + second.nfev, njev=out.njev + second.njev)
+        its = out.iterations + second.iterations
+        nfev, njev = out.nfev + second.nfev, out.njev + second.njev
         if second.chi2 < out.chi2 or (second.converged and second.chi2 <= out.chi2):
-            out = replace(second, first_run=out, **total)
+            out = replace(second, first_run=out, iterations=its, nfev=nfev, njev=njev)
         else:
-            out = replace(out, second_run=second, **total)
+            out = replace(out, second_run=second, iterations=its, nfev=nfev, njev=njev)
     return out

@@ -17,9 +17,8 @@ from gprm.errors import GprmInputError
 from gprm.flight.files import IMPACT_FORMAT, impact_curves_dataset
 from gprm.flight.impact_time import ImpactTimeMC, impact_time_mc
 from gprm.flight.joint import joint_impact_time
-from gprm.flight.predicted import (IMPACT_MODELS, ImpactGeometry, VelocityCurves,
+from gprm.flight.predicted import (IMPACT_MODELS, VelocityCurves,
                                    scenario_geometry, velocity_curves)
-from gprm.flight.scenario import COMPARED
 from gprm.flight.telemetry import AXES, AXIS_CHANNEL, AXIS_UNIT, release_velocities
 from gprm.flight.tukey import tukey_range_test
 from gprm.validate import check_int
@@ -224,9 +223,7 @@ def analyze(model, tel, opts: AnalysisOptions = AnalysisOptions(),
     if curves is None:
         curves = velocity_curves(model, window=opts.window, n_times=opts.n_times,
                                  n_samples=opts.n_samples, seed=opts.seed,
-                                 geometry=(scenario_geometry(opts.impact_model)
-                                           if opts.impact_model in COMPARED else
-                                           ImpactGeometry(impact_model=opts.impact_model)))
+                                 geometry=scenario_geometry(opts.impact_model))
     if curves.samples is None:
         raise GprmInputError("curves without their joint draws", field="curves")
     has_unc = bool(getattr(model, "has_uncertainty", True))

@@ -36,7 +36,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from gprm.errors import GprmInputError
-from gprm.flight.scenario import (COMPARED, COMPONENTS, PARAMS, SCENARIOS, ScenarioPrior,
+from gprm.flight.scenario import (COMPARED, COMPONENTS, PARAMS, SCENARIO_GRID_STEP, SCENARIOS,
+                                  ScenarioPrior,
                                   plunger_frame, scenario_grid, scenario_velocity)
 from gprm.validate import check_int
 
@@ -60,7 +61,7 @@ class InferenceOptions:
     floor: tuple[float, float] = (0.2e-6, 10e-6)
     rel_floor: float = 0.02
     min_valid: float = 0.75
-    grid_step: float = 1e-7
+    grid_step: float = SCENARIO_GRID_STEP
 
     def __post_init__(self):
         sc = tuple(self.scenarios)

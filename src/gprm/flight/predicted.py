@@ -283,7 +283,9 @@ def _tm_velocity_3d(motion, geoms) -> dict:
 def scenario_geometry(kind: str, prior: ScenarioPrior | None = None) -> ImpactGeometry:
     """The nominal geometry of scenario impact model ``kind`` (``xz``, ``yz``, ``two``): the
     middle of each unknown's prior (contact height 0, azimuth 0, friction and restitution the
-    middles of their ranges)."""
+    middles of their ranges). Any other impact model: its default geometry."""
+    if kind not in COMPARED:
+        return ImpactGeometry(impact_model=kind)
     pr = prior or ScenarioPrior()
     return ImpactGeometry(impact_model=kind, friction=float(np.mean(pr.friction)),
                           restitution=float(np.mean(pr.restitution)))

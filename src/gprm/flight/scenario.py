@@ -36,7 +36,8 @@ import numpy as np
 
 from gprm.errors import GprmInputError
 from gprm.flight.impact import _skew, impact_3d, kinetic_energy
-from gprm.simulate.kinematics import motion_omega, named_points, rotation
+from gprm.simulate.kinematics import (body_motion, motion_omega, named_points, point_motion,
+                                     rotation)
 
 SCENARIOS: tuple[str, ...] = ("xz", "yz", "two", "xz-face", "yz-face", "two-face", "corner")
 """The contact scenarios (module docstring). The first three are the rim contacts the scenario
@@ -210,7 +211,6 @@ def plunger_frame(motion) -> Frame:
     """The plunger body's rigid motion of a :class:`~gprm.simulate.kinematics.PlungerMotion`
     (a body point r moves as A + R r with velocity Ad + ω × R r, the closed form of
     :func:`gprm.simulate.kinematics.point_motion` for the plunger body)."""
-    from gprm.simulate.kinematics import point_motion
     c, d = motion.coords, motion.rates
     A = np.stack([c["x_A"], c["y_A"], c["z_lr"] + c["z_A"]], 1)
     Ad = np.stack([d["x_A_dot"], d["y_A_dot"], d["z_lr_dot"] + d["z_A_dot"]], 1)
@@ -501,7 +501,6 @@ def draw_truths(model, kinds, seed: int, prior: ScenarioPrior | None = None, *,
     after the impact (:func:`scenario_velocity`). A draw without an impact (the contact does
     not approach, or the impulse does not push) is drawn again."""
     from gprm.params import batch
-    from gprm.simulate.kinematics import body_motion
 
     prior = prior or ScenarioPrior()
     kinds = list(kinds)

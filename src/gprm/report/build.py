@@ -764,8 +764,8 @@ def build_report(run_dir: str | Path) -> str:
     if design is not None:
         sections.append(design)
     sections += [x for x in (voltage_section(run),
-                             scenario_section(run, _load_json(run, "impact.json",
-                                                              "impact result")))
+                             scenario_section(_load_json(run, "impact.json",
+                                                         "impact result")))
                  if x is not None]
     prov = _load_json(run, "run.json", "run record") or {}
     sections.append(provenance_section(run, prov))

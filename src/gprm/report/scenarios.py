@@ -132,7 +132,7 @@ def scenario_rows(imp: dict) -> list:
     return rows
 
 
-def scenario_section(run: Path, imp: dict | None) -> Section | None:
+def scenario_section(imp: dict | None) -> Section | None:
     """The impact scenarios of impact.json (None when it has none)."""
     if not imp or not imp.get("scenarios"):
         return None

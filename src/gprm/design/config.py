@@ -194,15 +194,19 @@ def _int(value: Any, src: str, fld: str, lo: int, hi: int = 100_000) -> int:
     return int(value)
 
 
-def _table(doc: dict, key: str, src: str, allowed: set[str]) -> dict:
-    t = doc.get(key, {})
+def _checked_table(t, allowed: set[str], src: str, field: str) -> dict:
+    """``t`` if it is a table whose keys are all in ``allowed``; else a one-line error."""
     if not isinstance(t, dict):
-        raise GprmInputError("must be a table", source=src, field=key)
+        raise GprmInputError("must be a table", source=src, field=field)
     extra = set(t) - allowed
     if extra:
         raise GprmInputError(f"unknown key(s) {sorted(extra)} (expected {sorted(allowed)})",
-                             source=src, field=key)
+                             source=src, field=field)
     return t
+
+
+def _table(doc: dict, key: str, src: str, allowed: set[str]) -> dict:
+    return _checked_table(doc.get(key, {}), allowed, src, key)
 
 
 def _channel(item: Any, src: str, fld: str) -> Channel:
@@ -333,12 +337,7 @@ def read_design_config(path: str | Path | None, *, window=DEFAULT_WINDOW) -> Des
     extra_hours = []
     for i, c in enumerate(items):
         fld = f"candidate[{i}]"
-        if not isinstance(c, dict):
-            raise GprmInputError("must be a table", source=src, field=fld)
-        bad = set(c) - _CAND
-        if bad:
-            raise GprmInputError(f"unknown key(s) {sorted(bad)} (expected {sorted(_CAND)})",
-                                 source=src, field=fld)
+        _checked_table(c, _CAND, src, fld)
         name = c.get("name")
         if not isinstance(name, str) or not name.strip():
             raise GprmInputError("every candidate needs a name", source=src,

@@ -68,7 +68,9 @@ COVERAGE_HEADLINE = (
     "independently written simulator with white noise and 91.3 % with all its imperfections, "
     "98.8 % on gprm's own generator and 92-99 % with trigger jitter, drive variation between "
     "runs, coloured noise, drift, the nonlinear correction or per-channel gain errors alone; "
-    "with an unmodelled mode they are wider than nominal (100 %)")
+    "with an unmodelled mode they are wider than nominal (100 %: a third of the parameters "
+    "identified there are mostly the weak prior's, and the mode's transient moves the others "
+    "less than noise of its power would)")
 
 
 @dataclass(frozen=True)
@@ -76,10 +78,10 @@ class Systematics:
     """Priors on the instrument's per-channel systematics (standard deviations, SI), stated
     by the user (parameter file ``[systematics]``, ``gprm fit --gain-sd/--timing-sd``).
 
-    gain_sd: relative calibration (gain) error of each laser channel, 1 (default 0.005:
-    0.5 %, the scale factor of a laboratory heterodyne interferometer on a mechanism bench
-    known to a few tenths of a per cent; docs/fitting.md says where it comes from and what
-    it does). timing_sd: s, timing offset of each channel beyond what the alignment fits
+    gain_sd: relative calibration (gain) error of each laser channel, 1 (default 0: an
+    interferometer's displacement scale comes from its laser wavelength, so a stated default
+    would be a guess; whatever gain error the residuals show is estimated and used anyway,
+    ``estimate_gain``; docs/fitting.md, "Instrument systematics"). timing_sd: s, timing offset of each channel beyond what the alignment fits
     (default 0: each signal is aligned at its own threshold crossing and its lag is fitted,
     docs/model.md, so a constant channel delay is absorbed; the alignment's own error is
     estimated from the data and added). ``per_signal``: optional overrides

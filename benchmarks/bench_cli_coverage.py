@@ -4,7 +4,7 @@
 
     gprm synth campaign --truth truth.toml --seed S --out campaign.nc
     gprm preprocess campaign.nc --out means.nc
-    gprm fit means.nc --seed S --out fit.json          (every default: 1000 starts, bootstrap)
+    gprm fit means.nc --seed S --out fit.json          (every default: 1000 starts, sandwich)
 
 and from fit.json: how many of the 21 physical parameters are identified, how many of their
 95 % / 68 % intervals contain the truth, and (through the library, on the fit `gprm predict`
@@ -12,6 +12,12 @@ reads) how many of the moving point-axes' overshoots in the three scenarios of S
 the 95 % / 68 % bands (benchmarks/bench_coverage.py's definition).
 
     .venv/bin/python benchmarks/bench_cli_coverage.py [--campaigns 10] [--seed 5000] [--keep DIR]
+        [--workers W | --scheduler ADDRESS]
+
+With ``--workers``/``--scheduler`` the campaigns run as Dask tasks (benchmarks/_studies.py),
+each fit then in its task's process (``gprm fit --workers 0``: the fit's result does not depend
+on its workers, docs/fitting.md); on a remote cluster ``--keep`` must be a folder every worker
+can write.
 """
 
 from __future__ import annotations
@@ -42,7 +48,10 @@ def gprm(folder: Path, *args: str) -> None:
         raise RuntimeError(f"gprm {' '.join(args)} failed in {folder}:\n{r.stdout}{r.stderr}")
 
 
-def one_campaign(seed: int, folder: Path, samples: int) -> dict:
+def one_campaign(seed: int, root: str, samples: int, fit_args: tuple[str, ...] = ()) -> dict:
+    """The chain on campaign ``seed`` in ``root``/seed<seed>; its scores (a Dask task of
+    _studies.map_seeds: the result depends only on the seed)."""
+    folder = Path(root) / f"seed{seed}"
     folder.mkdir(parents=True, exist_ok=True)
     rnd = random.Random(seed)
     p = paper()
@@ -52,7 +61,7 @@ def one_campaign(seed: int, folder: Path, samples: int) -> dict:
     gprm(folder, "synth", "campaign", "--truth", "truth.toml", "--seed", str(seed), "--out",
          "campaign.nc")
     gprm(folder, "preprocess", "campaign.nc", "--out", "means.nc")
-    gprm(folder, "fit", "means.nc", "--seed", str(seed), "--out", "fit.json")
+    gprm(folder, "fit", "means.nc", "--seed", str(seed), *fit_args, "--out", "fit.json")
     fit_s = time.perf_counter() - t
     truth = load_params(folder / "truth.toml")
     doc = json.loads((folder / "fit.json").read_text())
@@ -75,22 +84,27 @@ def main(argv=None) -> None:
     ap.add_argument("--samples", type=int, default=200, help="parameter sets per prediction")
     ap.add_argument("--keep", help="keep every campaign's files under this folder")
     ap.add_argument("--json", help="write every campaign's numbers here")
+    ap.add_argument("--workers", type=int, default=0,
+                    help="campaigns as Dask tasks on a local cluster of this many processes")
+    ap.add_argument("--scheduler", default=None,
+                    help="campaigns as Dask tasks on the cluster of this scheduler address")
     a = ap.parse_args(argv)
     from _machine import machine
+    from _studies import map_seeds
 
     t0 = time.perf_counter()
-    out = []
+    tasks = bool(a.scheduler) or a.workers > 0
     with tempfile.TemporaryDirectory() as tmp:
-        root = Path(a.keep) if a.keep else Path(tmp)
-        for c in range(a.campaigns):
-            seed = a.seed + c
-            r = one_campaign(seed, root / f"seed{seed}", a.samples)
-            out.append(r)
-            ident = [n for n, v in r["params"].items() if v["identified"]]
-            miss = [n for n in ident if not r["params"][n]["in95"]]
-            print(f"seed {seed}: {len(ident)} identified, missed {miss or 'none'}, overshoots "
-                  f"{r['pred']['in95']}/{r['pred']['n']} in 95 % bands ({r['fit_s']} s to fit)",
-                  file=sys.stderr, flush=True)
+        root = str(Path(a.keep).resolve()) if a.keep else tmp
+        out = map_seeds(one_campaign, range(a.seed, a.seed + a.campaigns),
+                        scheduler=a.scheduler, workers=a.workers, root=root,
+                        samples=a.samples, fit_args=("--workers", "0") if tasks else ())
+    for r in out:
+        ident = [n for n, v in r["params"].items() if v["identified"]]
+        miss = [n for n in ident if not r["params"][n]["in95"]]
+        print(f"seed {r['seed']}: {len(ident)} identified, missed {miss or 'none'}, overshoots "
+              f"{r['pred']['in95']}/{r['pred']['n']} in 95 % bands ({r['fit_s']} s to fit)",
+              file=sys.stderr, flush=True)
     if a.json:
         Path(a.json).write_text(json.dumps(out, indent=1))
     n_id = [sum(v["identified"] for v in r["params"].values()) for r in out]
@@ -100,8 +114,10 @@ def main(argv=None) -> None:
     p68 = sum(r["pred"]["in68"] for r in out)
     pn = sum(r["pred"]["n"] for r in out)
     ni = sum(n_id)
+    where = (f"scheduler {a.scheduler}" if a.scheduler else
+             f"{a.workers} Dask workers" if a.workers > 0 else "in process")
     print(f"{a.campaigns} campaigns through the CLI, seeds {a.seed}..{a.seed + a.campaigns - 1} "
-          f"({time.perf_counter() - t0:.0f} s; {machine()})")
+          f"({time.perf_counter() - t0:.0f} s, {where}; {machine()})")
     print("| identified / campaign (min) | identified 95 % | identified 68 % | overshoots 95 % "
           "| overshoots 68 % |\n|---|---|---|---|---|")
     print(f"| {np.mean(n_id):.1f} ({min(n_id)}) | {i95 / ni:.1%} ({i95}/{ni}) | "

@@ -9,7 +9,7 @@ lies inside the 95 % and 68 % intervals of the identified ones (and of all).
 
     .venv/bin/python benchmarks/bench_sources.py [--sources white,gain-2,...] [--campaigns 20]
         [--seed 5000] [--starts 200] [--methods sandwich,laplace-prior] [--workers 2]
-        [--json F] [--cache DIR]
+        [--scheduler ADDRESS] [--json F] [--cache DIR]
     .venv/bin/python benchmarks/bench_sources.py --from-json F [F ...]
 
 ``--cache DIR`` keeps each campaign's fit (a pickle) so that methods can be compared again
@@ -25,7 +25,6 @@ import pickle
 import sys
 import tempfile
 import time
-from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -287,8 +286,11 @@ def misses_table(rows: list[dict]) -> str:
     return "\n".join(out)
 
 
-def _job(args):
-    source, seed, starts, cache, methods, predictions = args
+def _job(index: int, jobs: list):
+    """Job ``index`` of ``jobs`` (source, seed, starts, cache, methods, predictions): its
+    scores and the seconds its fit took. A Dask task of benchmarks/_studies.py's map_seeds,
+    which keys tasks by an integer; the result depends only on the job."""
+    source, seed, starts, cache, methods, predictions = jobs[index]
     case = run_case(source, seed, starts, cache)
     return [score(case, m, predictions) for m in methods], case.seconds
 
@@ -300,7 +302,11 @@ def main(argv=None) -> int:
     ap.add_argument("--seed", type=int, default=5000)
     ap.add_argument("--starts", type=int, default=200)
     ap.add_argument("--methods", default="sandwich")
-    ap.add_argument("--workers", type=int, default=2)
+    ap.add_argument("--workers", type=int, default=2,
+                    help="campaigns as Dask tasks on a local cluster of this many processes "
+                    "(0: in this process)")
+    ap.add_argument("--scheduler", default=None,
+                    help="campaigns as Dask tasks on the cluster of this scheduler address")
     ap.add_argument("--predictions", action="store_true",
                     help="also score overshoots, KE histogram and velocity curves (slower)")
     ap.add_argument("--json")
@@ -330,15 +336,20 @@ def main(argv=None) -> int:
     t0 = time.perf_counter()
     rows: list[dict] = []
     secs = []
-    with ProcessPoolExecutor(a.workers) as ex:
-        for res, sec in ex.map(_job, jobs):
-            rows.extend(res)
-            secs.append(sec)
+    from _machine import machine
+    from _studies import map_seeds
+
+    for res, sec in map_seeds(_job, range(len(jobs)), scheduler=a.scheduler,
+                              workers=a.workers, jobs=jobs):
+        rows.extend(res)
+        secs.append(sec)
+    where = (f"scheduler {a.scheduler}" if a.scheduler else
+             f"{a.workers} Dask workers" if a.workers > 0 else "in process")
     meta = {"command": " ".join(["benchmarks/bench_sources.py"] + (argv or sys.argv[1:])),
             "wall_s": round(time.perf_counter() - t0, 1),
-            "median_case_s": float(np.median(secs))}
-    print(f"{len(jobs)} campaigns in {meta['wall_s']} s ({a.workers} workers; median "
-          f"{meta['median_case_s']:.1f} s per campaign)\n")
+            "median_case_s": float(np.median(secs)), "where": where, "machine": machine()}
+    print(f"{len(jobs)} campaigns in {meta['wall_s']} s ({where}; median "
+          f"{meta['median_case_s']:.1f} s per campaign; {meta['machine']})\n")
     print(summary(rows))
     print()
     print(prior_share_table(rows))

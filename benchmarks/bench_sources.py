@@ -257,33 +257,30 @@ def prior_share_table(rows: list[dict]) -> str:
     return "\n".join(out)
 
 
-def not_identified_table(rows: list[dict]) -> str:
-    """Per source, how often each physical parameter was not identified (campaigns)."""
+def _name_counts(rows: list[dict], key: str, campaigns: bool = False) -> str:
+    """Per source and method, how many campaigns list each name under ``key``."""
     out = []
     for src in sorted({r["source"] for r in rows}):
         for m in sorted({r["method"] for r in rows if r["source"] == src}):
-            cnt: dict[str, int] = {}
             rr = [r for r in rows if r["source"] == src and r["method"] == m]
+            cnt: dict[str, int] = {}
             for r in rr:
-                for n in r.get("not_identified", ()):
+                for n in r.get(key, ()):
                     cnt[n] = cnt.get(n, 0) + 1
             top = ", ".join(f"{n} {c}" for n, c in sorted(cnt.items(), key=lambda t: -t[1]))
-            out.append(f"- {src}, {m} ({len(rr)} campaigns): {top or 'none'}")
+            label = f"{src}, {m}" + (f" ({len(rr)} campaigns)" if campaigns else "")
+            out.append(f"- {label}: {top or 'none'}")
     return "\n".join(out)
+
+
+def not_identified_table(rows: list[dict]) -> str:
+    """Per source, how often each physical parameter was not identified (campaigns)."""
+    return _name_counts(rows, "not_identified", campaigns=True)
 
 
 def misses_table(rows: list[dict]) -> str:
-    out = []
-    for src in sorted({r["source"] for r in rows}):
-        for m in sorted({r["method"] for r in rows if r["source"] == src}):
-            cnt: dict[str, int] = {}
-            for r in rows:
-                if r["source"] == src and r["method"] == m:
-                    for n in r["misses95"]:
-                        cnt[n] = cnt.get(n, 0) + 1
-            top = ", ".join(f"{n} {c}" for n, c in sorted(cnt.items(), key=lambda t: -t[1]))
-            out.append(f"- {src}, {m}: {top or 'none'}")
-    return "\n".join(out)
+    """Per source, how often each identified parameter's 95 % interval missed the truth."""
+    return _name_counts(rows, "misses95")
 
 
 def _job(index: int, jobs: list):

@@ -186,13 +186,18 @@ def mc_interval(rows: list[dict], num: str, den: str, rng, n_boot: int = 2000):
     return 100 * a.sum() / b.sum(), 100 * lo, 100 * hi
 
 
+def _source_keys(rows: list[dict], need: str | None = None) -> list[tuple[str, str]]:
+    """The (source, method) pairs of ``rows`` (those with ``need``), in the sources' order."""
+    return sorted({(r["source"], r["method"]) for r in rows if need is None or need in r},
+                  key=lambda k: (sources.SOURCES.index(k[0]) if k[0] in sources.SOURCES
+                                 else 99, k[1]))
+
+
 def prediction_summary(rows: list[dict]) -> str:
     rng = np.random.default_rng(1)
     out = ["| source | method | overshoots 95 % | 68 % | KE histogram 95 % | 68 % | "
            "velocity curves 95 % | 68 % |", "|---|---|---|---|---|---|---|---|"]
-    keys = sorted({(r["source"], r["method"]) for r in rows if "pred" in r},
-                  key=lambda k: (sources.SOURCES.index(k[0]) if k[0] in sources.SOURCES
-                                 else 99, k[1]))
+    keys = _source_keys(rows, "pred")
     for src, m in keys:
         rr = [r for r in rows if r["source"] == src and r["method"] == m and "pred" in r]
         cells = []
@@ -211,9 +216,7 @@ def summary(rows: list[dict]) -> str:
     out = ["| source | method | campaigns | identified / campaign (min) | 95 % (MC 95 %) | "
            "68 % (MC 95 %) | all 21: 95 % / 68 % | best fit outside its 95 % |",
            "|---|---|---|---|---|---|---|---|"]
-    keys = sorted({(r["source"], r["method"]) for r in rows},
-                  key=lambda k: (sources.SOURCES.index(k[0]) if k[0] in sources.SOURCES
-                                 else 99, k[1]))
+    keys = _source_keys(rows)
     for src, m in keys:
         rr = [r for r in rows if r["source"] == src and r["method"] == m]
         nid = [r["n_identified"] for r in rr]
@@ -237,9 +240,7 @@ def prior_share_table(rows: list[dict]) -> str:
     rng = np.random.default_rng(2)
     out = ["| source | method | data-dominated / campaign | 95 % | 68 % | "
            "prior-dominated / campaign | 95 % | 68 % |", "|---|---|---|---|---|---|---|---|"]
-    keys = sorted({(r["source"], r["method"]) for r in rows if "n_prior" in r},
-                  key=lambda k: (sources.SOURCES.index(k[0]) if k[0] in sources.SOURCES
-                                 else 99, k[1]))
+    keys = _source_keys(rows, "n_prior")
     for src, m in keys:
         rr = [r for r in rows if r["source"] == src and r["method"] == m]
         data = [{"n": r["n_identified"] - r["n_prior"],

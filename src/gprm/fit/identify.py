@@ -72,14 +72,15 @@ def _identify(data: FitData, base: ParameterSet, opts: MultiStartOptions, *, pie
     t_ms = time.perf_counter() - t_start
     best = starts.best_index
     x, polish = polish_best(obj, starts.x[best], opts.lm)
-    r, J = _data_jacobian(obj, x)
     if prior is not None:
-        # weigh the prior against the data's variance scale, then polish again
+        # weigh the prior against the data's variance scale, then polish again (the residuals
+        # alone here: the Jacobian is needed at the final point only)
+        r = obj.residuals(obj.to_normalised(x)[None])[0, :obj.data.n_obs]
         s2 = time_correlation_factor(r, len(data.signals)) * float(r @ r) / obj.dof
         obj = obj.with_prior(prior.with_weight(np.sqrt(max(s2, 1e-300))))
         x, polish2 = polish_best(obj, x, opts.lm)
         polish = {**polish, "posterior": polish2, "s2": s2}
-        r, J = _data_jacobian(obj, x)
+    r, J = _data_jacobian(obj, x)
     chi2 = float(r @ r)
     eq7 = estimate("eq7", x, J, r, obj.dof, len(data.signals), prior, obj.names)
     t_b = time.perf_counter()

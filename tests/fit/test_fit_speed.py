@@ -120,3 +120,15 @@ def test_batched_leave_one_signal_out_matches_one_polish_per_signal(fitted):
     assert LOSO_FTOL <= 1e-10
     # and the polishes moved: at the unpolished point every ratio would be exactly 1
     assert np.all(np.abs(each - 1) > 1e-3), each
+
+
+def test_the_fit_does_not_import_scipy_signal():
+    """scipy.signal costs about a second of import; the fit's path (the library's identify
+    and the CLI's fit command) does without it."""
+    import subprocess
+
+    code = ("import sys, gprm.fit.api, gprm.fit.identify, gprm.fit.commands\n"
+            "print('scipy.signal' in sys.modules)")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                         check=True)
+    assert out.stdout.strip() == "False"

@@ -46,7 +46,10 @@ def _exp_residuals(t, Y):
     return fun
 
 
-def test_indexed_batch_is_each_problem_alone_and_matches_scipy():
+@pytest.mark.parametrize("geodesic", [False, True])
+def test_indexed_batch_is_each_problem_alone_and_matches_scipy(geodesic):
+    """Each row of an ``indexed`` batch sees its own data (also in the geodesic
+    acceleration's extra residual call)."""
     t = np.linspace(0, 4, 30)
     rng = np.random.default_rng(0)
     truths = np.array([[2.0, 1.3, 0.1], [1.0, 0.4, -0.3], [3.0, 2.5, 0.0], [0.5, 0.9, 1.0]])
@@ -55,13 +58,14 @@ def test_indexed_batch_is_each_problem_alone_and_matches_scipy():
     fun = _exp_residuals(t, Y)
     X0 = np.array([[1.0, 1.0, 0.0]] * 4)
     both = levenberg_marquardt_batch(fun, X0, residuals=lambda X, rows: fun(X, rows)[0],
-                                     indexed=True, max_iter=200, ftol=1e-14)
+                                     indexed=True, max_iter=200, ftol=1e-14,
+                                     geodesic=geodesic)
     for k in range(4):
         def fk(X, rows, k=k):
             return fun(X, np.full(len(X), k))
 
         one = levenberg_marquardt_batch(fk, X0[k:k + 1], indexed=True, max_iter=200,
-                                        ftol=1e-14,
+                                        ftol=1e-14, geodesic=geodesic,
                                         residuals=lambda X, rows, k=k: fk(X, rows, k)[0])
         np.testing.assert_allclose(both.x[k], one.x[0], rtol=1e-9)
         ref = least_squares(lambda x, k=k: fun(x[None], np.array([k]))[0][0], X0[k],

@@ -28,16 +28,19 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.signal import periodogram
 from scipy.stats import chi2 as chi2_dist
 
-from gprm.fit.engine import polish_best
+from gprm.fit.engine import polish_best, polish_kwargs
+from gprm.fit.lm import levenberg_marquardt_batch
 from gprm.fit.objective import FitData, Objective
 from gprm.fit.prior import Prior
 from gprm.fit.starts import LMOptions
 
 P_CHI2 = 1e-3
 P_WHITE = 1e-3
+#: the leave-one-signal-out polishes: iteration limit and relative chi-square tolerance
+LOSO_MAX_ITER = 60
+LOSO_FTOL = 1e-10
 
 
 def ljung_box(x: np.ndarray, lags: int) -> tuple[float, float]:
@@ -54,6 +57,32 @@ def ljung_box(x: np.ndarray, lags: int) -> tuple[float, float]:
         q += rho * rho / (n - k)
     q *= n * (n + 2)
     return float(q), float(chi2_dist.sf(q, lags))
+
+
+def periodogram(x: np.ndarray, fs: float) -> tuple[np.ndarray, np.ndarray]:
+    """(frequencies, one-sided power spectral density) of ``x`` (1-D) with its mean removed
+    and no window: ``|FFT|^2 / (fs n)``, doubled except at 0 and (n even) the Nyquist
+    frequency -- scipy.signal.periodogram's defaults with ``detrend="constant"`` (checked
+    against it in tests/fit/test_adequacy_speed.py; scipy.signal itself costs about a second
+    of import)."""
+    x = np.asarray(x, float)
+    n = x.size
+    p = np.abs(np.fft.rfft(x - x.mean())) ** 2 / (fs * n)
+    if n % 2:
+        p[1:] *= 2.0
+    else:
+        p[1:-1] *= 2.0
+    return np.fft.rfftfreq(n, 1.0 / fs), p
+
+
+def spectral_peak(x: np.ndarray, fs: float) -> tuple[float, float]:
+    """(frequency, share of the power) of the largest bin of ``x``'s periodogram, DC
+    excluded (NaN, NaN when there is no power beyond DC)."""
+    f, pw = periodogram(x, fs)
+    if pw.size > 1 and np.sum(pw[1:]) > 0:
+        k = 1 + int(np.argmax(pw[1:]))
+        return float(f[k]), float(pw[k] / np.sum(pw[1:]))
+    return float("nan"), float("nan")
 
 
 @dataclass(frozen=True)
@@ -117,10 +146,10 @@ def _subset(data: FitData, keep: list[int]) -> FitData:
                    else data.interpolation_error[keep])
 
 
-def leave_one_signal_out(obj: Objective, x: np.ndarray, lm: LMOptions = LMOptions(),
-                         max_iter: int = 60) -> np.ndarray:
-    """(n_signals,) the prediction error of each signal by the fit without it, over its
-    in-fit error (mean squared weighted residuals)."""
+def leave_one_signal_out_each(obj: Objective, x: np.ndarray, lm: LMOptions = LMOptions(),
+                              max_iter: int = LOSO_MAX_ITER) -> np.ndarray:
+    """:func:`leave_one_signal_out` the direct way: one objective without signal s and one
+    polish per signal (the reference the batched form is tested against)."""
     d = obj.data
     S = len(d.signals)
     y_fit = obj.model(np.asarray(x, float)[None]).y[0]
@@ -130,10 +159,72 @@ def leave_one_signal_out(obj: Objective, x: np.ndarray, lm: LMOptions = LMOption
         keep = [i for i in range(S) if i != s]
         sub = Objective(_subset(d, keep), obj.base, obj.names, obj.scale, obj.piezo,
                         obj.z_bk_absolute, obj.prior)
-        xs, _ = polish_best(sub, np.asarray(x, float), lm, max_iter=max_iter, ftol=1e-10)
+        xs, _ = polish_best(sub, np.asarray(x, float), lm, max_iter=max_iter, ftol=LOSO_FTOL)
         ys = obj.model(xs[None]).y[0]
         if np.all(np.isfinite(ys[s])):
             out[s] = float(np.mean(((d.values[s] - ys[s]) / d.sigma[s]) ** 2) / own[s])
+    return out
+
+
+@dataclass(frozen=True)
+class LeftOut:
+    """The objective ``obj`` with signal ``left[k]`` left out of row k of a batch: its
+    residuals and Jacobian rows set to zero (the same sum of squares and normal equations as
+    the objective without that signal), the prior's rows kept. For
+    :func:`gprm.fit.lm.levenberg_marquardt_batch` with ``indexed=True``: every call gets the
+    rows' indices in the batch."""
+
+    obj: Objective
+    left: np.ndarray
+
+    def _keep(self, rows: np.ndarray) -> np.ndarray:
+        """(b, N) True where a residual of the rows ``rows`` is kept."""
+        d = self.obj.data
+        S, T = d.values.shape
+        per_signal = np.ones((rows.size, S, T), bool)
+        per_signal[np.arange(rows.size), self.left[rows]] = False
+        keep = per_signal.reshape(rows.size, S * T)
+        if self.obj.prior is None:
+            return keep
+        return np.concatenate([keep, np.ones((rows.size, self.obj.n_params), bool)], axis=1)
+
+    def __call__(self, Xn: np.ndarray, rows: np.ndarray):
+        r, J = self.obj(Xn)
+        keep = self._keep(np.asarray(rows))
+        return np.where(keep, r, 0.0), np.where(keep[:, :, None], J, 0.0)
+
+    def residuals(self, Xn: np.ndarray, rows: np.ndarray) -> np.ndarray:
+        return np.where(self._keep(np.asarray(rows)), self.obj.residuals(Xn), 0.0)
+
+
+def leave_one_signal_out(obj: Objective, x: np.ndarray, lm: LMOptions = LMOptions(),
+                         max_iter: int = LOSO_MAX_ITER) -> np.ndarray:
+    """(n_signals,) the prediction error of each signal by the fit without it, over its
+    in-fit error (mean squared weighted residuals).
+
+    The n_signals polishes (each from ``x``, ``max_iter`` iterations, relative tolerance
+    ``LOSO_FTOL``) run as one lock-step batch: one simulation of all rows per iteration
+    (:class:`LeftOut`), and one for the fit and the n_signals predictions. The same numbers
+    as :func:`leave_one_signal_out_each` to rounding (tests/fit/test_adequacy_speed.py)."""
+    d = obj.data
+    S = len(d.signals)
+    x = np.asarray(x, float)
+    x0n = obj.to_normalised(x)
+    lo, hi = obj.bounds_normalised()
+    fun = LeftOut(obj, np.arange(S))
+    res = levenberg_marquardt_batch(fun, np.repeat(x0n[None], S, axis=0), lower=lo, upper=hi,
+                                    residuals=fun.residuals, indexed=True,
+                                    **polish_kwargs(lm, max_iter, LOSO_FTOL))
+    # as polish_best: a row that did not end finite and no worse keeps x
+    ok = np.isfinite(res.chi2) & (res.chi2 <= res.chi2_0)
+    XS = np.where(ok[:, None], obj.to_physical(res.x), x[None])
+    y = obj.model(np.concatenate([x[None], XS])).y                 # (1 + S, S, T)
+    own = np.mean(((d.values - y[0]) / d.sigma) ** 2, axis=1)
+    out = np.full(S, np.nan)
+    for s in range(S):
+        ys = y[1 + s, s]
+        if np.all(np.isfinite(ys)):
+            out[s] = float(np.mean(((d.values[s] - ys) / d.sigma[s]) ** 2) / own[s])
     return out
 
 
@@ -166,12 +257,7 @@ def assess(obj: Objective, x: np.ndarray, r: np.ndarray, p_eff: float, *,
         z = R[s] - R[s].mean()
         den = float(z @ z)
         lag1 = float(z[1:] @ z[:-1]) / den if den > 0 else 0.0
-        f, pw = periodogram(R[s], fs=fs, detrend="constant")
-        if pw.size > 1 and np.sum(pw[1:]) > 0:
-            k = 1 + int(np.argmax(pw[1:]))
-            pf, share = float(f[k]), float(pw[k] / np.sum(pw[1:]))
-        else:
-            pf, share = float("nan"), float("nan")
+        pf, share = spectral_peak(R[s], fs)
         checks.append(SignalCheck(d.signals[s], float(np.mean(R[s] ** 2)), q, pq, lags, lag1,
                                   pf, share, float(ratios[s])))
     reasons = []

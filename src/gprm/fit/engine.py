@@ -495,16 +495,24 @@ def _progress_reporter(progress, chunks, results):
     return report
 
 
+def polish_kwargs(lm: LMOptions, max_iter: int = 200, ftol: float = 1e-12) -> dict:
+    """The options of a polish (:func:`polish_best`): the starts' LM options with the
+    iteration limit ``max_iter``, relative tolerance ``ftol``, no absolute part and no stall
+    window."""
+    kw = lm.as_kwargs()
+    kw.update(max_iter=max_iter, ftol=ftol, ftol_abs=0.0, stall_window=0)
+    return kw
+
+
 def polish_best(obj: Objective, x: np.ndarray, lm: LMOptions, *, max_iter: int = 200,
                 ftol: float = 1e-12) -> tuple[np.ndarray, dict]:
     """Continue Algorithm 1 from the best start with a tight tolerance (relative chi-square
     change 1e-12, no absolute part), so that the reported best fit does not depend on the
     looser stopping rule used for the many starts. Chi-square can only decrease."""
     lo, hi = obj.bounds_normalised()
-    kw = lm.as_kwargs()
-    kw.update(max_iter=max_iter, ftol=ftol, ftol_abs=0.0, stall_window=0)
     res = levenberg_marquardt_batch(obj, obj.to_normalised(x)[None], lower=lo, upper=hi,
-                                    residuals=obj.residuals, **kw)
+                                    residuals=obj.residuals,
+                                    **polish_kwargs(lm, max_iter, ftol))
     info = {"chi2_before": float(res.chi2_0[0]), "chi2_after": float(res.chi2[0]),
             "iterations": int(res.iterations[0]), "status": str(res.status[0])}
     if not np.isfinite(res.chi2[0]) or res.chi2[0] > res.chi2_0[0]:

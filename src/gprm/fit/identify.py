@@ -13,7 +13,7 @@ import numpy as np
 from gprm.errors import GprmInputError
 from gprm.fit.adequacy import assess, effective_parameters
 from gprm.fit.covariance import parameters_at_bounds
-from gprm.fit.engine import polish_best, run_multistart
+from gprm.fit.engine import polish_best, run_multistart, single_thread_blas
 from gprm.fit.objective import FitData, Objective
 from gprm.fit.prior import DEFAULT_WIDTH, default_prior
 from gprm.fit.result import FitResult
@@ -39,7 +39,25 @@ def identify(data: FitData, base: ParameterSet, opts: MultiStartOptions = MultiS
     is the paper's unregularised fit (its uncertainty then is Eq. 7 or eq7-corr).
     ``systematics``: the instrument's stated systematics (gprm.fit.sandwich.Systematics;
     None: its documented defaults) the default method marginalises.
+
+    Runs with one BLAS thread (:func:`gprm.fit.engine.single_thread_blas`, as every chunk of
+    starts does): the fit's matrices are small, and two threads on them were slower (the
+    sandwich's eigendecompositions 1.1 s instead of 0.02 s on the 2-core machine) and change
+    the last bits with the thread count.
     """
+    with single_thread_blas():
+        return _identify(data, base, opts, piezo=piezo, names=names, workers=workers,
+                         scheduler=scheduler, checkpoint_dir=checkpoint_dir, progress=progress,
+                         profile=profile, band_samples=band_samples,
+                         z_bk_absolute=z_bk_absolute, stop_after=stop_after,
+                         uncertainty=uncertainty, prior_width=prior_width, n_draws=n_draws,
+                         n_boot=n_boot, systematics=systematics)
+
+
+def _identify(data: FitData, base: ParameterSet, opts: MultiStartOptions, *, piezo, names,
+              workers, scheduler, checkpoint_dir, progress, profile, band_samples,
+              z_bk_absolute, stop_after, uncertainty, prior_width, n_draws, n_boot,
+              systematics) -> FitResult:
     t_start = time.perf_counter()
     fit_names = tuple(base.fitted if names is None else names)
     prior = None if prior_width is None else default_prior(base, fit_names, prior_width)
@@ -54,14 +72,15 @@ def identify(data: FitData, base: ParameterSet, opts: MultiStartOptions = MultiS
     t_ms = time.perf_counter() - t_start
     best = starts.best_index
     x, polish = polish_best(obj, starts.x[best], opts.lm)
-    r, J = _data_jacobian(obj, x)
     if prior is not None:
-        # weigh the prior against the data's variance scale, then polish again
+        # weigh the prior against the data's variance scale, then polish again (the residuals
+        # alone here: the Jacobian is needed at the final point only)
+        r = obj.residuals(obj.to_normalised(x)[None])[0, :obj.data.n_obs]
         s2 = time_correlation_factor(r, len(data.signals)) * float(r @ r) / obj.dof
         obj = obj.with_prior(prior.with_weight(np.sqrt(max(s2, 1e-300))))
         x, polish2 = polish_best(obj, x, opts.lm)
         polish = {**polish, "posterior": polish2, "s2": s2}
-        r, J = _data_jacobian(obj, x)
+    r, J = _data_jacobian(obj, x)
     chi2 = float(r @ r)
     eq7 = estimate("eq7", x, J, r, obj.dof, len(data.signals), prior, obj.names)
     t_b = time.perf_counter()

@@ -224,27 +224,41 @@ class Problem:
     """The residual function of a batch: ``fun(X) -> (r, J)`` and, optionally, a cheaper
     ``residuals(X) -> r`` used for trial points (then ``fun`` runs at accepted points only)
     and ``jacobian(X, R) -> J``, the Jacobians at points whose residuals R are already known
-    (then the residuals of an accepted point are not evaluated a second time)."""
+    (then the residuals of an accepted point are not evaluated a second time).
+
+    ``indexed``: the rows are B different problems evaluated together (the same model
+    against different data, say); every function then also gets, as its last argument,
+    ``rows``: the indices in the batch (into X0) of the rows it is given."""
 
     fun: Callable
     residuals: Callable | None = None
     jacobian: Callable | None = None
+    indexed: bool = False
 
-    def jacobians(self, X: np.ndarray, R: np.ndarray) -> np.ndarray:
+    def _args(self, rows: np.ndarray) -> tuple:
+        return (rows,) if self.indexed else ()
+
+    def both(self, X: np.ndarray, rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``fun`` at the rows ``rows`` of the batch (points X)."""
+        return self.fun(X, *self._args(rows))
+
+    def jacobians(self, X: np.ndarray, R: np.ndarray, rows: np.ndarray) -> np.ndarray:
         """Jacobians at points with known residuals R (``jacobian`` if given, else ``fun``)."""
         if self.jacobian is not None:
-            return np.asarray(self.jacobian(X, R), float)
-        return np.asarray(self.fun(X)[1], float)
+            return np.asarray(self.jacobian(X, R, *self._args(rows)), float)
+        return np.asarray(self.both(X, rows)[1], float)
 
-    def values(self, X: np.ndarray) -> np.ndarray:
+    def values(self, X: np.ndarray, rows: np.ndarray) -> np.ndarray:
         """Residuals only (``residuals`` if given, else the first output of ``fun``)."""
-        return self.residuals(X) if self.residuals is not None else self.fun(X)[0]
+        if self.residuals is not None:
+            return self.residuals(X, *self._args(rows))
+        return self.both(X, rows)[0]
 
-    def trial(self, X: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
+    def trial(self, X: np.ndarray, rows: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
         """Residuals at trial points, and their Jacobian when it comes with them."""
         if self.residuals is not None:
-            return np.asarray(self.residuals(X), float), None
-        r, J = self.fun(X)
+            return np.asarray(self.residuals(X, *self._args(rows)), float), None
+        r, J = self.both(X, rows)
         return np.asarray(r, float), np.asarray(J, float)
 
 
@@ -406,7 +420,8 @@ class TrustRegion:
 class NoAcceleration:
     """The plain damped step."""
 
-    def correct(self, problem: Problem, box: Box, X, v, r, J, W, s, lam, dd, free):
+    def correct(self, problem: Problem, box: Box, X, v, r, J, W, s, lam, dd, free,
+                rows=None):
         """(corrected steps, rows to reject unevaluated, rows that cost a residual call)."""
         return v, np.zeros(v.shape[0], bool), np.zeros(0, int)
 
@@ -420,10 +435,11 @@ class GeodesicAcceleration:
     h: float = 0.1
     alpha: float = 0.75
 
-    def correct(self, problem: Problem, box: Box, X, v, r, J, W, s, lam, dd, free):
+    def correct(self, problem: Problem, box: Box, X, v, r, J, W, s, lam, dd, free,
+                rows=None):
         """``dd`` is the damping diagonal of the metric (:func:`_damping_diagonal`). Rows not
         ``free`` (a parameter held at a bound) or whose ``x + h v`` leaves the box keep
-        ``v``."""
+        ``v``. ``rows``: the rows' indices in the batch (None: 0, 1, ...)."""
         h = self.h
         Xh = X + h * v
         ok = free & np.all(np.isfinite(Xh) & (Xh > box.lo_in) & (Xh < box.hi_in), axis=1)
@@ -432,7 +448,7 @@ class GeodesicAcceleration:
         e = np.nonzero(ok)[0]
         if e.size == 0:
             return v, bad, e
-        rh = np.asarray(problem.values(Xh[e]), float)
+        rh = np.asarray(problem.values(Xh[e], e if rows is None else rows[e]), float)
         with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
             rvv = (2.0 / h) * ((rh - r[e]) / h - np.einsum("bnp,bp->bn", J[e], v[e]))
             # [J^T J + lam D] a = -J^T r'' with J^T J + lam D = W diag(s^2 + lam) W^T
@@ -534,7 +550,7 @@ def lm_init(problem: Problem, X0: np.ndarray, settings: Settings, damping, contr
     if X.ndim != 2:
         raise ValueError("X0 must be 2-D (B, P)")
     B, P = X.shape
-    r, J = problem.fun(X)
+    r, J = problem.both(X, np.arange(B))
     r = np.array(r, dtype=float)
     J = np.array(J, dtype=float)
     if r.ndim != 2 or r.shape[0] != B or J.shape != (B, r.shape[1], P):
@@ -573,7 +589,7 @@ def refresh_jacobians(state: LMState, problem: Problem, damping) -> LMState:
     st = idx[state.stale[idx]]
     if not st.size:
         return state
-    JJ = problem.jacobians(state.x[st], state.r[st])
+    JJ = problem.jacobians(state.x[st], state.r[st], st)
     J = state.J.copy()
     J[st] = JJ
     njev = state.njev.copy()
@@ -623,7 +639,7 @@ def propose(state: LMState, problem: Problem, box: Box, damping, control,
     dd = _damping_diagonal(f.d[idx], dfl)[0]
     dx, too_curved, accel_rows = acceleration.correct(
         problem, box, Xa, dx, state.r[idx], state.J[idx], f.W[idx], f.s[idx], lam, dd,
-        ~np.any(blocked, axis=1))
+        ~np.any(blocked, axis=1), idx)
     Xt = np.clip(Xa + dx, box.lo_in, box.hi_in)                 # projection onto the box
     inside = np.all(np.isfinite(Xt) & (Xt > box.lo) & (Xt < box.hi), axis=1) & ~too_curved
     return Proposal(idx, lam, dd, dx, Xt, inside, accel_rows)
@@ -635,7 +651,7 @@ def evaluate(prop: Proposal, problem: Problem) -> Trial:
     ev = np.nonzero(prop.inside)[0]
     rt = Jt = None
     if ev.size:
-        rt, Jt = problem.trial(prop.xt[ev])
+        rt, Jt = problem.trial(prop.xt[ev], prop.idx[ev])
         chi_t[ev] = _chi2(rt)
     return Trial(chi_t, ev, rt, Jt)
 
@@ -766,7 +782,7 @@ def lm_finish(state: LMState, problem: Problem, settings: Settings) -> LMBatchRe
         jac = state.J
         st = np.nonzero(state.stale)[0]
         if st.size:
-            JJ = problem.jacobians(state.x[st], state.r[st])
+            JJ = problem.jacobians(state.x[st], state.r[st], st)
             jac = jac.copy()
             jac[st] = JJ
             njev = njev.copy()
@@ -804,7 +820,8 @@ def levenberg_marquardt_batch(fun: Callable, X0: np.ndarray, *, residuals: Calla
                               geo_h: float = 0.1, geo_alpha: float = 0.75,
                               step_bound: float | None = None,
                               xtol: float = 1e-15, jacobian: Callable | None = None,
-                              gtol: float = 0.0, max_nfev: int | None = None) -> LMBatchResult:
+                              gtol: float = 0.0, max_nfev: int | None = None,
+                              indexed: bool = False) -> LMBatchResult:
     """Algorithm 1 for B starting points in lock-step (see the module docstring).
 
     fun: ``fun(X (b, P)) -> (r (b, N), J (b, N, P))`` for any number b of rows.
@@ -840,6 +857,10 @@ def levenberg_marquardt_batch(fun: Callable, X0: np.ndarray, *, residuals: Calla
     prune: optional ``prune(chi2 (B,), active (B,)) -> (B,) bool`` called each iteration;
         rows it marks stop with status ``pruned`` (used by the multi-start driver, which
         documents its rule).
+    indexed: the rows are B different problems that one call evaluates together (the same
+        model against different data, as the adequacy's leave-one-signal-out fits): ``fun``,
+        ``residuals`` and ``jacobian`` then take, as their last argument, the indices in X0
+        of the rows they are given.
     """
     damp, control, accel = select_plugins(damping=damping, geodesic=geodesic, geo_h=geo_h,
                                           geo_alpha=geo_alpha, step_bound=step_bound,
@@ -847,8 +868,9 @@ def levenberg_marquardt_batch(fun: Callable, X0: np.ndarray, *, residuals: Calla
     settings = Settings(max_iter=int(max_iter), lambda0=lambda0, ftol=ftol, ftol_abs=ftol_abs,
                         chi2_tol=chi2_tol, stall_window=int(stall_window), stall_tol=stall_tol,
                         keep_jacobian=keep_jacobian, gtol=gtol, max_nfev=max_nfev)
-    return minimize_batch(Problem(fun, residuals, jacobian), X0, settings, damping=damp, control=control,
-                          acceleration=accel, lower=lower, upper=upper, prune=prune)
+    return minimize_batch(Problem(fun, residuals, jacobian, indexed), X0, settings,
+                          damping=damp, control=control, acceleration=accel, lower=lower,
+                          upper=upper, prune=prune)
 
 
 def finite_difference_jacobian(residuals: Callable, x: np.ndarray, r0: np.ndarray | None = None,

@@ -1,0 +1,189 @@
+"""Benchmark of the fit's speed targets (issue 24, item 2): a 10-start fit <= 1.5 s and 1000
+starts <= 5 s wall on 2 cores, on the demo's campaign, with the same or better best chi2 and
+the same identified set on 20 campaigns.
+
+    .venv/bin/python benchmarks/bench_fit_speed.py [--repeat 5] [--big-repeat 1] [--no-big]
+                                                   [--no-cli] [--profile]
+    .venv/bin/python benchmarks/bench_fit_speed.py --campaigns 20 --starts 200 --json OUT
+    .venv/bin/python benchmarks/bench_fit_speed.py --compare BEFORE.json AFTER.json
+
+Default: the demo's campaign (``gprm synth campaign --seed 0``, preprocessed with the
+defaults, written to a temporary folder), then
+
+- ``identify`` with 10 starts in this process (every default: prior, sandwich uncertainty,
+  adequacy, 200 band samples): median and range of ``--repeat`` runs after one warm-up, with
+  the fit's own ``timings_s``;
+- the command a user types, ``gprm fit means.nc --starts 10 --out f.json``, in a fresh
+  interpreter: median and range of ``--repeat`` runs (imports included);
+- ``identify`` with 1000 starts on the CLI's default workers (one per core, at most one per
+  chunk: two on the 2-core machine; the Dask cluster's start included) and in this process,
+  ``--big-repeat`` runs each.
+
+The load average (1 minute) is printed before and after each measurement: the machine is
+shared, so a number is comparable only at a similar load. ``--profile`` adds the 25 functions
+with the most own time in one 10-start fit (cProfile).
+
+``--campaigns K``: the fits of campaigns seeds 0..K-1 (``synth_campaign(seed=k)``, the
+defaults otherwise) with ``--starts`` starts in this process, one JSON line each (best chi2,
+the identified set, the timings), written to ``--json``; ``--compare`` sets two such files
+side by side (run the first with the code before a change, the second after it).
+"""
+
+from __future__ import annotations
+
+import argparse
+import cProfile
+import io
+import json
+import os
+import pstats
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+from _machine import machine
+
+
+def load() -> float:
+    return os.getloadavg()[0]
+
+
+def means_file(folder: Path, seed: int = 0) -> Path:
+    from gprm.campaign.preprocess import PreprocessConfig, preprocess
+    from gprm.campaign.synth import synth_campaign
+
+    path = folder / f"means_{seed}.nc"
+    preprocess(synth_campaign(seed=seed), PreprocessConfig()).to_dataset().to_netcdf(path)
+    return path
+
+
+def fit(path: Path, starts: int, workers: int = 0):
+    from gprm.fit.api import FitOptions, run_fit
+
+    return run_fit(str(path), FitOptions(starts=starts), workers=workers)
+
+
+def spread(values: list[float]) -> str:
+    return (f"median {statistics.median(values):.2f} s (range {min(values):.2f}-"
+            f"{max(values):.2f}, {len(values)} runs)")
+
+
+def timed(fn, repeat: int):
+    walls, loads, out = [], [load()], None
+    for _ in range(repeat):
+        t = time.perf_counter()
+        out = fn()
+        walls.append(time.perf_counter() - t)
+    loads.append(load())
+    return walls, loads, out
+
+
+def gprm_exe() -> list[str]:
+    here = Path(sys.executable).with_name("gprm")
+    return [str(here)] if here.exists() else [sys.executable, "-m", "gprm.cli"]
+
+
+def speed(args) -> None:
+    from gprm.fit.engine import default_workers
+
+    print(machine("scipy"))
+    print(f"- command: `.venv/bin/python benchmarks/bench_fit_speed.py {' '.join(sys.argv[1:])}`"
+          "\n")
+    with tempfile.TemporaryDirectory() as tmp:
+        path = means_file(Path(tmp))
+        fit(path, 10)                                             # warm-up
+        walls, loads, res = timed(lambda: fit(path, 10), args.repeat)
+        print(f"10-start fit, identify in this process: {spread(walls)}; load {loads[0]:.2f}"
+              f"/{loads[1]:.2f}; best chi2 {res.chi2:.4f}; identified {len(res.identified)}; "
+              f"timings_s of the last {res.timings}")
+        if args.profile:
+            pr = cProfile.Profile()
+            pr.enable()
+            fit(path, 10)
+            pr.disable()
+            s = io.StringIO()
+            pstats.Stats(pr, stream=s).sort_stats("tottime").print_stats(25)
+            print("\nprofile (own time) of one 10-start fit:\n```\n" +
+                  "\n".join(ln for ln in s.getvalue().splitlines() if ln.strip())[-4000:]
+                  + "\n```")
+        if not args.no_cli:
+            out = Path(tmp) / "f.json"
+
+            def cli():
+                for p in (out, out.with_suffix(".nc")):
+                    p.unlink(missing_ok=True)
+                subprocess.run(gprm_exe() + ["fit", str(path), "--starts", "10", "--out",
+                                             str(out)], check=True, capture_output=True)
+            walls, loads, _ = timed(cli, args.repeat)
+            print(f"`gprm fit means.nc --starts 10 --out f.json`: {spread(walls)}; load "
+                  f"{loads[0]:.2f}/{loads[1]:.2f}; the fit's timings_s "
+                  f"{json.loads(out.read_text())['timings_s']}")
+        if not args.no_big:
+            w = default_workers(1000, 250)
+            for workers in (w, 0):
+                walls, loads, res = timed(lambda w=workers: fit(path, 1000, w),
+                                            args.big_repeat)
+                print(f"1000-start fit, identify, {workers} workers: {spread(walls)}; load "
+                      f"{loads[0]:.2f}/{loads[1]:.2f}; best chi2 {res.chi2:.4f}; identified "
+                      f"{len(res.identified)}; timings_s {res.timings}")
+
+
+def campaigns(args) -> None:
+    print(machine("scipy"), file=sys.stderr)
+    with tempfile.TemporaryDirectory() as tmp, open(args.json, "w") as fh:
+        for k in range(args.campaigns):
+            path = means_file(Path(tmp), k)
+            t = time.perf_counter()
+            res = fit(path, args.starts)
+            row = {"seed": k, "starts": args.starts, "chi2": res.chi2,
+                   "identified": list(res.identified), "wall_s": time.perf_counter() - t,
+                   "timings_s": res.timings, "load": load()}
+            fh.write(json.dumps(row) + "\n")
+            fh.flush()
+            print(f"seed {k}: chi2 {res.chi2:.6f}, {len(res.identified)} identified, "
+                  f"{row['wall_s']:.2f} s", file=sys.stderr, flush=True)
+
+
+def compare(before: str, after: str) -> None:
+    rows = [[json.loads(ln) for ln in Path(f).read_text().splitlines() if ln.strip()]
+            for f in (before, after)]
+    print("| seed | best chi2 before | after | after - before | identified before | after "
+          "| same set | fit wall s before | after |\n|---|---|---|---|---|---|---|---|---|")
+    worse = differ = 0
+    for a, b in zip(*rows):
+        d = b["chi2"] - a["chi2"]
+        same = set(a["identified"]) == set(b["identified"])
+        worse += d > 1e-6 * abs(a["chi2"])
+        differ += not same
+        print(f"| {a['seed']} | {a['chi2']:.6f} | {b['chi2']:.6f} | {d:+.2e} | "
+              f"{len(a['identified'])} | {len(b['identified'])} | {'yes' if same else 'NO'} | "
+              f"{a['wall_s']:.2f} | {b['wall_s']:.2f} |")
+    print(f"\n{len(rows[0])} campaigns: best chi2 worse (by more than 1e-6 relative) on {worse}, "
+          f"identified set different on {differ}")
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--repeat", type=int, default=5)
+    ap.add_argument("--big-repeat", type=int, default=1)
+    ap.add_argument("--no-big", action="store_true")
+    ap.add_argument("--no-cli", action="store_true")
+    ap.add_argument("--profile", action="store_true")
+    ap.add_argument("--campaigns", type=int, default=0)
+    ap.add_argument("--starts", type=int, default=200)
+    ap.add_argument("--json", default="fit_speed_campaigns.jsonl")
+    ap.add_argument("--compare", nargs=2, metavar=("BEFORE", "AFTER"))
+    args = ap.parse_args()
+    if args.compare:
+        compare(*args.compare)
+    elif args.campaigns:
+        campaigns(args)
+    else:
+        speed(args)
+
+
+if __name__ == "__main__":
+    main()

@@ -97,6 +97,32 @@ def test_prewhitened_scores_keep_the_sum_and_estimate_its_variance():
             assert np.all(off > 0.2), (name, off)
 
 
+def test_whitening_filter_is_the_autoregression_impulse_response():
+    """The filter matrix of :func:`whitening` applies h_k to B_{s+k} with h the impulse
+    response of the fitted AR(2) (h_0 = 1, h_t = a_1 h_{t-1} + a_2 h_{t-2}), and the
+    innovations u rebuild r through it; a whitening passed in gives the scores computed
+    from r."""
+    from gprm.fit.sandwich import ar_coefficients, prewhitened_scores, whitening
+
+    rng = np.random.default_rng(5)
+    T = 40
+    r = _ar2(rng, T, 1.2, -0.3)
+    B = rng.standard_normal((3, T))
+    a = ar_coefficients(r, 2)
+    w = whitening(r, 2)
+    h = np.zeros(T)
+    h[0] = 1.0
+    h[1] = a[0]
+    for t in range(2, T):
+        h[t] = a[0] * h[t - 1] + a[1] * h[t - 2]
+    filtered = np.stack([[sum(h[k] * B[p, s + k] for k in range(T - s)) for s in range(T)]
+                         for p in range(3)])
+    np.testing.assert_allclose(B @ w.H, filtered, rtol=1e-12, atol=1e-12)
+    np.testing.assert_allclose(np.convolve(h, w.u)[:T], r, rtol=1e-10, atol=1e-12)
+    np.testing.assert_array_equal(prewhitened_scores(B, r, 2, w), prewhitened_scores(B, r, 2))
+    assert whitening(r, 0) is None
+
+
 def test_ljung_box_matches_statsmodels():
     from statsmodels.stats.diagnostic import acorr_ljungbox
 

@@ -356,7 +356,38 @@ def ar_coefficients(r: np.ndarray, order: int) -> np.ndarray:
     return a
 
 
-def prewhitened_scores(B: np.ndarray, r: np.ndarray, order: int) -> np.ndarray:
+@dataclass(frozen=True)
+class Whitening:
+    """One residual series written as an autoregression's impulse response driven by its
+    innovations (:func:`whitening`): ``r = h * u`` (zero before the window). ``H`` (T, T) is
+    the filter as a matrix, ``H[t, s] = h[t - s]`` for t >= s, so that the filtered
+    sensitivities of :func:`prewhitened_scores` are one product ``B @ H``."""
+
+    u: np.ndarray
+    H: np.ndarray
+
+
+def whitening(r: np.ndarray, order: int) -> Whitening | None:
+    """The AR(``order``) whitening of the residual series r (T,) (:func:`ar_coefficients`);
+    None where the autoregression is zero (order 0, too short a series)."""
+    r = np.asarray(r, float)
+    a = ar_coefficients(r, order)
+    if not np.any(a):
+        return None
+    T = r.size
+    u = r.copy()
+    for k, ak in enumerate(a, start=1):
+        u[k:] -= ak * r[:-k]
+    h = np.zeros(T)
+    h[0] = 1.0
+    for t in range(1, T):
+        h[t] = sum(a[k - 1] * h[t - k] for k in range(1, min(len(a), t) + 1))
+    lag = np.arange(T)[:, None] - np.arange(T)[None, :]
+    return Whitening(u, np.where(lag >= 0, h[np.clip(lag, 0, None)], 0.0))
+
+
+def prewhitened_scores(B: np.ndarray, r: np.ndarray, order: int,
+                       w: Whitening | None | str = "compute") -> np.ndarray:
     """(T, P) scores whose sum is exactly sum_t B[:, t] r_t but whose terms are closer to
     uncorrelated: the residuals r (T,) are written as an autoregression's impulse response h
     driven by its innovations u (r = h * u, zero before the window), so that
@@ -366,34 +397,26 @@ def prewhitened_scores(B: np.ndarray, r: np.ndarray, order: int) -> np.ndarray:
     the autoregression captures (an oscillation, low-pass noise) is carried by the filter
     exactly instead of by the HAC window's lag terms, where a window of a quarter of the
     samples would leak an oscillation's power into the zero-frequency estimate or cut a slow
-    correlation short. ``order`` 0 returns the plain scores B_t r_t."""
+    correlation short. ``order`` 0 returns the plain scores B_t r_t. ``w``: the residuals'
+    :func:`whitening` when already computed (it depends on r alone; the estimator's
+    linearisation moves B, not r)."""
     B = np.asarray(B, float)
     r = np.asarray(r, float)
-    a = ar_coefficients(r, order)
-    if not np.any(a):
+    if isinstance(w, str):
+        w = whitening(r, order)
+    if w is None:
         return (B * r[None, :]).T
-    T = r.size
-    u = r.copy()
-    for k, ak in enumerate(a, start=1):
-        u[k:] -= ak * r[:-k]
-    h = np.zeros(T)
-    h[0] = 1.0
-    for t in range(1, T):
-        h[t] = sum(a[k - 1] * h[t - k] for k in range(1, min(len(a), t) + 1))
-    # Bt[:, s] = sum_k h_k B[:, s + k]
-    Bt = np.zeros_like(B)
-    for k in range(T):
-        Bt[:, :T - k] += h[k] * B[:, k:]
-    return (Bt * u[None, :]).T
+    return ((B @ w.H) * w.u[None, :]).T
 
 
 def statistical_covariance(Bs: np.ndarray, R: np.ndarray, dev: np.ndarray | None, max_lag: int,
                            p_eff: float, kernel: str = DEFAULT_KERNEL,
-                           prewhiten: int = PREWHITEN_ORDER):
+                           prewhiten: int = PREWHITEN_ORDER, whitenings=None):
     """(V_runs, V_res, V_stat) of the module docstring, from plain arrays.
 
     The residual part is the kernel HAC sum over each signal's :func:`prewhitened_scores`
-    (AR order ``prewhiten``; 0: the plain scores B_t r_t).
+    (AR order ``prewhiten``; 0: the plain scores B_t r_t; ``whitenings``: each signal's
+    :func:`whitening` of R when already computed, for order ``prewhiten``).
 
     Bs: (P, S, T) the estimator's influence ``H^-1 J^T`` laid out per signal and time;
     R: (S, T) weighted residuals; dev: (S, n_runs, T) each run's deviation from the mean,
@@ -403,7 +426,9 @@ def statistical_covariance(Bs: np.ndarray, R: np.ndarray, dev: np.ndarray | None
     N = S * T
     V_res = np.zeros((P, P))
     for s in range(S):
-        V_res += hac_meat(prewhitened_scores(Bs[:, s, :], R[s], prewhiten), max_lag, kernel)
+        w = whitenings[s] if whitenings is not None else "compute"
+        V_res += hac_meat(prewhitened_scores(Bs[:, s, :], R[s], prewhiten, w), max_lag,
+                          kernel)
     V_res *= N / max(N - p_eff, 1.0)
     if dev is None:
         return None, V_res, V_res
@@ -423,7 +448,9 @@ class ErrorModel:
     R: (S, T) weighted residuals at the best fit; dev: (S, n_runs, T) the runs' weighted
     deviations from their mean (None: no runs); gain_sd, timing_sd, alignment_sd: (S,) the
     per-signal systematics used; gain_estimated: what the residuals show; p_eff, max_lag: the
-    fit's effective number of parameters and the HAC's window."""
+    fit's effective number of parameters and the HAC's window; whitenings: each signal's
+    prewhitening filter, which depends on R alone and is reused wherever the error is
+    propagated (:func:`variance_factors` propagates it at ~100 points)."""
 
     R: np.ndarray
     dev: np.ndarray | None
@@ -435,6 +462,8 @@ class ErrorModel:
     max_lag: int
     crossing_offset: np.ndarray | None = None
     origin_sd: float = 0.0
+    #: each signal's :func:`whitening` of R (AR order PREWHITEN_ORDER), computed once
+    whitenings: tuple | None = None
 
 
 #: the signal whose lag is t0 (the others' lags are offsets from it, gprm.params.registry)
@@ -488,7 +517,8 @@ def error_model(obj: Objective, x: np.ndarray, J: np.ndarray, r: np.ndarray, pri
     g_est = estimate_gain_sd(Ju, Hinv, R, y, d.sigma, d.runs, max_lag=L)
     if systematics.estimate_gain:
         g_sd = np.maximum(g_sd, g_est)
-    return ErrorModel(R, dev, g_sd, t_sd, a_sd, g_est, p_eff, L, c_off, origin)
+    return ErrorModel(R, dev, g_sd, t_sd, a_sd, g_est, p_eff, L, c_off, origin,
+                      tuple(whitening(R[s], PREWHITEN_ORDER) for s in range(S)))
 
 
 def propagate(obj: Objective, x: np.ndarray, J: np.ndarray, prior: Prior,
@@ -501,7 +531,8 @@ def propagate(obj: Objective, x: np.ndarray, J: np.ndarray, prior: Prior,
     x = np.asarray(x, float)
     P = x.size
     Ju, Hinv, Bs, y, dy = _linearised(obj, x, J, prior, y)
-    V_runs, V_res, V_stat = statistical_covariance(Bs, err.R, err.dev, err.max_lag, err.p_eff)
+    V_runs, V_res, V_stat = statistical_covariance(Bs, err.R, err.dev, err.max_lag, err.p_eff,
+                                                   whitenings=err.whitenings)
     V_gain = np.zeros((P, P))
     V_time = np.zeros((P, P))
     V_interp = np.zeros((P, P))

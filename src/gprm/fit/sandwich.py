@@ -50,7 +50,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.stats import norm
+from scipy.special import ndtri
 
 from gprm.campaign.preprocess import alignment_shift
 from gprm.errors import GprmInputError
@@ -728,7 +728,7 @@ def uncertainty(method: str, state: FitState) -> Uncertainty:
     s_lo, s_hi = shape_factors(state.obj, x, Cu, Ju, prior) if syst.shape_check else \
         (ones, ones)
     sd_u = np.sqrt(np.clip(np.diag(Cu), 0.0, None))
-    z95, z68 = norm.ppf(0.975), norm.ppf(0.84)
+    z95, z68 = ndtri(0.975), ndtri(0.84)
     v95 = variance_factors(state.obj, x, Cu, prior, err, z95) if syst.variance_check else \
         (ones, ones)
     v68 = variance_factors(state.obj, x, Cu, prior, err, z68) if syst.variance_check else \

@@ -39,7 +39,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy.stats import norm
+from scipy.special import ndtri
 
 from gprm.fit.covariance import CovarianceError, covariance, sample_normal
 from gprm.fit.lm import levenberg_marquardt_batch
@@ -125,7 +125,7 @@ def _gaussian(method, names, x, cov, s2, tau, message="ok", identified=None) -> 
                            np.zeros(P, bool) if identified is None else identified, nan,
                            None, s2, tau, message)
     se = np.sqrt(np.clip(np.diag(cov), 0, None))
-    z95, z68 = norm.ppf(0.975), norm.ppf(0.84)
+    z95, z68 = ndtri(0.975), ndtri(0.84)
     ident = (se < 0.5 * np.abs(x)) if identified is None else identified
     return Uncertainty(method, names, cov, x - z95 * se, x + z95 * se, x - z68 * se,
                        x + z68 * se, ident, nan, None, s2, tau, message)
@@ -167,7 +167,7 @@ def estimate(method: str, x: np.ndarray, J: np.ndarray, r: np.ndarray, dof: int,
     Cu = (V / w) @ V.T * np.outer(Sd, Sd)
     sd_u = np.sqrt(np.diag(Cu))
     u = prior.to_u(x)
-    z95, z68 = norm.ppf(0.975), norm.ppf(0.84)
+    z95, z68 = ndtri(0.975), ndtri(0.84)
     lo95, hi95 = prior.from_u(u - z95 * sd_u), prior.from_u(u + z95 * sd_u)
     lo68, hi68 = prior.from_u(u - z68 * sd_u), prior.from_u(u + z68 * sd_u)
     contraction = sd_u / prior.sd
@@ -297,7 +297,7 @@ def identifiable_combinations(unc: Uncertainty, prior: Prior, x: np.ndarray, *,
             top = np.argsort(-np.abs(v))[:max_terms]
             terms = {names[k]: round(float(v[k]), 3) for k in top}
         f = np.exp if log else (lambda t: t)
-        z = norm.ppf(0.975)
+        z = ndtri(0.975)
         out.append({"terms": terms, "form": "product of powers" if log else "linear",
                     "value": float(f(c)), "lower": float(f(c - z * sd)),
                     "upper": float(f(c + z * sd)),

@@ -28,7 +28,7 @@ import numpy as np
 
 from gprm.flight.impact import _skew
 from gprm.flight.predicted import ImpactGeometry
-from gprm.model.definition import MECHANICAL
+from gprm.model.coordinates import MECHANICAL
 from gprm.model.linear import descriptor, state_space
 from gprm.params import batch
 from gprm.simulate.kinematics import (body_motion, motion_omega, named_points, point_motion,

@@ -3,7 +3,7 @@
 Do not edit: run `python -m gprm.model.derive` to regenerate. A test checks that this
 file matches a fresh derivation."""
 # flake8: noqa
-# fingerprint: 11909e959c759c32
+# fingerprint: 9c4ab1ce03072f4f
 import numpy as np
 from numpy import sin, cos
 

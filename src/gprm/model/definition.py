@@ -18,8 +18,7 @@ from typing import Callable
 
 import sympy as sp
 
-COORDINATES: tuple[str, ...] = ("z_lr", "z_A", "x_A", "y_A", "eta", "theta", "mu3", "mu4", "q")
-MECHANICAL: tuple[str, ...] = COORDINATES[:8]
+from gprm.model.coordinates import COORDINATES, MECHANICAL  # the names live there (no SymPy)
 
 # Parameters that appear in the equations of motion (all others act through the input, the
 # lags or the output maps).

@@ -169,8 +169,6 @@ def generate_source(dm: DerivedModel) -> str:
     out.append("DERIVATIVES = {" + ", ".join(f"{p!r}: {f}" for p, f in derivs) + "}")
     out += ["", ""]
     # Nonlinear reference: mass matrix M(x) and f(x, x') for one parameter set.
-    xs = [dm.symbols.x[c] for c in coords]
-    xds = [dm.symbols.xd[c] for c in coords]
     lines = ["def nonlinear(x, xd, p):",
              '    """Full nonlinear M(x) and f(x, x\') (M x\'\' + f - Q V = 0), one set."""']
     lines += _param_unpack(_used(list(dm.M) + list(dm.f)))
@@ -193,9 +191,10 @@ def generate_source(dm: DerivedModel) -> str:
 
 def definition_fingerprint() -> str:
     """Hash of the source that determines the derivation (to detect stale generated code)."""
-    from gprm.model import definition
+    from gprm.model import coordinates, definition
 
-    src = inspect.getsource(definition) + inspect.getsource(sys.modules[__name__])
+    src = (inspect.getsource(coordinates) + inspect.getsource(definition)
+           + inspect.getsource(sys.modules[__name__]))
     return hashlib.sha256(src.encode()).hexdigest()[:16]
 
 

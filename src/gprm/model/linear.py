@@ -18,7 +18,7 @@ from types import ModuleType
 
 import numpy as np
 
-from gprm.model.definition import MECHANICAL
+from gprm.model.coordinates import MECHANICAL
 from gprm.model.piezo import check_piezo
 
 #: the eight mechanical coordinates (``MECHANICAL``, the model's COORDINATES without the

@@ -12,7 +12,7 @@ from typing import Mapping, Sequence
 import numpy as np
 
 from gprm.errors import GprmInputError
-from gprm.model.definition import COORDINATES, MECHANICAL
+from gprm.model.coordinates import COORDINATES, MECHANICAL
 from gprm.model.linear import NSTATE, STATE_NAMES, descriptor
 from gprm.params import ParameterSet, batch
 from gprm.params.registry import ALIGNMENT_OFFSETS
@@ -22,7 +22,7 @@ from gprm.simulate.inputs import VoltageTrace, default_voltage
 OUTPUTS: tuple[str, ...] = ("x_base", "x_head", "y_base", "y_head", "z_bk")
 """The five measured points fitted (paper Eq. 3)."""
 
-COORDS: tuple[str, ...] = COORDINATES          # the model's coordinates (model.definition)
+COORDS: tuple[str, ...] = COORDINATES          # the model's coordinates (gprm.model.coordinates)
 RATES: tuple[str, ...] = tuple(f"{c}_dot" for c in MECHANICAL)   # the simulated rates
 _IDX = {n: i for i, n in enumerate(STATE_NAMES)}
 

@@ -57,14 +57,14 @@ from typing import Mapping, Sequence
 import numpy as np
 
 from gprm.errors import GprmInputError
-from gprm.model.definition import MECHANICAL
+from gprm.model.coordinates import MECHANICAL
 from gprm.model.linear import generated
 from gprm.model.piezo import check_piezo
 from gprm.params import ParameterSet, batch
 from gprm.simulate.core import RATES, observe
 
 MECH: tuple[str, ...] = MECHANICAL
-"""The eight mechanical coordinates (gprm.model.definition)."""
+"""The eight mechanical coordinates (gprm.model.coordinates)."""
 
 POINTS: tuple[str, ...] = ("com", "M_xz", "M_yz", "tip_edge", "spacer", "assembly_com")
 

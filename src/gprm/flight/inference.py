@@ -15,7 +15,9 @@ Gaussian approximation):
   (``FittedModel.sample``); for every pair the impact time t_mk (gap rule on θ_m's own motion)
   and the TM velocity y_mk (:func:`~gprm.flight.scenario.scenario_velocity`);
 * for each φ_k, the mean μ_k and covariance C_k of (y, t) over the θ_m: the model's interval
-  at φ_k. The likelihood of a release's measurement y with standard errors σ is
+  at φ_k; the TM's lateral offset from the head axis (``ScenarioPrior.tm_offset``) is
+  marginalised by adding its first-order covariance of the angular components
+  (:func:`~gprm.flight.scenario.offset_covariance`, averaged over the θ_m). The likelihood of a release's measurement y with standard errors σ is
   L_k = N(y; μ_k, C_k + diag(σ²) + diag(floor²)), ``floor`` a model-form allowance
   (:class:`InferenceOptions`); a φ_k at which fewer than ``min_valid`` of the θ_m give an
   impact has L_k = 0;
@@ -36,9 +38,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from gprm.errors import GprmInputError
-from gprm.flight.scenario import (COMPARED, COMPONENTS, PARAMS, SCENARIO_GRID_STEP, SCENARIOS,
-                                  ScenarioPrior,
-                                  plunger_frame, scenario_grid, scenario_velocity)
+from gprm.flight.scenario import (COMPARED, COMPONENTS, OFFSETS, PARAMS, SCENARIO_GRID_STEP,
+                                  SCENARIOS, ScenarioPrior, offset_covariance, plunger_frame,
+                                  scenario_grid, scenario_velocity)
 from gprm.validate import check_int
 
 PARAM_UNIT = {"f": "1", "s": "m", "phi": "rad", "mu": "1", "e": "1", "t": "s"}
@@ -106,6 +108,10 @@ def prior_predictive(model, kind: str, opts: InferenceOptions,
         frame = model_frame(model, opts, pb0)
     rng = np.random.default_rng([opts.seed, SCENARIOS.index(kind)])
     p = prior.draw(opts.n_draws, rng)
+    # the TM's lateral offset is marginalised in closed form (first order, Gaussian:
+    # offset_covariance), not sampled: the draws keep the TM centred
+    p.update({k: np.zeros(opts.n_draws) for k in OFFSETS})
+    s_tm = float(np.ravel(pb0["s_tm"])[0])
     K = opts.n_draws
     mean = np.full((K, 6), np.nan)
     cov = np.full((K, 6, 6), np.nan)
@@ -126,6 +132,8 @@ def prior_predictive(model, kind: str, opts: InferenceOptions,
             Y = np.concatenate([y[m, j], out["t"][m, j, None]], -1)   # (n, 7)
             mu = Y.mean(0)
             C = np.cov(Y, rowvar=False)
+            if prior.tm_offset > 0:
+                C[:6, :6] += offset_covariance(Y[:, :3], s_tm, prior.tm_offset).mean(0)
             k = a + j
             mean[k], cov[k] = mu[:6], C[:6, :6]
             tm[k], tc[k], tv[k] = mu[6], C[6, :6], C[6, 6]

@@ -57,13 +57,13 @@ SCENARIO_SEED_STRIDE = 10000
 def recovery(fm, seeds, releases: int, draws: int, rel_floor: float | None = None) -> dict:
     from gprm.flight.files import telemetry_from_dataset
     from gprm.flight.inference import (InferenceOptions, infer_scenarios, measured_components,
-                                      prior_predictives)
+                                      posterior_weights, prior_predictives)
     from gprm.flight.scenario import COMPARED, PARAMS, ScenarioPrior
     from gprm.flight.synth import SynthOptions, synth_telemetry
 
     out = {"n": 0, "right": 0, "by_truth": {k: [0, 0] for k in COMPARED},
            "covered": {k: 0 for k in PARAMS + ("t",)}, "ess_median": [], "confusion": {},
-           "width": {k: [] for k in PARAMS}}
+           "width": {k: [] for k in PARAMS}, "covered50": {k: 0 for k in PARAMS}}
     bounds = ScenarioPrior().bounds()
     opts = InferenceOptions(n_draws=draws, **({} if rel_floor is None
                                               else {"rel_floor": rel_floor}))
@@ -90,6 +90,13 @@ def recovery(fm, seeds, releases: int, draws: int, rel_floor: float | None = Non
                 out["confusion"][key] = out["confusion"].get(key, 0) + 1
                 f = res.fits[i][kind]
                 out["ess_median"].append(f.ess)
+                # the posterior's CDF at the truth (PIT): inside the central 50 %?
+                w = posterior_weights(pps[kind], np.nan_to_num(y[i]),
+                                      np.nan_to_num(sig[i]), np.isfinite(y[i]), opts)
+                for p in PARAMS:
+                    tv = float(truth[f"truth_scenario_{p}"].values[i])
+                    pit = float(np.sum(w[pps[kind].params[p] <= tv]))
+                    out["covered50"][p] += abs(pit - 0.5) <= 0.25
                 for p in PARAMS + ("t",):
                     tv = (float(truth["truth_impact_time"].values[i]) if p == "t"
                           else float(truth[f"truth_scenario_{p}"].values[i]))
@@ -231,12 +238,14 @@ def main() -> None:
               + ", ".join(f"{k} {v[0]}/{v[1]}" for k, v in out["by_truth"].items()))
         print(f"- confusion (truth->chosen): {out['confusion']}")
         print(f"- median effective number of draws (true scenario): {out['ess_median']:.0f}\n")
-        print("| unknown | truth inside the 95 % interval | interval width / the prior's "
-              "central 95 %, median |")
-        print("|---|---|---|")
+        print("| unknown | truth inside the 95 % interval | inside the central 50 % | "
+              "95 % interval width / the prior's central 95 %, median |")
+        print("|---|---|---|---|")
         for k, c in out["covered"].items():
             w = out["width"].get(k)
+            c50 = out["covered50"].get(k)
             print(f"| {k} | {c}/{n} ({100 * c / n:.1f} %) | "
+                  f"{'' if c50 is None else f'{c50}/{n} ({100 * c50 / n:.1f} %)'} | "
                   f"{'' if w is None else f'{w:.2f}'} |")
         print()
 

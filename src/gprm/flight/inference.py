@@ -181,10 +181,10 @@ def _f(x):
     return None if x is None or not np.isfinite(x) else float(x)
 
 
-def fit_release(pp: PriorPredictive, y: np.ndarray, sigma: np.ndarray, use: np.ndarray,
-                opts: InferenceOptions, rng: np.random.Generator) -> ScenarioFit:
-    """The posterior of one release (measured ``y`` (6,), standard errors ``sigma`` (6,),
-    ``use`` (6,) the components measured) under the scenario of ``pp``."""
+def _log_likelihood(pp: PriorPredictive, y: np.ndarray, sigma: np.ndarray, use: np.ndarray,
+                    opts: InferenceOptions):
+    """ln L_k of every prior draw (K,) (−inf where not valid), with the valid draws'
+    covariances S (Kv, d, d) and residuals r (Kv, d) over the measured components ``idx``."""
     idx = np.flatnonzero(use)
     K = pp.valid.size
     v = pp.valid
@@ -200,6 +200,28 @@ def fit_release(pp: PriorPredictive, y: np.ndarray, sigma: np.ndarray, use: np.n
     ll = -0.5 * np.sum(z * z, -1) - 0.5 * logdet - 0.5 * idx.size * np.log(2 * np.pi)
     logL = np.full(K, -np.inf)
     logL[v] = ll
+    return logL, S, r, idx
+
+
+def posterior_weights(pp: PriorPredictive, y: np.ndarray, sigma: np.ndarray, use: np.ndarray,
+                      opts: InferenceOptions) -> np.ndarray:
+    """The normalised posterior weights w_k (K,) of the prior draws ``pp.params`` given one
+    release (as :func:`fit_release`; zeros if no draw is valid), e.g. for the posterior's
+    CDF at a known truth."""
+    logL = _log_likelihood(pp, y, sigma, use, opts)[0]
+    mx = np.max(logL)
+    if not np.isfinite(mx):
+        return np.zeros(logL.size)
+    w = np.exp(logL - mx)
+    return w / w.sum()
+
+
+def fit_release(pp: PriorPredictive, y: np.ndarray, sigma: np.ndarray, use: np.ndarray,
+                opts: InferenceOptions, rng: np.random.Generator) -> ScenarioFit:
+    """The posterior of one release (measured ``y`` (6,), standard errors ``sigma`` (6,),
+    ``use`` (6,) the components measured) under the scenario of ``pp``."""
+    logL, S, r, idx = _log_likelihood(pp, y, sigma, use, opts)
+    K, v = pp.valid.size, pp.valid
     mx = np.max(logL)
     if not np.isfinite(mx):
         return ScenarioFit(pp.scenario, -np.inf, 0.0, {})

@@ -110,6 +110,103 @@ def recovery(fm, seeds, releases: int, draws: int, rel_floor: float | None = Non
     return out
 
 
+def _mixture_weights(Y, ok, y, sig, use, floor, rel_floor):
+    """Posterior weights of the prior draws under the exact mixture over the parameter sets:
+    L_k = mean over the sets m giving an impact of N(y; y_mk, diag(σ² + floor² + (rel y_mk)²))
+    (no Gaussian approximation of the sets' spread); draws with < 75 % impacts: 0."""
+    from scipy.special import logsumexp
+
+    valid = ok.mean(0) >= 0.75
+    fl = np.array([floor[0]] * 3 + [floor[1]] * 3)[use]
+    Yu = np.nan_to_num(Y[:, valid][..., use])
+    var = sig[use] ** 2 + fl ** 2 + (rel_floor * Yu) ** 2
+    lp = -0.5 * np.sum((y[use] - Yu) ** 2 / var + np.log(2 * np.pi * var), -1)
+    lp = np.where(ok[:, valid], lp, -np.inf)
+    ll = np.full(valid.size, -np.inf)
+    ll[valid] = logsumexp(lp, axis=0) - np.log(ok[:, valid].sum(0))
+    w = np.exp(ll - ll.max())
+    return w / w.sum()
+
+
+def likelihood_study(fm, seeds, releases: int, draws: int) -> dict:
+    """Why the friction's interval is too wide (docs/flight.md §11): on independent truths of
+    xz, yz, two (TM centred: the question does not involve the offset), the posterior of every
+    unknown under the Gaussian approximation of the parameter sets' spread (C_k, the method)
+    with the floor and the 2 % allowance as they are, halved and doubled, and under the exact
+    mixture over the same 48 parameter sets: the truth inside the 95 % and the central 50 %
+    intervals, the posterior sd over the prior's, the effective number of draws."""
+    from dataclasses import replace
+
+    from gprm.flight.files import telemetry_from_dataset
+    from gprm.flight.inference import (InferenceOptions, measured_components, model_frame,
+                                      posterior_weights, prior_predictives)
+    from gprm.flight.scenario import (COMPARED, COMPONENTS, OFFSETS, PARAMS, SCENARIOS,
+                                      ScenarioPrior, scenario_velocity)
+    from gprm.flight.synth import SynthOptions, synth_telemetry
+    from gprm.params import batch
+
+    prior = ScenarioPrior(tm_offset=0.0)
+    opts = InferenceOptions(n_draws=draws)
+    pps = prior_predictives(fm, opts, prior)
+    pb0 = batch([fm.params])
+    frame = model_frame(fm, opts, pb0)
+    raw = {}
+    for kind in COMPARED:       # the draws of prior_predictive, every set's velocity kept
+        p = prior.draw(draws, np.random.default_rng([opts.seed, SCENARIOS.index(kind)]))
+        p.update({k: np.zeros(draws) for k in OFFSETS})
+        Y = np.full((opts.n_model, draws, 6), np.nan)
+        ok = np.zeros((opts.n_model, draws), bool)
+        chunk = max(1, 4_000_000 // (opts.n_model * frame.time.size))
+        for a in range(0, draws, chunk):
+            sl = slice(a, min(draws, a + chunk))
+            o = scenario_velocity(kind, frame, pb0, {k: v[sl] for k, v in p.items()}, prior)
+            Y[:, sl] = np.stack([o[c] for c in COMPONENTS], -1)
+            ok[:, sl] = o["ok"]
+        raw[kind] = (Y, ok)
+    f0, r0 = opts.floor, opts.rel_floor
+    variants = {
+        "Gaussian C_k, floor + 2 % (the method)": ("gauss", opts),
+        "Gaussian C_k, floor and allowance halved": (
+            "gauss", replace(opts, floor=(f0[0] / 2, f0[1] / 2), rel_floor=r0 / 2)),
+        "Gaussian C_k, floor and allowance doubled": (
+            "gauss", replace(opts, floor=(f0[0] * 2, f0[1] * 2), rel_floor=r0 * 2)),
+        "exact mixture over the 48 sets, floor + 2 %": ("mix", opts),
+        "exact mixture over the 48 sets, floor + 5 %": ("mix", replace(opts, rel_floor=0.05)),
+    }
+    res = {v: {"n": 0, "in95": {k: 0 for k in PARAMS}, "in50": {k: 0 for k in PARAMS},
+               "sd": {k: [] for k in PARAMS}, "ess": []} for v in variants}
+    for s in seeds:
+        for i_kind, kind in enumerate(COMPARED):
+            ds = synth_telemetry(fm, SynthOptions(n_releases=releases,
+                                                  seed=s + SCENARIO_SEED_STRIDE * i_kind,
+                                                  scenario=kind, tm_offset=0.0))
+            tel = telemetry_from_dataset(ds, source=f"seed {s}")
+            y, sig = measured_components(tel)
+            for i in range(len(tel.releases)):
+                use = np.isfinite(y[i])
+                yi, si = np.nan_to_num(y[i]), np.nan_to_num(sig[i])
+                for name, (how, o) in variants.items():
+                    w = (posterior_weights(pps[kind], yi, si, use, o) if how == "gauss"
+                         else _mixture_weights(*raw[kind], yi, si, use, o.floor, o.rel_floor))
+                    r = res[name]
+                    r["n"] += 1
+                    r["ess"].append(1.0 / np.sum(w * w))
+                    for k in PARAMS:
+                        x = pps[kind].params[k]
+                        tv = float(ds[f"truth_scenario_{k}"].values[i])
+                        o_ = np.argsort(x)
+                        cw = np.cumsum(w[o_])
+                        lo, hi = np.interp([0.025, 0.975], cw - 0.5 * w[o_], x[o_])
+                        r["in95"][k] += lo <= tv <= hi
+                        r["in50"][k] += abs(float(np.sum(w[x <= tv])) - 0.5) <= 0.25
+                        m = np.sum(w * x)
+                        r["sd"][k].append(np.sqrt(np.sum(w * (x - m) ** 2)) / np.std(x))
+    for r in res.values():
+        r["ess"] = float(np.median(r["ess"]))
+        r["sd"] = {k: float(np.median(v)) for k, v in r["sd"].items()}
+    return res
+
+
 def impact_times(fm, seeds, releases: int, models, scenario: str = "two",
                  samples: int = 200) -> dict:
     """The impact-time analysis (issue 14's, `gprm impact --impact-model MODEL`) on scenario
@@ -161,6 +258,9 @@ def main() -> None:
     ap.add_argument("--rel-floor", type=float, default=None)
     ap.add_argument("--impact-times", action="store_true")
     ap.add_argument("--scenario", default="two")
+    ap.add_argument("--likelihood-study", action="store_true",
+                    help="why the friction's interval is too wide (docs/flight.md §11); run "
+                         "it on seeds other than the recovery's")
     ap.add_argument("--tm-offset", type=float, nargs="+", default=None, metavar="MM",
                     help="--observations: the TM's largest lateral offset from the head "
                          "axis, mm (one table per value; default: ScenarioPrior's)")
@@ -174,6 +274,7 @@ def main() -> None:
     print(f"- command: `.venv/bin/python benchmarks/bench_scenarios.py "
           f"{'--observations ' if a.observations else ''}{'--recovery ' if a.recovery else ''}"
           f"{'--impact-times ' if a.impact_times else ''}"
+          f"{'--likelihood-study ' if a.likelihood_study else ''}"
           f"{'--scenario ' + a.scenario + ' ' if a.scenario != 'two' else ''}"
           f"--seeds {a.seeds} --seed0 {a.seed0} --releases {a.releases} --draws {a.draws}"
           + ("" if a.rel_floor is None else f" --rel-floor {a.rel_floor}")
@@ -225,6 +326,24 @@ def main() -> None:
                   f"{q[0]:+.1f} [{q[1]:+.1f}, {q[2]:+.1f}] | "
                   f"{f(t['chi2_rejects'], t['chi2_tests'])} | "
                   f"{t['tukey_rejecting']}/{t['campaigns']} |")
+        print()
+    if a.likelihood_study:
+        t0 = time.perf_counter()
+        res = likelihood_study(fm, seeds, a.releases, a.draws)
+        n = next(iter(res.values()))["n"]
+        print(f"### Likelihood study ({a.seeds} campaigns × {a.releases} releases of each of "
+              f"xz, yz, two, TM centred, seeds {a.seed0}.. (+10000 per scenario); {a.draws} "
+              f"prior draws; {time.perf_counter() - t0:.0f} s)\n")
+        print(f"Per unknown: truth inside the 95 % / the central 50 % interval (of {n}), "
+              "posterior sd / prior sd (median).\n")
+        from gprm.flight.scenario import PARAMS
+        print("| likelihood | median effective draws | "
+              + " | ".join(PARAMS) + " |")
+        print("|---|---|" + "---|" * len(PARAMS))
+        for name, r in res.items():
+            print(f"| {name} | {r['ess']:.0f} | " + " | ".join(
+                f"{100 * r['in95'][k] / n:.1f} / {100 * r['in50'][k] / n:.1f} %, "
+                f"{r['sd'][k]:.2f}" for k in PARAMS) + " |")
         print()
     if a.recovery:
         t0 = time.perf_counter()

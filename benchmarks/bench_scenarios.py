@@ -1,17 +1,27 @@
 """Benchmark of the impact scenarios (issue 23, docs/flight.md §10-11):
-`.venv/bin/python benchmarks/bench_scenarios.py [--observations] [--recovery]
-[--seeds N] [--seed0 S] [--releases R] [--draws K]`.
+`.venv/bin/python benchmarks/bench_scenarios.py [--observations [--tm-offset MM ...]]
+[--recovery] [--likelihood-study] [--impact-times] [--seeds N] [--seed0 S] [--releases R]
+[--draws K]`.
 
 `--observations`: for every scenario of `gprm.flight.scenario.SCENARIOS`, N campaigns of R
 releases (seeds S .. S+N-1, truths as `gprm synth telemetry paper --scenario NAME --seed s`
 draws them), the paper's three observations counted over the releases: z not the largest
 velocity component, the x–z share of the momentum (v_x² + v_z²)/|v|², every analysed component
 (v_x, v_y, v_z, ω_x, ω_y) non-compliant (> 5 µm/s, > 100 µrad/s); ω_z's compliance apart.
+With `--tm-offset MM ...`: one table of the three rim scenarios per largest TM offset (mm).
 
-`--recovery`: N campaigns, each with R releases of every compared scenario (xz, yz, two),
-written as telemetry and read back (`gprm synth telemetry paper --scenario NAME --seed s`),
-release velocities fitted, then the scenario posterior (`gprm.flight.inference`, K prior draws
-per scenario): the right scenario chosen, and each unknown's truth inside its 95 % interval.
+`--recovery`: N campaigns, each with R releases of every compared scenario (xz, yz, two; the
+scenario i drawn with seed s + 10000 i, so that no two scenarios share their truths), written
+as telemetry and read back, release velocities fitted, then the scenario posterior
+(`gprm.flight.inference`, K prior draws per scenario): the right scenario chosen, and each
+unknown's truth inside its 95 % and central 50 % intervals.
+
+`--likelihood-study`: on the same kind of truths (TM centred), each unknown's calibration
+under the method's likelihood with the floor and allowance as they are, halved, doubled, and
+under the exact mixture over the parameter sets (why μ's interval is too wide, §11); run it
+on seeds other than the recovery's.
+
+`--impact-times`: the impact-time analysis (issue 14's) on scenario truths, per impact model.
 Prints markdown."""
 
 from __future__ import annotations

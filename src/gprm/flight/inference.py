@@ -17,7 +17,8 @@ Gaussian approximation):
 * for each φ_k, the mean μ_k and covariance C_k of (y, t) over the θ_m: the model's interval
   at φ_k; the TM's lateral offset from the head axis (``ScenarioPrior.tm_offset``) is
   marginalised by adding its first-order covariance of the angular components
-  (:func:`~gprm.flight.scenario.offset_covariance`, averaged over the θ_m). The likelihood of a release's measurement y with standard errors σ is
+  (:func:`~gprm.flight.scenario.offset_covariance`, averaged over the θ_m). The likelihood
+  of a release's measurement y with standard errors σ is
   L_k = N(y; μ_k, C_k + diag(σ²) + diag(floor²)), ``floor`` a model-form allowance
   (:class:`InferenceOptions`); a φ_k at which fewer than ``min_valid`` of the θ_m give an
   impact has L_k = 0;
@@ -329,7 +330,8 @@ def infer_scenarios(model, ids, y, sigma, opts: InferenceOptions = InferenceOpti
                              comps, {"scenarios": list(opts.scenarios),
                                      "n_draws": opts.n_draws, "n_model": opts.n_model,
                                      "seed": opts.seed, "floor": list(opts.floor),
-                                     "rel_floor": opts.rel_floor})
+                                     "rel_floor": opts.rel_floor,
+                                     "tm_offset": (prior or ScenarioPrior()).tm_offset})
 
 
 def measured_components(tel, *, fit_window: float | None = None, min_samples: int = 5):

@@ -528,8 +528,9 @@ def scenario_grid(pb0, window=None, step: float = SCENARIO_GRID_STEP) -> np.ndar
 @dataclass(frozen=True)
 class ScenarioTruth:
     """Synthetic truths of :func:`draw_truths` (R releases): ``scenario`` (R,) names,
-    ``params`` {name: (R,)} (:data:`PARAMS` and :data:`OFFSETS`), ``t`` (R,) impact times (s), ``velocity``
-    (R, 6) the TM's :data:`COMPONENTS`, ``contacts`` (R,) how many contacts pushed."""
+    ``params`` {name: (R,)} (:data:`PARAMS` and :data:`OFFSETS`), ``t`` (R,) impact times
+    (s), ``velocity`` (R, 6) the TM's :data:`COMPONENTS`, ``contacts`` (R,) how many contacts
+    pushed."""
 
     scenario: tuple[str, ...]
     params: dict

@@ -329,3 +329,38 @@ def test_offset_round_trips_and_the_cli_edge_takes_units(tmp_path):
                                  str(tmp_path / "u.nc"), "--tm-offset", "-1mm"])
     assert r.exit_code != 0 and "--tm-offset" in r.output and "Traceback" not in r.output
     assert not (tmp_path / "u.nc").exists()
+
+
+def test_offset_keeps_momentum_and_the_lever_arm_sum(paper):
+    """Two contacts with friction at a scenario draw, the TM's lever arms moved by an offset
+    δ: the impulses J_i the solve returns conserve the pair's momentum (m_A Δv_A + m_B Δv_B = 0
+    and m_B v_B = Σ J_i) and give ω_B = I_B⁻¹ Σ (ρ_i − δ) × J_i, ω_A = −I_A⁻¹ Σ ρA_i × J_i."""
+    m, pb, fr = paper
+    p = ScenarioPrior(tm_offset=0.0).draw(1, np.random.default_rng(21))
+    cons = contacts("two", pb, p)
+    from gprm.flight.scenario import contact_state, tm_centre
+    t, _ = gap_time(fr, cons[0][0], cons[0][1], p["f"])
+    st = [contact_state(fr, r, t) for r, _ in cons]
+    P = np.stack([s_[0][0, 0] for s_ in st])                         # (2, 3)
+    G = st[0][3][0, 0]
+    w = st[0][2][0, 0]
+    mA = float(pb["m2"][0] + pb["m3"][0] + pb["m4"][0])
+    IA = float(pb["J2"][0]) * np.eye(3)
+    mB = float(pb["m_tm"][0])
+    IB = mB * float(pb["s_tm"][0]) ** 2 / 6 * np.eye(3)
+    vA = st[0][1][0, 0] - np.cross(w, P[0] - G)
+    n = np.stack([c[1][0] for c in cons])
+    delta = np.array([0.6e-3, -0.9e-3, 0.0])
+    rhoA = P - G
+    rhoB = P - tm_centre(pb, ScenarioPrior()) - delta
+    res = impact_3d_two(mA, IA, rhoA, vA, w, mB, IB, rhoB, np.zeros(3), np.zeros(3), n,
+                        0.85, float(p["mu"][0]))
+    assert bool(res.active.all())
+    J = res.J                                                          # (2, 3) on the TM
+    np.testing.assert_allclose(mA * (res.vA - vA) + mB * res.vB, 0.0,
+                               atol=1e-12 * mB * np.abs(res.vB).max())
+    np.testing.assert_allclose(mB * res.vB, J.sum(0), rtol=1e-12)
+    np.testing.assert_allclose(res.wB, np.linalg.solve(IB, np.cross(rhoB, J).sum(0)),
+                               rtol=1e-10)
+    np.testing.assert_allclose(res.wA - w, -np.linalg.solve(IA, np.cross(rhoA, J).sum(0)),
+                               rtol=1e-10, atol=1e-12 * np.abs(res.wA - w).max())

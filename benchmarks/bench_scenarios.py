@@ -1,17 +1,27 @@
 """Benchmark of the impact scenarios (issue 23, docs/flight.md §10-11):
-`.venv/bin/python benchmarks/bench_scenarios.py [--observations] [--recovery]
-[--seeds N] [--seed0 S] [--releases R] [--draws K]`.
+`.venv/bin/python benchmarks/bench_scenarios.py [--observations [--tm-offset MM ...]]
+[--recovery] [--likelihood-study] [--impact-times] [--seeds N] [--seed0 S] [--releases R]
+[--draws K]`.
 
 `--observations`: for every scenario of `gprm.flight.scenario.SCENARIOS`, N campaigns of R
 releases (seeds S .. S+N-1, truths as `gprm synth telemetry paper --scenario NAME --seed s`
 draws them), the paper's three observations counted over the releases: z not the largest
 velocity component, the x–z share of the momentum (v_x² + v_z²)/|v|², every analysed component
 (v_x, v_y, v_z, ω_x, ω_y) non-compliant (> 5 µm/s, > 100 µrad/s); ω_z's compliance apart.
+With `--tm-offset MM ...`: one table of the three rim scenarios per largest TM offset (mm).
 
-`--recovery`: N campaigns, each with R releases of every compared scenario (xz, yz, two),
-written as telemetry and read back (`gprm synth telemetry paper --scenario NAME --seed s`),
-release velocities fitted, then the scenario posterior (`gprm.flight.inference`, K prior draws
-per scenario): the right scenario chosen, and each unknown's truth inside its 95 % interval.
+`--recovery`: N campaigns, each with R releases of every compared scenario (xz, yz, two; the
+scenario i drawn with seed s + 10000 i, so that no two scenarios share their truths), written
+as telemetry and read back, release velocities fitted, then the scenario posterior
+(`gprm.flight.inference`, K prior draws per scenario): the right scenario chosen, and each
+unknown's truth inside its 95 % and central 50 % intervals.
+
+`--likelihood-study`: on the same kind of truths (TM centred), each unknown's calibration
+under the method's likelihood with the floor and allowance as they are, halved, doubled, and
+under the exact mixture over the parameter sets (why μ's interval is too wide, §11); run it
+on seeds other than the recovery's.
+
+`--impact-times`: the impact-time analysis (issue 14's) on scenario truths, per impact model.
 Prints markdown."""
 
 from __future__ import annotations
@@ -24,12 +34,15 @@ import numpy as np
 from _machine import machine
 
 
-def observations(fm, seeds, releases: int) -> list[dict]:
-    from gprm.flight.scenario import SCENARIOS, draw_truths
+def observations(fm, seeds, releases: int, tm_offset: float | None = None,
+                 kinds=None) -> list[dict]:
+    from gprm.flight.scenario import SCENARIOS, ScenarioPrior, draw_truths
 
+    prior = ScenarioPrior() if tm_offset is None else ScenarioPrior(tm_offset=tm_offset)
     rows = []
-    for kind in SCENARIOS:
-        v = np.concatenate([draw_truths(fm, [kind] * releases, s).velocity for s in seeds])
+    for kind in kinds or SCENARIOS:
+        v = np.concatenate([draw_truths(fm, [kind] * releases, s, prior).velocity
+                            for s in seeds])
         av = np.abs(v)
         share = (v[:, 0] ** 2 + v[:, 2] ** 2) / np.sum(v[:, :3] ** 2, 1)
         lim = np.array([5e-6] * 3 + [100e-6] * 3)
@@ -42,25 +55,36 @@ def observations(fm, seeds, releases: int) -> list[dict]:
                                              & (share >= 0.9)
                                              & (av[:, :5] > lim[:5]).all(1))),
                      "compliant": [int(x) for x in np.sum(av <= lim, 0)],
+                     "wz_q": [float(x) for x in np.percentile(av[:, 5], [50, 90])],
                      "mean_abs": [float(x) for x in av.mean(0)]})
     return rows
+
+
+SCENARIO_SEED_STRIDE = 10000
+"""--recovery: campaign seed s draws scenario i of COMPARED with seed s + 10000 i."""
 
 
 def recovery(fm, seeds, releases: int, draws: int, rel_floor: float | None = None) -> dict:
     from gprm.flight.files import telemetry_from_dataset
     from gprm.flight.inference import (InferenceOptions, infer_scenarios, measured_components,
-                                      prior_predictives)
-    from gprm.flight.scenario import COMPARED, PARAMS
+                                      posterior_weights, prior_predictives)
+    from gprm.flight.scenario import COMPARED, PARAMS, ScenarioPrior
     from gprm.flight.synth import SynthOptions, synth_telemetry
 
     out = {"n": 0, "right": 0, "by_truth": {k: [0, 0] for k in COMPARED},
-           "covered": {k: 0 for k in PARAMS + ("t",)}, "ess_median": [], "confusion": {}}
+           "covered": {k: 0 for k in PARAMS + ("t",)}, "ess_median": [], "confusion": {},
+           "width": {k: [] for k in PARAMS}, "covered50": {k: 0 for k in PARAMS}}
+    bounds = ScenarioPrior().bounds()
     opts = InferenceOptions(n_draws=draws, **({} if rel_floor is None
                                               else {"rel_floor": rel_floor}))
     pps = prior_predictives(fm, opts)         # once: it depends on the model and options only
     for s in seeds:
-        for kind in COMPARED:
-            ds = synth_telemetry(fm, SynthOptions(n_releases=releases, seed=s, scenario=kind))
+        for i_kind, kind in enumerate(COMPARED):
+            # each scenario its own truths: with one seed for all three, the unknowns and the
+            # parameter sets drawn would repeat across the scenarios (one draw counted 3 times)
+            ds = synth_telemetry(fm, SynthOptions(n_releases=releases,
+                                                  seed=s + SCENARIO_SEED_STRIDE * i_kind,
+                                                  scenario=kind))
             tel = telemetry_from_dataset(ds, source=f"seed {s}")
             truth = ds  # truth variables
             y, sig = measured_components(tel)
@@ -76,13 +100,121 @@ def recovery(fm, seeds, releases: int, draws: int, rel_floor: float | None = Non
                 out["confusion"][key] = out["confusion"].get(key, 0) + 1
                 f = res.fits[i][kind]
                 out["ess_median"].append(f.ess)
+                # the posterior's CDF at the truth (PIT): inside the central 50 %?
+                w = posterior_weights(pps[kind], np.nan_to_num(y[i]),
+                                      np.nan_to_num(sig[i]), np.isfinite(y[i]), opts)
+                for p in PARAMS:
+                    tv = float(truth[f"truth_scenario_{p}"].values[i])
+                    pit = float(np.sum(w[pps[kind].params[p] <= tv]))
+                    out["covered50"][p] += abs(pit - 0.5) <= 0.25
                 for p in PARAMS + ("t",):
                     tv = (float(truth["truth_impact_time"].values[i]) if p == "t"
                           else float(truth[f"truth_scenario_{p}"].values[i]))
                     _, lo, hi = f.summary[p]
                     out["covered"][p] += lo <= tv <= hi
+                    if p in bounds:     # the 95 % interval over the prior's central 95 %
+                        out["width"][p].append((hi - lo) / (0.95 * np.subtract(
+                            *bounds[p][::-1])))
     out["ess_median"] = float(np.median(out["ess_median"]))
+    out["width"] = {k: float(np.median(v)) for k, v in out["width"].items()}
     return out
+
+
+def _mixture_weights(Y, ok, y, sig, use, floor, rel_floor):
+    """Posterior weights of the prior draws under the exact mixture over the parameter sets:
+    L_k = mean over the sets m giving an impact of N(y; y_mk, diag(σ² + floor² + (rel y_mk)²))
+    (no Gaussian approximation of the sets' spread); draws with < 75 % impacts: 0."""
+    from scipy.special import logsumexp
+
+    valid = ok.mean(0) >= 0.75
+    fl = np.array([floor[0]] * 3 + [floor[1]] * 3)[use]
+    Yu = np.nan_to_num(Y[:, valid][..., use])
+    var = sig[use] ** 2 + fl ** 2 + (rel_floor * Yu) ** 2
+    lp = -0.5 * np.sum((y[use] - Yu) ** 2 / var + np.log(2 * np.pi * var), -1)
+    lp = np.where(ok[:, valid], lp, -np.inf)
+    ll = np.full(valid.size, -np.inf)
+    ll[valid] = logsumexp(lp, axis=0) - np.log(ok[:, valid].sum(0))
+    w = np.exp(ll - ll.max())
+    return w / w.sum()
+
+
+def likelihood_study(fm, seeds, releases: int, draws: int) -> dict:
+    """Why the friction's interval is too wide (docs/flight.md §11): on independent truths of
+    xz, yz, two (TM centred: the question does not involve the offset), the posterior of every
+    unknown under the Gaussian approximation of the parameter sets' spread (C_k, the method)
+    with the floor and the 2 % allowance as they are, halved and doubled, and under the exact
+    mixture over the same 48 parameter sets: the truth inside the 95 % and the central 50 %
+    intervals, the posterior sd over the prior's, the effective number of draws."""
+    from dataclasses import replace
+
+    from gprm.flight.files import telemetry_from_dataset
+    from gprm.flight.inference import (InferenceOptions, measured_components, model_frame,
+                                      posterior_weights, prior_predictives)
+    from gprm.flight.scenario import (COMPARED, COMPONENTS, OFFSETS, PARAMS, SCENARIOS,
+                                      ScenarioPrior, scenario_velocity)
+    from gprm.flight.synth import SynthOptions, synth_telemetry
+    from gprm.params import batch
+
+    prior = ScenarioPrior(tm_offset=0.0)
+    opts = InferenceOptions(n_draws=draws)
+    pps = prior_predictives(fm, opts, prior)
+    pb0 = batch([fm.params])
+    frame = model_frame(fm, opts, pb0)
+    raw = {}
+    for kind in COMPARED:       # the draws of prior_predictive, every set's velocity kept
+        p = prior.draw(draws, np.random.default_rng([opts.seed, SCENARIOS.index(kind)]))
+        p.update({k: np.zeros(draws) for k in OFFSETS})
+        Y = np.full((opts.n_model, draws, 6), np.nan)
+        ok = np.zeros((opts.n_model, draws), bool)
+        chunk = max(1, 4_000_000 // (opts.n_model * frame.time.size))
+        for a in range(0, draws, chunk):
+            sl = slice(a, min(draws, a + chunk))
+            o = scenario_velocity(kind, frame, pb0, {k: v[sl] for k, v in p.items()}, prior)
+            Y[:, sl] = np.stack([o[c] for c in COMPONENTS], -1)
+            ok[:, sl] = o["ok"]
+        raw[kind] = (Y, ok)
+    f0, r0 = opts.floor, opts.rel_floor
+    variants = {
+        "Gaussian C_k, floor + 2 % (the method)": ("gauss", opts),
+        "Gaussian C_k, floor and allowance halved": (
+            "gauss", replace(opts, floor=(f0[0] / 2, f0[1] / 2), rel_floor=r0 / 2)),
+        "Gaussian C_k, floor and allowance doubled": (
+            "gauss", replace(opts, floor=(f0[0] * 2, f0[1] * 2), rel_floor=r0 * 2)),
+        "exact mixture over the 48 sets, floor + 2 %": ("mix", opts),
+        "exact mixture over the 48 sets, floor + 5 %": ("mix", replace(opts, rel_floor=0.05)),
+    }
+    res = {v: {"n": 0, "in95": {k: 0 for k in PARAMS}, "in50": {k: 0 for k in PARAMS},
+               "sd": {k: [] for k in PARAMS}, "ess": []} for v in variants}
+    for s in seeds:
+        for i_kind, kind in enumerate(COMPARED):
+            ds = synth_telemetry(fm, SynthOptions(n_releases=releases,
+                                                  seed=s + SCENARIO_SEED_STRIDE * i_kind,
+                                                  scenario=kind, tm_offset=0.0))
+            tel = telemetry_from_dataset(ds, source=f"seed {s}")
+            y, sig = measured_components(tel)
+            for i in range(len(tel.releases)):
+                use = np.isfinite(y[i])
+                yi, si = np.nan_to_num(y[i]), np.nan_to_num(sig[i])
+                for name, (how, o) in variants.items():
+                    w = (posterior_weights(pps[kind], yi, si, use, o) if how == "gauss"
+                         else _mixture_weights(*raw[kind], yi, si, use, o.floor, o.rel_floor))
+                    r = res[name]
+                    r["n"] += 1
+                    r["ess"].append(1.0 / np.sum(w * w))
+                    for k in PARAMS:
+                        x = pps[kind].params[k]
+                        tv = float(ds[f"truth_scenario_{k}"].values[i])
+                        o_ = np.argsort(x)
+                        cw = np.cumsum(w[o_])
+                        lo, hi = np.interp([0.025, 0.975], cw - 0.5 * w[o_], x[o_])
+                        r["in95"][k] += lo <= tv <= hi
+                        r["in50"][k] += abs(float(np.sum(w[x <= tv])) - 0.5) <= 0.25
+                        m = np.sum(w * x)
+                        r["sd"][k].append(np.sqrt(np.sum(w * (x - m) ** 2)) / np.std(x))
+    for r in res.values():
+        r["ess"] = float(np.median(r["ess"]))
+        r["sd"] = {k: float(np.median(v)) for k, v in r["sd"].items()}
+    return res
 
 
 def impact_times(fm, seeds, releases: int, models, scenario: str = "two",
@@ -136,6 +268,12 @@ def main() -> None:
     ap.add_argument("--rel-floor", type=float, default=None)
     ap.add_argument("--impact-times", action="store_true")
     ap.add_argument("--scenario", default="two")
+    ap.add_argument("--likelihood-study", action="store_true",
+                    help="why the friction's interval is too wide (docs/flight.md §11); run "
+                         "it on seeds other than the recovery's")
+    ap.add_argument("--tm-offset", type=float, nargs="+", default=None, metavar="MM",
+                    help="--observations: the TM's largest lateral offset from the head "
+                         "axis, mm (one table per value; default: ScenarioPrior's)")
     a = ap.parse_args()
     from gprm.fit.files import paper_model
 
@@ -146,19 +284,25 @@ def main() -> None:
     print(f"- command: `.venv/bin/python benchmarks/bench_scenarios.py "
           f"{'--observations ' if a.observations else ''}{'--recovery ' if a.recovery else ''}"
           f"{'--impact-times ' if a.impact_times else ''}"
+          f"{'--likelihood-study ' if a.likelihood_study else ''}"
           f"{'--scenario ' + a.scenario + ' ' if a.scenario != 'two' else ''}"
           f"--seeds {a.seeds} --seed0 {a.seed0} --releases {a.releases} --draws {a.draws}"
-          + ("" if a.rel_floor is None else f" --rel-floor {a.rel_floor}") + "`\n")
-    if a.observations:
+          + ("" if a.rel_floor is None else f" --rel-floor {a.rel_floor}")
+          + ("" if a.tm_offset is None else " --tm-offset " + " ".join(map(str, a.tm_offset)))
+          + "`\n")
+    for off in (a.tm_offset or [None]) if a.observations else []:
         t0 = time.perf_counter()
-        rows = observations(fm, seeds, a.releases)
+        rows = observations(fm, seeds, a.releases, None if off is None else off * 1e-3,
+                            None if off is None else ("xz", "yz", "two"))
         print(f"### The paper's three observations ({a.seeds} campaigns × {a.releases} "
-              f"releases, seeds {a.seed0}–{a.seed0 + a.seeds - 1}; "
-              f"{time.perf_counter() - t0:.1f} s)\n")
+              f"releases, seeds {a.seed0}–{a.seed0 + a.seeds - 1}"
+              + ("" if off is None else f"; TM offset U(±{off} mm) in x and y")
+              + f"; {time.perf_counter() - t0:.1f} s)\n")
         print("| scenario | z not the largest | x–z share median | share ≥ 0.9 | v_x, v_y, v_z, "
               "ω_x, ω_y all non-compliant | all three at once | compliant v_x, v_y, v_z, "
-              "ω_x, ω_y, ω_z | mean abs v (µm/s) | mean abs ω (µrad/s) |")
-        print("|---|---|---|---|---|---|---|---|---|")
+              "ω_x, ω_y, ω_z | mean abs v (µm/s) | mean abs ω (µrad/s) | \\|ω_z\\| median, "
+              "90 % (µrad/s) |")
+        print("|---|---|---|---|---|---|---|---|---|---|")
         for r in rows:
             n = r["n"]
             def pc(k, r=r, n=n):
@@ -168,7 +312,8 @@ def main() -> None:
                   f"{pc('share_ge_0.9')} | {pc('all5_noncompliant')} | {pc('all_three')} | "
                   f"{', '.join(str(c) for c in r['compliant'])} | "
                   f"{m[0] * 1e6:.1f}, {m[1] * 1e6:.1f}, {m[2] * 1e6:.1f} | "
-                  f"{m[3] * 1e6:.0f}, {m[4] * 1e6:.0f}, {m[5] * 1e6:.0f} |")
+                  f"{m[3] * 1e6:.0f}, {m[4] * 1e6:.0f}, {m[5] * 1e6:.0f} | "
+                  f"{r['wz_q'][0] * 1e6:.0f}, {r['wz_q'][1] * 1e6:.0f} |")
         print()
     if a.impact_times:
         t0 = time.perf_counter()
@@ -192,6 +337,24 @@ def main() -> None:
                   f"{f(t['chi2_rejects'], t['chi2_tests'])} | "
                   f"{t['tukey_rejecting']}/{t['campaigns']} |")
         print()
+    if a.likelihood_study:
+        t0 = time.perf_counter()
+        res = likelihood_study(fm, seeds, a.releases, a.draws)
+        n = next(iter(res.values()))["n"]
+        print(f"### Likelihood study ({a.seeds} campaigns × {a.releases} releases of each of "
+              f"xz, yz, two, TM centred, seeds {a.seed0}.. (+10000 per scenario); {a.draws} "
+              f"prior draws; {time.perf_counter() - t0:.0f} s)\n")
+        print(f"Per unknown: truth inside the 95 % / the central 50 % interval (of {n}), "
+              "posterior sd / prior sd (median).\n")
+        from gprm.flight.scenario import PARAMS
+        print("| likelihood | median effective draws | "
+              + " | ".join(PARAMS) + " |")
+        print("|---|---|" + "---|" * len(PARAMS))
+        for name, r in res.items():
+            print(f"| {name} | {r['ess']:.0f} | " + " | ".join(
+                f"{100 * r['in95'][k] / n:.1f} / {100 * r['in50'][k] / n:.1f} %, "
+                f"{r['sd'][k]:.2f}" for k in PARAMS) + " |")
+        print()
     if a.recovery:
         t0 = time.perf_counter()
         out = recovery(fm, seeds, a.releases, a.draws, a.rel_floor)
@@ -204,10 +367,15 @@ def main() -> None:
               + ", ".join(f"{k} {v[0]}/{v[1]}" for k, v in out["by_truth"].items()))
         print(f"- confusion (truth->chosen): {out['confusion']}")
         print(f"- median effective number of draws (true scenario): {out['ess_median']:.0f}\n")
-        print("| unknown | truth inside the 95 % interval |")
-        print("|---|---|")
+        print("| unknown | truth inside the 95 % interval | inside the central 50 % | "
+              "95 % interval width / the prior's central 95 %, median |")
+        print("|---|---|---|---|")
         for k, c in out["covered"].items():
-            print(f"| {k} | {c}/{n} ({100 * c / n:.1f} %) |")
+            w = out["width"].get(k)
+            c50 = out["covered50"].get(k)
+            print(f"| {k} | {c}/{n} ({100 * c / n:.1f} %) | "
+                  f"{'' if c50 is None else f'{c50}/{n} ({100 * c50 / n:.1f} %)'} | "
+                  f"{'' if w is None else f'{w:.2f}'} |")
         print()
 
 

@@ -46,3 +46,47 @@ def test_pit_coverage_is_nominal_with_and_without_atoms_and_the_band_is_not():
     # scoring the closed band over the bins the truth occupies is off nominal at the atom
     lo, hi = _binomial_range(0.68, n_band)
     assert not lo <= hits["band68"] / n_band <= hi
+
+
+def test_likelihood_study_mixture_weights_against_the_gaussian_and_scipy():
+    """bench_scenarios' exact mixture over parameter sets (the likelihood study of
+    docs/flight.md §11): with every set identical it is the method's Gaussian with C_k = 0
+    (gprm.flight.inference.posterior_weights); with distinct sets, the mean of the sets'
+    normal densities (scipy), renormalised; draws with < 75 % impacts get no weight."""
+    from bench_scenarios import _mixture_weights
+    from scipy.stats import multivariate_normal
+
+    from gprm.flight.inference import InferenceOptions, PriorPredictive, posterior_weights
+    from gprm.flight.scenario import PARAMS
+
+    rng = np.random.default_rng(3)
+    K, M = 300, 5
+    mean = rng.normal(0, 2e-5, (K, 6))
+    y = mean[17] + rng.normal(0, 3e-7, 6)
+    sig = np.full(6, 1e-7)
+    use = np.array([True] * 5 + [False])
+    opts = InferenceOptions(n_draws=K)
+    pp = PriorPredictive("xz", {k: rng.uniform(size=K) for k in PARAMS}, mean,
+                         np.zeros((K, 6, 6)), np.zeros(K), np.zeros((K, 6)), np.zeros(K),
+                         np.ones(K, bool))
+    same = np.broadcast_to(mean, (M, K, 6))
+    ok = np.ones((M, K), bool)
+    w_mix = _mixture_weights(same, ok, y, sig, use, opts.floor, opts.rel_floor)
+    np.testing.assert_allclose(w_mix, posterior_weights(pp, y, sig, use, opts),
+                               rtol=1e-9, atol=1e-300)
+    # distinct sets; set 0 without an impact at draw 5; draw 9 with 3 of 5 sets only
+    Y = mean[None] * (1 + rng.normal(0, 0.03, (M, K, 1)))
+    ok[0, 5] = False
+    ok[:2, 9] = False
+    w = _mixture_weights(Y, ok, y, sig, use, opts.floor, opts.rel_floor)
+    fl = np.array([opts.floor[0]] * 3 + [opts.floor[1]] * 3)
+    want = np.zeros(K)
+    for k in range(K):
+        if ok[:, k].mean() < 0.75:
+            continue
+        dens = [multivariate_normal(Y[m, k, use], np.diag(
+            (sig ** 2 + fl ** 2 + (opts.rel_floor * Y[m, k]) ** 2)[use])).pdf(y[use])
+            for m in range(M) if ok[m, k]]
+        want[k] = np.mean(dens)
+    assert w[9] == 0 and want[9] == 0
+    np.testing.assert_allclose(w, want / want.sum(), rtol=1e-8, atol=1e-300)

@@ -129,3 +129,43 @@ def test_auto_needs_the_scenarios():
     assert e.value.field == "scenarios"
     with pytest.raises(GprmInputError):
         ScenarioPrior(friction=(0.5, 0.2))
+
+
+def test_prior_predictive_marginalises_the_tm_offset_as_exact_impacts_do():
+    """At a few prior draws, the covariance of the TM velocity over the parameter sets AND the
+    TM offset (U(±1 mm)², sampled: 48 sets × 2000 offsets through the exact impact, at each
+    set's own gap-rule time) against the prior predictive's, which adds the offset in closed
+    form: the angular block's diagonal to 8 % (the 2000 offsets, shared by the sets, give the
+    offset's part a 2 % Monte Carlo error; the rest is first order), the linear block
+    unchanged by the offset."""
+    from gprm.flight.inference import model_frame, prior_predictive
+    from gprm.flight.scenario import COMPONENTS, scenario_velocity
+    from gprm.params import batch
+
+    m = paper_model()
+    opts = InferenceOptions(n_draws=10, seed=4)
+    prior = ScenarioPrior(tm_offset=1e-3)
+    pb0 = batch([m.params])
+    frame = model_frame(m, opts, pb0)
+    pp = prior_predictive(m, "two", opts, prior, frame=frame, pb0=pb0)
+    pp0 = prior_predictive(m, "two", opts, ScenarioPrior(tm_offset=0.0), frame=frame, pb0=pb0)
+    rng = np.random.default_rng(8)
+    checked = 0
+    for k in np.flatnonzero(pp.valid)[:3]:
+        n_off = 2000
+        q1 = {p: pp.params[p][k:k + 1] for p in PARAMS}
+        t = scenario_velocity("two", frame, pb0, q1, prior)["t"]        # (48, 1): the gap rule
+        q = {p: np.repeat(pp.params[p][k], n_off) for p in PARAMS}
+        d = rng.uniform(-1e-3, 1e-3, (n_off, 2))
+        q["tm_dx"], q["tm_dy"] = d[:, 0], d[:, 1]
+        out = scenario_velocity("two", frame, pb0, q, prior, times=np.repeat(t, n_off, 1))
+        y = np.stack([out[c] for c in COMPONENTS], -1)          # (48, n_off, 6)
+        ok = out["ok"].all(1)
+        Y = y[ok].reshape(-1, 6)
+        cov = np.cov(Y, rowvar=False)
+        np.testing.assert_allclose(np.diag(cov)[3:], np.diag(pp.cov[k])[3:], rtol=0.08)
+        np.testing.assert_allclose(pp.cov[k][:3, :3], pp0.cov[k][:3, :3], rtol=1e-12)
+        # and the offset is what widens ω_z: without it the model says ~0
+        assert pp.cov[k][5, 5] > 100 * pp0.cov[k][5, 5]
+        checked += 1
+    assert checked >= 2

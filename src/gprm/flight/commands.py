@@ -52,6 +52,11 @@ def register(app: typer.Typer, synth_app: typer.Typer) -> None:
                                           "scenario): xz, yz, two (rim contacts), xz-face, "
                                           "yz-face, two-face, corner, or mixed (each release "
                                           "one of xz, yz, two)"),
+        tm_offset: Optional[float] = typer.Option(None, "--tm-offset",
+                                        parser=Quantity("m", 0, 0.01), metavar="LENGTH",
+                                        help="largest lateral offset of the TM from the head "
+                                             "axis, in x and y (scenario truths), e.g. 1mm "
+                                             "(bare: m; default 1mm, docs/flight.md §10)"),
     ):
         """Synthetic in-flight releases with known impact times (telemetry NetCDF)."""
         from gprm._io import check_outputs
@@ -64,7 +69,8 @@ def register(app: typer.Typer, synth_app: typer.Typer) -> None:
         opts = cli_options(TelemetryOptions, piezo=piezo, synth=cli_options(
             SynthOptions, _SYNTH_FLAGS, n_releases=releases, seed=seed, rate=rate, post=post,
             pos_noise=pos_noise, att_noise=att_noise, truth_spread=not no_spread,
-            z_from=z_from, truth_model=truth_model, scenario=scenario))
+            z_from=z_from, truth_model=truth_model, scenario=scenario,
+            **({} if tm_offset is None else {"tm_offset": tm_offset})))
         check_outputs({out: "--out"}, inputs=model_inputs(fit))
         # 150 B per record sample (tracemalloc peak: 96 B per sample between 2 x 1e4 and
         # 2 x 4e4 samples; docs/README.md) plus a fixed 50 MB

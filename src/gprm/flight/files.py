@@ -410,7 +410,9 @@ def truth_attrs_and_vars(truth: dict) -> tuple[dict, tuple[dict, dict]]:
 SCENARIO_PARAM_UNITS = {"f": ("1", "gap as a fraction of the largest excursion"),
                         "s": ("m", "contact height on the head"),
                         "phi": ("rad", "azimuth of the contact on the head"),
-                        "mu": ("1", "friction coefficient"), "e": ("1", "restitution")}
+                        "mu": ("1", "friction coefficient"), "e": ("1", "restitution"),
+                        "tm_dx": ("m", "TM CoM offset from the head axis along x"),
+                        "tm_dy": ("m", "TM CoM offset from the head axis along y")}
 """Unit and meaning of each scenario unknown in the telemetry file
 (``truth_scenario_<name>``)."""
 

@@ -15,7 +15,10 @@ Gaussian approximation):
   (``FittedModel.sample``); for every pair the impact time t_mk (gap rule on θ_m's own motion)
   and the TM velocity y_mk (:func:`~gprm.flight.scenario.scenario_velocity`);
 * for each φ_k, the mean μ_k and covariance C_k of (y, t) over the θ_m: the model's interval
-  at φ_k. The likelihood of a release's measurement y with standard errors σ is
+  at φ_k; the TM's lateral offset from the head axis (``ScenarioPrior.tm_offset``) is
+  marginalised by adding its first-order covariance of the angular components
+  (:func:`~gprm.flight.scenario.offset_covariance`, averaged over the θ_m). The likelihood
+  of a release's measurement y with standard errors σ is
   L_k = N(y; μ_k, C_k + diag(σ²) + diag(floor²)), ``floor`` a model-form allowance
   (:class:`InferenceOptions`); a φ_k at which fewer than ``min_valid`` of the θ_m give an
   impact has L_k = 0;
@@ -36,9 +39,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from gprm.errors import GprmInputError
-from gprm.flight.scenario import (COMPARED, COMPONENTS, PARAMS, SCENARIO_GRID_STEP, SCENARIOS,
-                                  ScenarioPrior,
-                                  plunger_frame, scenario_grid, scenario_velocity)
+from gprm.flight.scenario import (COMPARED, COMPONENTS, OFFSETS, PARAMS, SCENARIO_GRID_STEP,
+                                  SCENARIOS, ScenarioPrior, offset_covariance, plunger_frame,
+                                  scenario_grid, scenario_velocity)
 from gprm.validate import check_int
 
 PARAM_UNIT = {"f": "1", "s": "m", "phi": "rad", "mu": "1", "e": "1", "t": "s"}
@@ -106,6 +109,10 @@ def prior_predictive(model, kind: str, opts: InferenceOptions,
         frame = model_frame(model, opts, pb0)
     rng = np.random.default_rng([opts.seed, SCENARIOS.index(kind)])
     p = prior.draw(opts.n_draws, rng)
+    # the TM's lateral offset is marginalised in closed form (first order, Gaussian:
+    # offset_covariance), not sampled: the draws keep the TM centred
+    p.update({k: np.zeros(opts.n_draws) for k in OFFSETS})
+    s_tm = float(np.ravel(pb0["s_tm"])[0])
     K = opts.n_draws
     mean = np.full((K, 6), np.nan)
     cov = np.full((K, 6, 6), np.nan)
@@ -126,6 +133,8 @@ def prior_predictive(model, kind: str, opts: InferenceOptions,
             Y = np.concatenate([y[m, j], out["t"][m, j, None]], -1)   # (n, 7)
             mu = Y.mean(0)
             C = np.cov(Y, rowvar=False)
+            if prior.tm_offset > 0:
+                C[:6, :6] += offset_covariance(Y[:, :3], s_tm, prior.tm_offset).mean(0)
             k = a + j
             mean[k], cov[k] = mu[:6], C[:6, :6]
             tm[k], tc[k], tv[k] = mu[6], C[6, :6], C[6, 6]
@@ -173,10 +182,10 @@ def _f(x):
     return None if x is None or not np.isfinite(x) else float(x)
 
 
-def fit_release(pp: PriorPredictive, y: np.ndarray, sigma: np.ndarray, use: np.ndarray,
-                opts: InferenceOptions, rng: np.random.Generator) -> ScenarioFit:
-    """The posterior of one release (measured ``y`` (6,), standard errors ``sigma`` (6,),
-    ``use`` (6,) the components measured) under the scenario of ``pp``."""
+def _log_likelihood(pp: PriorPredictive, y: np.ndarray, sigma: np.ndarray, use: np.ndarray,
+                    opts: InferenceOptions):
+    """ln L_k of every prior draw (K,) (−inf where not valid), with the valid draws'
+    covariances S (Kv, d, d) and residuals r (Kv, d) over the measured components ``idx``."""
     idx = np.flatnonzero(use)
     K = pp.valid.size
     v = pp.valid
@@ -192,6 +201,28 @@ def fit_release(pp: PriorPredictive, y: np.ndarray, sigma: np.ndarray, use: np.n
     ll = -0.5 * np.sum(z * z, -1) - 0.5 * logdet - 0.5 * idx.size * np.log(2 * np.pi)
     logL = np.full(K, -np.inf)
     logL[v] = ll
+    return logL, S, r, idx
+
+
+def posterior_weights(pp: PriorPredictive, y: np.ndarray, sigma: np.ndarray, use: np.ndarray,
+                      opts: InferenceOptions) -> np.ndarray:
+    """The normalised posterior weights w_k (K,) of the prior draws ``pp.params`` given one
+    release (as :func:`fit_release`; zeros if no draw is valid), e.g. for the posterior's
+    CDF at a known truth."""
+    logL = _log_likelihood(pp, y, sigma, use, opts)[0]
+    mx = np.max(logL)
+    if not np.isfinite(mx):
+        return np.zeros(logL.size)
+    w = np.exp(logL - mx)
+    return w / w.sum()
+
+
+def fit_release(pp: PriorPredictive, y: np.ndarray, sigma: np.ndarray, use: np.ndarray,
+                opts: InferenceOptions, rng: np.random.Generator) -> ScenarioFit:
+    """The posterior of one release (measured ``y`` (6,), standard errors ``sigma`` (6,),
+    ``use`` (6,) the components measured) under the scenario of ``pp``."""
+    logL, S, r, idx = _log_likelihood(pp, y, sigma, use, opts)
+    K, v = pp.valid.size, pp.valid
     mx = np.max(logL)
     if not np.isfinite(mx):
         return ScenarioFit(pp.scenario, -np.inf, 0.0, {})
@@ -299,7 +330,8 @@ def infer_scenarios(model, ids, y, sigma, opts: InferenceOptions = InferenceOpti
                              comps, {"scenarios": list(opts.scenarios),
                                      "n_draws": opts.n_draws, "n_model": opts.n_model,
                                      "seed": opts.seed, "floor": list(opts.floor),
-                                     "rel_floor": opts.rel_floor})
+                                     "rel_floor": opts.rel_floor,
+                                     "tm_offset": (prior or ScenarioPrior()).tm_offset})
 
 
 def measured_components(tel, *, fit_window: float | None = None, min_samples: int = 5):

@@ -51,6 +51,11 @@ PARAMS: tuple[str, ...] = ("f", "s", "phi", "mu", "e")
 z for a rim contact, down the line for a face contact), azimuth φ of the contact on the head
 (rad), friction coefficient μ, restitution e."""
 
+OFFSETS: tuple[str, ...] = ("tm_dx", "tm_dy")
+"""The TM CoM's lateral offset (m) from the head axis in x and y (:class:`ScenarioPrior`
+``tm_offset``): drawn for the truths, marginalised by the inference in a first-order Gaussian
+approximation (:func:`offset_covariance`), not among the inferred :data:`PARAMS`."""
+
 COMPONENTS: tuple[str, ...] = ("vx", "vy", "vz", "wx", "wy", "wz")
 """The TM velocity components after the impact (m/s, rad/s)."""
 
@@ -67,7 +72,11 @@ class ScenarioPrior:
     friction μ ~ U(``friction``); restitution e ~ U(``restitution``) (near-elastic: the paper
     finds the flight impacts compatible with energy conservation, Sec. 3). Face scenarios use
     the indent angle ``indent_angle`` (the registry's 45°). The TM CoM lies
-    s_tm/2 − ``indent_depth`` above the contact lines' middle points.
+    s_tm/2 − ``indent_depth`` above the contact lines' middle points, laterally offset from the
+    head axis by δ = (tm_dx, tm_dy), each ~ U(−``tm_offset``, ``tm_offset``) (m; 0: centred,
+    and nothing drawn, so the draws of the other unknowns are those without the offset). The
+    offset gives the impact a lever arm about z: ω_z = (I_B⁻¹ Σ ρ_i × J_i)_z with
+    ρ_i = P_i − C − δ (docs/flight.md §10).
     """
 
     gap: tuple[float, float] = (0.2, 0.8)
@@ -77,6 +86,7 @@ class ScenarioPrior:
     restitution: tuple[float, float] = (0.7, 1.0)
     indent_angle: float = float(np.deg2rad(45.0))
     indent_depth: float = 3.0e-3
+    tm_offset: float = 1.0e-3
 
     def __post_init__(self):
         for name in ("gap", "friction", "restitution"):
@@ -89,7 +99,7 @@ class ScenarioPrior:
             raise GprmInputError("must be >= 0", field="friction")
         if self.restitution[0] < 0 or self.restitution[1] > 1:
             raise GprmInputError("must lie in [0, 1]", field="restitution")
-        for name in ("height", "azimuth"):
+        for name in ("height", "azimuth", "tm_offset"):
             v = getattr(self, name)
             if not (np.isfinite(v) and v >= 0):
                 raise GprmInputError(f"must be >= 0, got {v!r}", field=name)
@@ -102,8 +112,13 @@ class ScenarioPrior:
                 "e": (self.restitution[0], self.restitution[1])}
 
     def draw(self, n: int, rng: np.random.Generator) -> dict[str, np.ndarray]:
-        """``n`` independent draws of :data:`PARAMS` (each (n,))."""
-        return {k: rng.uniform(lo, hi, n) for k, (lo, hi) in self.bounds().items()}
+        """``n`` independent draws of :data:`PARAMS` and :data:`OFFSETS` (each (n,)); the
+        offsets are drawn after the others, and only when ``tm_offset`` > 0 (else zeros)."""
+        out = {k: rng.uniform(lo, hi, n) for k, (lo, hi) in self.bounds().items()}
+        for k in OFFSETS:
+            out[k] = (rng.uniform(-self.tm_offset, self.tm_offset, n) if self.tm_offset > 0
+                      else np.zeros(n))
+        return out
 
 
 # ----------------------------------------------------------------------------- geometry
@@ -183,8 +198,10 @@ def contacts(kind: str, pb, p: dict[str, np.ndarray],
 
 
 def tm_centre(pb, prior: ScenarioPrior) -> np.ndarray:
-    """TM CoM (3,) at rest, plunger body coordinates: the plunger CoM's lateral position, and
-    s_tm/2 − indent_depth above the contact lines' middle points (as docs/flight.md §2)."""
+    """TM CoM (3,) at rest, plunger body coordinates, when centred on the head: the plunger
+    CoM's lateral position (the head axis of :func:`contacts`), and s_tm/2 − indent_depth
+    above the contact lines' middle points (as docs/flight.md §2). A draw's lateral offset
+    (:data:`OFFSETS`) is added by :func:`scenario_velocity`."""
     pts = named_points(pb)
     com0 = pts["com"].r[0]
     s_tm = float(np.ravel(pb["s_tm"])[0])
@@ -421,13 +438,21 @@ def scenario_velocity(kind: str, frame: Frame, pb0, p: dict[str, np.ndarray],
     e = np.broadcast_to(np.asarray(p["e"], float).reshape(-1)[None, :] if not per_set
                         else np.asarray(p["e"], float)[:, None], (B, Kx))
     zero = np.zeros((B, Kx, 3))
+    # the TM CoM of each draw: centred on the head (C) plus its lateral offset δ
+    if all(k in p for k in OFFSETS):
+        dx, dy = (np.asarray(p[k], float).reshape(-1) for k in OFFSETS)
+        off = np.stack([dx, dy, np.zeros_like(dx)], -1)
+        off = off[:, None, :] if per_set else off[None, :, :]        # (B, 1, 3) or (1, K, 3)
+    else:
+        off = np.zeros((1, 1, 3))
+    centre = C[:, None, :] + off
     rhoA, vAs, rhoB, ns = [], [], [], []
     for (_, nn), (P, vP, w, G) in zip(cons, states):
         ra = P - G
         rhoA.append(ra)
         vAs.append(vP - np.cross(w, ra))
         # TM fixed in the ground frame: its CoM at rest (body coordinates at rest = ground)
-        rhoB.append(P - C[:, None, :])
+        rhoB.append(P - centre)
         ns.append(np.broadcast_to(nn if not per_set else nn[:, 0][:, None, :], (B, Kx, 3)))
     w = states[0][2]
     ncon = None
@@ -449,6 +474,26 @@ def scenario_velocity(kind: str, frame: Frame, pb0, p: dict[str, np.ndarray],
     out["ok"] = ok
     if ncon is not None:
         out["contacts"] = ncon
+    return out
+
+
+def offset_covariance(v: np.ndarray, s_tm: float, tm_offset: float) -> np.ndarray:
+    """Covariance (..., 6, 6) of the TM's :data:`COMPONENTS` that the lateral offset
+    δ = (tm_dx, tm_dy), each ~ U(−tm_offset, tm_offset), adds after an impact that left the
+    TM with linear velocity ``v`` (..., 3): to first order in δ the impulses are unchanged
+    (the contact's effective mass is the plunger's, the TM being 130 times heavier) and only
+    the lever arms move, ρ_i → ρ_i − δ, so Δω = −I_B⁻¹ (δ × Σ J_i) = −(6 / s_tm²) δ × v
+    (I_B = m_tm s_tm² / 6, Σ J_i = m_tm v): Δω = G δ with
+    G = (6 / s_tm²) [[0, −v_z], [v_z, 0], [−v_y, v_x]], and Cov = G (tm_offset² / 3) Gᵀ in
+    the angular block (a uniform's variance; zero elsewhere). Checked against the exact
+    impact in tests/flight/test_scenario.py."""
+    v = np.asarray(v, float)
+    k = 6.0 / s_tm ** 2
+    z = np.zeros(v.shape[:-1])
+    G = k * np.stack([np.stack([z, -v[..., 2]], -1), np.stack([v[..., 2], z], -1),
+                      np.stack([-v[..., 1], v[..., 0]], -1)], -2)   # (..., 3, 2)
+    out = np.zeros(v.shape[:-1] + (6, 6))
+    out[..., 3:, 3:] = (tm_offset ** 2 / 3.0) * (G @ np.swapaxes(G, -1, -2))
     return out
 
 
@@ -483,8 +528,9 @@ def scenario_grid(pb0, window=None, step: float = SCENARIO_GRID_STEP) -> np.ndar
 @dataclass(frozen=True)
 class ScenarioTruth:
     """Synthetic truths of :func:`draw_truths` (R releases): ``scenario`` (R,) names,
-    ``params`` {name: (R,)} (:data:`PARAMS`), ``t`` (R,) impact times (s), ``velocity``
-    (R, 6) the TM's :data:`COMPONENTS`, ``contacts`` (R,) how many contacts pushed."""
+    ``params`` {name: (R,)} (:data:`PARAMS` and :data:`OFFSETS`), ``t`` (R,) impact times
+    (s), ``velocity`` (R, 6) the TM's :data:`COMPONENTS`, ``contacts`` (R,) how many contacts
+    pushed."""
 
     scenario: tuple[str, ...]
     params: dict
@@ -532,14 +578,15 @@ def draw_truths(model, kinds, seed: int, prior: ScenarioPrior | None = None, *,
                 if out["ok"][jj, 0]:
                     v = np.array([out[c][jj, 0] for c in COMPONENTS])
                     nc = int(out["contacts"][jj, 0]) if "contacts" in out else 1
-                    done[todo[j]] = ({k: float(ps[k][jj]) for k in PARAMS},
+                    done[todo[j]] = ({k: float(ps[k][jj]) for k in PARAMS + OFFSETS},
                                      float(out["t"][jj, 0]), v, nc)
     if len(done) < R:
         raise GprmInputError("could not draw impacts for every release (the contact points "
                              "of too few parameter draws approach the indent)",
                              source=str(model.source))
     order = [done[i] for i in range(R)]
-    return ScenarioTruth(tuple(kinds), {k: np.array([o[0][k] for o in order]) for k in PARAMS},
+    return ScenarioTruth(tuple(kinds),
+                         {k: np.array([o[0][k] for o in order]) for k in PARAMS + OFFSETS},
                          np.array([o[1] for o in order]), np.stack([o[2] for o in order]),
                          np.array([o[3] for o in order]))
 

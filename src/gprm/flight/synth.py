@@ -31,7 +31,8 @@ from gprm.errors import GprmInputError
 from gprm.flight.predicted import (GeometryUncertainty, ImpactGeometry, sample_geometries,
                                    tm_velocity_vs_time, default_window)
 from gprm.flight.files import synth_option_attrs, telemetry_dataset
-from gprm.flight.scenario import COMPARED, PARAMS, SCENARIOS, draw_truths, scenario_grid
+from gprm.flight.scenario import (COMPARED, OFFSETS, PARAMS, SCENARIOS, ScenarioPrior,
+                                  draw_truths, scenario_grid)
 from gprm.flight.telemetry import AXES
 from gprm.params import batch
 from gprm.simulate.kinematics import body_motion
@@ -53,7 +54,9 @@ class SynthOptions:
     ``approach`` (:func:`plausible_window`); ``truth_model``: ``scenario`` (default, issue 23:
     :mod:`gprm.flight.scenario`, with ``scenario`` one of its
     :data:`~gprm.flight.scenario.SCENARIOS` or ``mixed``, each release's drawn from
-    :data:`~gprm.flight.scenario.COMPARED`), ``3d`` or ``planar`` (issue 14).
+    :data:`~gprm.flight.scenario.COMPARED`), ``3d`` or ``planar`` (issue 14);
+    ``tm_offset`` (m): the scenario truths' largest lateral offset of the TM CoM from the head
+    axis (:class:`~gprm.flight.scenario.ScenarioPrior`).
     """
 
     n_releases: int = 11
@@ -69,6 +72,7 @@ class SynthOptions:
     window_mode: str = "identifiable"
     truth_model: str = "scenario"
     scenario: str = "two"
+    tm_offset: float = ScenarioPrior.tm_offset
 
     def __post_init__(self):
         for name, lo in (("n_releases", 1), ("seed", 0)):
@@ -76,6 +80,7 @@ class SynthOptions:
         for name, positive in (("rate", True), ("pre", False), ("post", True),
                                ("pos_noise", True), ("att_noise", True), ("grid_step", True)):
             check_number(name, getattr(self, name), positive=positive)
+        check_number("tm_offset", self.tm_offset, positive=False)
         if self.z_from not in ("sum", "xz", "yz"):
             raise GprmInputError(f"must be sum, xz or yz, got {self.z_from!r}", field="z_from")
         if self.truth_model not in ("scenario", "3d", "planar"):
@@ -183,7 +188,8 @@ def _synth_scenarios(model, opts: SynthOptions):
     R = int(opts.n_releases)
     kinds = (list(rng.choice(COMPARED, size=R)) if opts.scenario == "mixed"
              else [opts.scenario] * R)
-    tr = draw_truths(model, [str(k) for k in kinds], opts.seed, spread=opts.truth_spread)
+    tr = draw_truths(model, [str(k) for k in kinds], opts.seed,
+                     ScenarioPrior(tm_offset=opts.tm_offset), spread=opts.truth_spread)
     tm = tr.velocity                                       # vx vy vz wx wy wz
     comp = dict(zip(TM_COMPONENTS, tm.T))
     tv = np.stack([comp["vx"], comp["vz"], comp["wy"], comp["vy"], comp["vz"], comp["wx"]], 1)
@@ -192,7 +198,7 @@ def _synth_scenarios(model, opts: SynthOptions):
              "tm_velocity": {c: tm[:, i].tolist() for i, c in enumerate(TM_COMPONENTS)},
              "z_from": None, "truth_model": "scenario", "truth_spread": opts.truth_spread,
              "scenario": list(tr.scenario),
-             "scenario_params": {k: tr.params[k].tolist() for k in PARAMS},
+             "scenario_params": {k: tr.params[k].tolist() for k in PARAMS + OFFSETS},
              "contacts": tr.contacts.tolist()}
     return _sampled(model, opts, rng, tr.t, tm, tv, truth)
 

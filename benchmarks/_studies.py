@@ -24,18 +24,20 @@ def _run_one(fn: Callable, kwargs: dict, seed: int):
 
 
 def map_seeds(fn: Callable, seeds, *, scheduler: str | None = None, workers: int = 0,
-              progress: bool = True, **kwargs) -> list:
+              progress: bool = True, labels=None, **kwargs) -> list:
     """``[fn(seed, **kwargs) for seed in seeds]``, as Dask tasks when ``scheduler`` or
     ``workers`` > 0 is given (``fn`` and its arguments must pickle; functions of a script
-    travel by value)."""
+    travel by value). ``labels``: what the progress lines call each task (default
+    ``seed S``)."""
     seeds = [int(s) for s in seeds]
+    names = list(labels) if labels is not None else [f"seed {s}" for s in seeds]
     task = functools.partial(_run_one, fn, dict(kwargs))
     if not scheduler and workers <= 0:
         out = []
         for i, s in enumerate(seeds):
             out.append(task(s))
             if progress:
-                print(f"campaign {i + 1}/{len(seeds)} (seed {s}) done", file=sys.stderr,
+                print(f"campaign {i + 1}/{len(seeds)} ({names[i]}) done", file=sys.stderr,
                       flush=True)
         return out
     import cloudpickle
@@ -68,7 +70,7 @@ def map_seeds(fn: Callable, seeds, *, scheduler: str | None = None, workers: int
             i = index[fut.key]
             out[i] = fut.result()
             if progress:
-                print(f"campaign {n}/{len(seeds)} (seed {seeds[i]}) done", file=sys.stderr,
+                print(f"campaign {n}/{len(seeds)} ({names[i]}) done", file=sys.stderr,
                       flush=True)
         return out
     finally:

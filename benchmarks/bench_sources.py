@@ -338,7 +338,8 @@ def main(argv=None) -> int:
     from _studies import map_seeds
 
     for res, sec in map_seeds(_job, range(len(jobs)), scheduler=a.scheduler,
-                              workers=a.workers, jobs=jobs):
+                              workers=a.workers, labels=[f"{j[0]} seed {j[1]}" for j in jobs],
+                              jobs=jobs):
         rows.extend(res)
         secs.append(sec)
     where = (f"scheduler {a.scheduler}" if a.scheduler else

@@ -63,7 +63,7 @@ def periodogram(x: np.ndarray, fs: float) -> tuple[np.ndarray, np.ndarray]:
     """(frequencies, one-sided power spectral density) of ``x`` (1-D) with its mean removed
     and no window: ``|FFT|^2 / (fs n)``, doubled except at 0 and (n even) the Nyquist
     frequency -- scipy.signal.periodogram's defaults with ``detrend="constant"`` (checked
-    against it in tests/fit/test_adequacy_speed.py; scipy.signal itself costs about a second
+    against it in tests/fit/test_fit_speed.py; scipy.signal itself costs about a second
     of import)."""
     x = np.asarray(x, float)
     n = x.size
@@ -205,7 +205,7 @@ def leave_one_signal_out(obj: Objective, x: np.ndarray, lm: LMOptions = LMOption
     The n_signals polishes (each from ``x``, ``max_iter`` iterations, relative tolerance
     ``LOSO_FTOL``) run as one lock-step batch: one simulation of all rows per iteration
     (:class:`LeftOut`), and one for the fit and the n_signals predictions. The same numbers
-    as :func:`leave_one_signal_out_each` to rounding (tests/fit/test_adequacy_speed.py)."""
+    as :func:`leave_one_signal_out_each` to rounding (tests/fit/test_fit_speed.py)."""
     d = obj.data
     S = len(d.signals)
     x = np.asarray(x, float)

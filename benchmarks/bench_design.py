@@ -107,17 +107,30 @@ def _compare(res, pred_sd, pred_ident, fit: dict, truth) -> dict:
             "ident_ach": sum(bool(fit["parameters"][n]["identified"]) for n in res.names)}
 
 
+
+def _truth_folders(root: Path, seed0: int, n: int):
+    """(seed, truth, folder) for the validation's truths seed0 .. seed0 + n - 1: each truth
+    drawn as bench_coverage draws them and written to folder/truth.toml."""
+    from bench_coverage import draw_truth
+
+    from gprm.params.files import save_params
+
+    for seed in range(seed0, seed0 + n):
+        truth = draw_truth(seed)
+        tdir = root / f"t{seed}"
+        tdir.mkdir()
+        save_params(truth, tdir / "truth.toml")
+        yield seed, truth, tdir
+
 def validate(n_truths: int, starts: int, seed0: int, log: Path) -> list[dict]:
     """Runs the validation (see the module docstring); one JSON line per campaign to
     ``log`` as it goes."""
     sys.path.insert(0, os.path.dirname(__file__))
     from dataclasses import replace
 
-    from bench_coverage import draw_truth
 
     from gprm.design.config import read_design_config
     from gprm.design.core import run_design
-    from gprm.params.files import save_params
 
     rows = []
     with tempfile.TemporaryDirectory() as d, open(log, "a") as fh:
@@ -141,12 +154,7 @@ def validate(n_truths: int, starts: int, seed0: int, log: Path) -> list[dict]:
             fh.write(json.dumps(row) + "\n")
             fh.flush()
 
-        for k in range(n_truths):
-            seed = seed0 + k
-            truth = draw_truth(seed)
-            tdir = d / f"t{seed}"
-            tdir.mkdir()
-            save_params(truth, tdir / "truth.toml")
+        for seed, truth, tdir in _truth_folders(d, seed0, n_truths):
             campaign(tdir, "base", seed, 10, 5, 1.5e-3, (0.97e-3, 1.2e-3))
             gprm("design", tdir / "base_fit.json", "--candidates", d / "cands.toml",
                  "--out", tdir / "design.json")
@@ -179,22 +187,15 @@ def validate_drive(n_truths: int, starts: int, seed0: int, log: Path) -> list[di
     the fit of the truth's Piezo 2 base campaign (its noise model and per-parameter
     carry-over transferred to the other drive, as the piezo1 candidate assumes)."""
     sys.path.insert(0, os.path.dirname(__file__))
-    from bench_coverage import draw_truth
 
     from gprm.design.config import MODEL_CHANNELS, Block, Channel
     from gprm.design.core import run_design
-    from gprm.params.files import save_params
 
     rows = []
     block = Block(tuple(Channel(n) for n in MODEL_CHANNELS), drives=(1,), runs=10)
     with tempfile.TemporaryDirectory() as d, open(log, "a") as fh:
         d = Path(d)
-        for k in range(n_truths):
-            seed = seed0 + k
-            truth = draw_truth(seed)
-            tdir = d / f"t{seed}"
-            tdir.mkdir()
-            save_params(truth, tdir / "truth.toml")
+        for seed, truth, tdir in _truth_folders(d, seed0, n_truths):
             for name, piezo, s in (("base", 2, seed), ("piezo1", 1, seed + 6000)):
                 gprm("synth", "campaign", "--truth", tdir / "truth.toml", "--seed", s,
                      "--piezo", piezo, "--out", tdir / f"{name}.nc")

@@ -22,6 +22,32 @@ import numpy as np
 from _machine import best_time as timed, machine
 
 
+#: the per-campaign counts of an impact-time analysis (:func:`add_analysis`)
+COUNTS = ("impact_times", "found", "within_2sigma", "joint_releases", "joint_truth_in_ci95")
+
+
+def new_totals() -> dict:
+    """Zeroed totals for :func:`add_analysis`."""
+    return {"campaigns": 0, **{k: 0 for k in COUNTS}, "chi2_rejects": 0, "chi2_tests": 0,
+            "tukey_rejecting_campaigns": 0}
+
+
+def add_analysis(tot: dict, doc: dict) -> None:
+    """Add one analysed synthetic campaign (``AnalysisResult.to_json()``) to ``tot``: its truth
+    summary's counts, the joint chi-square tests (rejected at 0.01) and whether Tukey
+    rejected."""
+    sm = doc["truth"]["summary"]
+    for k in COUNTS:
+        tot[k] += sm[k]
+    tot["campaigns"] += 1
+    for r in doc["releases"]:
+        p = r["joint"].get("p")
+        if p is not None:
+            tot["chi2_tests"] += 1
+            tot["chi2_rejects"] += p < 0.01
+    tot["tukey_rejecting_campaigns"] += not doc["tukey"].get("all_compatible", True)
+
+
 def recovery(fm, n_campaigns: int, releases: int, seed0: int, model: str,
              models=None) -> dict:
     """Totals over campaigns of :func:`gprm.flight.analysis.truth_summary` and the tests
@@ -29,9 +55,7 @@ def recovery(fm, n_campaigns: int, releases: int, seed0: int, model: str,
     from gprm.flight import AnalysisOptions, SynthOptions, analyze, synth_telemetry
     from gprm.flight.files import telemetry_from_dataset
 
-    tot = {"campaigns": 0, "impact_times": 0, "found": 0, "within_2sigma": 0,
-           "joint_releases": 0, "joint_truth_in_ci95": 0, "chi2_rejects": 0, "chi2_tests": 0,
-           "tukey_rejecting_campaigns": 0, "missing_reasons": {}}
+    tot = {**new_totals(), "missing_reasons": {}}
     zs = []
     curves = None
     for i, s in enumerate(range(seed0, seed0 + n_campaigns)):
@@ -42,21 +66,12 @@ def recovery(fm, n_campaigns: int, releases: int, seed0: int, model: str,
             curves = None
         res = analyze(m, tel, AnalysisOptions(impact_model=model), curves=curves)
         doc, curves = res.to_json(), res.curves
-        sm = doc["truth"]["summary"]
-        for k in ("impact_times", "found", "within_2sigma", "joint_releases",
-                  "joint_truth_in_ci95"):
-            tot[k] += sm[k]
-        tot["campaigns"] += 1
+        add_analysis(tot, doc)
         for r in doc["releases"]:
-            p = r["joint"].get("p")
-            if p is not None:
-                tot["chi2_tests"] += 1
-                tot["chi2_rejects"] += p < 0.01
             zs += [z for z in r["error_sigma"].values() if z is not None]
         for m in doc["missing"]:
             key = m["reason"].split(":")[0]
             tot["missing_reasons"][key] = tot["missing_reasons"].get(key, 0) + 1
-        tot["tukey_rejecting_campaigns"] += not doc["tukey"].get("all_compatible", True)
     zs = np.abs(np.array(zs))
     tot["median_abs_z"] = float(np.median(zs)) if zs.size else float("nan")
     return tot

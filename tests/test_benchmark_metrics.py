@@ -90,3 +90,23 @@ def test_likelihood_study_mixture_weights_against_the_gaussian_and_scipy():
         want[k] = np.mean(dens)
     assert w[9] == 0 and want[9] == 0
     np.testing.assert_allclose(w, want / want.sum(), rtol=1e-8, atol=1e-300)
+
+
+def test_impact_time_totals_count_each_campaign_once():
+    """bench_flight.add_analysis (shared by bench_flight and bench_scenarios): the truth
+    summary's counts add up, a joint chi-square test counts where a release has a p-value and
+    rejects below 0.01, and a campaign where Tukey rejects counts once."""
+    from bench_flight import COUNTS, add_analysis, new_totals
+
+    def doc(ps, compatible):
+        return {"truth": {"summary": {k: i + 1 for i, k in enumerate(COUNTS)}},
+                "releases": [{"joint": {"p": p}} for p in ps],
+                "tukey": {"all_compatible": compatible}}
+
+    tot = new_totals()
+    add_analysis(tot, doc([0.5, 0.001, None], True))
+    add_analysis(tot, doc([0.009, None], False))
+    assert tot["campaigns"] == 2
+    assert [tot[k] for k in COUNTS] == [2 * (i + 1) for i in range(len(COUNTS))]
+    assert (tot["chi2_tests"], tot["chi2_rejects"]) == (3, 2)
+    assert tot["tukey_rejecting_campaigns"] == 1

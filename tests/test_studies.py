@@ -33,3 +33,14 @@ def test_results_do_not_depend_on_the_worker_count():
         np.testing.assert_array_equal(a["x"], b["x"])
         np.testing.assert_array_equal(a["x"], c["x"])
         assert a["norm"] == b["norm"] == c["norm"]
+
+
+def test_progress_lines_name_each_task(capsys):
+    """``labels`` name the tasks in the progress lines (bench_sources' tasks are jobs, not
+    seeds); without them a task is its seed."""
+    map_seeds(small_study, [4, 2], size=5, labels=["white seed 5000", "mode-1 seed 5001"])
+    err = capsys.readouterr().err
+    assert "campaign 1/2 (white seed 5000) done" in err
+    assert "campaign 2/2 (mode-1 seed 5001) done" in err
+    map_seeds(small_study, [4], size=5)
+    assert "campaign 1/1 (seed 4) done" in capsys.readouterr().err

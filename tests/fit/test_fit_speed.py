@@ -139,3 +139,21 @@ def test_the_fit_does_not_import_the_heavy_modules_it_does_not_use():
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
                          check=True)
     assert out.stdout.strip() == "[]"
+
+
+def test_adequacy_chi_square_p_value_is_scipy_stats(fitted):
+    """The verdict's chi-square tail from scipy.special (chdtrc, degrees of freedom first)
+    is scipy.stats' chi2.sf of the same statistic, and moves the right way with chi2."""
+    from scipy.stats import chi2 as chi2_dist
+
+    from gprm.fit.adequacy import assess
+
+    obj, x = fitted
+    r = obj.residuals(obj.to_normalised(x)[None])[0, :obj.data.n_obs]
+    dof = r.size - 20.0
+    r = r * np.sqrt(dof / float(r @ r))          # chi2 = dof: a p-value near one half
+    a = assess(obj, x, r, 20.0, loso=False)
+    assert 0.3 < a.p_value < 0.7
+    assert a.p_value == pytest.approx(float(chi2_dist.sf(a.chi2, a.dof)), rel=1e-12)
+    b = assess(obj, x, 1.1 * r, 20.0, loso=False)
+    assert b.p_value < a.p_value

@@ -24,6 +24,7 @@ from gprm.fit.uncertainty import (Profile, compute_bands, estimate, profile_like
 from gprm.params import ParameterSet
 
 
+@single_thread_blas()
 def identify(data: FitData, base: ParameterSet, opts: MultiStartOptions = MultiStartOptions(),
              *, piezo: int = 2, names=None, workers: int = 0, scheduler: str | None = None,
              checkpoint_dir=None, progress=None, profile: bool = False, band_samples: int = 200,
@@ -45,19 +46,6 @@ def identify(data: FitData, base: ParameterSet, opts: MultiStartOptions = MultiS
     sandwich's eigendecompositions 1.1 s instead of 0.02 s on the 2-core machine) and change
     the last bits with the thread count.
     """
-    with single_thread_blas():
-        return _identify(data, base, opts, piezo=piezo, names=names, workers=workers,
-                         scheduler=scheduler, checkpoint_dir=checkpoint_dir, progress=progress,
-                         profile=profile, band_samples=band_samples,
-                         z_bk_absolute=z_bk_absolute, stop_after=stop_after,
-                         uncertainty=uncertainty, prior_width=prior_width, n_draws=n_draws,
-                         n_boot=n_boot, systematics=systematics)
-
-
-def _identify(data: FitData, base: ParameterSet, opts: MultiStartOptions, *, piezo, names,
-              workers, scheduler, checkpoint_dir, progress, profile, band_samples,
-              z_bk_absolute, stop_after, uncertainty, prior_width, n_draws, n_boot,
-              systematics) -> FitResult:
     t_start = time.perf_counter()
     fit_names = tuple(base.fitted if names is None else names)
     prior = None if prior_width is None else default_prior(base, fit_names, prior_width)

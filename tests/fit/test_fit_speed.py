@@ -157,3 +157,39 @@ def test_adequacy_chi_square_p_value_is_scipy_stats(fitted):
     assert a.p_value == pytest.approx(float(chi2_dist.sf(a.chi2, a.dof)), rel=1e-12)
     b = assess(obj, x, 1.1 * r, 20.0, loso=False)
     assert b.p_value < a.p_value
+
+
+def test_identify_runs_on_one_blas_thread(fitted, monkeypatch):
+    """identify's whole body (multi-start, polish, uncertainty, adequacy) runs with one BLAS
+    thread, and the previous setting is back afterwards."""
+    from gprm.fit import identify as identify_module
+    from gprm.fit.engine import _openblas_thread_setters
+
+    setters = _openblas_thread_setters()
+    if not setters:
+        pytest.skip("no OpenBLAS thread control in this numpy build")
+    seen = []
+
+    class Stop(Exception):
+        pass
+
+    def record(*args, **kwargs):
+        seen.append([int(g()) for _, g in setters])
+        raise Stop
+
+    import ctypes
+
+    old = [int(g()) for _, g in setters]
+    for s_, _ in setters:              # two threads outside, so that one inside is seen
+        s_(ctypes.c_int(2))
+    monkeypatch.setattr(identify_module, "run_multistart", record)
+    obj, _ = fitted
+    try:
+        with pytest.raises(Stop):
+            identify_module.identify(obj.data, paper())
+        after = [int(g()) for _, g in setters]
+    finally:
+        for (s_, _), n in zip(setters, old):
+            s_(ctypes.c_int(n))
+    assert seen == [[1] * len(setters)]
+    assert after == [2] * len(setters)

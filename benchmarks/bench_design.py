@@ -19,6 +19,12 @@
         same design agree, the floor of any such comparison. ``--from-log F`` prints the
         tables of an earlier (or interrupted) run's JSON lines.
 
+    ``--keep DIR`` (with --validate or --validate-drive): the campaigns, fits and truths are
+    written under DIR and kept; a fit already there is used instead of being made again (the
+    same seeds make the same campaigns), so running the command again with the same DIR
+    re-scores the design's predictions on the same achieved fits, or finishes an
+    interrupted validation. Without it they go to a temporary folder.
+
 Prints markdown (machine, command, tables).
 """
 
@@ -31,6 +37,7 @@ import subprocess
 import sys
 import tempfile
 import time
+from contextlib import contextmanager
 from pathlib import Path
 
 import numpy as np
@@ -118,11 +125,24 @@ def _truth_folders(root: Path, seed0: int, n: int):
     for seed in range(seed0, seed0 + n):
         truth = draw_truth(seed)
         tdir = root / f"t{seed}"
-        tdir.mkdir()
-        save_params(truth, tdir / "truth.toml")
+        tdir.mkdir(exist_ok=True)
+        if not (tdir / "truth.toml").exists():
+            save_params(truth, tdir / "truth.toml")
         yield seed, truth, tdir
 
-def validate(n_truths: int, starts: int, seed0: int, log: Path) -> list[dict]:
+
+@contextmanager
+def _workdir(keep: Path | None):
+    """The validation's folder: ``keep`` (created if absent, kept) or a temporary one."""
+    if keep is not None:
+        keep.mkdir(parents=True, exist_ok=True)
+        yield keep
+        return
+    with tempfile.TemporaryDirectory() as d:
+        yield Path(d)
+
+def validate(n_truths: int, starts: int, seed0: int, log: Path,
+             keep: Path | None = None) -> list[dict]:
     """Runs the validation (see the module docstring); one JSON line per campaign to
     ``log`` as it goes."""
     sys.path.insert(0, os.path.dirname(__file__))
@@ -133,12 +153,13 @@ def validate(n_truths: int, starts: int, seed0: int, log: Path) -> list[dict]:
     from gprm.design.core import run_design
 
     rows = []
-    with tempfile.TemporaryDirectory() as d, open(log, "a") as fh:
-        d = Path(d)
+    with _workdir(keep) as d, open(log, "a") as fh:
         (d / "cands.toml").write_text(VALIDATION_CANDIDATES)
         cfg_all = read_design_config(d / "cands.toml")
 
         def campaign(tdir, name, seed, runs, noise_runs, t_end, window):
+            if (tdir / f"{name}_fit.json").exists():          # kept from an earlier run
+                return json.loads((tdir / f"{name}_fit.json").read_text())
             camp = tdir / f"{name}.nc"
             gprm("synth", "campaign", "--truth", tdir / "truth.toml", "--seed", seed,
                  "--runs", runs, "--noise-runs", noise_runs, "--t-end", f"{t_end * 1e3:g}ms",
@@ -181,7 +202,8 @@ def validate(n_truths: int, starts: int, seed0: int, log: Path) -> list[dict]:
     return rows
 
 
-def validate_drive(n_truths: int, starts: int, seed0: int, log: Path) -> list[dict]:
+def validate_drive(n_truths: int, starts: int, seed0: int, log: Path,
+                   keep: Path | None = None) -> list[dict]:
     """A Piezo 1 campaign of its own (``gprm synth campaign --piezo 1``, fitted with
     ``gprm fit --piezo 1``) against the design's prediction for that block alone, made from
     the fit of the truth's Piezo 2 base campaign (its noise model and per-parameter
@@ -193,10 +215,11 @@ def validate_drive(n_truths: int, starts: int, seed0: int, log: Path) -> list[di
 
     rows = []
     block = Block(tuple(Channel(n) for n in MODEL_CHANNELS), drives=(1,), runs=10)
-    with tempfile.TemporaryDirectory() as d, open(log, "a") as fh:
-        d = Path(d)
+    with _workdir(keep) as d, open(log, "a") as fh:
         for seed, truth, tdir in _truth_folders(d, seed0, n_truths):
             for name, piezo, s in (("base", 2, seed), ("piezo1", 1, seed + 6000)):
+                if (tdir / f"{name}_fit.json").exists():      # kept from an earlier run
+                    continue
                 gprm("synth", "campaign", "--truth", tdir / "truth.toml", "--seed", s,
                      "--piezo", piezo, "--out", tdir / f"{name}.nc")
                 gprm("preprocess", tdir / f"{name}.nc", "--out", tdir / f"{name}_means.nc")
@@ -269,6 +292,9 @@ def main(argv=None) -> None:
                     help="JSON lines, one per campaign, appended as the validation goes")
     ap.add_argument("--from-log", type=Path, default=None,
                     help="only print the tables of a log written earlier")
+    ap.add_argument("--keep", type=Path, default=None,
+                    help="keep the campaigns and fits under this folder; fits found there "
+                         "are reused (re-scores the design on the same campaigns)")
     a = ap.parse_args(argv)
     print(machine("scipy"))
     print(f"\ncommand: `.venv/bin/python benchmarks/bench_design.py {' '.join(sys.argv[1:])}`\n")
@@ -278,12 +304,12 @@ def main(argv=None) -> None:
         tables([json.loads(x) for x in a.from_log.read_text().splitlines() if x.strip()])
     elif a.validate_drive:
         t = time.perf_counter()
-        rows = validate_drive(a.truths, a.starts, a.seed, a.log)
+        rows = validate_drive(a.truths, a.starts, a.seed, a.log, a.keep)
         print(f"{a.truths} truths, {a.starts} starts per fit, {time.perf_counter() - t:.0f} s\n")
         tables(rows)
     elif a.validate:
         t = time.perf_counter()
-        rows = validate(a.truths, a.starts, a.seed, a.log)
+        rows = validate(a.truths, a.starts, a.seed, a.log, a.keep)
         print(f"{a.truths} truths, {a.starts} starts per fit, {time.perf_counter() - t:.0f} s\n")
         tables(rows)
 

@@ -70,10 +70,15 @@ def test_fisher_of_white_noise_is_that_of_finite_differences(setup):
     assert np.max(np.abs(F - F_fd)[seen] / scale[seen]) < 1e-4
 
 
-def test_nuisances_are_marginalised_exactly(setup):
+@pytest.mark.parametrize("component", ["all", "runs", "floor"])
+def test_nuisances_are_marginalised_exactly(setup, component):
     """Gain, timing and mismatch terms: the Woodbury form equals J^T Sigma^-1 J with the
-    dense covariance Sigma = diag(var_w) + var_a y y^T + var_t y' y'^T of each channel."""
+    dense covariance Sigma = diag(var_w) + var_a y y^T + var_t y' y'^T of each channel; for
+    the two parts of the carry-over, Sigma holds only the error that averages down over the
+    block's runs (white noise, amplitude spread, alignment) or only the error that does not
+    (mismatch, gain, stated timing); the own-lag nuisance is in both."""
     ps, names, prior, x = setup
+    runs, floor = component in ("all", "runs"), component in ("all", "floor")
     block = Block((Channel("x_head"), Channel("tip_x", "tip", point="tip_edge", axis="x")),
                   runs=7)
     noise = NoiseModel(4e-10, 0.02, kappa=1.7, mismatch=3.0, base_runs=10,
@@ -81,17 +86,20 @@ def test_nuisances_are_marginalised_exactly(setup):
     dxdu = np.where(prior.log, x, 1.0)[None]
     F = block_information(ps, names, x[None], dxdu, block, noise, gain_sd=0.003,
                           timing_sd=1e-7, lag_sd=1e-5,
-                          fitted_lag_channels=("x_head", "y_base", "y_head"))[0]
+                          fitted_lag_channels=("x_head", "y_base", "y_head"),
+                          component=component)[0]
     Y, D, Yd = block_signals(ps, names, x[None], block, 2)
     k = noise.kappa
     F_dense = np.zeros_like(F)
     for c, ch in enumerate(block.channels):
         y = Y[0, c]
         sem2 = (noise.white ** 2 + noise.variability ** 2 * y ** 2) / noise.base_runs
-        var_w = k * (noise.white ** 2 / block.runs + noise.mismatch * sem2)
-        var_a = k * (0.003 ** 2 + noise.gain_of(ch.name) ** 2 + 0.02 ** 2 / block.runs)
+        var_w = k * (runs * noise.white ** 2 / block.runs + floor * noise.mismatch * sem2)
+        var_a = k * (floor * (0.003 ** 2 + noise.gain_of(ch.name) ** 2)
+                     + runs * 0.02 ** 2 / block.runs)
         own = 0.0 if ch.name == "x_head" else 1e-5 ** 2
-        var_t = k * (1e-7 ** 2 + noise.align_of(ch.name) ** 2 * 10 / block.runs + own)
+        var_t = k * (floor * 1e-7 ** 2 + runs * noise.align_of(ch.name) ** 2 * 10 / block.runs
+                     + own)
         S = np.diag(var_w) + var_a * np.outer(y, y) + var_t * np.outer(Yd[0, c], Yd[0, c])
         J = D[0, c] * dxdu[0]
         F_dense += J.T @ np.linalg.solve(S, J)
@@ -267,23 +275,101 @@ def test_cli_paper_and_one_line_errors(tmp_path):
     assert bad.read_text() == before and not (tmp_path / "d2.json").exists()
 
 
-def test_cli_on_a_fit_of_a_synthetic_campaign(tmp_path):
-    """The command on a real fit file (a small one: a generated campaign without the
-    nonlinear correction, 8 starts): its noise model comes from the fit, calibrated."""
+@pytest.fixture(scope="module")
+def synthetic_fit(tmp_path_factory):
+    """A real fit file (a small one: a generated campaign without the nonlinear correction,
+    8 starts, the default uncertainty)."""
     from gprm.campaign.preprocess import PreprocessConfig, preprocess
     from gprm.campaign.synth import SynthConfig, synth_campaign
-    from gprm.cli import app
     from gprm.fit.api import run_fit
 
     camp = synth_campaign(seed=4, config=SynthConfig(nonlinear=False))
     means = preprocess(camp, PreprocessConfig()).to_dataset()
     fit = run_fit(means, FitOptions(starts=8, seed=1))
-    fit.write(tmp_path / "fit.json")
+    path = tmp_path_factory.mktemp("fit") / "fit.json"
+    fit.write(path)
+    return path
+
+
+def _parts_document(names, shares, rr, origin=0.0, stated_timing=0.0):
+    return {"uncertainty": {"details": {
+        "variance_shares": {n: dict(shares) for n in names},
+        "residual_over_runs": list(rr), "time_origin_sd_s": origin,
+        "stated": {"timing_sd_s": stated_timing}}}}
+
+
+def test_variance_parts_split_what_averages_down_from_what_does_not():
+    """The runs' share of the statistical variance is 1 / rho (rho = the residuals' over the
+    runs' variance), the rest and the gain share do not average down; the timing share is
+    the alignment's unless a timing error is stated; t0's time origin is moved out of the
+    timing share; nothing is lost; no shares, no split."""
+    from gprm.design.core import variance_parts
+
+    names = ("m1", "t0")
+    shares = {"statistical": 0.6, "gain": 0.2, "timing": 0.15, "interpolation": 0.01,
+              "prior": 0.04}
+    var = np.array([4.0, 9.0])
+    x = np.array([0.1, 1.0e-3])
+    log = np.array([True, True])
+    rr = np.sqrt([3.0, 0.5])                  # rho 3 (mismatch) and 0.5 (runs dominate)
+    A, B = variance_parts(_parts_document(names, shares, rr), names, var, x, log)
+    np.testing.assert_allclose(A + B, var, rtol=1e-12)
+    np.testing.assert_allclose(A[0], var[0] * (0.6 / 3 + 0.15 + 0.05), rtol=1e-12)
+    np.testing.assert_allclose(B[1], var[1] * 0.2, rtol=1e-12)     # rho < 1: all runs'
+    # t0's time origin: (origin / t0)^2 of variance in u moves from A (alignment) to B
+    origin = 1.0e-3 * np.sqrt(0.1 * 9.0)
+    A2, B2 = variance_parts(_parts_document(names, shares, rr, origin), names, var, x, log)
+    np.testing.assert_allclose(B2[1] - B[1], 0.1 * 9.0, rtol=1e-9)
+    np.testing.assert_allclose(A2 + B2, var, rtol=1e-12)
+    # a stated timing error does not average down
+    A3, B3 = variance_parts(_parts_document(names, shares, rr, stated_timing=1e-7), names,
+                            var, x, log)
+    np.testing.assert_allclose(B3 - B, var * 0.15, rtol=1e-12)
+    assert variance_parts({"uncertainty": {}}, names, var, x, log) is None
+
+
+def test_more_runs_shrink_only_the_part_that_averages_down(synthetic_fit):
+    """On a real fit (default uncertainty): the carry-over has two parts; the base design
+    reproduces the fit's sd; a campaign of the same design with a million runs keeps the
+    part that does not average down (its information does not depend on the runs), never
+    more than the fit's variance, and loses the other wherever runs can determine the
+    parameter (not where it trades off with the y-plane springs, which no number of runs
+    separates: b1 on some fits)."""
+    from gprm.design.core import read_fit_document, variance_parts
+
+    cfg = replace(read_design_config(None), candidates=())
+    base = run_design(synthetic_fit, cfg)
+    assert [p.component for p in base.parts] == ["runs", "floor"]
+    many = replace(base.base_block, runs=10 ** 6)
+    res = run_design(synthetic_fit, cfg, alone=(base.base_block, many))
+    same, big = res.alone
+    fit_sd = res.fit_sd_u
+    below_prior = fit_sd < res.prior_sd
+    np.testing.assert_allclose(same["sd_u"][below_prior], fit_sd[below_prior], rtol=1e-6)
+    log = np.asarray(res.log, bool)
+    A, B = variance_parts(read_fit_document(synthetic_fit), res.names, fit_sd ** 2, res.best,
+                          log)
+    v = big["sd_u"] ** 2
+    m = below_prior
+    assert np.all(v[m] >= B[m] * (1 - 1e-6))
+    assert np.all(v[m] <= (A + B)[m] * (1 + 1e-9))
+    ident = res.base.identified
+    at_floor = np.abs(v - B) <= 0.02 * B
+    assert at_floor[ident].sum() >= 0.75 * ident.sum()
+    assert np.all(v[ident & ~at_floor] < (A + B)[ident & ~at_floor])
+
+
+def test_cli_on_a_fit_of_a_synthetic_campaign(tmp_path, synthetic_fit):
+    """The command on a real fit file: its noise model comes from the fit, calibrated in
+    two parts."""
+    from gprm.cli import app
+
     out = tmp_path / "design.json"
-    r = CliRunner().invoke(app, ["design", str(tmp_path / "fit.json"), "--out", str(out)])
+    r = CliRunner().invoke(app, ["design", str(synthetic_fit), "--out", str(out)])
     assert r.exit_code == 0, r.output
     doc = json.loads(out.read_text())
-    assert doc["noise"]["kappa"] != 1.0
+    assert [p["component"] for p in doc["carry_over"]] == ["runs", "floor"]
+    assert all(p["kappa"] > 0 and p["kappa"] != 1.0 for p in doc["carry_over"])
     assert doc["noise"]["white_m"] > 0
     assert doc["base"]["fit_sd_u"] is not None
     # the carry-over: the base design reproduces the fit's own sd (or the prior's, where

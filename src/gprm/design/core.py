@@ -17,6 +17,14 @@ noise model misses of the fit's own error (model mismatch the fit's sandwich see
 non-Gaussian valley) is carried over to every design, so that the base campaign reproduces
 the fit and a candidate changes it by its information. The release predictions' sd is sqrt(diag(G C G^T)) with C the mean
 of the C_d and G their gradients at the best fit (:mod:`gprm.design.predictions`).
+
+Where the fit says how its variance splits (the default ``sandwich``: fit.json
+``uncertainty.details``), the carry-over is done in **two parts** (:func:`variance_parts`):
+the part of each parameter's variance that averages down over runs (the runs' spread, the
+alignment) and the part that does not (the residuals' excess over the runs' spread: model
+mismatch; the gain and stated timing errors; the time origin of t0). Each part has its own
+information (``block_information(component=...)``), calibration kappa and per-parameter
+carry-over, and a design's variance is their sum: more runs shrink only the first.
 """
 
 from __future__ import annotations
@@ -74,7 +82,8 @@ class DesignResult:
     predictions: ReleasePredictions
     noise: NoiseModel
     fit_sd_u: np.ndarray | None
-    scale: np.ndarray
+    #: the carry-over: one part ("all") or two ("runs", "floor"); see variance_parts
+    parts: tuple
     config: DesignConfig
     source: str
     base_block: Block
@@ -196,6 +205,74 @@ def _gain(before: np.ndarray, after: np.ndarray, groups: np.ndarray) -> dict:
     return out
 
 
+def variance_parts(doc: dict, names: tuple[str, ...], fit_var: np.ndarray, x: np.ndarray,
+                   log: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
+    """(A, B) (P,): the fit's variance in u (``fit_var``) split into the part that averages
+    down over runs (A) and the part that does not (B), from what the sandwich recorded
+    (fit.json ``uncertainty.details``; None where it did not: other methods, older files).
+
+    Per parameter, of the variance shares (statistical, gain, timing, interpolation, prior):
+    the statistical share is the larger of the runs' and the residuals' covariance; with
+    rho = ``residual_over_runs``^2 (the residuals' variance over the runs'), 1/rho of it is
+    the runs' (A) and the rest the residuals' excess, mismatch common to every run (B). The
+    gain share (stated and estimated gain errors) is B. The timing share is the alignment's
+    (A) where no timing error is stated, else B; for t0 the time origin's variance
+    (``time_origin_sd_s``, the crossing offset the model cannot explain) is taken out of it
+    into B. Interpolation and prior shares: A (they shrink as the data grow)."""
+    unc = doc.get("uncertainty") or {}
+    det = unc.get("details") or {}
+    shares = det.get("variance_shares")
+    rr = det.get("residual_over_runs")
+    if not isinstance(shares, dict) or not all(n in shares for n in names):
+        return None
+    stated_t = float((det.get("stated") or {}).get("timing_sd_s") or 0.0)
+    origin = float(det.get("time_origin_sd_s") or 0.0)
+    A = np.zeros(len(names))
+    B = np.zeros(len(names))
+    for i, n in enumerate(names):
+        sh = {k: float(v) if isinstance(v, (int, float)) and np.isfinite(v) else 0.0
+              for k, v in shares[n].items()}
+        tot = sum(sh.values())
+        if not tot > 0 or not np.isfinite(fit_var[i]):
+            return None
+        st = sh.get("statistical", 0.0) / tot
+        rho = float(rr[i]) ** 2 if isinstance(rr, list) and len(rr) == len(names) else 1.0
+        runs_frac = 1.0 / rho if rho > 1.0 else 1.0
+        a = st * runs_frac + (sh.get("interpolation", 0.0) + sh.get("prior", 0.0)) / tot
+        b = st * (1.0 - runs_frac) + sh.get("gain", 0.0) / tot
+        t = sh.get("timing", 0.0) / tot
+        if n == "t0" and origin > 0:
+            o = min((origin / (x[i] if log[i] else 1.0)) ** 2 / fit_var[i], t)
+            b, t = b + o, t - o
+        if stated_t > 0:
+            b += t
+        else:
+            a += t
+        A[i], B[i] = a * fit_var[i], b * fit_var[i]
+    return A, B
+
+
+@dataclass(frozen=True)
+class _Part:
+    """One part of the carry-over: its base information, calibration and per-parameter
+    scale (the fit's part sd over the calibrated model's)."""
+
+    component: str
+    kappa: float
+    scale: np.ndarray
+
+
+def _carry(P0: np.ndarray, F_base: np.ndarray, part_sd: np.ndarray, ident: np.ndarray,
+           component: str) -> _Part:
+    """kappa for the part (median match over the identified parameters where the part is
+    not negligible) and the per-parameter scale that makes the base reproduce it."""
+    mask = ident & (part_sd > 0)
+    kappa = _calibrate(P0, F_base, part_sd, mask) if mask.any() else 1.0
+    raw = _mean_sd(_posterior(P0, F_base, kappa))
+    r = part_sd / raw
+    return _Part(component, kappa, np.where(np.isfinite(r) & (r >= 0), r, 0.0))
+
+
 # ----------------------------------------------------------------------------- entry point
 def run_design(model, config: DesignConfig | None = None, *, candidates_path=None,
                alone: tuple[Block, ...] = ()) -> DesignResult:
@@ -236,33 +313,41 @@ def run_design(model, config: DesignConfig | None = None, *, candidates_path=Non
     fitted_lags = tuple(ch for ch, off in ALIGNMENT_OFFSETS.items() if off in names)
     lag_sd = float(default_prior(fm.params, ("dt_x_head",)).sd[0])
 
-    def info(block: Block) -> np.ndarray:
+    def info(block: Block, component: str) -> np.ndarray:
         return block_information(fm.params, names, X, dx_du, block, noise1,
                                  gain_sd=cfg.gain_sd, timing_sd=cfg.timing_sd, lag_sd=lag_sd,
                                  fitted_lag_channels=fitted_lags,
-                                 z_bk_absolute=fm.z_bk_absolute)
+                                 z_bk_absolute=fm.z_bk_absolute, component=component)
 
-    t0 = time.perf_counter()
-    F_base = info(base)
-    F_cand = {c.name: info(c.block) for c in cfg.candidates}
-    t_info = time.perf_counter() - t0
-    # the fit's own sd in u, and the calibration
+    # the fit's own sd in u, and (the sandwich's) split of its variance into two parts
     fit_sd = None
-    kappa = 1.0
+    split = None
     xb = fm.params.vector(names)
+    ident = np.zeros(len(names), bool)
     if fm.covariance is not None and fm.source != "paper":
         fit_sd = np.sqrt(np.clip(np.diag(fm.covariance), 0, None)) / np.where(log, xb, 1.0)
         ident = np.array([n in (fm.identified or ()) for n in names])
-        if cfg.calibrate and ident.any():
-            kappa = _calibrate(P0, F_base, fit_sd, ident)
-    noise = replace(noise1, kappa=kappa)
-    # per parameter: what the noise model misses of the fit's sd, carried over to every design
-    scale = np.ones(len(names))
-    if fit_sd is not None and cfg.calibrate:
-        C0 = _posterior(P0, F_base, kappa)
-        raw = _mean_sd(C0)
-        r = fit_sd / raw
-        scale = np.where(np.isfinite(r) & (r > 0), r, 1.0)
+        if cfg.calibrate and n0 > 0:
+            split = variance_parts(read_fit_document(fm.source), names, fit_sd ** 2, xb, log)
+    comps = ("runs", "floor") if split is not None else ("all",)
+    t0 = time.perf_counter()
+    F_base = {k: info(base, k) for k in comps}
+    F_cand = {c.name: {k: info(c.block, k) for k in comps} for c in cfg.candidates}
+    t_info = time.perf_counter() - t0
+    # the calibration and the per-parameter carry-over: what the noise model misses of the
+    # fit's sd, carried over to every design (docs/design.md)
+    if split is not None:
+        parts = tuple(_carry(P0, F_base[k], np.sqrt(v), ident, k) for k, v in zip(comps, split))
+    else:
+        kappa = 1.0
+        scale = np.ones(len(names))
+        if fit_sd is not None and cfg.calibrate:
+            if ident.any():
+                kappa = _calibrate(P0, F_base["all"], fit_sd, ident)
+            r = fit_sd / _mean_sd(_posterior(P0, F_base["all"], kappa))
+            scale = np.where(np.isfinite(r) & (r > 0), r, 1.0)
+        parts = (_Part("all", kappa, scale),)
+    noise = replace(noise1, kappa=parts[0].kappa if len(parts) == 1 else 1.0)
     t0 = time.perf_counter()
     preds = release_predictions(fm, sd0, log)
     t_pred = time.perf_counter() - t0
@@ -273,10 +358,15 @@ def run_design(model, config: DesignConfig | None = None, *, candidates_path=Non
                for c in cfg.candidates}
 
     def evaluate(adds: tuple[str, ...], ref: DesignEvaluation | None) -> DesignEvaluation:
-        F = F_base + sum((F_cand[a] for a in adds), np.zeros_like(F_base))
-        C = _posterior(P0, F, kappa)
-        sd = np.minimum(_mean_sd(C) * scale, sd0)
-        Cm = C.mean(0) * np.outer(scale, scale)
+        var = np.zeros(len(names))
+        Cm = np.zeros((len(names), len(names)))
+        for part in parts:
+            k = part.component
+            F = F_base[k] + sum((F_cand[a][k] for a in adds), np.zeros_like(F_base[k]))
+            C = _posterior(P0, F, part.kappa)
+            var = var + _mean_sd(C) ** 2 * part.scale ** 2
+            Cm = Cm + C.mean(0) * np.outer(part.scale, part.scale)
+        sd = np.minimum(np.sqrt(var), sd0)
         psd = np.sqrt(np.clip(np.einsum("kp,pq,kq->k", preds.gradient, Cm, preds.gradient),
                               1e-300, None))
         lo = prior.from_u(ub - Z95 * sd)
@@ -323,14 +413,15 @@ def run_design(model, config: DesignConfig | None = None, *, candidates_path=Non
     synth = synth_configuration(best.additions, cfg, base)
     if synth["block"] is not None:
         synth["predicted"] = evaluate_block(fm, synth["block"], cfg, noise, P0, X, dx_du,
-                                            prior, ub, sd0, lag_sd, fitted_lags, scale)
+                                            prior, ub, sd0, lag_sd, fitted_lags, parts)
     alone_ev = tuple(evaluate_block(fm, b, cfg, noise, P0, X, dx_du, prior, ub, sd0, lag_sd,
-                                    fitted_lags, scale) for b in alone)
+                                    fitted_lags, parts) for b in alone)
     y = y_spring_statement(names, base_ev, cands, cfg)
     timings = {"information": round(t_info, 3), "predictions": round(t_pred, 3),
                "total": round(time.perf_counter() - t_start, 3)}
     return DesignResult(names, xb, sd0, log, base_ev, cands, ranking, best, selection, preds,
-                        noise, fit_sd, scale, cfg, str(fm.source), base, synth, y, timings, alone_ev)
+                        noise, fit_sd, parts, cfg, str(fm.source), base, synth, y, timings,
+                        alone_ev)
 
 
 def _mean_sd(C: np.ndarray) -> np.ndarray:
@@ -348,15 +439,18 @@ def _better(a: DesignEvaluation, b: DesignEvaluation) -> bool:
 
 def evaluate_block(fm: FittedModel, block: Block, cfg: DesignConfig, noise: NoiseModel,
                    P0, X, dx_du, prior: Prior, ub, sd0, lag_sd, fitted_lags,
-                   scale) -> dict:
+                   parts: tuple[_Part, ...]) -> dict:
     """Predicted sd and 95 % intervals of a campaign made of ``block`` alone (what a fit of
     that campaign should report): the validation's prediction."""
-    F = block_information(fm.params, fm.names, X, dx_du, block,
-                          replace(noise, kappa=1.0), gain_sd=cfg.gain_sd,
-                          timing_sd=cfg.timing_sd, lag_sd=lag_sd,
-                          fitted_lag_channels=fitted_lags, z_bk_absolute=fm.z_bk_absolute)
-    C = _posterior(P0, F, noise.kappa)
-    sd = np.minimum(_mean_sd(C) * scale, sd0)
+    var = np.zeros(len(fm.names))
+    for part in parts:
+        F = block_information(fm.params, fm.names, X, dx_du, block,
+                              replace(noise, kappa=1.0), gain_sd=cfg.gain_sd,
+                              timing_sd=cfg.timing_sd, lag_sd=lag_sd,
+                              fitted_lag_channels=fitted_lags, z_bk_absolute=fm.z_bk_absolute,
+                              component=part.component)
+        var = var + _mean_sd(_posterior(P0, F, part.kappa)) ** 2 * part.scale ** 2
+    sd = np.minimum(np.sqrt(var), sd0)
     return {"sd_u": sd, "identified": sd / sd0 < cfg.identified_threshold,
             "lower": prior.from_u(ub - Z95 * sd), "upper": prior.from_u(ub + Z95 * sd)}
 

@@ -87,9 +87,13 @@ def design_document(res: DesignResult) -> dict:
                    "nuisances marginalised) averaged over the fit's posterior draws; "
                    "docs/design.md"),
         "noise": {"white_m": res.noise.white, "variability": res.noise.variability,
-                  "mismatch": res.noise.mismatch, "kappa": res.noise.kappa,
+                  "mismatch": res.noise.mismatch,
+                  "kappa": res.noise.kappa if len(res.parts) == 1 else None,
                   "base_runs": res.noise.base_runs, "gain_sd": dict(res.noise.gain),
                   "alignment_sd_s": dict(res.noise.align)},
+        "carry_over": [{"component": p.component, "kappa": float(p.kappa),
+                        "scale": {n: float(v) for n, v in zip(res.names, p.scale)}}
+                       for p in res.parts],
         "draws": res.config.n_draws, "seed": res.config.seed,
         "identified_threshold": res.config.identified_threshold,
         "cost_model": {"hours_per_run": cm.hours_per_run,

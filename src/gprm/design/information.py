@@ -147,16 +147,35 @@ def block_signals(params: ParameterSet, names: tuple[str, ...], X: np.ndarray, b
     return Y, D[..., :len(names)], ydot
 
 
+#: the error components block_information can be restricted to (docs/design.md, "Two parts")
+COMPONENTS = ("all", "runs", "floor")
+#: the floor component's mismatch where the fit shows none, relative to the base campaign's
+#: squared standard error: a level far below the noise, so that the floor is then carried by
+#: the systematics (gain, timing) alone without dividing by a zero variance
+MIN_FLOOR_MISMATCH = 1e-3
+
+
 def block_information(params: ParameterSet, names: tuple[str, ...], X: np.ndarray,
                       dx_du: np.ndarray, block: Block, noise: NoiseModel, *,
                       gain_sd: float, timing_sd: float, lag_sd: float,
-                      fitted_lag_channels=(), z_bk_absolute: bool = False) -> np.ndarray:
+                      fitted_lag_channels=(), z_bk_absolute: bool = False,
+                      component: str = "all") -> np.ndarray:
     """Fisher information (B, P, P) in u of one block at each parameter row X (B, P).
 
     ``gain_sd``, ``timing_sd``: the instrument's systematics (the block's own where it states
     them); ``lag_sd``: the sd of the own alignment lag of a channel that is neither one of
     ``fitted_lag_channels`` (whose lags are fitted parameters) nor x_base (the reference of
-    t0)."""
+    t0). ``component``: ``all`` the whole noise model; ``runs`` only the error that averages
+    down over the block's runs (white noise n0^2/R, the runs' amplitude spread v^2/R, the
+    alignment's timing sd^2 x base_runs/R); ``floor`` only the error that does not (the model
+    mismatch, the gain and stated timing errors). The own-lag nuisance is marginalised in
+    both."""
+    if component not in COMPONENTS:
+        raise ValueError(f"component must be one of {COMPONENTS}, got {component!r}")
+    runs_part = component in ("all", "runs")
+    floor_part = component in ("all", "floor")
+    mismatch = noise.mismatch if component != "floor" else max(noise.mismatch,
+                                                                 MIN_FLOOR_MISMATCH)
     g = block.gain_sd if block.gain_sd is not None else gain_sd
     ts = block.timing_sd if block.timing_sd is not None else timing_sd
     B, P = X.shape
@@ -171,10 +190,12 @@ def block_information(params: ParameterSet, names: tuple[str, ...], X: np.ndarra
                                                    or ch.name in fitted_lag_channels))
             y = Y[:, ci]
             sem2 = (noise.white ** 2 + noise.variability ** 2 * y ** 2) / noise.base_runs
-            var_w = k * (noise.white ** 2 / R
-                         + noise.mismatch * sem2 * block.rate / noise.base_rate)   # (B, T)
-            var_a = k * (g ** 2 + noise.gain_of(ch.name) ** 2 + noise.variability ** 2 / R)
-            var_t = k * (ts ** 2 + noise.align_of(ch.name) ** 2 * noise.base_runs / R
+            var_w = k * (runs_part * noise.white ** 2 / R
+                         + floor_part * mismatch * sem2 * block.rate / noise.base_rate)  # (B, T)
+            var_a = k * (floor_part * (g ** 2 + noise.gain_of(ch.name) ** 2)
+                         + runs_part * noise.variability ** 2 / R)
+            var_t = k * (floor_part * ts ** 2
+                         + runs_part * noise.align_of(ch.name) ** 2 * noise.base_runs / R
                          + (lag_sd ** 2 if own_lag else 0.0))
             w = 1.0 / np.sqrt(var_w)
             J = Ju[:, ci] * w[..., None]                        # (B, T, P)

@@ -359,6 +359,23 @@ def test_more_runs_shrink_only_the_part_that_averages_down(synthetic_fit):
     assert np.all(v[ident & ~at_floor] < (A + B)[ident & ~at_floor])
 
 
+def test_a_fit_without_the_split_is_carried_over_in_one_part(tmp_path, synthetic_fit):
+    """A fit whose uncertainty does not record how its variance splits (another method, an
+    older file): one part, which still reproduces the fit's sd at the base design."""
+    import shutil
+
+    doc = json.loads(synthetic_fit.read_text())
+    del doc["uncertainty"]["details"]["variance_shares"]
+    path = tmp_path / "fit.json"
+    path.write_text(json.dumps(doc))
+    shutil.copy(synthetic_fit.with_suffix(".nc"), tmp_path / "fit.nc")
+    res = run_design(path, replace(read_design_config(None), candidates=()))
+    assert [p.component for p in res.parts] == ["all"]
+    assert res.noise.kappa == res.parts[0].kappa != 1.0
+    below = res.fit_sd_u < res.prior_sd
+    np.testing.assert_allclose(res.base.sd_u[below], res.fit_sd_u[below], rtol=1e-6)
+
+
 def test_cli_on_a_fit_of_a_synthetic_campaign(tmp_path, synthetic_fit):
     """The command on a real fit file: its noise model comes from the fit, calibrated in
     two parts."""

@@ -410,6 +410,13 @@ def test_report_section_only_where_a_design_is(tmp_path, paper_design):
     assert 'id="fig-design"' in html and 'id="table-design"' in html
     for name in paper_design.ranking:
         assert name in html
+    # the candidates that excite the mechanism otherwise carry the validation's caveat
+    from gprm.report.design_section import other_excitation
+
+    doc = json.loads((tmp_path / "design.json").read_text())
+    other = other_excitation(doc)
+    assert set(other) == {"piezo1", "slow-retraction", "fast-retraction", "half-voltage"}
+    assert "Caveat for " + ", ".join(other) in html
 
 
 def _spring_null_direction(ps):

@@ -326,6 +326,9 @@ def test_variance_parts_split_what_averages_down_from_what_does_not():
                             var, x, log)
     np.testing.assert_allclose(B3 - B, var * 0.15, rtol=1e-12)
     assert variance_parts({"uncertainty": {}}, names, var, x, log) is None
+    no_runs = _parts_document(names, shares, rr)
+    no_runs["uncertainty"]["details"]["residual_over_runs"] = None
+    assert variance_parts(no_runs, names, var, x, log) is None
 
 
 def test_more_runs_shrink_only_the_part_that_averages_down(synthetic_fit):

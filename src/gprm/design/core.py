@@ -218,13 +218,16 @@ def variance_parts(doc: dict, names: tuple[str, ...], fit_var: np.ndarray, x: np
     gain share (stated and estimated gain errors) is B. The timing share is the alignment's
     (A) where no timing error is stated, else B; for t0 the time origin's variance
     (``time_origin_sd_s``, the crossing offset the model cannot explain) is taken out of it
-    into B. Interpolation and prior shares: A (they shrink as the data grow)."""
+    into B. Interpolation and prior shares: A (they shrink as the data grow). A fit of mean
+    signals without their runs (no ``residual_over_runs``) is not split."""
     unc = doc.get("uncertainty") or {}
     det = unc.get("details") or {}
     shares = det.get("variance_shares")
     rr = det.get("residual_over_runs")
     if not isinstance(shares, dict) or not all(n in shares for n in names):
         return None
+    if not isinstance(rr, list) or len(rr) != len(names):
+        return None                 # no runs in the mean-signals file: nothing to split by
     stated_t = float((det.get("stated") or {}).get("timing_sd_s") or 0.0)
     origin = float(det.get("time_origin_sd_s") or 0.0)
     A = np.zeros(len(names))
@@ -236,7 +239,7 @@ def variance_parts(doc: dict, names: tuple[str, ...], fit_var: np.ndarray, x: np
         if not tot > 0 or not np.isfinite(fit_var[i]):
             return None
         st = sh.get("statistical", 0.0) / tot
-        rho = float(rr[i]) ** 2 if isinstance(rr, list) and len(rr) == len(names) else 1.0
+        rho = float(rr[i]) ** 2 if isinstance(rr[i], (int, float)) else 1.0
         runs_frac = 1.0 / rho if rho > 1.0 else 1.0
         a = st * runs_frac + (sh.get("interpolation", 0.0) + sh.get("prior", 0.0)) / tot
         b = st * (1.0 - runs_frac) + sh.get("gain", 0.0) / tot

@@ -65,20 +65,28 @@ SCENARIO_SEED_STRIDE = 10000
 """--recovery: campaign seed s draws scenario i of COMPARED with seed s + 10000 i."""
 
 
-def recovery(fm, seeds, releases: int, draws: int, rel_floor: float | None = None) -> dict:
+def recovery(fm, seeds, releases: int, draws: int, rel_floor: float | None = None,
+             refine: int = 0) -> dict:
     from gprm.flight.files import telemetry_from_dataset
     from gprm.flight.inference import (InferenceOptions, infer_scenarios, measured_components,
-                                      posterior_weights, prior_predictives)
-    from gprm.flight.scenario import COMPARED, PARAMS, ScenarioPrior
+                                      model_frame, posterior_weights, prior_predictives,
+                                      refined_predictive)
+    from gprm.flight.scenario import COMPARED, PARAMS, SCENARIOS, ScenarioPrior
     from gprm.flight.synth import SynthOptions, synth_telemetry
+    from gprm.params import batch
 
     out = {"n": 0, "right": 0, "by_truth": {k: [0, 0] for k in COMPARED},
            "covered": {k: 0 for k in PARAMS + ("t",)}, "ess_median": [], "confusion": {},
-           "width": {k: [] for k in PARAMS}, "covered50": {k: 0 for k in PARAMS}}
+           "width": {k: [] for k in PARAMS}, "covered50": {k: 0 for k in PARAMS},
+           "below": {k: 0 for k in PARAMS + ("t",)}, "above": {k: 0 for k in PARAMS + ("t",)}}
     bounds = ScenarioPrior().bounds()
-    opts = InferenceOptions(n_draws=draws, **({} if rel_floor is None
-                                              else {"rel_floor": rel_floor}))
+    opts = InferenceOptions(n_draws=draws, n_refine=refine,
+                            **({} if rel_floor is None else {"rel_floor": rel_floor}))
+    t0 = time.process_time()
     pps = prior_predictives(fm, opts)         # once: it depends on the model and options only
+    out["pp_cpu_s"] = time.process_time() - t0
+    pb0 = batch([fm.params])
+    frame = model_frame(fm, opts, pb0)
     for s in seeds:
         for i_kind, kind in enumerate(COMPARED):
             # each scenario its own truths: with one seed for all three, the unknowns and the
@@ -102,17 +110,25 @@ def recovery(fm, seeds, releases: int, draws: int, rel_floor: float | None = Non
                 f = res.fits[i][kind]
                 out["ess_median"].append(f.ess)
                 # the posterior's CDF at the truth (PIT): inside the central 50 %?
-                w = posterior_weights(pps[kind], np.nan_to_num(y[i]),
-                                      np.nan_to_num(sig[i]), np.isfinite(y[i]), opts)
+                yi, si, ui = np.nan_to_num(y[i]), np.nan_to_num(sig[i]), np.isfinite(y[i])
+                pp = pps[kind]
+                w = posterior_weights(pp, yi, si, ui, opts)
+                if refine and w.any():  # the draws infer_scenarios used (the same stream)
+                    pp = refined_predictive(pp, w, refine, frame, pb0, opts, ScenarioPrior(),
+                                            np.random.default_rng([opts.seed, 7, i,
+                                                                   SCENARIOS.index(kind)]))
+                    w = posterior_weights(pp, yi, si, ui, opts)
                 for p in PARAMS:
                     tv = float(truth[f"truth_scenario_{p}"].values[i])
-                    pit = float(np.sum(w[pps[kind].params[p] <= tv]))
+                    pit = float(np.sum(w[pp.params[p] <= tv]))
                     out["covered50"][p] += abs(pit - 0.5) <= 0.25
                 for p in PARAMS + ("t",):
                     tv = (float(truth["truth_impact_time"].values[i]) if p == "t"
                           else float(truth[f"truth_scenario_{p}"].values[i]))
                     _, lo, hi = f.summary[p]
                     out["covered"][p] += lo <= tv <= hi
+                    out["below"][p] += tv < lo
+                    out["above"][p] += tv > hi
                     if p in bounds:     # the 95 % interval over the prior's central 95 %
                         out["width"][p].append((hi - lo) / (0.95 * np.subtract(
                             *bounds[p][::-1])))
@@ -255,6 +271,9 @@ def main() -> None:
     ap.add_argument("--releases", type=int, default=11)
     ap.add_argument("--draws", type=int, default=20000)
     ap.add_argument("--rel-floor", type=float, default=None)
+    ap.add_argument("--refine", type=int, default=0,
+                    help="--recovery: draws of the second importance stage per release and "
+                         "scenario (InferenceOptions.n_refine; 0: none)")
     ap.add_argument("--impact-times", action="store_true")
     ap.add_argument("--scenario", default="two")
     ap.add_argument("--likelihood-study", action="store_true",
@@ -277,6 +296,7 @@ def main() -> None:
           f"{'--scenario ' + a.scenario + ' ' if a.scenario != 'two' else ''}"
           f"--seeds {a.seeds} --seed0 {a.seed0} --releases {a.releases} --draws {a.draws}"
           + ("" if a.rel_floor is None else f" --rel-floor {a.rel_floor}")
+          + ("" if not a.refine else f" --refine {a.refine}")
           + ("" if a.tm_offset is None else " --tm-offset " + " ".join(map(str, a.tm_offset)))
           + "`\n")
     for off in (a.tm_offset or [None]) if a.observations else []:
@@ -346,23 +366,27 @@ def main() -> None:
         print()
     if a.recovery:
         t0 = time.perf_counter()
-        out = recovery(fm, seeds, a.releases, a.draws, a.rel_floor)
+        out = recovery(fm, seeds, a.releases, a.draws, a.rel_floor, a.refine)
         n = out["n"]
         print(f"### Scenario posterior: recovery ({a.seeds} campaigns × {a.releases} releases "
-              f"of each of xz, yz, two; {a.draws} prior draws per scenario; "
-              f"{time.perf_counter() - t0:.0f} s)\n")
+              f"of each of xz, yz, two, seeds {a.seed0}–{a.seed0 + a.seeds - 1} (+10000 per "
+              f"scenario); {a.draws} prior draws per scenario"
+              + (f", {a.refine} second-stage draws per release and scenario" if a.refine
+                 else "") + f"; {time.perf_counter() - t0:.0f} s; prior predictives "
+              f"{out['pp_cpu_s']:.1f} s CPU)\n")
         print(f"- right scenario chosen: {out['right']}/{n} "
               f"({100 * out['right'] / n:.1f} %); by truth: "
               + ", ".join(f"{k} {v[0]}/{v[1]}" for k, v in out["by_truth"].items()))
         print(f"- confusion (truth->chosen): {out['confusion']}")
         print(f"- median effective number of draws (true scenario): {out['ess_median']:.0f}\n")
-        print("| unknown | truth inside the 95 % interval | inside the central 50 % | "
-              "95 % interval width / the prior's central 95 %, median |")
-        print("|---|---|---|---|")
+        print("| unknown | truth inside the 95 % interval | below it, above it | inside the "
+              "central 50 % | 95 % interval width / the prior's central 95 %, median |")
+        print("|---|---|---|---|---|")
         for k, c in out["covered"].items():
             w = out["width"].get(k)
             c50 = out["covered50"].get(k)
             print(f"| {k} | {c}/{n} ({100 * c / n:.1f} %) | "
+                  f"{out['below'][k]}, {out['above'][k]} | "
                   f"{'' if c50 is None else f'{c50}/{n} ({100 * c50 / n:.1f} %)'} | "
                   f"{'' if w is None else f'{w:.2f}'} |")
         print()

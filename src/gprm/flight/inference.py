@@ -27,6 +27,10 @@ Gaussian approximation):
   (equal prior odds), jointly over releases with Σ_r log Z_{s,r};
 * intervals: weighted 2.5 / 97.5 % points of the φ_k; for the impact time, the mixture over
   k of the Gaussian conditionals t | y (linear-Gaussian in the θ_m), sampled.
+* optionally (``InferenceOptions.n_refine``), a second importance stage per release and
+  scenario around the first stage's posterior, pooled with the prior draws as a
+  deterministic mixture (:func:`second_stage`): the same posterior and evidence with more
+  effective draws.
 
 Plain functions over arrays; the result is a frozen dataclass whose ``to_json()`` goes into
 impact.json (``scenarios``).

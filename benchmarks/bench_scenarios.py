@@ -65,20 +65,28 @@ SCENARIO_SEED_STRIDE = 10000
 """--recovery: campaign seed s draws scenario i of COMPARED with seed s + 10000 i."""
 
 
-def recovery(fm, seeds, releases: int, draws: int, rel_floor: float | None = None) -> dict:
+def recovery(fm, seeds, releases: int, draws: int, rel_floor: float | None = None,
+             refine: int = 0) -> dict:
     from gprm.flight.files import telemetry_from_dataset
     from gprm.flight.inference import (InferenceOptions, infer_scenarios, measured_components,
-                                      posterior_weights, prior_predictives)
-    from gprm.flight.scenario import COMPARED, PARAMS, ScenarioPrior
+                                      model_frame, posterior_weights, prior_predictives,
+                                      refined_predictive)
+    from gprm.flight.scenario import COMPARED, PARAMS, SCENARIOS, ScenarioPrior
     from gprm.flight.synth import SynthOptions, synth_telemetry
+    from gprm.params import batch
 
     out = {"n": 0, "right": 0, "by_truth": {k: [0, 0] for k in COMPARED},
            "covered": {k: 0 for k in PARAMS + ("t",)}, "ess_median": [], "confusion": {},
-           "width": {k: [] for k in PARAMS}, "covered50": {k: 0 for k in PARAMS}}
+           "width": {k: [] for k in PARAMS}, "covered50": {k: 0 for k in PARAMS},
+           "below": {k: 0 for k in PARAMS + ("t",)}, "above": {k: 0 for k in PARAMS + ("t",)}}
     bounds = ScenarioPrior().bounds()
-    opts = InferenceOptions(n_draws=draws, **({} if rel_floor is None
-                                              else {"rel_floor": rel_floor}))
+    opts = InferenceOptions(n_draws=draws, n_refine=refine,
+                            **({} if rel_floor is None else {"rel_floor": rel_floor}))
+    t0 = time.process_time()
     pps = prior_predictives(fm, opts)         # once: it depends on the model and options only
+    out["pp_cpu_s"] = time.process_time() - t0
+    pb0 = batch([fm.params])
+    frame = model_frame(fm, opts, pb0)
     for s in seeds:
         for i_kind, kind in enumerate(COMPARED):
             # each scenario its own truths: with one seed for all three, the unknowns and the
@@ -102,17 +110,25 @@ def recovery(fm, seeds, releases: int, draws: int, rel_floor: float | None = Non
                 f = res.fits[i][kind]
                 out["ess_median"].append(f.ess)
                 # the posterior's CDF at the truth (PIT): inside the central 50 %?
-                w = posterior_weights(pps[kind], np.nan_to_num(y[i]),
-                                      np.nan_to_num(sig[i]), np.isfinite(y[i]), opts)
+                yi, si, ui = np.nan_to_num(y[i]), np.nan_to_num(sig[i]), np.isfinite(y[i])
+                pp = pps[kind]
+                w = posterior_weights(pp, yi, si, ui, opts)
+                if refine and w.any():  # the draws infer_scenarios used (the same stream)
+                    pp = refined_predictive(pp, w, refine, frame, pb0, opts, ScenarioPrior(),
+                                            np.random.default_rng([opts.seed, 7, i,
+                                                                   SCENARIOS.index(kind)]))
+                    w = posterior_weights(pp, yi, si, ui, opts)
                 for p in PARAMS:
                     tv = float(truth[f"truth_scenario_{p}"].values[i])
-                    pit = float(np.sum(w[pps[kind].params[p] <= tv]))
+                    pit = float(np.sum(w[pp.params[p] <= tv]))
                     out["covered50"][p] += abs(pit - 0.5) <= 0.25
                 for p in PARAMS + ("t",):
                     tv = (float(truth["truth_impact_time"].values[i]) if p == "t"
                           else float(truth[f"truth_scenario_{p}"].values[i]))
                     _, lo, hi = f.summary[p]
                     out["covered"][p] += lo <= tv <= hi
+                    out["below"][p] += tv < lo
+                    out["above"][p] += tv > hi
                     if p in bounds:     # the 95 % interval over the prior's central 95 %
                         out["width"][p].append((hi - lo) / (0.95 * np.subtract(
                             *bounds[p][::-1])))
@@ -218,6 +234,78 @@ def likelihood_study(fm, seeds, releases: int, draws: int) -> dict:
     return res
 
 
+def refine_study(fm, seeds, releases: int, draws: int, refine: int) -> dict:
+    """Is it the sampling or the likelihood (docs/flight.md §11)? On independent truths of
+    xz, yz, two (the default truth, TM offset included), for the true scenario of every
+    release: the posterior of each unknown with the prior draws alone (stage 1) and pooled
+    with ``refine`` second-stage draws around the method's stage-1 posterior (stage 2; one
+    proposal serves every variant: it is wider than each of their posteriors), under the
+    method's likelihood with the floor and allowance as they are, halved, quartered and
+    none: the truth inside the 95 % interval (and below / above it), inside the central 50 %,
+    the effective draws; and per scenario, μ's standardised error |posterior mean − truth| /
+    posterior sd (median; about 0.67 for a calibrated normal posterior)."""
+    from dataclasses import replace
+
+    from gprm.flight.files import telemetry_from_dataset
+    from gprm.flight.inference import (InferenceOptions, measured_components, model_frame,
+                                      posterior_weights, prior_predictives,
+                                      refined_predictive)
+    from gprm.flight.scenario import COMPARED, PARAMS, ScenarioPrior
+    from gprm.flight.synth import SynthOptions, synth_telemetry
+    from gprm.params import batch
+
+    base = InferenceOptions(n_draws=draws)
+    prior = ScenarioPrior()
+    pps = prior_predictives(fm, base, prior)
+    pb0 = batch([fm.params])
+    frame = model_frame(fm, base, pb0)
+    f0, r0 = base.floor, base.rel_floor
+    variants = {"floor + 2 % (the method)": base,
+                "halved": replace(base, floor=(f0[0] / 2, f0[1] / 2), rel_floor=r0 / 2),
+                "quartered": replace(base, floor=(f0[0] / 4, f0[1] / 4), rel_floor=r0 / 4),
+                "none": replace(base, floor=(0.0, 0.0), rel_floor=0.0)}
+    res = {(st, v): {"n": 0, "in95": {k: 0 for k in PARAMS}, "in50": {k: 0 for k in PARAMS},
+                     "below": {k: 0 for k in PARAMS}, "above": {k: 0 for k in PARAMS},
+                     "ess": []} for st in (1, 2) for v in variants}
+    mu_z = {k: [] for k in COMPARED}
+    rng = np.random.default_rng(5)
+    for s in seeds:
+        for i_kind, kind in enumerate(COMPARED):
+            ds = synth_telemetry(fm, SynthOptions(n_releases=releases,
+                                                  seed=s + SCENARIO_SEED_STRIDE * i_kind,
+                                                  scenario=kind))
+            tel = telemetry_from_dataset(ds, source=f"seed {s}")
+            y, sig = measured_components(tel)
+            for i in range(len(tel.releases)):
+                use = np.isfinite(y[i])
+                yi, si = np.nan_to_num(y[i]), np.nan_to_num(sig[i])
+                tv = {k: float(ds[f"truth_scenario_{k}"].values[i]) for k in PARAMS}
+                pp1 = pps[kind]
+                w1 = posterior_weights(pp1, yi, si, use, base)
+                pp2 = refined_predictive(pp1, w1, refine, frame, pb0, base, prior, rng)
+                x = pp1.params["mu"]
+                m = np.sum(w1 * x)
+                mu_z[kind].append(abs(m - tv["mu"]) / np.sqrt(np.sum(w1 * (x - m) ** 2)))
+                for st, pp in ((1, pp1), (2, pp2)):
+                    for name, o in variants.items():
+                        w = posterior_weights(pp, yi, si, use, o)
+                        r = res[(st, name)]
+                        r["n"] += 1
+                        r["ess"].append(1.0 / np.sum(w * w))
+                        for k in PARAMS:
+                            x = pp.params[k]
+                            o_ = np.argsort(x)
+                            cw = np.cumsum(w[o_])
+                            lo, hi = np.interp([0.025, 0.975], cw - 0.5 * w[o_], x[o_])
+                            r["in95"][k] += lo <= tv[k] <= hi
+                            r["below"][k] += tv[k] < lo
+                            r["above"][k] += tv[k] > hi
+                            r["in50"][k] += abs(float(np.sum(w[x <= tv[k]])) - 0.5) <= 0.25
+    for r in res.values():
+        r["ess"] = float(np.median(r["ess"]))
+    return {"variants": res, "mu_z": {k: float(np.median(v)) for k, v in mu_z.items()}}
+
+
 def impact_times(fm, seeds, releases: int, models, scenario: str = "two",
                  samples: int = 200) -> dict:
     """The impact-time analysis (issue 14's, `gprm impact --impact-model MODEL`) on scenario
@@ -255,8 +343,14 @@ def main() -> None:
     ap.add_argument("--releases", type=int, default=11)
     ap.add_argument("--draws", type=int, default=20000)
     ap.add_argument("--rel-floor", type=float, default=None)
+    ap.add_argument("--refine", type=int, default=0,
+                    help="--recovery: draws of the second importance stage per release and "
+                         "scenario (InferenceOptions.n_refine; 0: none)")
     ap.add_argument("--impact-times", action="store_true")
     ap.add_argument("--scenario", default="two")
+    ap.add_argument("--refine-study", action="store_true",
+                    help="sampling or likelihood: stage 1 vs a second stage of --refine "
+                         "draws, floors as they are, halved, quartered, none (§11)")
     ap.add_argument("--likelihood-study", action="store_true",
                     help="why the friction's interval is too wide (docs/flight.md §11); run "
                          "it on seeds other than the recovery's")
@@ -274,9 +368,11 @@ def main() -> None:
           f"{'--observations ' if a.observations else ''}{'--recovery ' if a.recovery else ''}"
           f"{'--impact-times ' if a.impact_times else ''}"
           f"{'--likelihood-study ' if a.likelihood_study else ''}"
+          f"{'--refine-study ' if a.refine_study else ''}"
           f"{'--scenario ' + a.scenario + ' ' if a.scenario != 'two' else ''}"
           f"--seeds {a.seeds} --seed0 {a.seed0} --releases {a.releases} --draws {a.draws}"
           + ("" if a.rel_floor is None else f" --rel-floor {a.rel_floor}")
+          + ("" if not a.refine else f" --refine {a.refine}")
           + ("" if a.tm_offset is None else " --tm-offset " + " ".join(map(str, a.tm_offset)))
           + "`\n")
     for off in (a.tm_offset or [None]) if a.observations else []:
@@ -344,25 +440,50 @@ def main() -> None:
                 f"{100 * r['in95'][k] / n:.1f} / {100 * r['in50'][k] / n:.1f} %, "
                 f"{r['sd'][k]:.2f}" for k in PARAMS) + " |")
         print()
+    if a.refine_study:
+        t0 = time.perf_counter()
+        out = refine_study(fm, seeds, a.releases, a.draws, a.refine or 1000)
+        from gprm.flight.scenario import PARAMS
+        n = next(iter(out["variants"].values()))["n"]
+        print(f"### Sampling or likelihood ({a.seeds} campaigns × {a.releases} releases of "
+              f"each of xz, yz, two, seeds {a.seed0}–{a.seed0 + a.seeds - 1} (+10000 per "
+              f"scenario); {a.draws} prior draws, {a.refine or 1000} second-stage draws; "
+              f"{time.perf_counter() - t0:.0f} s)\n")
+        print(f"Per unknown: truth inside the 95 % interval (below, above) / inside the "
+              f"central 50 %, of {n}.\n")
+        print("| stage | floor and allowance | median effective draws | "
+              + " | ".join(PARAMS) + " |")
+        print("|---|---|---|" + "---|" * len(PARAMS))
+        for (st, name), r in out["variants"].items():
+            print(f"| {st} | {name} | {r['ess']:.0f} | " + " | ".join(
+                f"{100 * r['in95'][k] / n:.1f} ({r['below'][k]}, {r['above'][k]}) / "
+                f"{100 * r['in50'][k] / n:.0f} %" for k in PARAMS) + " |")
+        print("\nμ's |posterior mean − truth| / posterior sd, median (stage 1, the method; "
+              "0.67 for a calibrated normal): "
+              + ", ".join(f"{k} {v:.2f}" for k, v in out["mu_z"].items()) + "\n")
     if a.recovery:
         t0 = time.perf_counter()
-        out = recovery(fm, seeds, a.releases, a.draws, a.rel_floor)
+        out = recovery(fm, seeds, a.releases, a.draws, a.rel_floor, a.refine)
         n = out["n"]
         print(f"### Scenario posterior: recovery ({a.seeds} campaigns × {a.releases} releases "
-              f"of each of xz, yz, two; {a.draws} prior draws per scenario; "
-              f"{time.perf_counter() - t0:.0f} s)\n")
+              f"of each of xz, yz, two, seeds {a.seed0}–{a.seed0 + a.seeds - 1} (+10000 per "
+              f"scenario); {a.draws} prior draws per scenario"
+              + (f", {a.refine} second-stage draws per release and scenario" if a.refine
+                 else "") + f"; {time.perf_counter() - t0:.0f} s; prior predictives "
+              f"{out['pp_cpu_s']:.1f} s CPU)\n")
         print(f"- right scenario chosen: {out['right']}/{n} "
               f"({100 * out['right'] / n:.1f} %); by truth: "
               + ", ".join(f"{k} {v[0]}/{v[1]}" for k, v in out["by_truth"].items()))
         print(f"- confusion (truth->chosen): {out['confusion']}")
         print(f"- median effective number of draws (true scenario): {out['ess_median']:.0f}\n")
-        print("| unknown | truth inside the 95 % interval | inside the central 50 % | "
-              "95 % interval width / the prior's central 95 %, median |")
-        print("|---|---|---|---|")
+        print("| unknown | truth inside the 95 % interval | below it, above it | inside the "
+              "central 50 % | 95 % interval width / the prior's central 95 %, median |")
+        print("|---|---|---|---|---|")
         for k, c in out["covered"].items():
             w = out["width"].get(k)
             c50 = out["covered50"].get(k)
             print(f"| {k} | {c}/{n} ({100 * c / n:.1f} %) | "
+                  f"{out['below'][k]}, {out['above'][k]} | "
                   f"{'' if c50 is None else f'{c50}/{n} ({100 * c50 / n:.1f} %)'} | "
                   f"{'' if w is None else f'{w:.2f}'} |")
         print()

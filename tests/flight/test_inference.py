@@ -56,7 +56,8 @@ def recovered():
 
 def test_scenarios_and_unknowns_recovered(recovered):
     """Nine truths (three per scenario) from the model's uncertainty: the right scenario for
-    at least 7 (the benchmark's rate is 92 %, docs/flight.md §11: P(<= 6 of 9) < 5 %), and
+    at least 7 (the held-out rate is 85 %, docs/flight.md §11, at which P(<= 6 of 9) is
+    14 %: the seed is fixed, so this is a regression check on these nine, not a rate), and
     every unknown's truth inside its 95 % interval in at least 7 of 9 (a calibrated interval
     fails that with probability < 1 %)."""
     kinds, tr, res = recovered
@@ -169,3 +170,90 @@ def test_prior_predictive_marginalises_the_tm_offset_as_exact_impacts_do():
         assert pp.cov[k][5, 5] > 100 * pp0.cov[k][5, 5]
         checked += 1
     assert checked >= 2
+
+
+def _linear_predictive(params, A, S):
+    """A PriorPredictive whose velocity is linear in (f, μ): mean[:, :2] = (f, μ) Aᵀ, with
+    the covariance S on those two components (the rest unmeasured)."""
+    K = params["f"].size
+    x = np.stack([params["f"], params["mu"]], 1)
+    mean = np.zeros((K, 6))
+    mean[:, :2] = x @ A.T
+    cov = np.zeros((K, 6, 6))
+    cov[:, :2, :2] = S
+    return PriorPredictive("xz", params, mean, cov, np.full(K, 1e-3), np.zeros((K, 6)),
+                           np.full(K, 1e-14), np.ones(K, bool), np.ones(K))
+
+
+def test_second_stage_keeps_the_posterior_and_raises_the_effective_draws():
+    """Two unknowns (f, μ) seen through a correlated linear map y = A (f, μ) + noise (cov S),
+    sharp enough that 3000 prior draws leave few effective ones, the posterior well inside
+    the prior's box: the evidence is (1/0.6²) / |det A| and the posterior of (f, μ) the normal
+    N(A⁻¹ y, A⁻¹ S A⁻ᵀ); the other unknowns keep their prior. The second stage (20000 draws
+    around the first stage's posterior, pooled) must keep the evidence (to 0.02 in ln Z) and
+    the intervals (to 0.005, a quarter of the posterior sd; the unknowns the data do not see
+    to 3 % of the prior's width), and raise the effective draws tenfold (measured: 31 →
+    8100; the first stage's ln Z is 0.12 off); a
+    pooled set without the importance ratios (the new draws taken as the prior's) would not
+    keep the evidence (checked too: that is what the ratios correct)."""
+    from dataclasses import replace
+
+    from gprm.flight.inference import pooled, posterior_weights, second_stage
+
+    prior = ScenarioPrior()
+    A = np.array([[1.0e-5, 0.6e-5], [0.0, 0.8e-5]])
+    S = np.array([[4e-14, 1e-14], [1e-14, 2e-14]])          # (0.2, 0.14 µm/s)²
+    x0 = np.array([0.43, 0.61])
+    y = np.zeros(6)
+    y[:2] = A @ x0
+    use = np.array([True, True] + [False] * 4)
+    opts = InferenceOptions(floor=(0.0, 0.0), rel_floor=0.0)
+    pp1 = _linear_predictive(prior.draw(3000, np.random.default_rng(3)), A, S)
+    fit1 = fit_release(pp1, y, np.zeros(6), use, opts, np.random.default_rng(1))
+    w1 = posterior_weights(pp1, y, np.zeros(6), use, opts)
+    p2, log_iw = second_stage(pp1, w1, 20000, prior, np.random.default_rng(4))
+    new = _linear_predictive(p2, A, S)
+    pp2 = pooled(pp1, new, log_iw)
+    fit2 = fit_release(pp2, y, np.zeros(6), use, opts, np.random.default_rng(1))
+    logz = -2 * np.log(0.6) - np.log(abs(np.linalg.det(A)))
+    assert abs(fit2.log_evidence - logz) < 0.02, (fit2.log_evidence, logz)
+    assert fit2.ess > 10 * fit1.ess, (fit1.ess, fit2.ess)
+    Ai = np.linalg.inv(A)
+    post_sd = np.sqrt(np.diag(Ai @ S @ Ai.T))
+    for i, k in enumerate(("f", "mu")):
+        want = x0[i] + stats.norm.ppf([0.5, 0.025, 0.975]) * post_sd[i]
+        np.testing.assert_allclose(fit2.summary[k], want, atol=0.005, err_msg=k)
+    lo, hi = prior.bounds()["e"]
+    np.testing.assert_allclose(fit2.summary["e"][1:], [lo + 0.025 * (hi - lo),
+                                                       hi - 0.025 * (hi - lo)],
+                               atol=0.03 * (hi - lo))
+    naive = fit_release(replace(pp2, log_iw=None), y, np.zeros(6), use, opts,
+                        np.random.default_rng(1))
+    assert abs(naive.log_evidence - logz) > 0.5, (naive.log_evidence, logz)
+
+
+def test_infer_scenarios_with_a_second_stage_on_the_model():
+    """The second stage on the model (three truths, one per scenario; 2000 prior draws,
+    300 second-stage draws): the options record it, each true scenario's fit has more
+    effective draws than without it, and its ln evidence stays that of the prior draws within
+    their Monte Carlo error (1 here; the ratios themselves are checked against a closed form
+    above)."""
+    m = paper_model()
+    kinds = ["xz", "yz", "two"]
+    tr = draw_truths(m, kinds, seed=41)
+    sig = np.full_like(tr.velocity, 1e-10)
+    sig[:, 3:] = 1e-9
+    ids = [f"R{i}" for i in range(3)]
+    o1 = InferenceOptions(n_draws=2000, seed=3)
+    from dataclasses import replace
+
+    from gprm.flight.inference import prior_predictives
+    pps = prior_predictives(m, o1)
+    a = infer_scenarios(m, ids, tr.velocity, sig, o1, predictive=pps)
+    b = infer_scenarios(m, ids, tr.velocity, sig, replace(o1, n_refine=300), predictive=pps)
+    assert b.options["n_refine"] == 300 and a.options["n_refine"] == 0
+    for i, k in enumerate(kinds):
+        fa, fb = a.fits[i][k], b.fits[i][k]
+        assert fb.ess > fa.ess, (k, fa.ess, fb.ess)
+        assert abs(fb.log_evidence - fa.log_evidence) < 1.0, (k, fa.log_evidence,
+                                                              fb.log_evidence)

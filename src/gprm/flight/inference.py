@@ -27,6 +27,10 @@ Gaussian approximation):
   (equal prior odds), jointly over releases with Σ_r log Z_{s,r};
 * intervals: weighted 2.5 / 97.5 % points of the φ_k; for the impact time, the mixture over
   k of the Gaussian conditionals t | y (linear-Gaussian in the θ_m), sampled.
+* optionally (``InferenceOptions.n_refine``), a second importance stage per release and
+  scenario around the first stage's posterior, pooled with the prior draws as a
+  deterministic mixture (:func:`second_stage`): the same posterior and evidence with more
+  effective draws.
 
 Plain functions over arrays; the result is a frozen dataclass whose ``to_json()`` goes into
 impact.json (``scenarios``).
@@ -55,7 +59,10 @@ class InferenceOptions:
     ``floor``: model-form standard deviation added to every component (linear m/s, angular
     rad/s); ``rel_floor``: and this fraction of each component's model mean; ``min_valid``:
     the fraction of the parameter sets that must give an impact at a draw; ``grid_step`` (s)
-    of the motion."""
+    of the motion; ``n_refine``: draws of a second importance stage per release and
+    scenario around the first stage's posterior (:func:`second_stage`; 0: none, the
+    default: measured in docs/flight.md §11, it raises the effective draws but not the
+    calibration, at 1.5 s per release and scenario)."""
 
     scenarios: tuple[str, ...] = COMPARED
     n_draws: int = 20000
@@ -65,6 +72,7 @@ class InferenceOptions:
     rel_floor: float = 0.02
     min_valid: float = 0.75
     grid_step: float = SCENARIO_GRID_STEP
+    n_refine: int = 0
 
     def __post_init__(self):
         sc = tuple(self.scenarios)
@@ -75,6 +83,7 @@ class InferenceOptions:
         check_int("n_draws", self.n_draws, 10)
         check_int("n_model", self.n_model, 8)
         check_int("seed", self.seed, 0)
+        check_int("n_refine", self.n_refine, 0)
         if not 0 < self.min_valid <= 1:
             raise GprmInputError("must lie in (0, 1]", field="min_valid")
 
@@ -84,7 +93,9 @@ class PriorPredictive:
     """A scenario's prior draws and the model's interval at each: ``params`` {name: (K,)},
     ``mean`` (K, 6) and ``cov`` (K, 6, 6) of the TM velocity over the parameter sets,
     ``t_mean`` (K,), ``t_cov`` (K, 6) covariance of t with the velocity, ``t_var`` (K,),
-    ``valid`` (K,) where enough sets give an impact."""
+    ``valid`` (K,) where enough sets give an impact; ``p_impact`` (K,) the fraction of the
+    sets that give one; ``log_iw`` (K,) ln(prior / proposal) of each draw when the draws are
+    not the prior's (:func:`refined_predictive`; None: prior draws)."""
 
     scenario: str
     params: dict
@@ -94,6 +105,8 @@ class PriorPredictive:
     t_cov: np.ndarray
     t_var: np.ndarray
     valid: np.ndarray
+    p_impact: np.ndarray | None = None
+    log_iw: np.ndarray | None = None
 
 
 def prior_predictive(model, kind: str, opts: InferenceOptions,
@@ -108,18 +121,28 @@ def prior_predictive(model, kind: str, opts: InferenceOptions,
     if frame is None:
         frame = model_frame(model, opts, pb0)
     rng = np.random.default_rng([opts.seed, SCENARIOS.index(kind)])
-    p = prior.draw(opts.n_draws, rng)
+    return predictive_at(kind, prior.draw(opts.n_draws, rng), frame, pb0, opts, prior)
+
+
+def predictive_at(kind: str, p: dict, frame, pb0, opts: InferenceOptions,
+                  prior: ScenarioPrior) -> PriorPredictive:
+    """The model's mean and covariance of the TM velocity and the impact time over the
+    parameter sets of ``frame`` at given draws ``p`` ({name: (K,)} of :data:`PARAMS`) of
+    scenario ``kind`` (module docstring); the draws' offsets are set to zero (marginalised in
+    closed form)."""
+    p = {k: np.asarray(p[k], float) for k in PARAMS}
+    K = p["f"].size
     # the TM's lateral offset is marginalised in closed form (first order, Gaussian:
     # offset_covariance), not sampled: the draws keep the TM centred
-    p.update({k: np.zeros(opts.n_draws) for k in OFFSETS})
+    p.update({k: np.zeros(K) for k in OFFSETS})
     s_tm = float(np.ravel(pb0["s_tm"])[0])
-    K = opts.n_draws
     mean = np.full((K, 6), np.nan)
     cov = np.full((K, 6, 6), np.nan)
     tm = np.full(K, np.nan)
     tc = np.full((K, 6), np.nan)
     tv = np.full(K, np.nan)
     valid = np.zeros(K, bool)
+    p_imp = np.zeros(K)
     chunk = max(1, 4_000_000 // max(1, frame.A.shape[0] * frame.time.size))
     for a in range(0, K, chunk):
         sl = slice(a, min(K, a + chunk))
@@ -127,6 +150,7 @@ def prior_predictive(model, kind: str, opts: InferenceOptions,
         y = np.stack([out[c] for c in COMPONENTS], -1)           # (M, k, 6)
         ok = out["ok"]
         frac = ok.mean(0)
+        p_imp[sl] = frac
         good = frac >= opts.min_valid
         for j in np.flatnonzero(good):
             m = ok[:, j]
@@ -139,7 +163,73 @@ def prior_predictive(model, kind: str, opts: InferenceOptions,
             mean[k], cov[k] = mu[:6], C[:6, :6]
             tm[k], tc[k], tv[k] = mu[6], C[6, :6], C[6, 6]
             valid[k] = True
-    return PriorPredictive(kind, p, mean, cov, tm, tc, tv, valid)
+    return PriorPredictive(kind, p, mean, cov, tm, tc, tv, valid, p_imp)
+
+
+def second_stage(pp: PriorPredictive, w: np.ndarray, n: int, prior: ScenarioPrior,
+                 rng: np.random.Generator, *, inflate: float = 2.0):
+    """The draws of a second importance stage for one release: ``n`` draws from a normal
+    fitted to the first stage's posterior (``w`` over ``pp``'s prior draws; its covariance
+    times ``inflate``²), restricted to the prior's box (rejection; the box mass of the normal
+    estimated from the rejected draws), as {name: (n,)} of :data:`PARAMS`; and ln π − ln q of
+    the pooled draws (``pp``'s then the new, (K + n,)), q = (K π + n g) / (K + n) the
+    deterministic mixture of the prior π and the restricted normal g, so that weights
+    ∝ L π / q and the evidence mean(L π / q) estimate the same posterior and evidence as the
+    prior draws alone, with more draws where the posterior is (docs/flight.md §11)."""
+    if pp.log_iw is not None:
+        raise GprmInputError("refine the prior's draws only", field="pp")
+    check_int("n", n, 1)
+    b = prior.bounds()
+    lo = np.array([b[k][0] for k in PARAMS])
+    hi = np.array([b[k][1] for k in PARAMS])
+    X = np.stack([pp.params[k] for k in PARAMS], 1)
+    w = np.asarray(w, float)
+    m = w @ X
+    C = (X - m).T @ ((X - m) * w[:, None]) / max(1e-12, 1.0 - np.sum(w * w))
+    # a floor of 1e-3 of the box: a posterior on one draw still gives a proper normal
+    C = inflate ** 2 * C + np.diag((1e-3 * (hi - lo)) ** 2)
+    L = np.linalg.cholesky(C)
+    acc, got, tried = [], 0, 0
+    while got < n and tried < 1000 * n:
+        z = m + rng.standard_normal((max(4 * n, 20000), lo.size)) @ L.T
+        tried += z.shape[0]
+        acc.append(z[np.all((z >= lo) & (z <= hi), 1)])
+        got += acc[-1].shape[0]
+    if got == 0:
+        raise GprmInputError("the first stage's posterior lies outside the prior's box",
+                             field="pp")
+    box = got / tried
+    Z = np.concatenate(acc)[:n]
+    allx = np.concatenate([X, Z])
+    r = np.linalg.solve(L, (allx - m).T)
+    log_g = (-0.5 * np.sum(r * r, 0) - np.sum(np.log(np.diag(L)))
+             - 0.5 * lo.size * np.log(2 * np.pi) - np.log(box))
+    log_pi = -np.sum(np.log(hi - lo))
+    K1, n2 = X.shape[0], Z.shape[0]
+    log_q = np.logaddexp(np.log(K1) + log_pi, np.log(n2) + log_g) - np.log(K1 + n2)
+    return {k: Z[:, i] for i, k in enumerate(PARAMS)}, log_pi - log_q
+
+
+def pooled(pp: PriorPredictive, new: PriorPredictive, log_iw: np.ndarray) -> PriorPredictive:
+    """``pp``'s draws and ``new``'s as one set with the importance log ratios ``log_iw`` of
+    :func:`second_stage`."""
+    def cat(a, c):
+        return None if a is None or c is None else np.concatenate([a, c])
+    return PriorPredictive(pp.scenario, {k: cat(pp.params[k], new.params[k]) for k in PARAMS},
+                           cat(pp.mean, new.mean), cat(pp.cov, new.cov),
+                           cat(pp.t_mean, new.t_mean), cat(pp.t_cov, new.t_cov),
+                           cat(pp.t_var, new.t_var), cat(pp.valid, new.valid),
+                           cat(pp.p_impact, new.p_impact), np.asarray(log_iw, float))
+
+
+def refined_predictive(pp: PriorPredictive, w: np.ndarray, n: int, frame, pb0,
+                       opts: InferenceOptions, prior: ScenarioPrior,
+                       rng: np.random.Generator, *, inflate: float = 2.0) -> PriorPredictive:
+    """``pp`` pooled with ``n`` draws of a second importance stage around the first stage's
+    posterior ``w`` (:func:`second_stage`), the model's interval computed at the new draws
+    (:func:`predictive_at`) on the same parameter sets ``frame``."""
+    p, log_iw = second_stage(pp, w, n, prior, rng, inflate=inflate)
+    return pooled(pp, predictive_at(pp.scenario, p, frame, pb0, opts, prior), log_iw)
 
 
 def model_frame(model, opts: InferenceOptions, pb0=None):
@@ -210,6 +300,8 @@ def posterior_weights(pp: PriorPredictive, y: np.ndarray, sigma: np.ndarray, use
     release (as :func:`fit_release`; zeros if no draw is valid), e.g. for the posterior's
     CDF at a known truth."""
     logL = _log_likelihood(pp, y, sigma, use, opts)[0]
+    if pp.log_iw is not None:
+        logL = logL + pp.log_iw
     mx = np.max(logL)
     if not np.isfinite(mx):
         return np.zeros(logL.size)
@@ -222,6 +314,8 @@ def fit_release(pp: PriorPredictive, y: np.ndarray, sigma: np.ndarray, use: np.n
     """The posterior of one release (measured ``y`` (6,), standard errors ``sigma`` (6,),
     ``use`` (6,) the components measured) under the scenario of ``pp``."""
     logL, S, r, idx = _log_likelihood(pp, y, sigma, use, opts)
+    if pp.log_iw is not None:       # draws not the prior's: L π / q (refined_predictive)
+        logL = logL + pp.log_iw
     K, v = pp.valid.size, pp.valid
     mx = np.max(logL)
     if not np.isfinite(mx):
@@ -310,11 +404,25 @@ def infer_scenarios(model, ids, y, sigma, opts: InferenceOptions = InferenceOpti
     use = np.isfinite(y)
     pps = predictive if predictive is not None else prior_predictives(model, opts, prior)
     rng = np.random.default_rng([opts.seed, 99])
+    if opts.n_refine:
+        from gprm.params import batch
+
+        pb0 = batch([model.params])
+        frame = model_frame(model, opts, pb0)
     fits, probs, chosen = [], [], []
     total = {s: 0.0 for s in opts.scenarios}
     for r in range(y.shape[0]):
-        fr = {s: fit_release(pps[s], np.nan_to_num(y[r]), sigma[r], use[r], opts, rng)
-              for s in opts.scenarios}
+        yr = np.nan_to_num(y[r])
+        fr = {}
+        for s in opts.scenarios:
+            pp = pps[s]
+            if opts.n_refine:   # its own stream per release and scenario: order-free
+                w = posterior_weights(pp, yr, sigma[r], use[r], opts)
+                if w.any():
+                    pp = refined_predictive(
+                        pp, w, opts.n_refine, frame, pb0, opts, prior or ScenarioPrior(),
+                        np.random.default_rng([opts.seed, 7, r, SCENARIOS.index(s)]))
+            fr[s] = fit_release(pp, yr, sigma[r], use[r], opts, rng)
         pr = _probs({s: fr[s].log_evidence for s in opts.scenarios})
         fits.append(fr)
         probs.append(pr)
@@ -329,6 +437,7 @@ def infer_scenarios(model, ids, y, sigma, opts: InferenceOptions = InferenceOpti
     return ScenarioInference(tuple(ids), tuple(fits), tuple(probs), tuple(chosen), joint,
                              comps, {"scenarios": list(opts.scenarios),
                                      "n_draws": opts.n_draws, "n_model": opts.n_model,
+                                     "n_refine": opts.n_refine,
                                      "seed": opts.seed, "floor": list(opts.floor),
                                      "rel_floor": opts.rel_floor,
                                      "tm_offset": (prior or ScenarioPrior()).tm_offset})

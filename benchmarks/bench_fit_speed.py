@@ -60,10 +60,14 @@ def means_file(folder: Path, seed: int = 0) -> Path:
     return path
 
 
+RACE: tuple = ()        # --race (gprm.fit.starts.make_race_rule); () = the library default
+
+
 def fit(path: Path, starts: int, workers: int = 0):
     from gprm.fit.api import FitOptions, run_fit
 
-    return run_fit(str(path), FitOptions(starts=starts), workers=workers)
+    extra = {"race": RACE} if RACE is not None else {}
+    return run_fit(str(path), FitOptions(starts=starts, **extra), workers=workers)
 
 
 def spread(values: list[float]) -> str:
@@ -136,11 +140,16 @@ def campaigns(args) -> None:
     with tempfile.TemporaryDirectory() as tmp, open(args.json, "w") as fh:
         for k in range(args.campaigns):
             path = means_file(Path(tmp), k)
-            t = time.perf_counter()
+            t, c = time.perf_counter(), time.process_time()
             res = fit(path, args.starts)
-            row = {"seed": k, "starts": args.starts, "chi2": res.chi2,
-                   "identified": list(res.identified), "wall_s": time.perf_counter() - t,
-                   "timings_s": res.timings, "load": load()}
+            st = res.starts
+            row = {"seed": k, "starts": args.starts, "race": [list(p) for p in RACE or ()],
+                   "chi2": res.chi2, "identified": list(res.identified),
+                   "wall_s": time.perf_counter() - t, "cpu_s": time.process_time() - c,
+                   "timings_s": res.timings, "load": load(),
+                   "best_start_chi2": float(st.chi2[st.best_index]),
+                   "best_index": st.best_index, "n_at_best": st.n_at_best(),
+                   "start_iterations": int(st.iterations.sum())}
             fh.write(json.dumps(row) + "\n")
             fh.flush()
             print(f"seed {k}: chi2 {res.chi2:.6f}, {len(res.identified)} identified, "
@@ -176,7 +185,16 @@ def main() -> None:
     ap.add_argument("--starts", type=int, default=200)
     ap.add_argument("--json", default="fit_speed_campaigns.jsonl")
     ap.add_argument("--compare", nargs=2, metavar=("BEFORE", "AFTER"))
+    ap.add_argument("--race", default=None, help="racing schedule of the fits, as gprm fit "
+                    "--race (ITER:KEEP,... or off); default: the library's")
     args = ap.parse_args()
+    global RACE
+    if args.race is not None:
+        from gprm.options import Race
+
+        RACE = Race()(args.race)
+    else:
+        RACE = None
     if args.compare:
         compare(*args.compare)
     elif args.campaigns:

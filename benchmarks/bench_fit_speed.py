@@ -6,6 +6,8 @@ the same identified set on 20 campaigns.
                                                    [--no-cli] [--profile]
     .venv/bin/python benchmarks/bench_fit_speed.py --campaigns 20 --starts 200 --json OUT
     .venv/bin/python benchmarks/bench_fit_speed.py --compare BEFORE.json AFTER.json
+    .venv/bin/python benchmarks/bench_fit_speed.py --race 3:25,6:5 ...   (any of the above)
+    .venv/bin/python benchmarks/bench_fit_speed.py --ranks 0 1 2 --starts 1000
 
 Default: the demo's campaign (``gprm synth campaign --seed 0``, preprocessed with the
 defaults, written to a temporary folder), then
@@ -20,13 +22,20 @@ defaults, written to a temporary folder), then
   ``--big-repeat`` runs each.
 
 The load average (1 minute) is printed before and after each measurement: the machine is
-shared, so a number is comparable only at a similar load. ``--profile`` adds the 25 functions
+shared, so a number is comparable only at a similar load; the 1000-start rows also give the
+CPU seconds of the process and its (finished) Dask workers, which the load does not change
+much. ``--race ITER:KEEP,...|off`` runs every fit with that racing schedule
+(``gprm fit --race``; default: the library's, off). ``--profile`` adds the 25 functions
 with the most own time in one 10-start fit (cProfile).
 
 ``--campaigns K``: the fits of campaigns seeds 0..K-1 (``synth_campaign(seed=k)``, the
 defaults otherwise) with ``--starts`` starts in this process, one JSON line each (best chi2,
 the identified set, the timings), written to ``--json``; ``--compare`` sets two such files
 side by side (run the first with the code before a change, the second after it).
+
+``--ranks K ...``: the racing diagnosis (docs/fitting.md, "Racing"): the fits of these
+campaigns without racing, and per chunk the rank of its eventual best start among the running
+starts after 3 .. 40 iterations.
 """
 
 from __future__ import annotations
@@ -60,7 +69,7 @@ def means_file(folder: Path, seed: int = 0) -> Path:
     return path
 
 
-RACE: tuple = ()        # --race (gprm.fit.starts.make_race_rule); () = the library default
+RACE: tuple | None = None   # --race (gprm.fit.starts.make_race_rule); None: the library's
 
 
 def fit(path: Path, starts: int, workers: int = 0):
@@ -75,12 +84,26 @@ def spread(values: list[float]) -> str:
             f"{max(values):.2f}, {len(values)} runs)")
 
 
+def cpu_seconds() -> float:
+    """CPU of this process and of its finished children (the Dask workers once the cluster
+    closed, a command's interpreter): load-independent, unlike the wall time."""
+    import resource
+
+    ch = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return time.process_time() + ch.ru_utime + ch.ru_stime
+
+
+CPUS: list[float] = []      # CPU seconds of the runs of the last timed() call
+
+
 def timed(fn, repeat: int):
     walls, loads, out = [], [load()], None
+    CPUS.clear()
     for _ in range(repeat):
-        t = time.perf_counter()
+        t, c = time.perf_counter(), cpu_seconds()
         out = fn()
         walls.append(time.perf_counter() - t)
+        CPUS.append(cpu_seconds() - c)
     loads.append(load())
     return walls, loads, out
 
@@ -130,9 +153,11 @@ def speed(args) -> None:
             for workers in (w, 0):
                 walls, loads, res = timed(lambda w=workers: fit(path, 1000, w),
                                             args.big_repeat)
-                print(f"1000-start fit, identify, {workers} workers: {spread(walls)}; load "
-                      f"{loads[0]:.2f}/{loads[1]:.2f}; best chi2 {res.chi2:.4f}; identified "
-                      f"{len(res.identified)}; timings_s {res.timings}")
+                print(f"1000-start fit, identify, {workers} workers, race {RACE}: "
+                      f"{spread(walls)}; CPU {', '.join(f'{c:.2f}' for c in CPUS)} s (this "
+                      f"process and its workers); load {loads[0]:.2f}/{loads[1]:.2f}; best "
+                      f"chi2 {res.chi2:.4f}; identified {len(res.identified)}; timings_s "
+                      f"{res.timings}")
 
 
 def campaigns(args) -> None:
@@ -156,11 +181,77 @@ def campaigns(args) -> None:
                   f"{row['wall_s']:.2f} s", file=sys.stderr, flush=True)
 
 
+RANK_AT = (3, 6, 10, 15, 20, 25, 30, 40)
+
+
+def ranks(args) -> None:
+    """Why racing by chi-square rank loses the best start on some campaigns: the fits of
+    campaigns ``--ranks`` with ``--starts`` starts and no racing, every chunk's chi-square
+    recorded before each iteration (through the LM's prune hook), then per chunk the rank
+    (0 = the smallest) of the start that ends best in it among the chunk's running starts
+    after 3 .. 40 iterations, and how far its final chi2 is from the fit's best start."""
+    import numpy as np
+
+    import gprm.fit.engine as engine
+
+    global RACE
+    RACE = ()
+    make = engine.make_stop_rule
+    paths: list[list] = []
+
+    def recording(opts):                      # the driver's rule, plus a record of chi2
+        rule, rec = make(opts), []
+        paths.append(rec)
+
+        def wrapped(chi2, active):
+            rec.append((np.array(chi2, float), np.array(active, bool)))
+            return rule(chi2, active) if rule is not None else np.zeros(len(chi2), bool)
+        return wrapped
+
+    engine.make_stop_rule = recording
+    print(machine("scipy"))
+    print(f"- command: `.venv/bin/python benchmarks/bench_fit_speed.py {' '.join(sys.argv[1:])}`"
+          "\n")
+    print("| campaign | chunk | final chi2 - fit's best start | "
+          + " | ".join(f"rank after {r}" for r in RANK_AT) + " |\n"
+          + "|---" * (3 + len(RANK_AT)) + "|")
+    try:
+        with tempfile.TemporaryDirectory() as tmp:
+            for k in args.ranks:
+                paths.clear()
+                res = fit(means_file(Path(tmp), k), args.starts)
+                final = res.starts.chi2
+                best = np.nanmin(final)
+                size = res.options.chunk_size
+                for c, rec in enumerate(paths):
+                    f = final[c * size:(c + 1) * size]
+                    b = int(np.nanargmin(f))
+                    cells = []
+                    for r in RANK_AT:
+                        if r >= len(rec):
+                            cells.append("-")
+                            continue
+                        chi2, active = rec[r]
+                        if not active[b]:
+                            cells.append("stopped")
+                            continue
+                        cells.append(str(int(np.sum(active & (chi2 < chi2[b])))))
+                    print(f"| {k} | {c} | {f[b] - best:.3g} | " + " | ".join(cells) + " |",
+                          flush=True)
+    finally:
+        engine.make_stop_rule = make
+
+
+def _cpu(row: dict) -> str:
+    return f"{row['cpu_s']:.2f}" if "cpu_s" in row else "-"
+
+
 def compare(before: str, after: str) -> None:
     rows = [[json.loads(ln) for ln in Path(f).read_text().splitlines() if ln.strip()]
             for f in (before, after)]
     print("| seed | best chi2 before | after | after - before | identified before | after "
-          "| same set | fit wall s before | after |\n|---|---|---|---|---|---|---|---|---|")
+          "| same set | fit wall s before | after | CPU s before | after |\n"
+          "|---|---|---|---|---|---|---|---|---|---|---|")
     worse = differ = 0
     for a, b in zip(*rows):
         d = b["chi2"] - a["chi2"]
@@ -169,7 +260,8 @@ def compare(before: str, after: str) -> None:
         differ += not same
         print(f"| {a['seed']} | {a['chi2']:.6f} | {b['chi2']:.6f} | {d:+.2e} | "
               f"{len(a['identified'])} | {len(b['identified'])} | {'yes' if same else 'NO'} | "
-              f"{a['wall_s']:.2f} | {b['wall_s']:.2f} |")
+              f"{a['wall_s']:.2f} | {b['wall_s']:.2f} | {_cpu(a)} | {_cpu(b)} |")
+    rows = [r[:min(map(len, rows))] for r in rows]       # the campaigns both files have
     print(f"\n{len(rows[0])} campaigns: best chi2 worse (by more than 1e-6 relative) on {worse}, "
           f"identified set different on {differ}")
 
@@ -185,6 +277,8 @@ def main() -> None:
     ap.add_argument("--starts", type=int, default=200)
     ap.add_argument("--json", default="fit_speed_campaigns.jsonl")
     ap.add_argument("--compare", nargs=2, metavar=("BEFORE", "AFTER"))
+    ap.add_argument("--ranks", type=int, nargs="+", metavar="SEED",
+                    help="the racing diagnosis on these campaigns (with --starts; no racing)")
     ap.add_argument("--race", default=None, help="racing schedule of the fits, as gprm fit "
                     "--race (ITER:KEEP,... or off); default: the library's")
     args = ap.parse_args()
@@ -195,7 +289,9 @@ def main() -> None:
         RACE = Race()(args.race)
     else:
         RACE = None
-    if args.compare:
+    if args.ranks:
+        ranks(args)
+    elif args.compare:
         compare(*args.compare)
     elif args.campaigns:
         campaigns(args)

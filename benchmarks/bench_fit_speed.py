@@ -189,7 +189,8 @@ def ranks(args) -> None:
     campaigns ``--ranks`` with ``--starts`` starts and no racing, every chunk's chi-square
     recorded before each iteration (through the LM's prune hook), then per chunk the rank
     (0 = the smallest) of the start that ends best in it among the chunk's running starts
-    after 3 .. 40 iterations, and how far its final chi2 is from the fit's best start."""
+    after 3 .. 40 iterations, how far its final chi2 is from the fit's best start, and how
+    many of the chunk's starts end within dchi2 <= 1 of it (many: any of them will do)."""
     import numpy as np
 
     import gprm.fit.engine as engine
@@ -212,9 +213,10 @@ def ranks(args) -> None:
     print(machine("scipy"))
     print(f"- command: `.venv/bin/python benchmarks/bench_fit_speed.py {' '.join(sys.argv[1:])}`"
           "\n")
-    print("| campaign | chunk | final chi2 - fit's best start | "
+    print("| campaign | chunk | final chi2 - fit's best start | chunk's starts within "
+          "dchi2 <= 1 of it | "
           + " | ".join(f"rank after {r}" for r in RANK_AT) + " |\n"
-          + "|---" * (3 + len(RANK_AT)) + "|")
+          + "|---" * (4 + len(RANK_AT)) + "|")
     try:
         with tempfile.TemporaryDirectory() as tmp:
             for k in args.ranks:
@@ -236,8 +238,9 @@ def ranks(args) -> None:
                             cells.append("stopped")
                             continue
                         cells.append(str(int(np.sum(active & (chi2 < chi2[b])))))
-                    print(f"| {k} | {c} | {f[b] - best:.3g} | " + " | ".join(cells) + " |",
-                          flush=True)
+                    near = int(np.sum(f <= f[b] + 1.0))
+                    print(f"| {k} | {c} | {f[b] - best:.3g} | {near} | " + " | ".join(cells)
+                          + " |", flush=True)
     finally:
         engine.make_stop_rule = make
 

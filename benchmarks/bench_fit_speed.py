@@ -8,6 +8,7 @@ the same identified set on 20 campaigns.
     .venv/bin/python benchmarks/bench_fit_speed.py --compare BEFORE.json AFTER.json
     .venv/bin/python benchmarks/bench_fit_speed.py --race 3:25,6:5 ...   (any of the above)
     .venv/bin/python benchmarks/bench_fit_speed.py --ranks 0 1 2 --starts 1000
+    .venv/bin/python benchmarks/bench_fit_speed.py --cluster-cost 3
 
 Default: the demo's campaign (``gprm synth campaign --seed 0``, preprocessed with the
 defaults, written to a temporary folder), then
@@ -35,7 +36,8 @@ side by side (run the first with the code before a change, the second after it).
 
 ``--ranks K ...``: the racing diagnosis (docs/fitting.md, "Racing"): the fits of these
 campaigns without racing, and per chunk the rank of its eventual best start among the running
-starts after 3 .. 40 iterations.
+starts after 3 .. 40 iterations. ``--cluster-cost N``: the local Dask cluster's fixed cost
+(start, first task on each of the 2 workers, close), N times.
 """
 
 from __future__ import annotations
@@ -245,6 +247,40 @@ def ranks(args) -> None:
         engine.make_stop_rule = make
 
 
+def _warm_worker() -> int:
+    import gprm.fit.engine  # noqa: F401  (what a chunk imports in a worker)
+    import gprm.fit.objective  # noqa: F401
+
+    return os.getpid()
+
+
+def cluster_cost(repeat: int) -> None:
+    """The fixed cost of the fit's local Dask cluster (``gprm.fit.engine.local_cluster`` with
+    the CLI's default 2 workers, TLS, HTTP stopped): start, the first task on each worker (its
+    imports of the fit), close; wall and CPU of this process and of the workers."""
+    from distributed import Client
+
+    from gprm.fit.engine import _stop_http_server, local_cluster
+
+    print(machine("scipy"))
+    print(f"- command: `.venv/bin/python benchmarks/bench_fit_speed.py {' '.join(sys.argv[1:])}`"
+          "\n")
+    for _ in range(repeat):
+        l0, t, c = load(), time.perf_counter(), cpu_seconds()
+        cluster = local_cluster(2)
+        client = Client(cluster, security=cluster.security)
+        client.run(_stop_http_server)
+        up = time.perf_counter() - t
+        client.gather([client.submit(_warm_worker, pure=False, key=f"warm-{i}")
+                       for i in range(2)])
+        first = time.perf_counter() - t
+        client.close()
+        cluster.close()
+        print(f"local cluster, 2 workers: up {up:.2f} s, first task on each {first:.2f} s, "
+              f"closed {time.perf_counter() - t:.2f} s wall; CPU {cpu_seconds() - c:.2f} s "
+              f"(this process and the workers); load {l0:.2f}/{load():.2f}", flush=True)
+
+
 def _cpu(row: dict) -> str:
     return f"{row['cpu_s']:.2f}" if "cpu_s" in row else "-"
 
@@ -280,6 +316,8 @@ def main() -> None:
     ap.add_argument("--starts", type=int, default=200)
     ap.add_argument("--json", default="fit_speed_campaigns.jsonl")
     ap.add_argument("--compare", nargs=2, metavar=("BEFORE", "AFTER"))
+    ap.add_argument("--cluster-cost", type=int, default=0, metavar="N",
+                    help="N starts and stops of the fit's local cluster (its fixed cost)")
     ap.add_argument("--ranks", type=int, nargs="+", metavar="SEED",
                     help="the racing diagnosis on these campaigns (with --starts; no racing)")
     ap.add_argument("--race", default=None, help="racing schedule of the fits, as gprm fit "
@@ -292,7 +330,9 @@ def main() -> None:
         RACE = Race()(args.race)
     else:
         RACE = None
-    if args.ranks:
+    if args.cluster_cost:
+        cluster_cost(args.cluster_cost)
+    elif args.ranks:
         ranks(args)
     elif args.compare:
         compare(*args.compare)

@@ -20,9 +20,6 @@ MAX_RESAMPLE = 5
 #: loses the best start on campaigns whose best start climbs from the back of the field late
 #: (measured on 20 campaigns: docs/fitting.md, "Racing"), so it is opt-in.
 DEFAULT_RACE: tuple[tuple[int, int], ...] = ()
-#: the schedule measured for speed (``--race 3:25,6:5``): after 3 iterations the 25 best
-#: running starts of a chunk go on, after 6 the best 5
-FAST_RACE: tuple[tuple[int, int], ...] = ((3, 25), (6, 5))
 
 
 @dataclass(frozen=True)

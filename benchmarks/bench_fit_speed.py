@@ -291,8 +291,10 @@ def compare(before: str, after: str) -> None:
     print("| seed | best chi2 before | after | after - before | identified before | after "
           "| same set | fit wall s before | after | CPU s before | after |\n"
           "|---|---|---|---|---|---|---|---|---|---|---|")
+    after_by_seed = {r["seed"]: r for r in rows[1]}
+    pairs = [(a, after_by_seed[a["seed"]]) for a in rows[0] if a["seed"] in after_by_seed]
     worse = differ = 0
-    for a, b in zip(*rows):
+    for a, b in pairs:
         d = b["chi2"] - a["chi2"]
         same = set(a["identified"]) == set(b["identified"])
         worse += d > 1e-6 * abs(a["chi2"])
@@ -300,8 +302,7 @@ def compare(before: str, after: str) -> None:
         print(f"| {a['seed']} | {a['chi2']:.6f} | {b['chi2']:.6f} | {d:+.2e} | "
               f"{len(a['identified'])} | {len(b['identified'])} | {'yes' if same else 'NO'} | "
               f"{a['wall_s']:.2f} | {b['wall_s']:.2f} | {_cpu(a)} | {_cpu(b)} |")
-    rows = [r[:min(map(len, rows))] for r in rows]       # the campaigns both files have
-    print(f"\n{len(rows[0])} campaigns: best chi2 worse (by more than 1e-6 relative) on {worse}, "
+    print(f"\n{len(pairs)} campaigns (those in both files): best chi2 worse (by more than 1e-6 relative) on {worse}, "
           f"identified set different on {differ}")
 
 

@@ -9,6 +9,7 @@ the same identified set on 20 campaigns.
     .venv/bin/python benchmarks/bench_fit_speed.py --race 3:25,6:5 ...   (any of the above)
     .venv/bin/python benchmarks/bench_fit_speed.py --ranks 0 1 2 --starts 1000
     .venv/bin/python benchmarks/bench_fit_speed.py --cluster-cost 3
+    .venv/bin/python benchmarks/bench_fit_speed.py --chunk-phases [--race 3:25,6:5|off]
 
 Default: the demo's campaign (``gprm synth campaign --seed 0``, preprocessed with the
 defaults, written to a temporary folder), then
@@ -37,7 +38,9 @@ side by side (run the first with the code before a change, the second after it).
 ``--ranks K ...``: the racing diagnosis (docs/fitting.md, "Racing"): the fits of these
 campaigns without racing, and per chunk the rank of its eventual best start among the running
 starts after 3 .. 40 iterations. ``--cluster-cost N``: the local Dask cluster's fixed cost
-(start, first task on each of the 2 workers, close), N times.
+(start, first task on each of the 2 workers, close), N times. ``--chunk-phases``: the CPU
+per phase of one chunk of 250 demo starts (validity check, initial Jacobians, iterations by
+the number of starts running), with ``--race`` (default there 3:25,6:5).
 """
 
 from __future__ import annotations
@@ -247,6 +250,72 @@ def ranks(args) -> None:
         engine.make_stop_rule = make
 
 
+def chunk_phases(args) -> None:
+    """Where the CPU of one chunk of 250 starts of the demo's campaign goes (in process, after
+    one warm-up run of the chunk): the starts' validity check, the Jacobians at the starting
+    points (LM's initialisation), and the lock-step iterations by the number of starts
+    running, with the racing schedule ``--race`` (default here: 3:25,6:5)."""
+    import numpy as np
+
+    import gprm.fit.engine as engine
+    import gprm.fit.lm as lm
+    from gprm.campaign.files import read_means
+    from gprm.fit.api import FitOptions
+    from gprm.fit.objective import Objective, fit_data_from_means
+    from gprm.fit.prior import default_prior
+    from gprm.fit.starts import draw_starts
+    from gprm.params import load_params
+
+    race = ((3, 25), (6, 5)) if RACE is None else RACE
+    print(machine("scipy"))
+    print(f"- command: `.venv/bin/python benchmarks/bench_fit_speed.py {' '.join(sys.argv[1:])}`"
+          f"; race {race}\n")
+    with tempfile.TemporaryDirectory() as tmp:
+        o = FitOptions(starts=250, race=race)
+        data = fit_data_from_means(read_means(means_file(Path(tmp))), window=o.window,
+                                   sigma=o.sigma, source="demo")
+    base = o.parameters(load_params(None))
+    names = tuple(base.fitted)
+    obj = Objective.create(data, base, names, piezo=o.piezo,
+                           prior=default_prior(base, names, o.prior_width))
+    ms = o.multistart()
+    X0n = draw_starts(obj.to_normalised(base.initial_vector(names)), ms)
+    task = engine.ChunkTask(0, np.arange(250), X0n, obj, ms)
+    log: list = []
+
+    def timed_call(label, f):
+        def g(*a, **k):
+            n = label(*a) if callable(label) else label
+            c = time.process_time()
+            out = f(*a, **k)
+            log.append((n, time.process_time() - c))
+            return out
+        return g
+
+    saved = (lm.lm_step, lm.lm_init, engine.resample_invalid)
+    lm.lm_step = timed_call(lambda state, *a: int(state.active.sum()), lm.lm_step)
+    lm.lm_init = timed_call("initial Jacobians", lm.lm_init)
+    engine.resample_invalid = timed_call("validity check", engine.resample_invalid)
+    try:
+        engine.run_chunk(task)
+        log.clear()
+        c = time.process_time()
+        engine.run_chunk(task)
+        total = time.process_time() - c
+    finally:
+        lm.lm_step, lm.lm_init, engine.resample_invalid = saved
+    groups: dict = {}
+    for n, t in log:
+        key = n if isinstance(n, str) else f"iterations with {n} starts running"
+        groups.setdefault(key, [0, 0.0])
+        groups[key][0] += 1
+        groups[key][1] += t
+    print("| phase | calls | CPU s |\n|---|---:|---:|")
+    for key, (k, t) in groups.items():
+        print(f"| {key} | {k} | {t:.3f} |")
+    print(f"| **the chunk** | | **{total:.3f}** |\n\nload {load():.2f}")
+
+
 def _warm_worker() -> int:
     import gprm.fit.engine  # noqa: F401  (what a chunk imports in a worker)
     import gprm.fit.objective  # noqa: F401
@@ -317,6 +386,8 @@ def main() -> None:
     ap.add_argument("--starts", type=int, default=200)
     ap.add_argument("--json", default="fit_speed_campaigns.jsonl")
     ap.add_argument("--compare", nargs=2, metavar=("BEFORE", "AFTER"))
+    ap.add_argument("--chunk-phases", action="store_true",
+                    help="CPU per phase of one chunk of 250 demo starts (with --race)")
     ap.add_argument("--cluster-cost", type=int, default=0, metavar="N",
                     help="N starts and stops of the fit's local cluster (its fixed cost)")
     ap.add_argument("--ranks", type=int, nargs="+", metavar="SEED",
@@ -331,7 +402,9 @@ def main() -> None:
         RACE = Race()(args.race)
     else:
         RACE = None
-    if args.cluster_cost:
+    if args.chunk_phases:
+        chunk_phases(args)
+    elif args.cluster_cost:
         cluster_cost(args.cluster_cost)
     elif args.ranks:
         ranks(args)

@@ -6,6 +6,7 @@ file is read or written, with the option named as typed (``Invalid value for '--
 - integers and plain numbers with a range: :class:`Int`, :class:`Number`;
 - quantities with units: :class:`Quantity` accepts ``1.2 ms``, ``1.2ms`` or a bare number in SI
   units (``1.2e-3``), and refuses a value of the wrong dimension (``2 V`` for a time);
+- racing schedules: :class:`Race` accepts ``ITER:KEEP[,ITER:KEEP...]`` or ``off``;
 - windows: :class:`Window` accepts ``START,END`` with units on each bound (``0.97ms,1.2ms``) or
   once at the end (``0.97,1.2 ms``); bare numbers are SI.
 
@@ -17,7 +18,7 @@ from __future__ import annotations
 
 import math
 
-__all__ = ["Int", "Number", "Quantity", "Window", "parse_quantity"]
+__all__ = ["Int", "Number", "Quantity", "Race", "Window", "parse_quantity"]
 
 
 def _range_problem(v: float, lo, hi, lo_open: bool, hi_open: bool) -> str | None:
@@ -163,6 +164,40 @@ class Quantity(Number):
         if problem:
             self.fail(f"{problem} {self.unit}, got {value}", param, ctx)
         return v
+
+
+class Race(_Parser):
+    """A racing schedule ``ITER:KEEP[,ITER:KEEP...]`` (integers >= 1; e.g. ``3:25,6:5``: after
+    3 iterations keep the 25 best running starts of each chunk, after 6 the best 5) or
+    ``off`` -> a tuple of (iterations, keep) pairs, () for off. The order of the points is
+    checked by the fit's options (gprm.fit.starts.check_race)."""
+
+    name = "race"
+
+    def get_metavar(self, param, ctx=None):
+        return "ITER:KEEP,...|off"
+
+    def convert(self, value, param, ctx):
+        if isinstance(value, tuple):
+            return value
+        text = str(value).strip()
+        if text.lower() in ("off", "none", "0"):
+            return ()
+        pairs = []
+        for part in text.split(","):
+            bits = [b.strip() for b in part.split(":")]
+            try:
+                if len(bits) != 2:
+                    raise ValueError
+                r, q = int(bits[0]), int(bits[1])
+            except ValueError:
+                self.fail(f"expected ITER:KEEP pairs separated by commas (e.g. '3:25,6:5') "
+                          f"or 'off', got {value!r}", param, ctx)
+            if r < 1 or q < 1:
+                self.fail(f"iterations and keep must be >= 1, got {part.strip()!r}",
+                          param, ctx)
+            pairs.append((r, q))
+        return tuple(pairs)
 
 
 class Window(_Parser):

@@ -95,6 +95,8 @@ def test_gprm_fit_writes_json_and_sidecar(means_file, tmp_path):
     (["--prior-width", "-1"], "--prior-width"),
     (["--prior-width", "0"], "--prior-width"),
     (["--boot", "2"], "--boot"),
+    (["--race", "3:x"], "Invalid value for '--race'"),
+    (["--race", "6:5,3:2"], "--race: race points must come at increasing iterations"),
 ])
 def test_gprm_fit_bad_options(means_file, tmp_path, args, text):
     r = CliRunner().invoke(app, ["fit", str(means_file), "--out", str(tmp_path / "f.json"),
@@ -124,6 +126,34 @@ def test_gprm_fit_stall_window_reaches_the_starts(means_file, tmp_path):
     assert r.exit_code == 0, r.output
     with xr.open_dataset(out0.with_suffix(".nc")) as ds:
         assert "stalled" not in set(ds["status"].values.astype(str))
+
+
+def test_gprm_fit_race_reaches_the_starts_and_the_file_records_it(means_file, tmp_path):
+    """--race 1:2 on 5 starts of one chunk: after one iteration only 2 go on, the other 3
+    stop with status raced after exactly 1 iteration; fit.json counts them and records the
+    schedule, and the report's starts line names them. Without --race nothing is raced."""
+    import json
+
+    import xarray as xr
+
+    base = ["--starts", "5", "--chunk", "5", "--max-iter", "6", "--band-samples", "0",
+            "--workers", "0", "--prune-after", "0", "--stall-window", "0"]
+    out = tmp_path / "a.json"
+    r = CliRunner().invoke(app, ["fit", str(means_file), "--out", str(out), *base,
+                                 "--race", "1:2"])
+    assert r.exit_code == 0, r.output
+    with xr.open_dataset(out.with_suffix(".nc")) as ds:
+        status = ds["status"].values.astype(str)
+        assert (status == "raced").sum() == 3
+        assert set(ds["iterations"].values[status == "raced"].tolist()) == {1}
+    st = json.loads(out.read_text())["starts"]
+    assert st["raced"] == 3 and st["race"] == [[1, 2]]
+    assert "raced 3," in r.stdout
+    out0 = tmp_path / "b.json"
+    r = CliRunner().invoke(app, ["fit", str(means_file), "--out", str(out0), *base])
+    assert r.exit_code == 0, r.output
+    st0 = json.loads(out0.read_text())["starts"]
+    assert st0["raced"] == 0 and st0["race"] == []
 
 
 def test_gprm_fit_file_without_sigma(tmp_path):

@@ -158,3 +158,12 @@ def test_progress_counts_starts_and_reports_best_chi2():
     assert bests == sorted(bests, reverse=True)            # a running minimum
     assert bests[-1] == pytest.approx(np.nanmin(out.chi2))
     assert bests[0] == pytest.approx(np.nanmin(out.chi2[:2]))
+
+
+def test_starts_line_names_raced_starts_only_when_there_are_some():
+    d = _new_format()
+    line = next(ln for ln in fit_report(d).splitlines() if "starts:" in ln)
+    assert "raced" not in line and "pruned 8, failed 2" in line
+    d["starts"] = {**d["starts"], "raced": 40, "race": [[3, 25], [6, 5]]}
+    line = next(ln for ln in fit_report(d).splitlines() if "starts:" in ln)
+    assert "pruned 8, raced 40, failed 2, at best (dchi2<=1) 7" in line

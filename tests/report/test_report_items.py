@@ -195,3 +195,20 @@ def test_a_run_on_csv_telemetry_without_truth_claims_no_truth(tmp_path):
     assert "true impact time" not in flight and "synthetic releases" not in flight
     assert ">None<" not in html                   # options not given are left out
     assert "7 / 7 done" in html
+
+
+def test_fit_paragraph_says_when_racing_stopped_starts(tmp_path):
+    from gprm.report.build import fit_section
+
+    run = tmp_path / "r"
+    run.mkdir()
+    runfactory.make_means(run / "means.nc")
+    runfactory.make_fit(run, starts=6)
+    text = "".join(map(str, fit_section(run)[0].blocks))
+    assert "racing" not in text
+    doc = json.loads((run / "fit.json").read_text())
+    doc["starts"].update(raced=4, race=[[3, 25], [6, 5]])
+    (run / "fit.json").write_text(json.dumps(doc))
+    text = "".join(map(str, fit_section(run)[0].blocks))
+    assert "(4 stopped early by racing, schedule 3:25, 6:5; the counts are of the starts " \
+           "that ran on)" in text

@@ -23,7 +23,7 @@ from gprm.fit.identify import identify
 from gprm.fit.objective import fit_data_from_means
 from gprm.fit.prior import DEFAULT_WIDTH
 from gprm.fit.result import FitResult
-from gprm.fit.starts import LMOptions, MultiStartOptions
+from gprm.fit.starts import DEFAULT_RACE, LMOptions, MultiStartOptions, check_race
 from gprm.fit.methods import DEFAULT_METHOD, METHODS
 from gprm.fit.sandwich import Systematics
 from gprm.params import ALIGNMENT_OFFSETS, ParameterSet, load_params
@@ -51,6 +51,9 @@ class FitOptions:
     stall_tol: float = 0.05
     prune_after: int = 10
     prune_factor: float = 100.0
+    #: racing within each chunk of starts: (iterations, keep) pairs, () for none
+    #: (gprm.fit.starts.make_race_rule; docs/fitting.md, "Racing")
+    race: tuple[tuple[int, int], ...] = DEFAULT_RACE
     band_samples: int = 200
     profile: bool = False
     z_bk_absolute: bool = False
@@ -88,6 +91,7 @@ class FitOptions:
         check_number("stall_tol", self.stall_tol)
         check_int("prune_after", self.prune_after, 0)
         check_number("prune_factor", self.prune_factor, positive=True)
+        object.__setattr__(self, "race", check_race(self.race))
         check_int("band_samples", self.band_samples, 0)
         if self.uncertainty not in METHODS:
             raise GprmInputError(f"must be one of {', '.join(METHODS)}, got "
@@ -121,7 +125,8 @@ class FitOptions:
                                  lm=LMOptions(max_iter=self.max_iter,
                                               stall_window=self.stall_window,
                                               stall_tol=self.stall_tol),
-                                 prune_after=self.prune_after, prune_factor=self.prune_factor)
+                                 prune_after=self.prune_after, prune_factor=self.prune_factor,
+                                 race=self.race)
 
     def parameters(self, base: ParameterSet) -> ParameterSet:
         """``base`` with the alignment offsets added to its fitted set when ``fit_offsets``."""

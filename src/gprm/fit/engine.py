@@ -27,7 +27,7 @@ from gprm.errors import GprmInputError
 from gprm.fit.lm import levenberg_marquardt_batch
 from gprm.fit.objective import Objective
 from gprm.fit.starts import (LMOptions, MultiStartOptions, StartsOutcome, draw_starts,
-                             make_prune_rule, resample_invalid)
+                             make_stop_rule, resample_invalid)
 
 
 # ----------------------------------------------------------------------------- one chunk
@@ -115,7 +115,7 @@ def _run_chunk(task: ChunkTask) -> dict:
         res = levenberg_marquardt_batch(
             obj, X0n[good], lower=lo, upper=hi,
             residuals=obj.residuals if opts.lm.residual_trials else None,
-            prune=make_prune_rule(opts), **opts.lm.for_starts(obj.dof))
+            prune=make_stop_rule(opts), **opts.lm.for_starts(obj.dof))
         Xn[good] = res.x
         chi2_0[good] = res.chi2_0
         chi2[good] = np.where(np.isfinite(res.chi2), res.chi2, np.nan)

@@ -129,7 +129,7 @@ SUCCESS = ("ftol", "xtol", "gtol", "chi2_tol")
 #: integer status codes (:attr:`LMResult.code`): negative for a failure to start, 0 for a
 #: budget exhausted, positive for a stopping rule
 CODES = {"failed": -1, "max_iter": 0, "max_nfev": 0, "gtol": 1, "ftol": 2, "xtol": 3,
-         "chi2_tol": 4, "lambda_max": 5, "stalled": 6, "pruned": 7}
+         "chi2_tol": 4, "lambda_max": 5, "stalled": 6, "pruned": 7, "raced": 8}
 
 MESSAGES = {
     "ftol": "chi-square changed by less than the tolerance on an accepted step",
@@ -143,6 +143,8 @@ MESSAGES = {
     "max_nfev": "the budget of residual evaluations (max_nfev) is spent",
     "failed": "residuals or Jacobian not finite at the starting point: nothing was done",
     "pruned": "stopped by the caller's pruning rule",
+    "raced": "stopped by the caller's racing rule (not among the best of its batch at a race "
+             "point)",
 }
 
 
@@ -572,14 +574,21 @@ def lm_init(problem: Problem, X0: np.ndarray, settings: Settings, damping, contr
 
 
 def lm_prune(state: LMState, prune: Callable | None) -> LMState:
-    """Stop the rows the ``prune`` rule marks (status ``pruned``)."""
+    """Stop the rows the ``prune`` rule marks: a boolean mask (status ``pruned``) or an array
+    of statuses, ``""`` for the rows that go on and a key of :data:`MESSAGES` (``pruned``,
+    ``raced``) for those that stop."""
     if prune is None:
         return state
-    cut = np.asarray(prune(state.chi2, state.active), bool) & state.active
+    marks = np.asarray(prune(state.chi2, state.active))
+    if marks.dtype == bool:
+        cut, why = marks & state.active, np.full(marks.shape, "pruned", dtype=object)
+    else:
+        why = marks.astype(object)
+        cut = (why != "") & state.active
     if not cut.any():
         return state
     status = state.status.copy()
-    status[cut] = "pruned"
+    status[cut] = why[cut]
     return replace(state, status=status, active=state.active & ~cut)
 
 
@@ -854,9 +863,10 @@ def levenberg_marquardt_batch(fun: Callable, X0: np.ndarray, *, residuals: Calla
     gtol: stop a row (status ``gtol``) when every column of its Jacobian has a cosine of at
         most gtol with its residuals (0: off). max_nfev: stop a row (status ``max_nfev``) once
         its residual evaluations reach it (None: off).
-    prune: optional ``prune(chi2 (B,), active (B,)) -> (B,) bool`` called each iteration;
-        rows it marks stop with status ``pruned`` (used by the multi-start driver, which
-        documents its rule).
+    prune: optional ``prune(chi2 (B,), active (B,)) -> (B,)`` called before each iteration:
+        a bool mask (rows it marks stop with status ``pruned``) or statuses (``""``: go on;
+        ``pruned`` or ``raced``: stop with that status); used by the multi-start driver,
+        which documents its rules.
     indexed: the rows are B different problems that one call evaluates together (the same
         model against different data, as the adequacy's leave-one-signal-out fits): ``fun``,
         ``residuals`` and ``jacobian`` then take, as their last argument, the indices in X0

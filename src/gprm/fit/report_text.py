@@ -69,8 +69,10 @@ def fit_report(d: dict, *, min_correl: float = DEFAULT_MIN_CORREL) -> str:
     st = d.get("starts") or {}
     if st:
         lines.append(f"    starts: {st.get('requested', '?')}, converged "
-                     f"{st.get('converged', '?')}, pruned {st.get('pruned', '?')}, failed "
-                     f"{st.get('failed', '?')}, at best (dchi2<=1) {st.get('n_at_best', '?')}")
+                     f"{st.get('converged', '?')}, pruned {st.get('pruned', '?')}, "
+                     + (f"raced {st['raced']}, " if st.get("raced") else "")
+                     + f"failed {st.get('failed', '?')}, at best (dchi2<=1) "
+                     f"{st.get('n_at_best', '?')}")
     if _finite(d.get("chi2")):
         lines.append(f"    chi-square {d['chi2']:.6g}, dof {d.get('dof', '?')}, reduced "
                      f"{_g(d.get('reduced_chi2'), '.4g')}")

@@ -305,7 +305,11 @@ def fit_section(run: Path) -> tuple[Section, dict | None]:
         f"Weighted multi-signal Levenberg–Marquardt (Algorithm 1) from {st.get('requested')} "
         f"random starts within ±{100 * st.get('spread', 0.2):.0f} % of the paper's initial "
         f"values; {st.get('converged')} converged, {st.get('n_at_best', '?')} reached the best "
-        f"χ² within Δχ² ≤ 1. χ² = {fit['chi2']:.5g} for {fit['dof']} degrees of freedom "
+        f"χ² within Δχ² ≤ 1"
+        + (f" ({st['raced']} stopped early by racing, schedule "
+           f"{', '.join(f'{r}:{q}' for r, q in st.get('race') or [])}; the counts are of "
+           f"the starts that ran on)" if st.get("raced") else "")
+        + f". χ² = {fit['chi2']:.5g} for {fit['dof']} degrees of freedom "
         f"(reduced χ² = {fit['reduced_chi2']:.4g}; weights: {fit.get('sigma', 'sem')}). "
         f"Covariance (Eq. 7): {fit.get('covariance_message', 'ok')}."))
     unc = fit.get("uncertainty") or {}

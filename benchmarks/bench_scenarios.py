@@ -65,14 +65,32 @@ SCENARIO_SEED_STRIDE = 10000
 """--recovery: campaign seed s draws scenario i of COMPARED with seed s + 10000 i."""
 
 
+def scenario_campaigns(fm, seeds, releases: int, **synth):
+    """(seed, scenario, truth dataset, telemetry, y, sigma) for each seed and each scenario of
+    COMPARED: each scenario its own truths (with one seed for all three, the unknowns and the
+    parameter sets drawn would repeat across the scenarios: one draw counted 3 times).
+    ``synth``: further SynthOptions (tm_offset, ...)."""
+    from gprm.flight.files import telemetry_from_dataset
+    from gprm.flight.inference import measured_components
+    from gprm.flight.scenario import COMPARED
+    from gprm.flight.synth import SynthOptions, synth_telemetry
+
+    for s in seeds:
+        for i_kind, kind in enumerate(COMPARED):
+            ds = synth_telemetry(fm, SynthOptions(n_releases=releases,
+                                                  seed=s + SCENARIO_SEED_STRIDE * i_kind,
+                                                  scenario=kind, **synth))
+            tel = telemetry_from_dataset(ds, source=f"seed {s}")
+            y, sig = measured_components(tel)
+            yield s, kind, ds, tel, y, sig
+
+
 def recovery(fm, seeds, releases: int, draws: int, rel_floor: float | None = None,
              refine: int = 0) -> dict:
-    from gprm.flight.files import telemetry_from_dataset
-    from gprm.flight.inference import (InferenceOptions, infer_scenarios, measured_components,
-                                      model_frame, posterior_weights, prior_predictives,
-                                      refined_predictive)
+    from gprm.flight.inference import (InferenceOptions, infer_scenarios, model_frame,
+                                       posterior_weights, prior_predictives,
+                                       refined_predictive)
     from gprm.flight.scenario import COMPARED, PARAMS, SCENARIOS, ScenarioPrior
-    from gprm.flight.synth import SynthOptions, synth_telemetry
     from gprm.params import batch
 
     out = {"n": 0, "right": 0, "by_truth": {k: [0, 0] for k in COMPARED},
@@ -87,51 +105,43 @@ def recovery(fm, seeds, releases: int, draws: int, rel_floor: float | None = Non
     out["pp_cpu_s"] = time.process_time() - t0
     pb0 = batch([fm.params])
     frame = model_frame(fm, opts, pb0)
-    for s in seeds:
-        for i_kind, kind in enumerate(COMPARED):
-            # each scenario its own truths: with one seed for all three, the unknowns and the
-            # parameter sets drawn would repeat across the scenarios (one draw counted 3 times)
-            ds = synth_telemetry(fm, SynthOptions(n_releases=releases,
-                                                  seed=s + SCENARIO_SEED_STRIDE * i_kind,
-                                                  scenario=kind))
-            tel = telemetry_from_dataset(ds, source=f"seed {s}")
-            truth = ds  # truth variables
-            y, sig = measured_components(tel)
-            res = infer_scenarios(fm, [r.id for r in tel.releases], y, sig, opts,
-                                  predictive=pps)
-            for i in range(len(tel.releases)):
-                out["n"] += 1
-                ok = res.chosen[i] == kind
-                out["right"] += ok
-                out["by_truth"][kind][0] += ok
-                out["by_truth"][kind][1] += 1
-                key = f"{kind}->{res.chosen[i]}"
-                out["confusion"][key] = out["confusion"].get(key, 0) + 1
-                f = res.fits[i][kind]
-                out["ess_median"].append(f.ess)
-                # the posterior's CDF at the truth (PIT): inside the central 50 %?
-                yi, si, ui = np.nan_to_num(y[i]), np.nan_to_num(sig[i]), np.isfinite(y[i])
-                pp = pps[kind]
+    for _s, kind, ds, tel, y, sig in scenario_campaigns(fm, seeds, releases):
+        truth = ds  # truth variables
+        res = infer_scenarios(fm, [r.id for r in tel.releases], y, sig, opts,
+                              predictive=pps)
+        for i in range(len(tel.releases)):
+            out["n"] += 1
+            ok = res.chosen[i] == kind
+            out["right"] += ok
+            out["by_truth"][kind][0] += ok
+            out["by_truth"][kind][1] += 1
+            key = f"{kind}->{res.chosen[i]}"
+            out["confusion"][key] = out["confusion"].get(key, 0) + 1
+            f = res.fits[i][kind]
+            out["ess_median"].append(f.ess)
+            # the posterior's CDF at the truth (PIT): inside the central 50 %?
+            yi, si, ui = np.nan_to_num(y[i]), np.nan_to_num(sig[i]), np.isfinite(y[i])
+            pp = pps[kind]
+            w = posterior_weights(pp, yi, si, ui, opts)
+            if refine and w.any():  # the draws infer_scenarios used (the same stream)
+                pp = refined_predictive(pp, w, refine, frame, pb0, opts, ScenarioPrior(),
+                                        np.random.default_rng([opts.seed, 7, i,
+                                                               SCENARIOS.index(kind)]))
                 w = posterior_weights(pp, yi, si, ui, opts)
-                if refine and w.any():  # the draws infer_scenarios used (the same stream)
-                    pp = refined_predictive(pp, w, refine, frame, pb0, opts, ScenarioPrior(),
-                                            np.random.default_rng([opts.seed, 7, i,
-                                                                   SCENARIOS.index(kind)]))
-                    w = posterior_weights(pp, yi, si, ui, opts)
-                for p in PARAMS:
-                    tv = float(truth[f"truth_scenario_{p}"].values[i])
-                    pit = float(np.sum(w[pp.params[p] <= tv]))
-                    out["covered50"][p] += abs(pit - 0.5) <= 0.25
-                for p in PARAMS + ("t",):
-                    tv = (float(truth["truth_impact_time"].values[i]) if p == "t"
-                          else float(truth[f"truth_scenario_{p}"].values[i]))
-                    _, lo, hi = f.summary[p]
-                    out["covered"][p] += lo <= tv <= hi
-                    out["below"][p] += tv < lo
-                    out["above"][p] += tv > hi
-                    if p in bounds:     # the 95 % interval over the prior's central 95 %
-                        out["width"][p].append((hi - lo) / (0.95 * np.subtract(
-                            *bounds[p][::-1])))
+            for p in PARAMS:
+                tv = float(truth[f"truth_scenario_{p}"].values[i])
+                pit = float(np.sum(w[pp.params[p] <= tv]))
+                out["covered50"][p] += abs(pit - 0.5) <= 0.25
+            for p in PARAMS + ("t",):
+                tv = (float(truth["truth_impact_time"].values[i]) if p == "t"
+                      else float(truth[f"truth_scenario_{p}"].values[i]))
+                _, lo, hi = f.summary[p]
+                out["covered"][p] += lo <= tv <= hi
+                out["below"][p] += tv < lo
+                out["above"][p] += tv > hi
+                if p in bounds:     # the 95 % interval over the prior's central 95 %
+                    out["width"][p].append((hi - lo) / (0.95 * np.subtract(
+                        *bounds[p][::-1])))
     out["ess_median"] = float(np.median(out["ess_median"]))
     out["width"] = {k: float(np.median(v)) for k, v in out["width"].items()}
     return out
@@ -164,12 +174,10 @@ def likelihood_study(fm, seeds, releases: int, draws: int) -> dict:
     intervals, the posterior sd over the prior's, the effective number of draws."""
     from dataclasses import replace
 
-    from gprm.flight.files import telemetry_from_dataset
-    from gprm.flight.inference import (InferenceOptions, measured_components, model_frame,
+    from gprm.flight.inference import (InferenceOptions, model_frame,
                                       posterior_weights, prior_predictives)
     from gprm.flight.scenario import (COMPARED, COMPONENTS, OFFSETS, PARAMS, SCENARIOS,
                                       ScenarioPrior, scenario_velocity)
-    from gprm.flight.synth import SynthOptions, synth_telemetry
     from gprm.params import batch
 
     prior = ScenarioPrior(tm_offset=0.0)
@@ -202,32 +210,26 @@ def likelihood_study(fm, seeds, releases: int, draws: int) -> dict:
     }
     res = {v: {"n": 0, "in95": {k: 0 for k in PARAMS}, "in50": {k: 0 for k in PARAMS},
                "sd": {k: [] for k in PARAMS}, "ess": []} for v in variants}
-    for s in seeds:
-        for i_kind, kind in enumerate(COMPARED):
-            ds = synth_telemetry(fm, SynthOptions(n_releases=releases,
-                                                  seed=s + SCENARIO_SEED_STRIDE * i_kind,
-                                                  scenario=kind, tm_offset=0.0))
-            tel = telemetry_from_dataset(ds, source=f"seed {s}")
-            y, sig = measured_components(tel)
-            for i in range(len(tel.releases)):
-                use = np.isfinite(y[i])
-                yi, si = np.nan_to_num(y[i]), np.nan_to_num(sig[i])
-                for name, (how, o) in variants.items():
-                    w = (posterior_weights(pps[kind], yi, si, use, o) if how == "gauss"
-                         else _mixture_weights(*raw[kind], yi, si, use, o.floor, o.rel_floor))
-                    r = res[name]
-                    r["n"] += 1
-                    r["ess"].append(1.0 / np.sum(w * w))
-                    for k in PARAMS:
-                        x = pps[kind].params[k]
-                        tv = float(ds[f"truth_scenario_{k}"].values[i])
-                        o_ = np.argsort(x)
-                        cw = np.cumsum(w[o_])
-                        lo, hi = np.interp([0.025, 0.975], cw - 0.5 * w[o_], x[o_])
-                        r["in95"][k] += lo <= tv <= hi
-                        r["in50"][k] += abs(float(np.sum(w[x <= tv])) - 0.5) <= 0.25
-                        m = np.sum(w * x)
-                        r["sd"][k].append(np.sqrt(np.sum(w * (x - m) ** 2)) / np.std(x))
+    for _s, _kind, ds, tel, y, sig in scenario_campaigns(fm, seeds, releases, tm_offset=0.0):
+        for i in range(len(tel.releases)):
+            use = np.isfinite(y[i])
+            yi, si = np.nan_to_num(y[i]), np.nan_to_num(sig[i])
+            for name, (how, o) in variants.items():
+                w = (posterior_weights(pps[kind], yi, si, use, o) if how == "gauss"
+                     else _mixture_weights(*raw[kind], yi, si, use, o.floor, o.rel_floor))
+                r = res[name]
+                r["n"] += 1
+                r["ess"].append(1.0 / np.sum(w * w))
+                for k in PARAMS:
+                    x = pps[kind].params[k]
+                    tv = float(ds[f"truth_scenario_{k}"].values[i])
+                    o_ = np.argsort(x)
+                    cw = np.cumsum(w[o_])
+                    lo, hi = np.interp([0.025, 0.975], cw - 0.5 * w[o_], x[o_])
+                    r["in95"][k] += lo <= tv <= hi
+                    r["in50"][k] += abs(float(np.sum(w[x <= tv])) - 0.5) <= 0.25
+                    m = np.sum(w * x)
+                    r["sd"][k].append(np.sqrt(np.sum(w * (x - m) ** 2)) / np.std(x))
     for r in res.values():
         r["ess"] = float(np.median(r["ess"]))
         r["sd"] = {k: float(np.median(v)) for k, v in r["sd"].items()}
@@ -246,12 +248,10 @@ def refine_study(fm, seeds, releases: int, draws: int, refine: int) -> dict:
     posterior sd (median; about 0.67 for a calibrated normal posterior)."""
     from dataclasses import replace
 
-    from gprm.flight.files import telemetry_from_dataset
-    from gprm.flight.inference import (InferenceOptions, measured_components, model_frame,
+    from gprm.flight.inference import (InferenceOptions, model_frame,
                                       posterior_weights, prior_predictives,
                                       refined_predictive)
     from gprm.flight.scenario import COMPARED, PARAMS, ScenarioPrior
-    from gprm.flight.synth import SynthOptions, synth_telemetry
     from gprm.params import batch
 
     base = InferenceOptions(n_draws=draws)
@@ -269,38 +269,32 @@ def refine_study(fm, seeds, releases: int, draws: int, refine: int) -> dict:
                      "ess": []} for st in (1, 2) for v in variants}
     mu_z = {k: [] for k in COMPARED}
     rng = np.random.default_rng(5)
-    for s in seeds:
-        for i_kind, kind in enumerate(COMPARED):
-            ds = synth_telemetry(fm, SynthOptions(n_releases=releases,
-                                                  seed=s + SCENARIO_SEED_STRIDE * i_kind,
-                                                  scenario=kind))
-            tel = telemetry_from_dataset(ds, source=f"seed {s}")
-            y, sig = measured_components(tel)
-            for i in range(len(tel.releases)):
-                use = np.isfinite(y[i])
-                yi, si = np.nan_to_num(y[i]), np.nan_to_num(sig[i])
-                tv = {k: float(ds[f"truth_scenario_{k}"].values[i]) for k in PARAMS}
-                pp1 = pps[kind]
-                w1 = posterior_weights(pp1, yi, si, use, base)
-                pp2 = refined_predictive(pp1, w1, refine, frame, pb0, base, prior, rng)
-                x = pp1.params["mu"]
-                m = np.sum(w1 * x)
-                mu_z[kind].append(abs(m - tv["mu"]) / np.sqrt(np.sum(w1 * (x - m) ** 2)))
-                for st, pp in ((1, pp1), (2, pp2)):
-                    for name, o in variants.items():
-                        w = posterior_weights(pp, yi, si, use, o)
-                        r = res[(st, name)]
-                        r["n"] += 1
-                        r["ess"].append(1.0 / np.sum(w * w))
-                        for k in PARAMS:
-                            x = pp.params[k]
-                            o_ = np.argsort(x)
-                            cw = np.cumsum(w[o_])
-                            lo, hi = np.interp([0.025, 0.975], cw - 0.5 * w[o_], x[o_])
-                            r["in95"][k] += lo <= tv[k] <= hi
-                            r["below"][k] += tv[k] < lo
-                            r["above"][k] += tv[k] > hi
-                            r["in50"][k] += abs(float(np.sum(w[x <= tv[k]])) - 0.5) <= 0.25
+    for _s, kind, ds, tel, y, sig in scenario_campaigns(fm, seeds, releases):
+        for i in range(len(tel.releases)):
+            use = np.isfinite(y[i])
+            yi, si = np.nan_to_num(y[i]), np.nan_to_num(sig[i])
+            tv = {k: float(ds[f"truth_scenario_{k}"].values[i]) for k in PARAMS}
+            pp1 = pps[kind]
+            w1 = posterior_weights(pp1, yi, si, use, base)
+            pp2 = refined_predictive(pp1, w1, refine, frame, pb0, base, prior, rng)
+            x = pp1.params["mu"]
+            m = np.sum(w1 * x)
+            mu_z[kind].append(abs(m - tv["mu"]) / np.sqrt(np.sum(w1 * (x - m) ** 2)))
+            for st, pp in ((1, pp1), (2, pp2)):
+                for name, o in variants.items():
+                    w = posterior_weights(pp, yi, si, use, o)
+                    r = res[(st, name)]
+                    r["n"] += 1
+                    r["ess"].append(1.0 / np.sum(w * w))
+                    for k in PARAMS:
+                        x = pp.params[k]
+                        o_ = np.argsort(x)
+                        cw = np.cumsum(w[o_])
+                        lo, hi = np.interp([0.025, 0.975], cw - 0.5 * w[o_], x[o_])
+                        r["in95"][k] += lo <= tv[k] <= hi
+                        r["below"][k] += tv[k] < lo
+                        r["above"][k] += tv[k] > hi
+                        r["in50"][k] += abs(float(np.sum(w[x <= tv[k]])) - 0.5) <= 0.25
     for r in res.values():
         r["ess"] = float(np.median(r["ess"]))
     return {"variants": res, "mu_z": {k: float(np.median(v)) for k, v in mu_z.items()}}

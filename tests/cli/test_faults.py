@@ -11,6 +11,7 @@ temporary file left behind.
 
 from __future__ import annotations
 
+import contextlib
 import errno
 import json
 import os
@@ -193,6 +194,26 @@ def test_a_damaged_netcdf_ends_in_one_line_within_seconds(tmp_path):
     assert sorted(p.name for p in tmp_path.iterdir()) == []
 
 
+def _default_sigint() -> None:
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
+def _process_state(pid: int) -> str:
+    """The kernel's view of a process that does not stop (state, signal masks, threads,
+    children), for a failure message."""
+    try:
+        status = Path(f"/proc/{pid}/status").read_text().splitlines()
+    except OSError:
+        return "no /proc entry"
+    keep = ("State", "Threads", "SigPnd", "ShdPnd", "SigBlk", "SigIgn", "SigCgt")
+    lines = [x for x in status if x.split(":")[0] in keep]
+    for k in _children(pid):
+        with contextlib.suppress(OSError):
+            st = Path(f"/proc/{k}/status").read_text().splitlines()
+            lines.append(f"child {k}: " + " ".join(x for x in st if x.startswith("State")))
+    return "; ".join(lines)
+
+
 def _children(pid: int) -> list[int]:
     try:
         text = Path(f"/proc/{pid}/task/{pid}/children").read_text()
@@ -203,9 +224,14 @@ def _children(pid: int) -> list[int]:
 
 @pytest.mark.skipif(not Path("/proc/self/task").exists(), reason="needs Linux /proc")
 def test_ctrl_c_stops_a_read_that_hangs(tmp_path):
+    # Ctrl-C at a terminal reaches a process whose SIGINT is the default; a suite run in the
+    # background (`cmd &` in a script, nohup) hands its children SIGINT ignored, and gprm
+    # keeps a signal its caller ignores, so the child gets the terminal's disposition here.
+    # faulthandler: should the process not stop, SIGABRT makes it print where it is.
     p = subprocess.Popen([sys.executable, "-m", "gprm.cli", "impact", "paper", str(DAMAGED),
                           "--out", "i.json"], cwd=tmp_path,
-                         env=_env(tmp_path, GPRM_READ_TIMEOUT="600"),
+                         env=_env(tmp_path, GPRM_READ_TIMEOUT="600", PYTHONFAULTHANDLER="1"),
+                         preexec_fn=_default_sigint,
                          stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
         deadline = time.monotonic() + 60
@@ -219,7 +245,13 @@ def test_ctrl_c_stops_a_read_that_hangs(tmp_path):
             pytest.skip("this NetCDF library does not hang on the damaged file")
         time.sleep(1.0)
         p.send_signal(signal.SIGINT)
-        out, err = p.communicate(timeout=20)
+        try:
+            out, err = p.communicate(timeout=20)
+        except subprocess.TimeoutExpired:
+            state = _process_state(p.pid)
+            p.send_signal(signal.SIGABRT)
+            out, err = p.communicate(timeout=20)
+            pytest.fail(f"still running 20 s after SIGINT; {state}; its stacks:\n{err}")
     finally:
         if p.poll() is None:
             p.kill()

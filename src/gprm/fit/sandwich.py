@@ -712,6 +712,30 @@ def variance_factors(obj: Objective, x: np.ndarray, Cu: np.ndarray, prior: Prior
     return f[0], f[1]
 
 
+def stretch_draws(Z: np.ndarray, sd: np.ndarray, f68: tuple, f95: tuple,
+                  z: tuple[float, float]) -> np.ndarray:
+    """Draws ``Z`` (n, P) from N(0, Cu) (sd (P,) their marginal sds) mapped, coordinate by
+    coordinate and each side on its own, so that each parameter's marginal quantiles are the
+    reported intervals at *both* levels: with t = Z_k / sd_k, |t| is mapped through the
+    piecewise-linear g with g(0) = 0, g(z68) = z68 f68 and g(z95) = z95 f95 (f the side's
+    stretch at that level, ``f68``/``f95`` = (lower (P,), upper (P,)), ``z`` = (z68, z95)),
+    proportional below z68 and beyond z95. g is increasing (f95's knot is raised to f68's
+    where it would fall below it), so the map keeps each draw's rank: the draw at the 84th
+    (97.5th) percentile of t lands on the 68 % (95 %) interval's upper end. One stretch for
+    every level would carry the 95 % sides' stretch into the bands' central part."""
+    z68, z95 = z
+    sd = np.where(sd > 0, sd, 1.0)
+    t = Z / sd[None, :]
+    a = np.abs(t)
+    lower = t < 0
+    k68 = z68 * np.where(lower, f68[0][None, :], f68[1][None, :])
+    k95 = np.maximum(z95 * np.where(lower, f95[0][None, :], f95[1][None, :]), k68)
+    g = np.where(a <= z68, a * k68 / z68,
+                 np.where(a <= z95, k68 + (a - z68) * (k95 - k68) / (z95 - z68),
+                          a * k95 / z95))
+    return np.sign(t) * g * sd[None, :]
+
+
 def uncertainty(method: str, state: FitState) -> Uncertainty:
     """The ``sandwich`` method through the one interface (gprm.fit.methods)."""
     prior = state.prior
@@ -747,7 +771,8 @@ def uncertainty(method: str, state: FitState) -> Uncertainty:
     rng = np.random.default_rng([state.seed, 21])
     w, V = np.linalg.eigh(Cu)
     Z = rng.standard_normal((int(state.n_draws), x.size)) @ (V * np.sqrt(np.clip(w, 0, None))).T
-    Z = Z * np.where(Z < 0, f_lo[None, :], f_hi[None, :])      # each side its own stretch
+    f68_lo, f68_hi = np.maximum(s_lo, v68[0]), np.maximum(s_hi, v68[1])
+    Z = stretch_draws(Z, sd_u, (f68_lo, f68_hi), (f_lo, f_hi), (z68, z95))
     draws = prior.from_u(u[None] + Z) if state.n_draws > 0 else None
     r = state.r
     # the variance scale the fit weighed its prior with (FitResult.objective rebuilds it)

@@ -1,7 +1,7 @@
 """Benchmark of the impact scenarios (issue 23, docs/flight.md §10-11):
 `.venv/bin/python benchmarks/bench_scenarios.py [--observations [--tm-offset MM ...]]
-[--recovery] [--likelihood-study] [--impact-times] [--seeds N] [--seed0 S] [--releases R]
-[--draws K]`.
+[--recovery] [--likelihood-study] [--refine-study] [--oracle-study] [--impact-times]
+[--seeds N] [--seed0 S] [--releases R] [--draws K]`.
 
 `--observations`: for every scenario of `gprm.flight.scenario.SCENARIOS`, N campaigns of R
 releases (seeds S .. S+N-1, truths as `gprm synth telemetry paper --scenario NAME --seed s`
@@ -13,13 +13,18 @@ With `--tm-offset MM ...`: one table of the three rim scenarios per largest TM o
 `--recovery`: N campaigns, each with R releases of every compared scenario (xz, yz, two; the
 scenario i drawn with seed s + 10000 i, so that no two scenarios share their truths), written
 as telemetry and read back, release velocities fitted, then the scenario posterior
-(`gprm.flight.inference`, K prior draws per scenario): the right scenario chosen, and each
-unknown's truth inside its 95 % and central 50 % intervals.
+(`gprm.flight.inference`, K prior draws per scenario): the right scenario chosen per release
+and jointly over each file's R releases, and each unknown's truth inside its 95 % and central
+50 % intervals.
 
 `--likelihood-study`: on the same kind of truths (TM centred), each unknown's calibration
 under the method's likelihood with the floor and allowance as they are, halved, doubled, and
 under the exact mixture over the parameter sets (why μ's interval is too wide, §11); run it
 on seeds other than the recovery's.
+
+`--oracle-study`: the scenario choice's ceiling: N truths of each of xz, yz, two (seed S),
+each classified by the scenarios' evidence at the truth's own parameter set (what no method
+that must marginalise the fit's uncertainty can beat on average).
 
 `--impact-times`: the impact-time analysis (issue 14's) on scenario truths, per impact model.
 Prints markdown."""
@@ -96,7 +101,8 @@ def recovery(fm, seeds, releases: int, draws: int, rel_floor: float | None = Non
     out = {"n": 0, "right": 0, "by_truth": {k: [0, 0] for k in COMPARED},
            "covered": {k: 0 for k in PARAMS + ("t",)}, "ess_median": [], "confusion": {},
            "width": {k: [] for k in PARAMS}, "covered50": {k: 0 for k in PARAMS},
-           "below": {k: 0 for k in PARAMS + ("t",)}, "above": {k: 0 for k in PARAMS + ("t",)}}
+           "below": {k: 0 for k in PARAMS + ("t",)}, "above": {k: 0 for k in PARAMS + ("t",)},
+           "joint": {k: [0, 0] for k in COMPARED}, "joint_confusion": {}}
     bounds = ScenarioPrior().bounds()
     opts = InferenceOptions(n_draws=draws, n_refine=refine,
                             **({} if rel_floor is None else {"rel_floor": rel_floor}))
@@ -109,6 +115,11 @@ def recovery(fm, seeds, releases: int, draws: int, rel_floor: float | None = Non
         truth = ds  # truth variables
         res = infer_scenarios(fm, [r.id for r in tel.releases], y, sig, opts,
                               predictive=pps)
+        # the scenario chosen jointly over the file's releases (one scenario for all)
+        out["joint"][kind][0] += res.joint["chosen"] == kind
+        out["joint"][kind][1] += 1
+        key = f"{kind}->{res.joint['chosen']}"
+        out["joint_confusion"][key] = out["joint_confusion"].get(key, 0) + 1
         for i in range(len(tel.releases)):
             out["n"] += 1
             ok = res.chosen[i] == kind
@@ -300,6 +311,73 @@ def refine_study(fm, seeds, releases: int, draws: int, refine: int) -> dict:
     return {"variants": res, "mu_z": {k: float(np.median(v)) for k, v in mu_z.items()}}
 
 
+def oracle_study(fm, seed: int, truths: int, draws: int) -> dict:
+    """The scenario choice's ceiling (docs/flight.md §11): truths of xz, yz, two drawn as
+    :func:`gprm.flight.scenario.draw_truths` draws them (a parameter set from the fit, each
+    set's own geometry, the unknowns and the TM offset from the prior, an impact required),
+    measured with the median standard errors of synthetic telemetry; each classified by the
+    evidence of every scenario **at the truth's own parameter set** (the oracle: the fit's
+    uncertainty removed), the unknowns integrated over ``draws`` prior draws, the offset
+    marginalised as the method does (``offset_covariance``), with the measurement's σ alone
+    and with the method's floor added. No method that does not know the parameter set can
+    choose better (on average) than this."""
+    from scipy.special import logsumexp
+
+    from gprm.flight.scenario import (COMPARED, COMPONENTS, OFFSETS, ScenarioPrior,
+                                      offset_covariance, plunger_frame, scenario_grid,
+                                      scenario_velocity)
+    from gprm.flight.inference import InferenceOptions
+    from gprm.params import batch
+    from gprm.simulate.kinematics import body_motion
+
+    prior = ScenarioPrior()
+    grid = scenario_grid(batch([fm.params]))
+    sig = np.concatenate([s_ for *_, s_ in scenario_campaigns(fm, [seed], 11)])
+    sigma = np.nanmedian(sig, 0)
+    use = np.isfinite(sigma)
+    floor = np.array([InferenceOptions().floor[0]] * 3 + [InferenceOptions().floor[1]] * 3)
+    variants = {"measurement σ only": np.zeros(6), "σ and the method's floor": floor}
+    res = {v: {"n": 0, "right": 0, "confusion": {}} for v in variants}
+    rng = np.random.default_rng([seed, 11])
+    # the prior draws of each scenario's unknowns (the same for every truth; TM centred)
+    q = {}
+    for k2 in COMPARED:
+        q[k2] = prior.draw(draws, np.random.default_rng([seed, 12, COMPARED.index(k2)]))
+        q[k2].update({k: np.zeros(draws) for k in OFFSETS})
+    for _ in range(truths):
+        for kind in COMPARED:
+            while True:     # one truth (draw_truths' rule: drawn again without an impact)
+                pb = fm.sample(1, seed=int(rng.integers(1 << 30)))
+                frame = plunger_frame(body_motion(pb, grid, piezo=fm.piezo))
+                o = scenario_velocity(kind, frame, pb, prior.draw(1, rng), prior,
+                                      per_set=True)
+                if o["ok"][0, 0]:
+                    break
+            y = np.array([o[c][0, 0] for c in COMPONENTS])
+            y = y + np.nan_to_num(sigma) * rng.standard_normal(6)
+            logz = {v: {} for v in variants}
+            for k2 in COMPARED:
+                out = scenario_velocity(k2, frame, pb, q[k2], prior)
+                Y = np.stack([out[c][0] for c in COMPONENTS], -1)[out["ok"][0]][:, use]
+                C = offset_covariance(np.stack([out[c][0] for c in COMPONENTS[:3]], -1)
+                                      [out["ok"][0]], float(np.ravel(pb["s_tm"])[0]),
+                                      prior.tm_offset)[:, use][:, :, use]
+                for v, fl in variants.items():
+                    L = np.linalg.cholesky(C + np.diag(sigma[use] ** 2 + fl[use] ** 2))
+                    z = np.linalg.solve(L, (y[use] - Y)[..., None])[..., 0]
+                    ll = (-0.5 * np.sum(z * z, -1)
+                          - np.sum(np.log(np.diagonal(L, axis1=-2, axis2=-1)), -1))
+                    logz[v][k2] = logsumexp(ll) - np.log(draws) if ll.size else -np.inf
+            for v in variants:
+                chosen = max(COMPARED, key=lambda k2: logz[v][k2])
+                r = res[v]
+                r["n"] += 1
+                r["right"] += chosen == kind
+                key = f"{kind}->{chosen}"
+                r["confusion"][key] = r["confusion"].get(key, 0) + 1
+    return {"sigma": [float(x) for x in sigma], "variants": res}
+
+
 def impact_times(fm, seeds, releases: int, models, scenario: str = "two",
                  samples: int = 200) -> dict:
     """The impact-time analysis (issue 14's, `gprm impact --impact-model MODEL`) on scenario
@@ -348,6 +426,9 @@ def main() -> None:
     ap.add_argument("--likelihood-study", action="store_true",
                     help="why the friction's interval is too wide (docs/flight.md §11); run "
                          "it on seeds other than the recovery's")
+    ap.add_argument("--oracle-study", action="store_true",
+                    help="the scenario choice's ceiling: each truth classified at its own "
+                         "parameter set (--seeds N: N truths of each scenario, seed --seed0)")
     ap.add_argument("--tm-offset", type=float, nargs="+", default=None, metavar="MM",
                     help="--observations: the TM's largest lateral offset from the head "
                          "axis, mm (one table per value; default: ScenarioPrior's)")
@@ -363,6 +444,7 @@ def main() -> None:
           f"{'--impact-times ' if a.impact_times else ''}"
           f"{'--likelihood-study ' if a.likelihood_study else ''}"
           f"{'--refine-study ' if a.refine_study else ''}"
+          f"{'--oracle-study ' if a.oracle_study else ''}"
           f"{'--scenario ' + a.scenario + ' ' if a.scenario != 'two' else ''}"
           f"--seeds {a.seeds} --seed0 {a.seed0} --releases {a.releases} --draws {a.draws}"
           + ("" if a.rel_floor is None else f" --rel-floor {a.rel_floor}")
@@ -455,6 +537,20 @@ def main() -> None:
         print("\nμ's |posterior mean − truth| / posterior sd, median (stage 1, the method; "
               "0.67 for a calibrated normal): "
               + ", ".join(f"{k} {v:.2f}" for k, v in out["mu_z"].items()) + "\n")
+    if a.oracle_study:
+        t0 = time.perf_counter()
+        out = oracle_study(fm, a.seed0, a.seeds, a.draws)
+        print(f"### The scenario choice at the truth's own parameter set ({a.seeds} truths of "
+              f"each of xz, yz, two, seed {a.seed0}; {a.draws} prior draws per scenario; "
+              f"{time.perf_counter() - t0:.0f} s)\n")
+        print("measurement standard errors (median of synthetic telemetry): "
+              + ", ".join(f"{c} {s_:.3g}" for c, s_ in zip(
+                  ("vx", "vy", "vz", "wx", "wy", "wz"), out["sigma"])) + "\n")
+        print("| likelihood | right scenario | confusion (truth->chosen) |\n|---|---|---|")
+        for v, r in out["variants"].items():
+            print(f"| {v} | {r['right']}/{r['n']} ({100 * r['right'] / r['n']:.1f} %) | "
+                  + ", ".join(f"{k} {c}" for k, c in sorted(r["confusion"].items())) + " |")
+        print()
     if a.recovery:
         t0 = time.perf_counter()
         out = recovery(fm, seeds, a.releases, a.draws, a.rel_floor, a.refine)
@@ -469,6 +565,12 @@ def main() -> None:
               f"({100 * out['right'] / n:.1f} %); by truth: "
               + ", ".join(f"{k} {v[0]}/{v[1]}" for k, v in out["by_truth"].items()))
         print(f"- confusion (truth->chosen): {out['confusion']}")
+        jr = sum(v[0] for v in out["joint"].values())
+        jn = sum(v[1] for v in out["joint"].values())
+        print(f"- right scenario chosen jointly over a file's {a.releases} releases: {jr}/{jn}"
+              f" ({100 * jr / max(jn, 1):.1f} %); by truth: "
+              + ", ".join(f"{k} {v[0]}/{v[1]}" for k, v in out["joint"].items())
+              + f"; confusion {out['joint_confusion']}")
         print(f"- median effective number of draws (true scenario): {out['ess_median']:.0f}\n")
         print("| unknown | truth inside the 95 % interval | below it, above it | inside the "
               "central 50 % | 95 % interval width / the prior's central 95 %, median |")

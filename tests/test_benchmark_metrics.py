@@ -110,3 +110,23 @@ def test_impact_time_totals_count_each_campaign_once():
     assert [tot[k] for k in COUNTS] == [2 * (i + 1) for i in range(len(COUNTS))]
     assert (tot["chi2_tests"], tot["chi2_rejects"]) == (3, 2)
     assert tot["tukey_rejecting_campaigns"] == 1
+
+
+def test_oracle_study_counts_every_truth_once_per_likelihood():
+    """bench_scenarios --oracle-study (docs/flight.md §11, the per-release ceiling): every
+    truth of each compared scenario is classified once per likelihood, the confusion adds
+    up to the truths, and the right count is its diagonal."""
+    from bench_scenarios import oracle_study
+
+    from gprm.fit.files import paper_model
+    from gprm.flight.scenario import COMPARED
+
+    out = oracle_study(paper_model(), seed=4000, truths=1, draws=400)
+    assert len(out["sigma"]) == 6 and all(s > 0 for s in out["sigma"][:5])
+    for r in out["variants"].values():
+        assert r["n"] == len(COMPARED)
+        assert sum(r["confusion"].values()) == r["n"]
+        assert r["right"] == sum(c for k, c in r["confusion"].items()
+                                 if k.split("->")[0] == k.split("->")[1])
+        assert all(k.split("->")[0] in COMPARED and k.split("->")[1] in COMPARED
+                   for k in r["confusion"])

@@ -1,6 +1,7 @@
 """Benchmark of the impact scenarios (issue 23, docs/flight.md §10-11):
 `.venv/bin/python benchmarks/bench_scenarios.py [--observations [--tm-offset MM ...]]
-[--recovery] [--likelihood-study] [--refine-study] [--oracle-study] [--impact-times]
+[--recovery] [--likelihood-study] [--refine-study] [--oracle-study] [--geometry-study]
+[--impact-times]
 [--seeds N] [--seed0 S] [--releases R] [--draws K]`.
 
 `--observations`: for every scenario of `gprm.flight.scenario.SCENARIOS`, N campaigns of R
@@ -25,6 +26,9 @@ on seeds other than the recovery's.
 `--oracle-study`: the scenario choice's ceiling: N truths of each of xz, yz, two (seed S),
 each classified by the scenarios' evidence at the truth's own parameter set (what no method
 that must marginalise the fit's uncertainty can beat on average).
+
+`--geometry-study`: on the recovery's truths, the method's prior predictives (the best fit's
+contact geometry and masses for every parameter set) against ones with each set's own.
 
 `--impact-times`: the impact-time analysis (issue 14's) on scenario truths, per impact model.
 Prints markdown."""
@@ -378,6 +382,94 @@ def oracle_study(fm, seed: int, truths: int, draws: int) -> dict:
     return {"sigma": [float(x) for x in sigma], "variants": res}
 
 
+def per_set_predictives(fm, opts, prior) -> dict:
+    """The method's prior predictives (:func:`gprm.flight.inference.predictive_at`'s moments)
+    with **each parameter set's own** contact geometry, TM centre and masses (the points of
+    ``named_points`` move with the fitted v2, g2, m2-m4), where the method takes the best
+    fit's for every set: one ``scenario_velocity`` call per set, the same prior draws."""
+    from gprm.flight.inference import PriorPredictive
+    from gprm.flight.scenario import (COMPARED, COMPONENTS, OFFSETS, SCENARIOS,
+                                      _subset_frame, offset_covariance, plunger_frame,
+                                      scenario_grid, scenario_velocity)
+    from gprm.params import batch
+    from gprm.simulate.kinematics import body_motion
+
+    pb0 = batch([fm.params])
+    pm = fm.sample(opts.n_model, seed=opts.seed + 17)      # model_frame's sets
+    frame = plunger_frame(body_motion(pm, scenario_grid(pb0, step=opts.grid_step),
+                                      piezo=fm.piezo))
+    K, M = opts.n_draws, opts.n_model
+    s_tm = float(np.ravel(pb0["s_tm"])[0])
+    out = {}
+    for kind in COMPARED:
+        p = prior.draw(K, np.random.default_rng([opts.seed, SCENARIOS.index(kind)]))
+        p.update({k: np.zeros(K) for k in OFFSETS})
+        Y = np.full((M, K, 7), np.nan)
+        ok = np.zeros((M, K), bool)
+        for b in range(M):
+            sb = {k: np.atleast_1d(v)[b:b + 1] if np.size(v) == M else v for k, v in pm.items()}
+            o = scenario_velocity(kind, _subset_frame(frame, [b]), sb, p, prior)
+            Y[b, :, :6] = np.stack([o[c][0] for c in COMPONENTS], -1)
+            Y[b, :, 6] = o["t"][0]
+            ok[b] = o["ok"][0]
+        frac = ok.mean(0)
+        valid = frac >= opts.min_valid
+        mean, cov = np.full((K, 6), np.nan), np.full((K, 6, 6), np.nan)
+        tm, tc, tv = np.full(K, np.nan), np.full((K, 6), np.nan), np.full(K, np.nan)
+        for k in np.flatnonzero(valid):
+            Yk = Y[ok[:, k], k]
+            mu, C = Yk.mean(0), np.cov(Yk, rowvar=False)
+            C[:6, :6] += offset_covariance(Yk[:, :3], s_tm, prior.tm_offset).mean(0)
+            mean[k], cov[k] = mu[:6], C[:6, :6]
+            tm[k], tc[k], tv[k] = mu[6], C[6, :6], C[6, 6]
+        out[kind] = PriorPredictive(kind, p, mean, cov, tm, tc, tv, valid, frac)
+    return out
+
+
+def geometry_study(fm, seeds, releases: int, draws: int) -> dict:
+    """Does the method lose by taking the best fit's contact geometry and masses for every
+    parameter set (docs/flight.md §11)? On the recovery's truths (each its set's own
+    geometry), the scenario choice and each unknown's coverage with the method's prior
+    predictives and with :func:`per_set_predictives`; the same likelihood otherwise."""
+    from scipy.special import logsumexp
+
+    from gprm.flight.inference import (InferenceOptions, _log_likelihood, posterior_weights,
+                                       prior_predictives)
+    from gprm.flight.scenario import COMPARED, PARAMS, ScenarioPrior
+
+    prior, opts = ScenarioPrior(), InferenceOptions(n_draws=draws)
+    variants = {"the best fit's geometry and masses for every set (the method)":
+                prior_predictives(fm, opts, prior),
+                "each set's own": per_set_predictives(fm, opts, prior)}
+    res = {v: {"n": 0, "right": 0, "confusion": {}, "in95": {k: 0 for k in PARAMS},
+               "in50": {k: 0 for k in PARAMS}} for v in variants}
+    for _s, kind, ds, tel, y, sig in scenario_campaigns(fm, seeds, releases):
+        for i in range(len(tel.releases)):
+            use = np.isfinite(y[i])
+            yi, si = np.nan_to_num(y[i]), np.nan_to_num(sig[i])
+            for name, pps in variants.items():
+                lz = {}
+                for k2 in COMPARED:
+                    ll = _log_likelihood(pps[k2], yi, si, use, opts)[0]
+                    lz[k2] = logsumexp(ll) - np.log(ll.size)
+                chosen = max(COMPARED, key=lambda k2: lz[k2])
+                r = res[name]
+                r["n"] += 1
+                r["right"] += chosen == kind
+                key = f"{kind}->{chosen}"
+                r["confusion"][key] = r["confusion"].get(key, 0) + 1
+                w = posterior_weights(pps[kind], yi, si, use, opts)
+                for k in PARAMS:
+                    x = pps[kind].params[k]
+                    tv = float(ds[f"truth_scenario_{k}"].values[i])
+                    o_ = np.argsort(x)
+                    cw = np.cumsum(w[o_])
+                    lo, hi = np.interp([0.025, 0.975], cw - 0.5 * w[o_], x[o_])
+                    r["in95"][k] += lo <= tv <= hi
+                    r["in50"][k] += abs(float(np.sum(w[x <= tv])) - 0.5) <= 0.25
+    return res
+
+
 def impact_times(fm, seeds, releases: int, models, scenario: str = "two",
                  samples: int = 200) -> dict:
     """The impact-time analysis (issue 14's, `gprm impact --impact-model MODEL`) on scenario
@@ -426,6 +518,9 @@ def main() -> None:
     ap.add_argument("--likelihood-study", action="store_true",
                     help="why the friction's interval is too wide (docs/flight.md §11); run "
                          "it on seeds other than the recovery's")
+    ap.add_argument("--geometry-study", action="store_true",
+                    help="the method's prior predictives against ones with each parameter "
+                         "set's own contact geometry and masses (§11)")
     ap.add_argument("--oracle-study", action="store_true",
                     help="the scenario choice's ceiling: each truth classified at its own "
                          "parameter set (--seeds N: N truths of each scenario, seed --seed0)")
@@ -445,6 +540,7 @@ def main() -> None:
           f"{'--likelihood-study ' if a.likelihood_study else ''}"
           f"{'--refine-study ' if a.refine_study else ''}"
           f"{'--oracle-study ' if a.oracle_study else ''}"
+          f"{'--geometry-study ' if a.geometry_study else ''}"
           f"{'--scenario ' + a.scenario + ' ' if a.scenario != 'two' else ''}"
           f"--seeds {a.seeds} --seed0 {a.seed0} --releases {a.releases} --draws {a.draws}"
           + ("" if a.rel_floor is None else f" --rel-floor {a.rel_floor}")
@@ -537,6 +633,25 @@ def main() -> None:
         print("\nμ's |posterior mean − truth| / posterior sd, median (stage 1, the method; "
               "0.67 for a calibrated normal): "
               + ", ".join(f"{k} {v:.2f}" for k, v in out["mu_z"].items()) + "\n")
+    if a.geometry_study:
+        t0 = time.perf_counter()
+        res = geometry_study(fm, seeds, a.releases, a.draws)
+        from gprm.flight.scenario import PARAMS
+        n = next(iter(res.values()))["n"]
+        print(f"### Each parameter set's own geometry ({a.seeds} campaigns × {a.releases} "
+              f"releases of each of xz, yz, two, seeds {a.seed0}–{a.seed0 + a.seeds - 1} "
+              f"(+10000 per scenario); {a.draws} prior draws; "
+              f"{time.perf_counter() - t0:.0f} s)\n")
+        print(f"Right scenario per release, and per unknown the truth inside the 95 % / the "
+              f"central 50 % interval (of {n}).\n")
+        print("| prior predictive | right scenario | confusion | " + " | ".join(PARAMS) + " |")
+        print("|---|---|---|" + "---|" * len(PARAMS))
+        for name, r in res.items():
+            print(f"| {name} | {r['right']}/{n} ({100 * r['right'] / n:.1f} %) | "
+                  + ", ".join(f"{k} {c}" for k, c in sorted(r["confusion"].items())) + " | "
+                  + " | ".join(f"{100 * r['in95'][k] / n:.1f} / {100 * r['in50'][k] / n:.0f} %"
+                               for k in PARAMS) + " |")
+        print()
     if a.oracle_study:
         t0 = time.perf_counter()
         out = oracle_study(fm, a.seed0, a.seeds, a.draws)

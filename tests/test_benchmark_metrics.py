@@ -130,3 +130,28 @@ def test_oracle_study_counts_every_truth_once_per_likelihood():
                                  if k.split("->")[0] == k.split("->")[1])
         assert all(k.split("->")[0] in COMPARED and k.split("->")[1] in COMPARED
                    for k in r["confusion"])
+
+
+def test_per_set_predictives_are_the_methods_when_every_set_is_the_best_fit():
+    """bench_scenarios --geometry-study: with a model that has only its best fit (every
+    parameter set the same, so each set's own geometry is the best fit's), the per-set prior
+    predictives are the method's (gprm.flight.inference.prior_predictives), draw by draw."""
+    from dataclasses import replace
+
+    from bench_scenarios import per_set_predictives
+
+    from gprm.fit.files import paper_model
+    from gprm.flight.inference import InferenceOptions, prior_predictives
+    from gprm.flight.scenario import ScenarioPrior
+
+    fm = replace(paper_model(), covariance=None, draws=None)
+    opts = InferenceOptions(n_draws=40, n_model=8, scenarios=("xz", "two"))
+    prior = ScenarioPrior()
+    ref = prior_predictives(fm, opts, prior)
+    new = per_set_predictives(fm, opts, prior)
+    for kind in opts.scenarios:
+        np.testing.assert_array_equal(new[kind].valid, ref[kind].valid)
+        assert new[kind].valid.any()
+        v = ref[kind].valid
+        np.testing.assert_allclose(new[kind].mean[v], ref[kind].mean[v], rtol=1e-9, atol=1e-15)
+        np.testing.assert_allclose(new[kind].t_mean[v], ref[kind].t_mean[v], rtol=1e-12)

@@ -162,6 +162,27 @@ def recovery(fm, seeds, releases: int, draws: int, rel_floor: float | None = Non
     return out
 
 
+def weighted_interval(x, w, truth):
+    """The weighted draws' central 95 % interval (lo, hi) and the posterior CDF at the truth
+    (its PIT: inside the central 50 % when within 0.25 of 0.5)."""
+    o_ = np.argsort(x)
+    cw = np.cumsum(w[o_])
+    lo, hi = np.interp([0.025, 0.975], cw - 0.5 * w[o_], x[o_])
+    return lo, hi, float(np.sum(w[x <= truth]))
+
+
+def tally_unknowns(r: dict, params: dict, w, ds, i: int) -> None:
+    """Adds release ``i``'s truth of every unknown inside its 95 % (``r["in95"]``) and its
+    central 50 % (``r["in50"]``) interval of the weighted prior draws ``params``."""
+    from gprm.flight.scenario import PARAMS
+
+    for k in PARAMS:
+        tv = float(ds[f"truth_scenario_{k}"].values[i])
+        lo, hi, pit = weighted_interval(params[k], w, tv)
+        r["in95"][k] += lo <= tv <= hi
+        r["in50"][k] += abs(pit - 0.5) <= 0.25
+
+
 def _mixture_weights(Y, ok, y, sig, use, floor, rel_floor):
     """Posterior weights of the prior draws under the exact mixture over the parameter sets:
     L_k = mean over the sets m giving an impact of N(y; y_mk, diag(σ² + floor² + (rel y_mk)²))
@@ -235,14 +256,9 @@ def likelihood_study(fm, seeds, releases: int, draws: int) -> dict:
                 r = res[name]
                 r["n"] += 1
                 r["ess"].append(1.0 / np.sum(w * w))
+                tally_unknowns(r, pps[kind].params, w, ds, i)
                 for k in PARAMS:
                     x = pps[kind].params[k]
-                    tv = float(ds[f"truth_scenario_{k}"].values[i])
-                    o_ = np.argsort(x)
-                    cw = np.cumsum(w[o_])
-                    lo, hi = np.interp([0.025, 0.975], cw - 0.5 * w[o_], x[o_])
-                    r["in95"][k] += lo <= tv <= hi
-                    r["in50"][k] += abs(float(np.sum(w[x <= tv])) - 0.5) <= 0.25
                     m = np.sum(w * x)
                     r["sd"][k].append(np.sqrt(np.sum(w * (x - m) ** 2)) / np.std(x))
     for r in res.values():
@@ -302,14 +318,11 @@ def refine_study(fm, seeds, releases: int, draws: int, refine: int) -> dict:
                     r["n"] += 1
                     r["ess"].append(1.0 / np.sum(w * w))
                     for k in PARAMS:
-                        x = pp.params[k]
-                        o_ = np.argsort(x)
-                        cw = np.cumsum(w[o_])
-                        lo, hi = np.interp([0.025, 0.975], cw - 0.5 * w[o_], x[o_])
+                        lo, hi, pit = weighted_interval(pp.params[k], w, tv[k])
                         r["in95"][k] += lo <= tv[k] <= hi
                         r["below"][k] += tv[k] < lo
                         r["above"][k] += tv[k] > hi
-                        r["in50"][k] += abs(float(np.sum(w[x <= tv[k]])) - 0.5) <= 0.25
+                        r["in50"][k] += abs(pit - 0.5) <= 0.25
     for r in res.values():
         r["ess"] = float(np.median(r["ess"]))
     return {"variants": res, "mu_z": {k: float(np.median(v)) for k, v in mu_z.items()}}
@@ -458,15 +471,8 @@ def geometry_study(fm, seeds, releases: int, draws: int) -> dict:
                 r["right"] += chosen == kind
                 key = f"{kind}->{chosen}"
                 r["confusion"][key] = r["confusion"].get(key, 0) + 1
-                w = posterior_weights(pps[kind], yi, si, use, opts)
-                for k in PARAMS:
-                    x = pps[kind].params[k]
-                    tv = float(ds[f"truth_scenario_{k}"].values[i])
-                    o_ = np.argsort(x)
-                    cw = np.cumsum(w[o_])
-                    lo, hi = np.interp([0.025, 0.975], cw - 0.5 * w[o_], x[o_])
-                    r["in95"][k] += lo <= tv <= hi
-                    r["in50"][k] += abs(float(np.sum(w[x <= tv])) - 0.5) <= 0.25
+                tally_unknowns(r, pps[kind].params,
+                               posterior_weights(pps[kind], yi, si, use, opts), ds, i)
     return res
 
 
@@ -496,6 +502,13 @@ def impact_times(fm, seeds, releases: int, models, scenario: str = "two",
             t["errors_us"] += [(r["joint"]["value"] - r["truth_impact_time"]) * 1e6
                                for r in doc["releases"] if r["joint"].get("value") is not None]
     return out
+
+
+def study_heading(title: str, a, t0: float, extra: str = "") -> None:
+    """A study's markdown heading: its truths (campaigns, releases, seeds), draws and time."""
+    print(f"### {title} ({a.seeds} campaigns × {a.releases} releases of each of xz, yz, two, "
+          f"seeds {a.seed0}–{a.seed0 + a.seeds - 1} (+10000 per scenario); {a.draws} prior "
+          f"draws{extra}; {time.perf_counter() - t0:.0f} s)\n")
 
 
 def main() -> None:
@@ -617,10 +630,8 @@ def main() -> None:
         out = refine_study(fm, seeds, a.releases, a.draws, a.refine or 1000)
         from gprm.flight.scenario import PARAMS
         n = next(iter(out["variants"].values()))["n"]
-        print(f"### Sampling or likelihood ({a.seeds} campaigns × {a.releases} releases of "
-              f"each of xz, yz, two, seeds {a.seed0}–{a.seed0 + a.seeds - 1} (+10000 per "
-              f"scenario); {a.draws} prior draws, {a.refine or 1000} second-stage draws; "
-              f"{time.perf_counter() - t0:.0f} s)\n")
+        study_heading("Sampling or likelihood", a, t0,
+                      f", {a.refine or 1000} second-stage draws")
         print(f"Per unknown: truth inside the 95 % interval (below, above) / inside the "
               f"central 50 %, of {n}.\n")
         print("| stage | floor and allowance | median effective draws | "
@@ -638,10 +649,7 @@ def main() -> None:
         res = geometry_study(fm, seeds, a.releases, a.draws)
         from gprm.flight.scenario import PARAMS
         n = next(iter(res.values()))["n"]
-        print(f"### Each parameter set's own geometry ({a.seeds} campaigns × {a.releases} "
-              f"releases of each of xz, yz, two, seeds {a.seed0}–{a.seed0 + a.seeds - 1} "
-              f"(+10000 per scenario); {a.draws} prior draws; "
-              f"{time.perf_counter() - t0:.0f} s)\n")
+        study_heading("Each parameter set's own geometry", a, t0)
         print(f"Right scenario per release, and per unknown the truth inside the 95 % / the "
               f"central 50 % interval (of {n}).\n")
         print("| prior predictive | right scenario | confusion | " + " | ".join(PARAMS) + " |")

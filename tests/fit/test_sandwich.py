@@ -463,8 +463,9 @@ def test_stretched_draws_reproduce_both_levels_intervals():
     sd = np.sqrt(np.diag(C))
     Z = rng.multivariate_normal(np.zeros(P), C, size=n)
     z68, z95 = ndtri(0.84), ndtri(0.975)
-    f68 = (np.array([1.0, 1.3, 1.0, 2.0]), np.array([1.0, 1.1, 1.6, 1.0]))
-    f95 = (np.array([1.0, 1.8, 1.2, 1.5]), np.array([1.0, 1.1, 1.4, 1.2]))
+    f68 = (np.array([1.0, 1.3, 1.0, 2.5]), np.array([1.0, 1.1, 1.6, 1.0]))
+    f95 = (np.array([1.0, 1.8, 1.2, 1.2]), np.array([1.0, 1.1, 1.4, 1.2]))
+    assert z95 * f95[0][3] < z68 * f68[0][3]       # the 4th lower side exercises the raise
     W = stretch_draws(Z, sd, f68, f95, (z68, z95))
     q = np.quantile(W, [0.025, 0.16, 0.84, 0.975], axis=0) / sd
     # binomial error of a quantile of 200000 draws: about 0.01 sd at these levels

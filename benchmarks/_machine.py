@@ -28,7 +28,7 @@ def machine(*packages: str) -> str:
     except OSError:
         load = "?"
     versions = ", ".join(f"{p} {importlib.import_module(p).__version__}"
-                         for p in ("numpy",) + tuple(packages))
+                         for p in dict.fromkeys(("numpy",) + tuple(packages)))
     threads = os.environ.get("OMP_NUM_THREADS", "unset")
     return (f"- machine: {os.cpu_count()} cores (`nproc`), {cpu_model()}; load average at "
             f"start {load}\n- Python {platform.python_version()}, {versions}; "

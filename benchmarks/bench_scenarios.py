@@ -122,16 +122,14 @@ def recovery(fm, seeds, releases: int, draws: int, rel_floor: float | None = Non
         # the scenario chosen jointly over the file's releases (one scenario for all)
         out["joint"][kind][0] += res.joint["chosen"] == kind
         out["joint"][kind][1] += 1
-        key = f"{kind}->{res.joint['chosen']}"
-        out["joint_confusion"][key] = out["joint_confusion"].get(key, 0) + 1
+        count(out["joint_confusion"], kind, res.joint["chosen"])
         for i in range(len(tel.releases)):
             out["n"] += 1
             ok = res.chosen[i] == kind
             out["right"] += ok
             out["by_truth"][kind][0] += ok
             out["by_truth"][kind][1] += 1
-            key = f"{kind}->{res.chosen[i]}"
-            out["confusion"][key] = out["confusion"].get(key, 0) + 1
+            count(out["confusion"], kind, res.chosen[i])
             f = res.fits[i][kind]
             out["ess_median"].append(f.ess)
             # the posterior's CDF at the truth (PIT): inside the central 50 %?
@@ -162,12 +160,18 @@ def recovery(fm, seeds, releases: int, draws: int, rel_floor: float | None = Non
     return out
 
 
+def count(confusion: dict, truth: str, chosen) -> None:
+    """One more ``truth->chosen`` in a confusion tally."""
+    key = f"{truth}->{chosen}"
+    confusion[key] = confusion.get(key, 0) + 1
+
+
 def weighted_interval(x, w, truth):
     """The weighted draws' central 95 % interval (lo, hi) and the posterior CDF at the truth
     (its PIT: inside the central 50 % when within 0.25 of 0.5)."""
-    o_ = np.argsort(x)
-    cw = np.cumsum(w[o_])
-    lo, hi = np.interp([0.025, 0.975], cw - 0.5 * w[o_], x[o_])
+    from gprm.flight.inference import _weighted_quantiles
+
+    lo, hi = _weighted_quantiles(x, w, [0.025, 0.975])
     return lo, hi, float(np.sum(w[x <= truth]))
 
 
@@ -338,12 +342,14 @@ def oracle_study(fm, seed: int, truths: int, draws: int) -> dict:
     marginalised as the method does (``offset_covariance``), with the measurement's σ alone
     and with the method's floor added. No method that does not know the parameter set can
     choose better (on average) than this."""
+    from dataclasses import replace
+
     from scipy.special import logsumexp
 
+    from gprm.flight.inference import InferenceOptions, PriorPredictive, _log_likelihood
     from gprm.flight.scenario import (COMPARED, COMPONENTS, OFFSETS, ScenarioPrior,
                                       offset_covariance, plunger_frame, scenario_grid,
                                       scenario_velocity)
-    from gprm.flight.inference import InferenceOptions
     from gprm.params import batch
     from gprm.simulate.kinematics import body_motion
 
@@ -352,8 +358,10 @@ def oracle_study(fm, seed: int, truths: int, draws: int) -> dict:
     sig = np.concatenate([s_ for *_, s_ in scenario_campaigns(fm, [seed], 11)])
     sigma = np.nanmedian(sig, 0)
     use = np.isfinite(sigma)
-    floor = np.array([InferenceOptions().floor[0]] * 3 + [InferenceOptions().floor[1]] * 3)
-    variants = {"measurement σ only": np.zeros(6), "σ and the method's floor": floor}
+    # the method's Gaussian likelihood (_log_likelihood) at one set: C_k is the offset's alone
+    method = InferenceOptions(rel_floor=0.0)
+    variants = {"measurement σ only": replace(method, floor=(0.0, 0.0)),
+                "σ and the method's floor": method}
     res = {v: {"n": 0, "right": 0, "confusion": {}} for v in variants}
     rng = np.random.default_rng([seed, 11])
     # the prior draws of each scenario's unknowns (the same for every truth; TM centred)
@@ -375,80 +383,65 @@ def oracle_study(fm, seed: int, truths: int, draws: int) -> dict:
             logz = {v: {} for v in variants}
             for k2 in COMPARED:
                 out = scenario_velocity(k2, frame, pb, q[k2], prior)
-                Y = np.stack([out[c][0] for c in COMPONENTS], -1)[out["ok"][0]][:, use]
-                C = offset_covariance(np.stack([out[c][0] for c in COMPONENTS[:3]], -1)
-                                      [out["ok"][0]], float(np.ravel(pb["s_tm"])[0]),
-                                      prior.tm_offset)[:, use][:, :, use]
-                for v, fl in variants.items():
-                    L = np.linalg.cholesky(C + np.diag(sigma[use] ** 2 + fl[use] ** 2))
-                    z = np.linalg.solve(L, (y[use] - Y)[..., None])[..., 0]
-                    ll = (-0.5 * np.sum(z * z, -1)
-                          - np.sum(np.log(np.diagonal(L, axis1=-2, axis2=-1)), -1))
-                    logz[v][k2] = logsumexp(ll) - np.log(draws) if ll.size else -np.inf
+                Y = np.stack([out[c][0] for c in COMPONENTS], -1)
+                C = offset_covariance(Y[:, :3], float(np.ravel(pb["s_tm"])[0]),
+                                      prior.tm_offset)
+                none = np.zeros(draws)
+                pp = PriorPredictive(k2, q[k2], Y, C, none, np.zeros((draws, 6)), none,
+                                     out["ok"][0])
+                for v, o_ in variants.items():
+                    ll = _log_likelihood(pp, y, np.nan_to_num(sigma), use, o_)[0]
+                    logz[v][k2] = logsumexp(ll) - np.log(draws)
             for v in variants:
                 chosen = max(COMPARED, key=lambda k2: logz[v][k2])
                 r = res[v]
                 r["n"] += 1
                 r["right"] += chosen == kind
-                key = f"{kind}->{chosen}"
-                r["confusion"][key] = r["confusion"].get(key, 0) + 1
+                count(r["confusion"], kind, chosen)
     return {"sigma": [float(x) for x in sigma], "variants": res}
 
 
 def per_set_predictives(fm, opts, prior) -> dict:
-    """The method's prior predictives (:func:`gprm.flight.inference.predictive_at`'s moments)
-    with **each parameter set's own** contact geometry, TM centre and masses (the points of
-    ``named_points`` move with the fitted v2, g2, m2-m4), where the method takes the best
-    fit's for every set: one ``scenario_velocity`` call per set, the same prior draws."""
-    from gprm.flight.inference import PriorPredictive
+    """The method's prior predictives with **each parameter set's own** contact geometry,
+    TM centre and masses (the points of ``named_points`` move with the fitted v2, g2,
+    m2-m4), where the method takes the best fit's for every set: one ``scenario_velocity``
+    call per set on the method's sets (``model_sets``) and prior draws, the moments as the
+    method takes them (``set_moments``)."""
+    from gprm.flight.inference import PriorPredictive, model_sets, set_moments
     from gprm.flight.scenario import (COMPARED, COMPONENTS, OFFSETS, SCENARIOS,
-                                      _subset_frame, offset_covariance, plunger_frame,
-                                      scenario_grid, scenario_velocity)
+                                      _subset_frame, plunger_frame, scenario_grid,
+                                      scenario_velocity)
     from gprm.params import batch
     from gprm.simulate.kinematics import body_motion
 
     pb0 = batch([fm.params])
-    pm = fm.sample(opts.n_model, seed=opts.seed + 17)      # model_frame's sets
+    pm = model_sets(fm, opts)
     frame = plunger_frame(body_motion(pm, scenario_grid(pb0, step=opts.grid_step),
                                       piezo=fm.piezo))
     K, M = opts.n_draws, opts.n_model
-    s_tm = float(np.ravel(pb0["s_tm"])[0])
     out = {}
     for kind in COMPARED:
         p = prior.draw(K, np.random.default_rng([opts.seed, SCENARIOS.index(kind)]))
         p.update({k: np.zeros(K) for k in OFFSETS})
-        Y = np.full((M, K, 7), np.nan)
-        ok = np.zeros((M, K), bool)
+        y, t, ok = np.full((M, K, 6), np.nan), np.full((M, K), np.nan), np.zeros((M, K), bool)
         for b in range(M):
             sb = {k: np.atleast_1d(v)[b:b + 1] if np.size(v) == M else v for k, v in pm.items()}
             o = scenario_velocity(kind, _subset_frame(frame, [b]), sb, p, prior)
-            Y[b, :, :6] = np.stack([o[c][0] for c in COMPONENTS], -1)
-            Y[b, :, 6] = o["t"][0]
-            ok[b] = o["ok"][0]
-        frac = ok.mean(0)
-        valid = frac >= opts.min_valid
-        mean, cov = np.full((K, 6), np.nan), np.full((K, 6, 6), np.nan)
-        tm, tc, tv = np.full(K, np.nan), np.full((K, 6), np.nan), np.full(K, np.nan)
-        for k in np.flatnonzero(valid):
-            Yk = Y[ok[:, k], k]
-            mu, C = Yk.mean(0), np.cov(Yk, rowvar=False)
-            C[:6, :6] += offset_covariance(Yk[:, :3], s_tm, prior.tm_offset).mean(0)
-            mean[k], cov[k] = mu[:6], C[:6, :6]
-            tm[k], tc[k], tv[k] = mu[6], C[6, :6], C[6, 6]
-        out[kind] = PriorPredictive(kind, p, mean, cov, tm, tc, tv, valid, frac)
+            y[b] = np.stack([o[c][0] for c in COMPONENTS], -1)
+            t[b], ok[b] = o["t"][0], o["ok"][0]
+        mom = set_moments(y, t, ok, opts, prior, float(np.ravel(pb0["s_tm"])[0]))
+        out[kind] = PriorPredictive(kind, p, mom["mean"], mom["cov"], mom["t_mean"],
+                                    mom["t_cov"], mom["t_var"], mom["valid"], mom["p_impact"])
     return out
-
 
 def geometry_study(fm, seeds, releases: int, draws: int) -> dict:
     """Does the method lose by taking the best fit's contact geometry and masses for every
     parameter set (docs/flight.md §11)? On the recovery's truths (each its set's own
     geometry), the scenario choice and each unknown's coverage with the method's prior
     predictives and with :func:`per_set_predictives`; the same likelihood otherwise."""
-    from scipy.special import logsumexp
-
-    from gprm.flight.inference import (InferenceOptions, _log_likelihood, posterior_weights,
+    from gprm.flight.inference import (InferenceOptions, infer_scenarios, posterior_weights,
                                        prior_predictives)
-    from gprm.flight.scenario import COMPARED, PARAMS, ScenarioPrior
+    from gprm.flight.scenario import PARAMS, ScenarioPrior
 
     prior, opts = ScenarioPrior(), InferenceOptions(n_draws=draws)
     variants = {"the best fit's geometry and masses for every set (the method)":
@@ -457,22 +450,18 @@ def geometry_study(fm, seeds, releases: int, draws: int) -> dict:
     res = {v: {"n": 0, "right": 0, "confusion": {}, "in95": {k: 0 for k in PARAMS},
                "in50": {k: 0 for k in PARAMS}} for v in variants}
     for _s, kind, ds, tel, y, sig in scenario_campaigns(fm, seeds, releases):
-        for i in range(len(tel.releases)):
-            use = np.isfinite(y[i])
-            yi, si = np.nan_to_num(y[i]), np.nan_to_num(sig[i])
-            for name, pps in variants.items():
-                lz = {}
-                for k2 in COMPARED:
-                    ll = _log_likelihood(pps[k2], yi, si, use, opts)[0]
-                    lz[k2] = logsumexp(ll) - np.log(ll.size)
-                chosen = max(COMPARED, key=lambda k2: lz[k2])
-                r = res[name]
+        for name, pps in variants.items():
+            inf = infer_scenarios(fm, [r.id for r in tel.releases], y, sig, opts,
+                                  predictive=pps)
+            r = res[name]
+            for i, chosen in enumerate(inf.chosen):
                 r["n"] += 1
                 r["right"] += chosen == kind
-                key = f"{kind}->{chosen}"
-                r["confusion"][key] = r["confusion"].get(key, 0) + 1
+                count(r["confusion"], kind, chosen)
                 tally_unknowns(r, pps[kind].params,
-                               posterior_weights(pps[kind], yi, si, use, opts), ds, i)
+                               posterior_weights(pps[kind], np.nan_to_num(y[i]),
+                                                 np.nan_to_num(sig[i]), np.isfinite(y[i]),
+                                                 opts), ds, i)
     return res
 
 

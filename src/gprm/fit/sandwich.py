@@ -758,9 +758,9 @@ def uncertainty(method: str, state: FitState) -> Uncertainty:
     v68 = variance_factors(state.obj, x, Cu, prior, err, z68) if syst.variance_check else \
         (ones, ones)
     f_lo, f_hi = np.maximum(s_lo, v95[0]), np.maximum(s_hi, v95[1])
+    f68_lo, f68_hi = np.maximum(s_lo, v68[0]), np.maximum(s_hi, v68[1])
     lo95, hi95 = u - z95 * sd_u * f_lo, u + z95 * sd_u * f_hi
-    lo68 = u - z68 * sd_u * np.maximum(s_lo, v68[0])
-    hi68 = u + z68 * sd_u * np.maximum(s_hi, v68[1])
+    lo68, hi68 = u - z68 * sd_u * f68_lo, u + z68 * sd_u * f68_hi
     contraction = sd_u * np.maximum(f_lo, f_hi) / prior.sd
     identified = contraction < CONTRACTION
     # the reported covariance carries the wider side
@@ -771,7 +771,6 @@ def uncertainty(method: str, state: FitState) -> Uncertainty:
     rng = np.random.default_rng([state.seed, 21])
     w, V = np.linalg.eigh(Cu)
     Z = rng.standard_normal((int(state.n_draws), x.size)) @ (V * np.sqrt(np.clip(w, 0, None))).T
-    f68_lo, f68_hi = np.maximum(s_lo, v68[0]), np.maximum(s_hi, v68[1])
     Z = stretch_draws(Z, sd_u, (f68_lo, f68_hi), (f_lo, f_hi), (z68, z95))
     draws = prior.from_u(u[None] + Z) if state.n_draws > 0 else None
     r = state.r

@@ -136,34 +136,40 @@ def predictive_at(kind: str, p: dict, frame, pb0, opts: InferenceOptions,
     # offset_covariance), not sampled: the draws keep the TM centred
     p.update({k: np.zeros(K) for k in OFFSETS})
     s_tm = float(np.ravel(pb0["s_tm"])[0])
-    mean = np.full((K, 6), np.nan)
-    cov = np.full((K, 6, 6), np.nan)
-    tm = np.full(K, np.nan)
-    tc = np.full((K, 6), np.nan)
-    tv = np.full(K, np.nan)
-    valid = np.zeros(K, bool)
-    p_imp = np.zeros(K)
     chunk = max(1, 4_000_000 // max(1, frame.A.shape[0] * frame.time.size))
+    parts = []
     for a in range(0, K, chunk):
-        sl = slice(a, min(K, a + chunk))
-        out = scenario_velocity(kind, frame, pb0, {k: v[sl] for k, v in p.items()}, prior)
-        y = np.stack([out[c] for c in COMPONENTS], -1)           # (M, k, 6)
-        ok = out["ok"]
-        frac = ok.mean(0)
-        p_imp[sl] = frac
-        good = frac >= opts.min_valid
-        for j in np.flatnonzero(good):
-            m = ok[:, j]
-            Y = np.concatenate([y[m, j], out["t"][m, j, None]], -1)   # (n, 7)
-            mu = Y.mean(0)
-            C = np.cov(Y, rowvar=False)
-            if prior.tm_offset > 0:
-                C[:6, :6] += offset_covariance(Y[:, :3], s_tm, prior.tm_offset).mean(0)
-            k = a + j
-            mean[k], cov[k] = mu[:6], C[:6, :6]
-            tm[k], tc[k], tv[k] = mu[6], C[6, :6], C[6, 6]
-            valid[k] = True
-    return PriorPredictive(kind, p, mean, cov, tm, tc, tv, valid, p_imp)
+        out = scenario_velocity(kind, frame, pb0, {k: v[a:a + chunk] for k, v in p.items()},
+                                prior)
+        parts.append(set_moments(np.stack([out[c] for c in COMPONENTS], -1), out["t"],
+                                 out["ok"], opts, prior, s_tm))
+    mom = {k: np.concatenate([q[k] for q in parts]) for k in parts[0]}
+    return PriorPredictive(kind, p, mom["mean"], mom["cov"], mom["t_mean"], mom["t_cov"],
+                           mom["t_var"], mom["valid"], mom["p_impact"])
+
+
+def set_moments(y: np.ndarray, t: np.ndarray, ok: np.ndarray, opts: InferenceOptions,
+                prior: ScenarioPrior, s_tm: float) -> dict:
+    """Per draw k, the moments of (TM velocity, impact time) over the parameter sets that give
+    an impact: ``y`` (M, K, 6) velocities, ``t`` (M, K) impact times, ``ok`` (M, K) where
+    an impact happens. Returns {mean (K, 6), cov (K, 6, 6) with the offset's covariance
+    added, t_mean (K,), t_cov (K, 6), t_var (K,), valid (K,): at least ``opts.min_valid``
+    of the sets give an impact, p_impact (K,)} (NaN where not valid)."""
+    K = ok.shape[1]
+    out = {"mean": np.full((K, 6), np.nan), "cov": np.full((K, 6, 6), np.nan),
+           "t_mean": np.full(K, np.nan), "t_cov": np.full((K, 6), np.nan),
+           "t_var": np.full(K, np.nan), "p_impact": ok.mean(0)}
+    out["valid"] = out["p_impact"] >= opts.min_valid
+    for k in np.flatnonzero(out["valid"]):
+        m = ok[:, k]
+        Y = np.concatenate([y[m, k], t[m, k, None]], -1)   # (n, 7)
+        mu = Y.mean(0)
+        C = np.cov(Y, rowvar=False)
+        if prior.tm_offset > 0:
+            C[:6, :6] += offset_covariance(Y[:, :3], s_tm, prior.tm_offset).mean(0)
+        out["mean"][k], out["cov"][k] = mu[:6], C[:6, :6]
+        out["t_mean"][k], out["t_cov"][k], out["t_var"][k] = mu[6], C[6, :6], C[6, 6]
+    return out
 
 
 def second_stage(pp: PriorPredictive, w: np.ndarray, n: int, prior: ScenarioPrior,
@@ -239,8 +245,12 @@ def model_frame(model, opts: InferenceOptions, pb0=None):
 
     pb0 = batch([model.params]) if pb0 is None else pb0
     grid = scenario_grid(pb0, step=opts.grid_step)
-    pm = model.sample(opts.n_model, seed=opts.seed + 17)
-    return plunger_frame(body_motion(pm, grid, piezo=model.piezo))
+    return plunger_frame(body_motion(model_sets(model, opts), grid, piezo=model.piezo))
+
+
+def model_sets(model, opts: InferenceOptions) -> dict:
+    """The ``opts.n_model`` parameter sets (a batch) whose motions :func:`model_frame` holds."""
+    return model.sample(opts.n_model, seed=opts.seed + 17)
 
 
 def _weighted_quantiles(x, w, q):

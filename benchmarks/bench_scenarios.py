@@ -24,8 +24,8 @@ under the exact mixture over the parameter sets (why μ's interval is too wide, 
 on seeds other than the recovery's.
 
 `--oracle-study`: the scenario choice's ceiling: N truths of each of xz, yz, two (seed S),
-each classified by the scenarios' evidence at the truth's own parameter set (what no method
-that must marginalise the fit's uncertainty can beat on average).
+each classified by the scenarios' evidence at the truth's own parameter set (with enough
+draws, what no method that must marginalise the fit's uncertainty can beat on average).
 
 `--geometry-study`: on the recovery's truths, the method's prior predictives (the best fit's
 contact geometry and masses for every parameter set) against ones with each set's own.
@@ -340,8 +340,9 @@ def oracle_study(fm, seed: int, truths: int, draws: int) -> dict:
     evidence of every scenario **at the truth's own parameter set** (the oracle: the fit's
     uncertainty removed), the unknowns integrated over ``draws`` prior draws, the offset
     marginalised as the method does (``offset_covariance``), with the measurement's σ alone
-    and with the method's floor added. No method that does not know the parameter set can
-    choose better (on average) than this."""
+    and with the method's floor added. With enough draws no method that does not know the
+    parameter set can choose better (on average); with few, the likelihood at one set is so
+    sharp that the draws miss part of it and the count is a lower bound."""
     from dataclasses import replace
 
     from scipy.special import logsumexp

@@ -117,29 +117,39 @@ def parse_quantity(text, unit: str) -> float:
         try:
             v = float(s)
         except ValueError:
-            import pint
-
-            from gprm.units import ureg
-
-            try:
-                q: pint.Quantity | float = ureg().Quantity(s)
-            except Exception:
-                raise ValueError(f"cannot read {s!r} as a number with a unit (e.g. "
-                                 f"'1.2 m{unit}' or '1.2e-3')") from None
-            if not isinstance(q, pint.Quantity):  # a bare number in a string
-                v = float(q)
-            elif q.dimensionless:
-                v = float(q.to("").magnitude)
-            else:
-                try:
-                    v = float(q.to(unit).magnitude)
-                except Exception:
-                    raise ValueError(f"{s!r} is not in a unit of {unit}") from None
-                # a typed '0.97 ms' is 0.97e-3 s, not the product's 0.0009699999999999999
-                v = float(f"{v:.15g}")
+            v = _quantity_in(s, unit)
+            # a typed '0.97 ms' is 0.97e-3 s, not the product's 0.0009699999999999999
+            v = float(f"{v:.15g}")
     if not math.isfinite(v):
         raise ValueError(f"must be finite, got {text!r}")
     return v
+
+
+def _quantity_in(s: str, unit: str) -> float:
+    """The quantity string ``s`` (it has a unit) in ``unit``: the units every default meets
+    from gprm.units' table (no pint registry to build), anything else through pint."""
+    from gprm.units import known_quantity
+
+    v = known_quantity(s, unit)
+    if v is not None:
+        return v
+    import pint
+
+    from gprm.units import ureg
+
+    try:
+        q: pint.Quantity | float = ureg().Quantity(s)
+    except Exception:
+        raise ValueError(f"cannot read {s!r} as a number with a unit (e.g. "
+                         f"'1.2 m{unit}' or '1.2e-3')") from None
+    if not isinstance(q, pint.Quantity):  # a bare number in a string
+        return float(q)
+    if q.dimensionless:
+        return float(q.to("").magnitude)
+    try:
+        return float(q.to(unit).magnitude)
+    except Exception:
+        raise ValueError(f"{s!r} is not in a unit of {unit}") from None
 
 
 class Quantity(Number):
@@ -231,12 +241,14 @@ class Window(_Parser):
             except ValueError:
                 bare_last = False
             if bare_first and not bare_last:   # '0.97,1.2 ms': the unit applies to both
-                from gprm.units import ureg
+                from gprm.units import known_unit, ureg
 
-                try:
-                    unit = str(ureg().Quantity(last).units)
-                except Exception:
-                    unit = None
+                unit = known_unit(last)
+                if unit is None:
+                    try:
+                        unit = str(ureg().Quantity(last).units)
+                    except Exception:
+                        unit = None
                 if unit:
                     first = f"{first} {unit}"
             try:

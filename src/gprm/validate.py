@@ -82,10 +82,12 @@ def pint_unit(unit: str) -> str:
 def unit_factor(unit: str, si: str, src: str, field: str) -> float:
     """The factor converting ``unit`` (pint syntax: ``um``, ``ms``, ``mV``...) to the SI unit
     ``si``; a unit that cannot be converted is a :class:`GprmInputError` naming ``field``."""
-    from gprm.units import ureg
+    from gprm.units import known_factor, ureg
 
     try:
-        f = float(ureg().Quantity(1.0, pint_unit(unit)).to(pint_unit(si)).magnitude)
+        f = known_factor(unit, si)
+        if f is None:
+            f = float(ureg().Quantity(1.0, pint_unit(unit)).to(pint_unit(si)).magnitude)
     except Exception as exc:
         raise GprmInputError(f"units {unit!r} cannot be converted to {si} "
                              f"({type(exc).__name__})", source=src, field=field) from None

@@ -10,19 +10,22 @@ import math
 import os
 import tomllib
 from pathlib import Path
-from typing import Any
-
-import pint
+from typing import TYPE_CHECKING, Any
 
 from gprm._io import check_input_file, write_text_atomic
 from gprm.errors import GprmInputError
 from gprm.params.core import ParameterSet, paper, validate_values
 from gprm.params.registry import REGISTRY
-from gprm.units import ureg  # re-exported: gprm.params.files.ureg
+from gprm.units import KNOWN, ureg  # ureg re-exported: gprm.params.files.ureg
+
+if TYPE_CHECKING:
+    import pint
 
 
 def to_si(text_or_number: Any, name: str, *, source: str = "parameters") -> float:
     """Convert a quantity for parameter ``name`` to SI, checking its dimension."""
+    import pint
+
     spec = REGISTRY[name]
     u = ureg()
     target = u.Quantity(1.0, spec.unit)
@@ -50,9 +53,10 @@ def to_si(text_or_number: Any, name: str, *, source: str = "parameters") -> floa
 
 def from_si(value: float, name: str) -> float:
     """Express an SI value in the parameter's display unit."""
-    u = ureg()
-    spec = REGISTRY[name]
-    base = u.Quantity(1.0, spec.unit).to_base_units().magnitude
+    unit = REGISTRY[name].unit
+    if unit in KNOWN:                        # the factor pint gives (tests/test_units.py)
+        return value / KNOWN[unit][0]
+    base = ureg().Quantity(1.0, unit).to_base_units().magnitude
     return value / base
 
 
@@ -60,13 +64,17 @@ def si_unit_strings(names) -> list[str]:
     """The SI unit of each named parameter as a UDUNITS-readable string (``1`` when
     dimensionless, ``unknown`` for a name not in the registry); used where files store
     parameter vectors, whose units vary along the parameter dimension."""
-    u = ureg()
+    u = ureg                                 # built only for a unit outside KNOWN
     out = []
     for n in names:
         if n not in REGISTRY:
             out.append("unknown")
             continue
-        q = u.Quantity(1.0, REGISTRY[n].unit).to_base_units()
+        unit = REGISTRY[n].unit
+        if unit in KNOWN:                    # pint's SI unit string (tests/test_units.py)
+            out.append(KNOWN[unit][1] or "1")
+            continue
+        q = u().Quantity(1.0, unit).to_base_units()
         out.append(f"{q.units:~}".replace(" ", "") or "1")
     return out
 
@@ -174,6 +182,8 @@ def _nonnegative(value: Any, src: str, field: str, unit: str, example: str) -> f
     """A number >= 0 in ``unit`` (SI, or "1" for a fraction) from a bare number (taken as
     that unit) or a quantity string (``"0.5 %"``, ``"0.1 us"``); an input error naming
     ``field`` otherwise."""
+    import pint
+
     u = ureg()
     if isinstance(value, bool) or not isinstance(value, (int, float, str)):
         raise GprmInputError(f"expected a number or a quantity such as {example}, got "

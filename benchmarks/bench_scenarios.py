@@ -1,7 +1,7 @@
 """Benchmark of the impact scenarios (issue 23, docs/flight.md §10-11):
 `.venv/bin/python benchmarks/bench_scenarios.py [--observations [--tm-offset MM ...]]
 [--recovery] [--likelihood-study] [--refine-study] [--oracle-study] [--geometry-study]
-[--impact-times]
+[--mixture-choice [--sets M]] [--impact-times]
 [--seeds N] [--seed0 S] [--releases R] [--draws K]`.
 
 `--observations`: for every scenario of `gprm.flight.scenario.SCENARIOS`, N campaigns of R
@@ -29,6 +29,10 @@ draws, what no method that must marginalise the fit's uncertainty can beat on av
 
 `--geometry-study`: on the recovery's truths, the method's prior predictives (the best fit's
 contact geometry and masses for every parameter set) against ones with each set's own.
+
+`--mixture-choice`: on the likelihood study's kind of truths, the scenario chosen per release
+under the method's Gaussian summary of the parameter sets and under their exact mixture (M
+sets, three floors): whether the choice is limited by the Gaussian or by marginalising the fit.
 
 `--impact-times`: the impact-time analysis (issue 14's) on scenario truths, per impact model.
 Prints markdown."""
@@ -187,10 +191,10 @@ def tally_unknowns(r: dict, params: dict, w, ds, i: int) -> None:
         r["in50"][k] += abs(pit - 0.5) <= 0.25
 
 
-def _mixture_weights(Y, ok, y, sig, use, floor, rel_floor):
-    """Posterior weights of the prior draws under the exact mixture over the parameter sets:
+def _mixture_log_likelihood(Y, ok, y, sig, use, floor, rel_floor):
+    """ln L_k (K,) of the prior draws under the exact mixture over the parameter sets:
     L_k = mean over the sets m giving an impact of N(y; y_mk, diag(σ² + floor² + (rel y_mk)²))
-    (no Gaussian approximation of the sets' spread); draws with < 75 % impacts: 0."""
+    (no Gaussian approximation of the sets' spread); draws with < 75 % impacts: −inf."""
     from scipy.special import logsumexp
 
     valid = ok.mean(0) >= 0.75
@@ -201,32 +205,29 @@ def _mixture_weights(Y, ok, y, sig, use, floor, rel_floor):
     lp = np.where(ok[:, valid], lp, -np.inf)
     ll = np.full(valid.size, -np.inf)
     ll[valid] = logsumexp(lp, axis=0) - np.log(ok[:, valid].sum(0))
+    return ll
+
+
+def _mixture_weights(Y, ok, y, sig, use, floor, rel_floor):
+    """Posterior weights of the prior draws under :func:`_mixture_log_likelihood`."""
+    ll = _mixture_log_likelihood(Y, ok, y, sig, use, floor, rel_floor)
     w = np.exp(ll - ll.max())
     return w / w.sum()
 
 
-def likelihood_study(fm, seeds, releases: int, draws: int) -> dict:
-    """Why the friction's interval is too wide (docs/flight.md §11): on independent truths of
-    xz, yz, two (TM centred: the question does not involve the offset), the posterior of every
-    unknown under the Gaussian approximation of the parameter sets' spread (C_k, the method)
-    with the floor and the 2 % allowance as they are, halved and doubled, and under the exact
-    mixture over the same 48 parameter sets: the truth inside the 95 % and the central 50 %
-    intervals, the posterior sd over the prior's, the effective number of draws."""
-    from dataclasses import replace
-
-    from gprm.flight.inference import (InferenceOptions, model_frame,
-                                      posterior_weights, prior_predictives)
-    from gprm.flight.scenario import (COMPARED, COMPONENTS, OFFSETS, PARAMS, SCENARIOS,
-                                      ScenarioPrior, scenario_velocity)
+def set_velocities(fm, opts, prior) -> dict:
+    """Per compared scenario, every parameter set's velocity at each of the prior draws of
+    :func:`gprm.flight.inference.prior_predictive` (the same stream, TM offsets zero): kind ->
+    (Y (n_model, draws, 6), ok (n_model, draws)), before the Gaussian summary C_k."""
+    from gprm.flight.inference import model_frame
+    from gprm.flight.scenario import COMPARED, COMPONENTS, OFFSETS, SCENARIOS, scenario_velocity
     from gprm.params import batch
 
-    prior = ScenarioPrior(tm_offset=0.0)
-    opts = InferenceOptions(n_draws=draws)
-    pps = prior_predictives(fm, opts, prior)
     pb0 = batch([fm.params])
     frame = model_frame(fm, opts, pb0)
+    draws = opts.n_draws
     raw = {}
-    for kind in COMPARED:       # the draws of prior_predictive, every set's velocity kept
+    for kind in COMPARED:
         p = prior.draw(draws, np.random.default_rng([opts.seed, SCENARIOS.index(kind)]))
         p.update({k: np.zeros(draws) for k in OFFSETS})
         Y = np.full((opts.n_model, draws, 6), np.nan)
@@ -238,6 +239,67 @@ def likelihood_study(fm, seeds, releases: int, draws: int) -> dict:
             Y[:, sl] = np.stack([o[c] for c in COMPONENTS], -1)
             ok[:, sl] = o["ok"]
         raw[kind] = (Y, ok)
+    return raw
+
+
+def mixture_choice_study(fm, seeds, releases: int, draws: int, n_model: int) -> dict:
+    """Is the per-release scenario choice limited by the Gaussian summary of the parameter
+    sets (docs/flight.md §11)? On independent truths of xz, yz, two (TM centred, as the
+    likelihood study), the scenario of each release chosen by the evidence (equal prior odds,
+    Z = mean of L_k over the prior draws) under the method's Gaussian C_k and under the exact
+    mixture over the same ``n_model`` parameter sets, with the method's floor and allowance,
+    a quarter of the floor without the allowance, and the measurement's σ alone."""
+    from scipy.special import logsumexp
+
+    from gprm.flight.inference import InferenceOptions, _log_likelihood, prior_predictives
+    from gprm.flight.scenario import COMPARED, ScenarioPrior
+
+    prior = ScenarioPrior(tm_offset=0.0)
+    opts = InferenceOptions(n_draws=draws, n_model=n_model)
+    pps = prior_predictives(fm, opts, prior)
+    raw = set_velocities(fm, opts, prior)
+    f0 = opts.floor
+    variants = {
+        "Gaussian C_k, floor + 2 % (the method)": None,
+        "exact mixture, floor + 2 %": (f0, opts.rel_floor),
+        "exact mixture, floor / 4, no allowance": ((f0[0] / 4, f0[1] / 4), 0.0),
+        "exact mixture, measurement σ only": ((0.0, 0.0), 0.0),
+    }
+    res = {v: {"n": 0, "right": 0, "confusion": {}} for v in variants}
+    for _s, kind, _ds, tel, y, sig in scenario_campaigns(fm, seeds, releases, tm_offset=0.0):
+        for i in range(len(tel.releases)):
+            use = np.isfinite(y[i])
+            yi, si = np.nan_to_num(y[i]), np.nan_to_num(sig[i])
+            for v, spec in variants.items():
+                logz = {}
+                for k2 in COMPARED:
+                    ll = (_log_likelihood(pps[k2], yi, si, use, opts)[0] if spec is None
+                          else _mixture_log_likelihood(*raw[k2], yi, si, use, *spec))
+                    logz[k2] = logsumexp(ll) - np.log(ll.size)
+                chosen = max(COMPARED, key=lambda k2: logz[k2])
+                r = res[v]
+                r["n"] += 1
+                r["right"] += chosen == kind
+                count(r["confusion"], kind, chosen)
+    return {"n_model": n_model, "variants": res}
+
+
+def likelihood_study(fm, seeds, releases: int, draws: int) -> dict:
+    """Why the friction's interval is too wide (docs/flight.md §11): on independent truths of
+    xz, yz, two (TM centred: the question does not involve the offset), the posterior of every
+    unknown under the Gaussian approximation of the parameter sets' spread (C_k, the method)
+    with the floor and the 2 % allowance as they are, halved and doubled, and under the exact
+    mixture over the same 48 parameter sets: the truth inside the 95 % and the central 50 %
+    intervals, the posterior sd over the prior's, the effective number of draws."""
+    from dataclasses import replace
+
+    from gprm.flight.inference import InferenceOptions, posterior_weights, prior_predictives
+    from gprm.flight.scenario import PARAMS, ScenarioPrior
+
+    prior = ScenarioPrior(tm_offset=0.0)
+    opts = InferenceOptions(n_draws=draws)
+    pps = prior_predictives(fm, opts, prior)
+    raw = set_velocities(fm, opts, prior)
     f0, r0 = opts.floor, opts.rel_floor
     variants = {
         "Gaussian C_k, floor + 2 % (the method)": ("gauss", opts),
@@ -250,7 +312,7 @@ def likelihood_study(fm, seeds, releases: int, draws: int) -> dict:
     }
     res = {v: {"n": 0, "in95": {k: 0 for k in PARAMS}, "in50": {k: 0 for k in PARAMS},
                "sd": {k: [] for k in PARAMS}, "ess": []} for v in variants}
-    for _s, _kind, ds, tel, y, sig in scenario_campaigns(fm, seeds, releases, tm_offset=0.0):
+    for _s, kind, ds, tel, y, sig in scenario_campaigns(fm, seeds, releases, tm_offset=0.0):
         for i in range(len(tel.releases)):
             use = np.isfinite(y[i])
             yi, si = np.nan_to_num(y[i]), np.nan_to_num(sig[i])
@@ -527,6 +589,11 @@ def main() -> None:
     ap.add_argument("--oracle-study", action="store_true",
                     help="the scenario choice's ceiling: each truth classified at its own "
                          "parameter set (--seeds N: N truths of each scenario, seed --seed0)")
+    ap.add_argument("--mixture-choice", action="store_true",
+                    help="the per-release choice under the Gaussian summary of the parameter "
+                         "sets and under their exact mixture (--sets N of them; §11)")
+    ap.add_argument("--sets", type=int, default=48,
+                    help="--mixture-choice: parameter sets from the fit (n_model)")
     ap.add_argument("--tm-offset", type=float, nargs="+", default=None, metavar="MM",
                     help="--observations: the TM's largest lateral offset from the head "
                          "axis, mm (one table per value; default: ScenarioPrior's)")
@@ -544,6 +611,7 @@ def main() -> None:
           f"{'--refine-study ' if a.refine_study else ''}"
           f"{'--oracle-study ' if a.oracle_study else ''}"
           f"{'--geometry-study ' if a.geometry_study else ''}"
+          f"{'--mixture-choice --sets ' + str(a.sets) + ' ' if a.mixture_choice else ''}"
           f"{'--scenario ' + a.scenario + ' ' if a.scenario != 'two' else ''}"
           f"--seeds {a.seeds} --seed0 {a.seed0} --releases {a.releases} --draws {a.draws}"
           + ("" if a.rel_floor is None else f" --rel-floor {a.rel_floor}")
@@ -649,6 +717,15 @@ def main() -> None:
                   + ", ".join(f"{k} {c}" for k, c in sorted(r["confusion"].items())) + " | "
                   + " | ".join(f"{100 * r['in95'][k] / n:.1f} / {100 * r['in50'][k] / n:.0f} %"
                                for k in PARAMS) + " |")
+        print()
+    if a.mixture_choice:
+        t0 = time.perf_counter()
+        out = mixture_choice_study(fm, seeds, a.releases, a.draws, a.sets)
+        study_heading(f"The choice under the exact mixture over {a.sets} parameter sets", a, t0)
+        print("| likelihood | right scenario | confusion (truth->chosen) |\n|---|---|---|")
+        for v, r in out["variants"].items():
+            print(f"| {v} | {r['right']}/{r['n']} ({100 * r['right'] / r['n']:.1f} %) | "
+                  + ", ".join(f"{k} {c}" for k, c in sorted(r["confusion"].items())) + " |")
         print()
     if a.oracle_study:
         t0 = time.perf_counter()

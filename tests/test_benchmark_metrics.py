@@ -155,3 +155,30 @@ def test_per_set_predictives_are_the_methods_when_every_set_is_the_best_fit():
         v = ref[kind].valid
         np.testing.assert_allclose(new[kind].mean[v], ref[kind].mean[v], rtol=1e-9, atol=1e-15)
         np.testing.assert_allclose(new[kind].t_mean[v], ref[kind].t_mean[v], rtol=1e-12)
+
+
+def test_mixture_choice_study_agrees_with_the_method_and_counts_each_release_once():
+    """bench_scenarios --mixture-choice (docs/flight.md §11): its Gaussian variant is the
+    method's choice (infer_scenarios on the same prior predictives, equal prior odds), every
+    variant classifies every release once, and the right count is the confusion's diagonal."""
+    from bench_scenarios import mixture_choice_study, scenario_campaigns
+
+    from gprm.fit.files import paper_model
+    from gprm.flight.inference import InferenceOptions, infer_scenarios, prior_predictives
+    from gprm.flight.scenario import COMPARED, ScenarioPrior
+
+    fm = paper_model()
+    out = mixture_choice_study(fm, [3000], 2, draws=300, n_model=8)
+    assert out["n_model"] == 8
+    for r in out["variants"].values():
+        assert r["n"] == 2 * len(COMPARED) == sum(r["confusion"].values())
+        assert r["right"] == sum(c for k, c in r["confusion"].items()
+                                 if k.split("->")[0] == k.split("->")[1])
+    opts = InferenceOptions(n_draws=300, n_model=8)
+    pps = prior_predictives(fm, opts, ScenarioPrior(tm_offset=0.0))
+    confusion: dict = {}
+    for _s, kind, _ds, tel, y, sig in scenario_campaigns(fm, [3000], 2, tm_offset=0.0):
+        res = infer_scenarios(fm, [r.id for r in tel.releases], y, sig, opts, predictive=pps)
+        for c in res.chosen:
+            confusion[f"{kind}->{c}"] = confusion.get(f"{kind}->{c}", 0) + 1
+    assert out["variants"]["Gaussian C_k, floor + 2 % (the method)"]["confusion"] == confusion

@@ -182,3 +182,35 @@ def test_mixture_choice_study_agrees_with_the_method_and_counts_each_release_onc
         for c in res.chosen:
             confusion[f"{kind}->{c}"] = confusion.get(f"{kind}->{c}", 0) + 1
     assert out["variants"]["Gaussian C_k, floor + 2 % (the method)"]["confusion"] == confusion
+
+
+def test_likelihood_study_scores_each_release_under_its_own_scenario(monkeypatch):
+    """bench_scenarios --likelihood-study: every release's posterior is taken under the prior
+    predictive of the scenario that made it (a renamed loop variable once made it use the
+    last scenario's for all), and each release is counted once per likelihood."""
+    import bench_scenarios as bsc
+
+    from gprm.fit.files import paper_model
+    from gprm.flight import inference
+    from gprm.flight.scenario import COMPARED
+
+    current, seen = [], []
+    campaigns = bsc.scenario_campaigns
+
+    def recording_campaigns(*a, **k):
+        for item in campaigns(*a, **k):
+            current.append(item[1])
+            yield item
+
+    weights = inference.posterior_weights
+
+    def recording_weights(pp, *a, **k):
+        seen.append((current[-1], pp.scenario))
+        return weights(pp, *a, **k)
+
+    monkeypatch.setattr(bsc, "scenario_campaigns", recording_campaigns)
+    monkeypatch.setattr(inference, "posterior_weights", recording_weights)
+    res = bsc.likelihood_study(paper_model(), [3000], 2, draws=300)
+    assert current == list(COMPARED)
+    assert seen and all(truth == used for truth, used in seen)
+    assert all(r["n"] == 2 * len(COMPARED) for r in res.values())

@@ -497,6 +497,7 @@ def per_set_predictives(fm, opts, prior) -> dict:
                                     mom["t_cov"], mom["t_var"], mom["valid"], mom["p_impact"])
     return out
 
+
 def geometry_study(fm, seeds, releases: int, draws: int) -> dict:
     """Does the method lose by taking the best fit's contact geometry and masses for every
     parameter set (docs/flight.md §11)? On the recovery's truths (each its set's own

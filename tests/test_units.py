@@ -13,7 +13,7 @@ import pytest
 from gprm import options
 from gprm.params import REGISTRY
 from gprm.params import files as pfiles
-from gprm.units import KNOWN, known_factor, known_quantity, known_unit, ureg
+from gprm.units import KNOWN, known_factor, known_quantity, known_unit, si_unit, ureg
 
 
 @pytest.mark.parametrize("unit", sorted(KNOWN))
@@ -21,7 +21,11 @@ def test_known_units_are_pints(unit):
     q = ureg().Quantity(1.0, unit).to_base_units()
     factor, si = KNOWN[unit]
     assert factor == q.magnitude                      # bit-identical
-    assert si == f"{q.units:~}".replace(" ", "")
+    assert si == f"{q.units:~}".replace(" ", "") == si_unit(unit)
+
+
+def test_si_unit_outside_the_table_is_pints():
+    assert "N" not in KNOWN and si_unit("N") == "kg*m/s**2"
 
 
 def test_every_display_unit_of_the_registry_is_known():

@@ -72,6 +72,16 @@ def known_factor(unit: str, si: str | None = None) -> float | None:
     return entry[0]
 
 
+def si_unit(unit: str) -> str:
+    """The SI unit of ``unit`` as pint writes it abbreviated, without spaces (``"kg/s"`` for
+    ``"N*s/m"``; ``""`` when dimensionless): from :data:`KNOWN` where it is listed, else
+    pint's."""
+    if unit in KNOWN:
+        return KNOWN[unit][1]
+    q = ureg().Quantity(1.0, unit).to_base_units()
+    return f"{q.units:~}".replace(" ", "")
+
+
 def known_quantity(text: str, si: str) -> float | None:
     """``'0.97 ms'`` or ``'0.97ms'`` -> its value in the SI unit ``si`` where the unit is in
     :data:`KNOWN` with the same SI unit as ``si`` (None otherwise: ask pint). The product

@@ -35,8 +35,8 @@ from gprm.model.linear import admissible
 from gprm.model.piezo import check_piezo
 from gprm.params import (REGISTRY, ParameterSet, batch_from_vectors, from_si, paper,
                          validate_values)
-from gprm.params.files import si_unit_strings, ureg
-from gprm.units import KNOWN
+from gprm.params.files import si_unit_strings
+from gprm.units import si_unit
 from gprm.validate import Schema, Var, check_dataset
 
 if TYPE_CHECKING:
@@ -656,13 +656,8 @@ def _num(x):
 
 
 def _si_unit(name: str) -> str:
-    unit = REGISTRY[name].unit
-    if unit in KNOWN:                        # pint's SI unit string (tests/test_units.py)
-        u = KNOWN[unit][1]
-    else:
-        q = ureg().Quantity(1.0, unit).to_base_units()
-        u = f"{q.units:~}".replace(" ", "")
-    return {"rad": "rad", "": "1"}.get(u, u)
+    u = si_unit(REGISTRY[name].unit)
+    return u or "1"
 
 
 def _data_hash(data: FitData) -> str:

@@ -16,7 +16,7 @@ from gprm._io import check_input_file, write_text_atomic
 from gprm.errors import GprmInputError
 from gprm.params.core import ParameterSet, paper, validate_values
 from gprm.params.registry import REGISTRY
-from gprm.units import KNOWN, ureg  # ureg re-exported: gprm.params.files.ureg
+from gprm.units import KNOWN, si_unit, ureg  # ureg re-exported: gprm.params.files.ureg
 
 if TYPE_CHECKING:
     import pint
@@ -64,19 +64,7 @@ def si_unit_strings(names) -> list[str]:
     """The SI unit of each named parameter as a UDUNITS-readable string (``1`` when
     dimensionless, ``unknown`` for a name not in the registry); used where files store
     parameter vectors, whose units vary along the parameter dimension."""
-    u = ureg                                 # built only for a unit outside KNOWN
-    out = []
-    for n in names:
-        if n not in REGISTRY:
-            out.append("unknown")
-            continue
-        unit = REGISTRY[n].unit
-        if unit in KNOWN:                    # pint's SI unit string (tests/test_units.py)
-            out.append(KNOWN[unit][1] or "1")
-            continue
-        q = u().Quantity(1.0, unit).to_base_units()
-        out.append(f"{q.units:~}".replace(" ", "") or "1")
-    return out
+    return [(si_unit(REGISTRY[n].unit) or "1") if n in REGISTRY else "unknown" for n in names]
 
 
 def read_toml(path: Path) -> dict:

@@ -477,3 +477,60 @@ def test_stretched_draws_reproduce_both_levels_intervals():
     for k in range(P):
         assert np.all(np.diff(W[np.argsort(Z[:, k]), k]) >= 0)
     np.testing.assert_allclose(W[:, 0], Z[:, 0], rtol=1e-12, atol=0)
+
+
+def test_timing_error_moves_only_the_lags_it_is_absorbed_by():
+    """Every signal is the response at t - t0, so a timing error of a signal is exactly a
+    change of its fitted lag: propagated through the estimator it must land on the lags and
+    nowhere else. The sandwich's time derivative is the model's own (equal to a central
+    difference in t0, with or without t0 fitted); a finite difference on the data's grid is
+    visibly short of it, and with it a stated timing error would reach the physical
+    parameters."""
+    from gprm.fit.prior import default_prior
+    from gprm.fit.sandwich import error_model, propagate, time_derivative
+    from gprm.fit.objective import Objective, fit_data_from_means
+    from gprm.params import ALIGNMENT_OFFSETS, LAG_PARAMETERS, paper
+    from pathlib import Path
+    sys.path.insert(0, str(Path(__file__).parent))
+    from means_factory import make_means
+
+    p = paper()
+    p = p.with_fitted(tuple(p.fitted) + tuple(ALIGNMENT_OFFSETS.values()))   # gprm fit's set
+    data = fit_data_from_means(make_means(p, seed=3), source="synthetic")
+    obj = Objective.create(data, p)
+    names = list(obj.names)
+    assert "t0" in names
+    x = p.vector(obj.names)
+    k = names.index("t0")
+    J = -obj.model(x[None], jacobian=True).dy[0].reshape(-1, x.size) / data.sigma.reshape(-1, 1)
+    dydt = time_derivative(obj, x, J, None)
+    h = 1e-10
+
+    def shifted(dt):
+        xx = x.copy()
+        xx[k] += dt
+        return obj.model(xx[None]).y[0]
+
+    central = (shifted(-h) - shifted(h)) / (2 * h)
+    scale = np.abs(central).max()
+    assert np.abs(dydt - central).max() < 1e-5 * scale
+    y = obj.model(x[None]).y[0]
+    assert np.abs(np.gradient(y, data.time, axis=1) - central).max() > 1e-2 * scale
+    # t0 held fixed: the model is asked for it
+    rest = [n for n in names if n != "t0"]
+    obj2 = Objective.create(data, p, rest)
+    x2 = p.vector(obj2.names)
+    J2 = np.delete(J, k, axis=1)
+    assert np.abs(time_derivative(obj2, x2, J2, None) - central).max() < 1e-5 * scale
+
+    prior = default_prior(p, obj.names)
+    r = ((data.values - y) / data.sigma).reshape(-1)
+    stated = error_model(obj, x, J, r, prior, Systematics(timing_sd=1e-6, estimate_gain=False))
+    V = propagate(obj, x, J, prior, stated)
+    lags = np.array([n in LAG_PARAMETERS for n in names])
+    sd_time = np.sqrt(np.diag(V.timing))
+    sd_stat = np.sqrt(np.diag(V.statistical))
+    # 1 us of timing error on every channel, ~100 times the statistical sd of the lags: the
+    # lags move by that much, a physical parameter by nothing its interval would notice
+    assert np.all(sd_time[lags] > 10 * sd_stat[lags])
+    assert np.all(sd_time[~lags] < 1e-2 * sd_stat[~lags])

@@ -58,6 +58,8 @@ from gprm.fit.methods import FitState
 from gprm.fit.objective import Objective
 from gprm.fit.prior import Prior
 from gprm.fit.uncertainty import CONTRACTION, Uncertainty
+from gprm.params import batch_from_vectors
+from gprm.simulate import observe
 
 
 #: the per-source coverage study's headline for the report (benchmarks/bench_sources.py;
@@ -486,8 +488,35 @@ def _linearised(obj: Objective, x: np.ndarray, J: np.ndarray, prior: Prior,
     B = (Hinv @ Ju.T).reshape(x.size, S, T)
     if y is None:
         y = obj.model(x[None]).y[0]                           # (S, T) m
-    dy = np.gradient(y, d.time, axis=1)
-    return Ju, Hinv, B, y, dy
+    return Ju, Hinv, B, y, time_derivative(obj, x, J, y)
+
+
+#: the lag every signal is evaluated behind (gprm.simulate.observe: t0 shifts every row)
+COMMON_LAG = "t0"
+
+
+def time_derivative(obj: Objective, x: np.ndarray, J: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """(S, T) m/s: the model signals' exact time derivative at ``x``.
+
+    Every signal is the response at t - t0, so dy/dt = -dy/dt0: the t0 column of the
+    weighted residuals' Jacobian J (N, P) (r = (data - y) / sigma) times sigma when t0 is
+    fitted, else one simulation with t0's sensitivity. A finite difference of ``y`` on the
+    data's grid will not do: with ~5 samples per period of the fastest modes it is 3-10 %
+    short and turned by a few degrees, so a timing error, which the fitted lags absorb
+    exactly, leaked onto the physical parameters through the difference (docs/fitting.md,
+    "Instrument systematics"). ``np.gradient`` only where the object has no model to ask."""
+    d = obj.data
+    S, T = d.values.shape
+    names = list(getattr(obj, "names", ()))
+    if COMMON_LAG in names:
+        return J[:, names.index(COMMON_LAG)].reshape(S, T) * d.sigma
+    if hasattr(obj, "base"):
+        pb = batch_from_vectors(obj.base, names, np.asarray(x, float)[None])
+        obs = observe(pb, d.time, d.signals, piezo=obj.piezo, sensitivities=(COMMON_LAG,),
+                      z_bk_absolute=obj.z_bk_absolute)
+        if obs.ok[0]:
+            return -obs.dy[0, :, :, 0]
+    return np.gradient(y, d.time, axis=1)
 
 
 def error_model(obj: Objective, x: np.ndarray, J: np.ndarray, r: np.ndarray, prior: Prior,

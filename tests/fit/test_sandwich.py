@@ -534,3 +534,33 @@ def test_timing_error_moves_only_the_lags_it_is_absorbed_by():
     # lags move by that much, a physical parameter by nothing its interval would notice
     assert np.all(sd_time[lags] > 10 * sd_stat[lags])
     assert np.all(sd_time[~lags] < 1e-2 * sd_stat[~lags])
+
+
+def test_fisher_g_test_is_exact_on_white_noise_and_finds_an_oscillation():
+    """Fisher's g of 47 white Gaussian samples (23 ordinates): the exact p-value's
+    distribution is uniform (the fraction below 0.01, 0.05 and 0.5 within the binomial
+    range of 20000 series), and a sinusoid of the noise's amplitude at a Fourier frequency
+    gives p < 1e-4 with g its bin. An adequacy record written before the field reads back
+    with it NaN."""
+    from gprm.fit.adequacy import Adequacy, fisher_g
+
+    rng = np.random.default_rng(8)
+    n, trials = 47, 20000
+    p = np.array([fisher_g(rng.standard_normal(n))[1] for _ in range(trials)])
+    assert fisher_g(rng.standard_normal(n))[2] == 23
+    for level in (0.01, 0.05, 0.5):
+        lo, hi = _binomial_range(level, trials)
+        assert lo <= np.mean(p < level) <= hi, (level, np.mean(p < level))
+    t = np.arange(n)
+    x = rng.standard_normal(n) + np.sqrt(2) * np.sin(2 * np.pi * 7 * t / n)
+    g, pv, _ = fisher_g(x)
+    assert pv < 1e-4
+    ordinates = np.abs(np.fft.rfft(x - x.mean())[1:24]) ** 2
+    assert np.argmax(ordinates) == 6 and g == pytest.approx(ordinates[6] / ordinates.sum())
+    old = {"chi2": 50.0, "dof": 40.0, "p_value": 0.1, "verdict": "adequate", "reasons": [],
+           "signals": [{"signal": "x_base", "chi2_per_sample": 1.0, "ljung_box_q": 3.0,
+                        "ljung_box_p": 0.5, "lags": 9, "lag1_autocorrelation": 0.1,
+                        "peak_frequency_hz": 5e3, "peak_share": 0.1, "loso_ratio": 1.1}]}
+    a = Adequacy.from_json(old)
+    assert np.isnan(a.signals[0].peak_p)
+    assert "peak_p_fisher_g" in a.to_json()["signals"][0]

@@ -9,9 +9,10 @@ Three checks on the best fit, each from the data alone:
 - **whiteness, per signal**: the Ljung-Box statistic Q = n (n + 2) sum_k rho_k^2 / (n - k)
   over the first ``lags`` autocorrelations of the signal's residuals, its p-value under
   chi-square(lags) (gprm's implementation is checked against statsmodels' acorr_ljungbox in
-  tests/fit/test_adequacy.py), the lag-1 autocorrelation, and the residuals' spectrum: the
+  tests/fit/test_sandwich.py), the lag-1 autocorrelation, and the residuals' spectrum: the
   frequency holding the most residual power and its share of it (an unmodelled resonance
-  shows as a peak);
+  shows as a peak), with Fisher's exact test of that peak against white residuals (g, the
+  largest periodogram ordinate over their sum, :func:`fisher_g`);
 - **leave one signal out**: the fit polished again from the best fit without signal s, and
   its prediction of s: the mean squared weighted error of that prediction over the in-fit
   one. Near 1 the other signals predict s as well as s fits itself; much larger means the
@@ -28,7 +29,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.special import chdtrc
+from scipy.special import chdtrc, comb
 
 from gprm.fit.engine import polish_best, polish_kwargs
 from gprm.fit.lm import levenberg_marquardt_batch
@@ -85,6 +86,38 @@ def spectral_peak(x: np.ndarray, fs: float) -> tuple[float, float]:
     return float("nan"), float("nan")
 
 
+def fisher_g_pvalue(g: float, m: int) -> float:
+    """P(G >= g) for Fisher's g statistic of m periodogram ordinates of white Gaussian
+    noise (Fisher 1929): sum over j = 1 .. floor(1/g) of (-1)^(j-1) C(m, j) (1 - j g)^(m-1),
+    exact; NaN outside 0 < g <= 1 or for m < 2."""
+    if not (np.isfinite(g) and 0.0 < g <= 1.0) or m < 2:
+        return float("nan")
+    j = np.arange(1, int(np.floor(1.0 / g)) + 1, dtype=float)
+    terms = (-1.0) ** (j - 1) * comb(m, j) * np.clip(1.0 - j * g, 0.0, None) ** (m - 1)
+    return float(np.clip(np.sum(terms), 0.0, 1.0))
+
+
+def fisher_g(x: np.ndarray) -> tuple[float, float, int]:
+    """(g, p, m): Fisher's test for a periodicity in ``x`` (1-D): g the largest of the m
+    periodogram ordinates at the Fourier frequencies strictly between 0 and Nyquist over
+    their sum, p its exact tail probability under white Gaussian noise
+    (:func:`fisher_g_pvalue`). A small p says one frequency holds more of the residual
+    power than white residuals would put in any one bin: an unmodelled oscillation.
+    Coloured residuals also give small p at low frequencies (the Ljung-Box test says so
+    too); the frequency tells which."""
+    x = np.asarray(x, float)
+    n = x.size
+    m = (n - 1) // 2
+    if m < 2:
+        return float("nan"), float("nan"), m
+    ordinates = np.abs(np.fft.rfft(x - x.mean())[1:m + 1]) ** 2
+    total = float(np.sum(ordinates))
+    if not total > 0:
+        return float("nan"), float("nan"), m
+    g = float(np.max(ordinates) / total)
+    return g, fisher_g_pvalue(g, m), m
+
+
 @dataclass(frozen=True)
 class SignalCheck:
     signal: str
@@ -96,13 +129,14 @@ class SignalCheck:
     peak_frequency: float        # Hz, the residual spectrum's largest bin (DC excluded)
     peak_share: float            # that bin's share of the residual power
     loso_ratio: float            # leave-this-signal-out prediction error / in-fit error
+    peak_p: float = float("nan")  # Fisher's g test of the largest ordinate (fisher_g)
 
     def to_json(self) -> dict:
         return {"signal": self.signal, "chi2_per_sample": self.chi2_per_sample,
                 "ljung_box_q": self.ljung_box_q, "ljung_box_p": self.ljung_box_p,
                 "lags": self.lags, "lag1_autocorrelation": self.lag1,
                 "peak_frequency_hz": self.peak_frequency, "peak_share": self.peak_share,
-                "loso_ratio": self.loso_ratio}
+                "peak_p_fisher_g": self.peak_p, "loso_ratio": self.loso_ratio}
 
 
 @dataclass(frozen=True)
@@ -130,7 +164,8 @@ class Adequacy:
     def from_json(cls, d: dict) -> "Adequacy":
         sig = tuple(SignalCheck(s["signal"], s["chi2_per_sample"], s["ljung_box_q"],
                                 s["ljung_box_p"], int(s["lags"]), s["lag1_autocorrelation"],
-                                s["peak_frequency_hz"], s["peak_share"], s["loso_ratio"])
+                                s["peak_frequency_hz"], s["peak_share"], s["loso_ratio"],
+                                s.get("peak_p_fisher_g", float("nan")))
                     for s in d.get("signals", []))
         return cls(float(d["chi2"]), float(d["dof"]), float(d["p_value"]), sig,
                    d.get("verdict") == "adequate", tuple(d.get("reasons", [])))
@@ -259,7 +294,7 @@ def assess(obj: Objective, x: np.ndarray, r: np.ndarray, p_eff: float, *,
         lag1 = float(z[1:] @ z[:-1]) / den if den > 0 else 0.0
         pf, share = spectral_peak(R[s], fs)
         checks.append(SignalCheck(d.signals[s], float(np.mean(R[s] ** 2)), q, pq, lags, lag1,
-                                  pf, share, float(ratios[s])))
+                                  pf, share, float(ratios[s]), fisher_g(R[s])[1]))
     reasons = []
     if p < P_CHI2:
         reasons.append(f"chi-square {chi2:.4g} on {dof:.0f} degrees of freedom (reduced "

@@ -48,6 +48,10 @@ def _g(x, fmt: str = ".6g") -> str:
     return format(x, fmt) if _finite(x) else "-"
 
 
+def _khz(hz):
+    return hz / 1e3 if _finite(hz) else None
+
+
 def correlations_above(corr: dict | None, min_correl: float = DEFAULT_MIN_CORREL):
     """Pairs (a, b, r) with |r| >= min_correl, strongest first (each pair once)."""
     if not corr or corr.get("matrix") is None:
@@ -115,8 +119,10 @@ def fit_report(d: dict, *, min_correl: float = DEFAULT_MIN_CORREL) -> str:
                 lines.append(f"    {sc.get('signal', '?'):>7}: chi2/sample "
                              f"{_g(sc.get('chi2_per_sample'), '.3g')}, Ljung-Box p "
                              f"{_g(sc.get('ljung_box_p'), '.2g')}, lag-1 "
-                             f"{_g(sc.get('lag1_autocorrelation'), '.2f')}, leave-out error x"
-                             f"{_g(sc.get('loso_ratio'), '.3g')}")
+                             f"{_g(sc.get('lag1_autocorrelation'), '.2f')}, peak "
+                             f"{_g(_khz(sc.get('peak_frequency_hz')), '.3g')} kHz "
+                             f"(Fisher p {_g(sc.get('peak_p_fisher_g'), '.2g')}), leave-out "
+                             f"error x{_g(sc.get('loso_ratio'), '.3g')}")
         if adq.get("text"):
             lines.append("    " + str(adq["text"]))
     lines.append("[[Parameters]]  (value +/- stderr (relative), initial; "

@@ -288,7 +288,10 @@ def adequacy_rows(adq: dict) -> list:
             rows.append([sc.get("signal", "?"), f"{sc.get('chi2_per_sample', float('nan')):.3g}",
                          f"{sc.get('ljung_box_p', float('nan')):.2g}",
                          f"{sc.get('lag1_autocorrelation', float('nan')):.2f}",
-                         f"{sc.get('peak_frequency_hz', float('nan')) / 1e3:.3g} kHz",
+                         f"{sc.get('peak_frequency_hz', float('nan')) / 1e3:.3g} kHz"
+                         + (f" (p {sc['peak_p_fisher_g']:.2g})"
+                            if isinstance(sc.get('peak_p_fisher_g'), (int, float))
+                            and np.isfinite(sc['peak_p_fisher_g']) else ""),
                          f"{sc.get('loso_ratio', float('nan')):.3g}"])
     return rows
 
@@ -335,9 +338,12 @@ def fit_section(run: Path) -> tuple[Section, dict | None]:
                                   "Does the model describe the data?", "table-adequacy",
                                   note="Per signal: the residuals' size, their whiteness "
                                   "(Ljung–Box test, p below 0.001/5 flags structure), the "
-                                  "frequency holding most residual power, and the error of "
-                                  "the signal's prediction by the fit without it over its "
-                                  "in-fit error (docs/fitting.md, 'Model adequacy')."))
+                                  "frequency holding most residual power (p: Fisher's exact "
+                                  "test of that peak against white residuals; small p, an "
+                                  "unmodelled oscillation or coloured residuals), and the "
+                                  "error of the signal's prediction by the fit without it "
+                                  "over its in-fit error (docs/fitting.md, 'Model "
+                                  "adequacy')."))
         srows = systematics_rows(unc)
         if srows:
             s.blocks.append(table(["signal", "gain sd used", "gain sd stated",

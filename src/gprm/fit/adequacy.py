@@ -304,7 +304,9 @@ def assess(obj: Objective, x: np.ndarray, r: np.ndarray, p_eff: float, *,
         if c.ljung_box_p < P_WHITE / S:
             reasons.append(f"{c.signal}: residuals not white (Ljung-Box p = "
                            f"{c.ljung_box_p:.2g}, lag-1 autocorrelation {c.lag1:.2f}, most "
-                           f"power at {c.peak_frequency / 1e3:.3g} kHz)")
+                           f"power at {c.peak_frequency / 1e3:.3g} kHz"
+                           + (f", Fisher's g p = {c.peak_p:.2g}" if np.isfinite(c.peak_p)
+                              else "") + ")")
     return Adequacy(chi2, dof, p, tuple(checks), not reasons, tuple(reasons))
 
 

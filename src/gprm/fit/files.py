@@ -36,7 +36,6 @@ from gprm.model.piezo import check_piezo
 from gprm.params import (REGISTRY, ParameterSet, batch_from_vectors, from_si, paper,
                          validate_values)
 from gprm.params.files import si_unit_strings
-from gprm.units import si_unit
 from gprm.validate import Schema, Var, check_dataset
 
 if TYPE_CHECKING:
@@ -455,7 +454,7 @@ def fit_document(res: FitResult) -> dict:
             if res.eq7 is not None:
                 entry["stderr_eq7"] = _num(res.eq7.stderr[k])
         params[name] = {"value": float(res.params[name]), "stderr": err,
-                        "unit": _si_unit(name), "fitted": fitted,
+                        "unit": si_unit_strings((name,))[0], "fitted": fitted,
                         "display_unit": REGISTRY[name].unit,
                         "display_value": float(from_si(res.params[name], name)), **entry}
     best = res.starts.best_index
@@ -653,11 +652,6 @@ def starts_dataset(out: StartsOutcome) -> xr.Dataset:
 
 def _num(x):
     return float(x) if np.isfinite(x) else None
-
-
-def _si_unit(name: str) -> str:
-    u = si_unit(REGISTRY[name].unit)
-    return u or "1"
 
 
 def _data_hash(data: FitData) -> str:

@@ -470,7 +470,8 @@ class ErrorModel:
 
 #: the signal whose lag is t0 (the others' lags are offsets from it, gprm.params.registry)
 REFERENCE_SIGNAL = "x_base"
-#: the lag that carries the aligned data's time origin
+#: the lag every signal is evaluated behind (gprm.simulate.observe): it carries the aligned
+#: data's time origin, and dy/dt = -dy/dt0 (:func:`time_derivative`)
 ORIGIN_LAG = "t0"
 
 
@@ -491,29 +492,25 @@ def _linearised(obj: Objective, x: np.ndarray, J: np.ndarray, prior: Prior,
     return Ju, Hinv, B, y, time_derivative(obj, x, J, y)
 
 
-#: the lag every signal is evaluated behind (gprm.simulate.observe: t0 shifts every row)
-COMMON_LAG = "t0"
-
-
 def time_derivative(obj: Objective, x: np.ndarray, J: np.ndarray, y: np.ndarray) -> np.ndarray:
     """(S, T) m/s: the model signals' exact time derivative at ``x``.
 
     Every signal is the response at t - t0, so dy/dt = -dy/dt0: the t0 column of the
     weighted residuals' Jacobian J (N, P) (r = (data - y) / sigma) times sigma when t0 is
     fitted, else one simulation with t0's sensitivity. A finite difference of ``y`` on the
-    data's grid will not do: with ~5 samples per period of the fastest modes it misses by
-    up to 20 % of the peak (its norm 2-10 % short, turned by a few degrees), so a timing
-    error, which the fitted lags absorb exactly, leaked onto the physical parameters
-    through the difference (docs/fitting.md, "What no spread shows": the timing part).
+    data's grid will not do: with ~5 samples per period of the fastest modes it is visibly
+    off (tests/fit/test_sandwich.py), so a timing error, which the fitted lags absorb
+    exactly, leaked onto the physical parameters through the difference (docs/fitting.md,
+    "What no spread shows": the timing part).
     ``np.gradient`` only where the object has no model to ask."""
     d = obj.data
     S, T = d.values.shape
     names = list(getattr(obj, "names", ()))
-    if COMMON_LAG in names:
-        return J[:, names.index(COMMON_LAG)].reshape(S, T) * d.sigma
+    if ORIGIN_LAG in names:
+        return J[:, names.index(ORIGIN_LAG)].reshape(S, T) * d.sigma
     if hasattr(obj, "base"):
         pb = batch_from_vectors(obj.base, names, np.asarray(x, float)[None])
-        obs = observe(pb, d.time, d.signals, piezo=obj.piezo, sensitivities=(COMMON_LAG,),
+        obs = observe(pb, d.time, d.signals, piezo=obj.piezo, sensitivities=(ORIGIN_LAG,),
                       z_bk_absolute=obj.z_bk_absolute)
         if obs.ok[0]:
             return -obs.dy[0, :, :, 0]

@@ -67,7 +67,8 @@ def run_case(source: str, seed: int, starts: int, cache: str | None) -> Case:
     path = Path(cache) / f"{source}-{seed}-{starts}.pkl" if cache else None
     if path is not None and path.exists():
         with open(path, "rb") as f:
-            return _CaseUnpickler(f).load()
+            got = _CaseUnpickler(f).load()
+        return Case(**got) if isinstance(got, dict) else got
     t = time.perf_counter()
     with tempfile.TemporaryDirectory(prefix="gprm-src-") as tmp:
         camp, truth = sources.make(source, seed, workdir=tmp)
@@ -84,7 +85,9 @@ def run_case(source: str, seed: int, starts: int, cache: str | None) -> Case:
         path.parent.mkdir(parents=True, exist_ok=True)
         tmpf = path.with_suffix(".part")
         with open(tmpf, "wb") as f:
-            pickle.dump(case, f)
+            # a plain dict: on a Dask worker this module is not __main__, so the class
+            # itself would not pickle by reference
+            pickle.dump(dict(vars(case)), f)
         tmpf.replace(path)
     return case
 
@@ -325,9 +328,10 @@ def main(argv=None) -> int:
         print(not_identified_table(rows))
         return 0
     srcs = [s for s in a.sources.split(",") if s]
-    unknown = [s for s in srcs if s not in sources.SOURCES]
+    known = sources.SOURCES + sources.PROBES
+    unknown = [s for s in srcs if s not in known]
     if unknown:
-        ap.error(f"unknown source(s) {unknown}; one of {', '.join(sources.SOURCES)}")
+        ap.error(f"unknown source(s) {unknown}; one of {', '.join(known)}")
     methods = [m for m in a.methods.split(",") if m]
     jobs = [(s, a.seed + i, a.starts, a.cache, methods, a.predictions) for s in srcs
             for i in range(a.campaigns)]

@@ -255,3 +255,24 @@ def test_a_still_position_fails_only_if_the_model_fits_it(small_campaign, positi
     else:
         with pytest.raises(GprmInputError, match=position):
             preprocess(ds)
+
+
+def test_alignment_starts_after_a_baseline_excursion(amp_campaign, amp_means):
+    """A mean that is above the threshold at the record's start (a slow baseline excursion
+    that a few runs do not average out and the straight-line baseline does not remove) is
+    aligned at the crossing that leads into the motion, where the clean campaign is (the
+    first-crossing rule alone finds none there: it was an input error)."""
+    from gprm.campaign.preprocess import preprocess
+    camp = amp_campaign.copy(deep=True)
+    i = POSITIONS.index("z_bk")
+    t = camp["time"].values
+    bump = 6 * float(amp_means.noise_std[i]) * np.exp(-t / 30e-6)   # gone well before 1 ms
+    disp = camp["displacement"].values.copy()
+    disp[i] += bump[None, :]
+    camp["displacement"] = (camp["displacement"].dims, disp)
+    means = preprocess(camp)
+    dt = t[1] - t[0]
+    assert abs(means.shift[i] - amp_means.shift[i]) < 0.05 * dt
+    # every other position is untouched
+    others = [k for k in range(len(POSITIONS)) if k != i]
+    assert np.array_equal(means.shift[others], amp_means.shift[others])

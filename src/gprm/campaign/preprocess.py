@@ -21,6 +21,11 @@ Per position:
    refined by Brent's method on sign * M(t) = threshold. The hold skips sub-sample lobes that
    barely touch the threshold (x_base starts with one) and spline ringing before a kink
    (z_bk): without it the crossing jumps by about a sample with the sampling phase.
+   Where |M| is already above the threshold at the record's start (baseline drift that a
+   few runs do not average out), the scan starts instead at the last point before the
+   coarse onset (step 0's ``onset_factor``) where |M| is below it (:func:`quiet_start`):
+   the crossing that leads into the motion. Elsewhere the first crossing stands (a small
+   first lobe of real motion, as x_base has, is the crossing).
    shift = align_time - t_x; new time = old time + shift.
 
 The synchronised runs are evaluated once more at (t' - shift + s_r) on the output grid (the
@@ -158,6 +163,17 @@ def first_crossing(f, t_start: float, t_stop: float, step: float, threshold: flo
                         xtol=1e-6 * step, rtol=4 * np.finfo(float).eps))
 
 
+def quiet_start(f, t_start: float, t_onset: float, step: float, threshold: float) -> float:
+    """The last scan point (step ``step``) in [t_start, t_onset] where |f| is below
+    ``threshold``: where the search for the crossing that leads into the motion begins.
+    ``t_start`` itself when |f| is at or above the threshold all the way (the crossing
+    search then reports that no incipient motion is seen)."""
+    tt = np.arange(t_start, max(t_onset, t_start) + 0.5 * step, step)
+    tt = tt[tt <= max(t_onset, t_start)]
+    below = np.flatnonzero(np.abs(f(tt)) < threshold)
+    return float(tt[below[-1]]) if below.size else float(t_start)
+
+
 def _sampled_crossing(f, time: np.ndarray, delay: float, threshold: float, hold: int
                       ) -> float | None:
     """The alignment rule applied to a continuous signal f sampled on ``time`` after a delay
@@ -270,8 +286,14 @@ def preprocess(campaign: xr.Dataset, config: PreprocessConfig | None = None) -> 
         def M(k, sh=sh, sps=sps):
             return np.mean([sps[r](np.asarray(k) + sh[r]) for r in range(R)], axis=0)
 
-        kx = first_crossing(M, lo, hi, 1.0 / UPSAMPLE, cfg.threshold_factor * d["noise_std"],
-                            hold=cfg.hold * UPSAMPLE + 1)
+        thr = cfg.threshold_factor * d["noise_std"]
+        kx = first_crossing(M, lo, hi, 1.0 / UPSAMPLE, thr, hold=cfg.hold * UPSAMPLE + 1)
+        if kx is None and abs(float(M(lo))) >= thr:
+            # the mean starts above the threshold (baseline drift a few runs do not average
+            # out): the crossing that leads into the motion
+            kx = first_crossing(M, quiet_start(M, lo, min(float(d["onset"]), hi),
+                                               1.0 / UPSAMPLE, thr),
+                                hi, 1.0 / UPSAMPLE, thr, hold=cfg.hold * UPSAMPLE + 1)
         if kx is None:
             no_cross.append(name)
             shift[i] = np.nan
@@ -281,8 +303,10 @@ def preprocess(campaign: xr.Dataset, config: PreprocessConfig | None = None) -> 
     if no_cross:
         if set(no_cross) & set(MODEL_POSITIONS):
             bad = sorted(set(no_cross) & set(MODEL_POSITIONS))
-            raise GprmInputError(f"position(s) {bad}: mean signal never reaches "
-                                 f"{cfg.threshold_factor:g} x noise std; cannot align",
+            raise GprmInputError(f"position(s) {bad}: the mean signal shows no crossing of "
+                                 f"{cfg.threshold_factor:g} x the noise std into the motion "
+                                 "(it never reaches it, or stays above it from the record's "
+                                 "start to the motion's onset); cannot align",
                                  source=src, field="displacement")
         shift[np.isnan(shift)] = np.nanmedian(shift)
     sync = np.array([per[n]["shifts"] for n in POSITIONS]) * dt      # (P, R) s

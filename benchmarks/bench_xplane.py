@@ -1,0 +1,120 @@
+"""Why the x-plane B support (k_Bx, c_Bx, d2) is under-covered when the noise is high
+(issue 21; docs/fitting.md, "Probes, and the x-plane support at higher noise").
+
+    .venv/bin/python benchmarks/bench_xplane.py [--sources white,probe-noise-4x]
+        [--campaigns 20] [--starts 100] [--cache DIR] [--direct 6]
+
+For each campaign of each source (the fits of benchmarks/bench_sources.py, read from
+``--cache`` where present) it measures, for k_Bx, c_Bx, d2 and for comparison m3:
+
+- ``z``: the truth's distance from the best fit in the default interval's own standard
+  deviations (the 68 % half-width on the truth's side), in the prior's coordinates;
+- ``sd ratio``: the estimator's linearised sd *at the truth* over that at the best fit (the
+  Jacobian at the truth, the physical parameters there and the lags refitted; the weak prior
+  and the data weights as in the fit);
+- with ``--direct K``: K data sets made directly from the model at the truth plus white
+  noise of the campaign's own sigma(t) (no campaign, no preprocessing), each fitted from the
+  truth: the rms of the errors in the same sds. If these are as large as the campaign fits'
+  errors, the cause is the estimator (its nonlinearity), not the data's preparation.
+
+Prints one table row per source and parameter: rms z, the share of |z| < 1 (nominal 68 %),
+the median sd ratio, and the direct data's rms z.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+import bench_sources as bs  # noqa: E402
+
+from gprm.fit import sandwich as sw  # noqa: E402
+from gprm.fit.engine import polish_best  # noqa: E402
+from gprm.fit.methods import state_of, uncertainty_of  # noqa: E402
+from gprm.fit.objective import Objective  # noqa: E402
+
+NAMES = ("k_Bx", "c_Bx", "d2", "m3")
+
+
+def truth_with_lags(case, st) -> np.ndarray:
+    """The truth's physical parameters with the lags refitted to the data (physical (P,))."""
+    obj, x, names = st.obj, np.asarray(st.x, float), list(st.names)
+    lags = [n for n in names if n not in case.truth]
+    base = obj.base.with_values(**{**dict(zip(names, map(float, x))), **case.truth})
+    o2 = Objective.create(obj.data, base, tuple(lags), piezo=obj.piezo,
+                          z_bk_absolute=obj.z_bk_absolute, prior=None)
+    xl, _ = polish_best(o2, np.array([base[n] for n in lags]), case.fit.options.lm)
+    return np.array([case.truth[n] if n in case.truth else xl[lags.index(n)] for n in names])
+
+
+def linear_sd(obj, prior, x: np.ndarray) -> np.ndarray:
+    """The estimator's linearised sd in u at ``x`` (H^-1 with the fit's prior weight)."""
+    n = obj.data.n_obs
+    _, Jn = obj(obj.to_normalised(x)[None])
+    J = Jn[0, :n] / obj.scale
+    Hinv = sw._linearised(obj, x, J, prior)[1]
+    return np.sqrt(np.diag(Hinv))
+
+
+def campaign(case, direct: int) -> dict:
+    st = state_of(case.fit)
+    obj, prior, x, names = st.obj, st.prior, np.asarray(st.x, float), list(st.names)
+    unc = uncertainty_of(case.fit, "sandwich")
+    lo, hi = unc.interval(0.68)
+    xt = truth_with_lags(case, st)
+    u, ut = prior.to_u(x), prior.to_u(xt)
+    sd_fit, sd_truth = linear_sd(obj, prior, x), linear_sd(obj, prior, xt)
+    out = {}
+    idx = [names.index(n) for n in NAMES]
+    for n, i in zip(NAMES, idx):
+        e = ut[i] - u[i]
+        half = (prior.to_u(hi[None])[0][i] - u[i]) if e > 0 else (u[i] - prior.to_u(lo[None])[0][i])
+        out[n] = {"z": float(e / half), "ratio": float(sd_truth[i] / sd_fit[i]), "direct": []}
+    if direct:
+        yt = obj.model(xt[None]).y[0]
+        rng = np.random.default_rng([case.seed, 77])
+        for _ in range(direct):
+            data = replace(obj.data, values=yt + rng.standard_normal(yt.shape) * obj.data.sigma)
+            o3 = Objective.create(data, obj.base, obj.names, piezo=obj.piezo,
+                                  z_bk_absolute=obj.z_bk_absolute, prior=obj.prior)
+            xp, _ = polish_best(o3, xt, case.fit.options.lm)
+            up = prior.to_u(xp)
+            for n, i in zip(NAMES, idx):
+                out[n]["direct"].append(float((up[i] - ut[i]) / sd_fit[i]))
+    return out
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--sources", default="white,probe-noise-4x")
+    ap.add_argument("--campaigns", type=int, default=20)
+    ap.add_argument("--seed", type=int, default=5000)
+    ap.add_argument("--starts", type=int, default=100)
+    ap.add_argument("--cache")
+    ap.add_argument("--direct", type=int, default=6,
+                    help="data sets made directly from the truth per campaign (0: none)")
+    a = ap.parse_args(argv)
+    print("| source | parameter | rms z | abs z < 1 | median sd ratio (truth / fit) | "
+          "direct data: rms z |")
+    print("|---|---|---|---|---|---|")
+    for src in [s for s in a.sources.split(",") if s]:
+        rows = [campaign(bs.run_case(src, a.seed + k, a.starts, a.cache), a.direct)
+                for k in range(a.campaigns)]
+        for n in NAMES:
+            z = np.array([r[n]["z"] for r in rows])
+            ratio = np.array([r[n]["ratio"] for r in rows])
+            d = np.array([v for r in rows for v in r[n]["direct"]])
+            dtxt = f"{np.sqrt(np.mean(d ** 2)):.2f}" if d.size else "-"
+            print(f"| {src} | {n} | {np.sqrt(np.mean(z ** 2)):.2f} | "
+                  f"{np.mean(np.abs(z) < 1):.2f} | {np.median(ratio):.2f} | {dtxt} |",
+                  flush=True)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -328,7 +328,7 @@ def main(argv=None) -> int:
         print(not_identified_table(rows))
         return 0
     srcs = [s for s in a.sources.split(",") if s]
-    known = sources.SOURCES + sources.PROBES
+    known = sources.SOURCES + sources.PROBES + sources.NOISE_SCAN
     unknown = [s for s in srcs if s not in known]
     if unknown:
         ap.error(f"unknown source(s) {unknown}; one of {', '.join(known)}")

@@ -43,7 +43,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 # the coverage study's truths: the 21 physical parameters, each x U(0.9, 1.1) of Table 3
 from bench_coverage import PHYSICAL, draw_truth  # noqa: E402
 
-__all__ = ["PHYSICAL", "PROBES", "SOURCES", "draw_truth", "make"]
+__all__ = ["NOISE_SCAN", "PHYSICAL", "PROBES", "SOURCES", "draw_truth", "make"]
 
 
 _OFF = dict(nonlinear=False, mode_rel=0.0, trigger_max=0.0, v0_rel=0.0, tau_rel=0.0,
@@ -73,9 +73,14 @@ SOURCES = (("white",) + tuple(f"{k}-{s}" for k in _ALONE for s in (1, 2))
            + ("generator", "sim2-white", "sim2"))
 #: sources defined after the method was fixed (module docstring)
 PROBES = ("probe-mode-12k", "probe-noise-4x", "probe-runs-3", "probe-sim2-2x")
+#: the exact model with white noise at 2x and 3x ``white``'s: where between 1x and the 4x
+#: probe the x-plane B support's intervals stop holding (docs/fitting.md)
+NOISE_SCAN = ("noise-2x", "noise-3x")
 _PROBE_CONFIG = {"probe-mode-12k": {**_OFF, "mode_rel": 0.015, "mode_freq": 12e3},
                  "probe-noise-4x": {**_OFF, "noise_white": 2e-9},
-                 "probe-runs-3": {"n_runs": 3}}
+                 "probe-runs-3": {"n_runs": 3},
+                 "noise-2x": {**_OFF, "noise_white": 1e-9},
+                 "noise-3x": {**_OFF, "noise_white": 1.5e-9}}
 
 
 def _sim2():

@@ -151,6 +151,7 @@ def score(case: Case, method: str, predictions: bool = False) -> dict:
         out[f"all_in{round(100 * L)}"] = 0
         out[f"prior_in{round(100 * L)}"] = 0
     misses = []
+    out["inside"] = {}
     for k, n in enumerate(names):
         if n not in case.truth:
             continue
@@ -162,6 +163,7 @@ def score(case: Case, method: str, predictions: bool = False) -> dict:
             inside = bool(lo[k] <= v <= hi[k])
             out[f"all_in{round(100 * L)}"] += int(inside)
             if ident[k]:
+                out["inside"].setdefault(n, []).append(int(inside))
                 out[f"id_in{round(100 * L)}"] += int(inside)
                 if share is not None and share[k] >= PRIOR_DOMINATED:
                     out[f"prior_in{round(100 * L)}"] += int(inside)
@@ -261,6 +263,24 @@ def prior_share_table(rows: list[dict]) -> str:
     return "\n".join(out)
 
 
+def parameter_table(rows: list[dict]) -> str:
+    """Coverage per identified physical parameter, pooled over every source and campaign in
+    ``rows`` (a per-source table can hide a parameter that is covered too rarely
+    everywhere)."""
+    cnt: dict[str, list[int]] = {}
+    for r in rows:
+        for n, flags in (r.get("inside") or {}).items():
+            c = cnt.setdefault(n, [0, 0, 0])
+            c[0] += 1
+            c[1] += flags[0]
+            c[2] += flags[1]
+    out = ["| parameter | identified (campaigns) | 95 % | 68 % |", "|---|---|---|---|"]
+    for n in sorted(cnt, key=lambda m: cnt[m][2] / cnt[m][0]):
+        c = cnt[n]
+        out.append(f"| {n} | {c[0]} | {100 * c[1] / c[0]:.1f} | {100 * c[2] / c[0]:.1f} |")
+    return "\n".join(out)
+
+
 def _name_counts(rows: list[dict], key: str, campaigns: bool = False) -> str:
     """Per source and method, how many campaigns list each name under ``key``."""
     out = []
@@ -326,6 +346,8 @@ def main(argv=None) -> int:
         print(misses_table(rows))
         print()
         print(not_identified_table(rows))
+        print()
+        print(parameter_table(rows))
         return 0
     srcs = [s for s in a.sources.split(",") if s]
     known = sources.SOURCES + sources.PROBES + sources.NOISE_SCAN
@@ -363,6 +385,8 @@ def main(argv=None) -> int:
     print(misses_table(rows))
     print()
     print(not_identified_table(rows))
+    print()
+    print(parameter_table(rows))
     if a.json:
         Path(a.json).write_text(json.dumps({"meta": meta, "rows": rows}, indent=1))
     return 0

@@ -564,3 +564,30 @@ def test_fisher_g_test_is_exact_on_white_noise_and_finds_an_oscillation():
     a = Adequacy.from_json(old)
     assert np.isnan(a.signals[0].peak_p)
     assert "peak_p_fisher_g" in a.to_json()["signals"][0]
+
+
+def test_alternative_minima_that_fit_as_well_widen_only_their_side():
+    """Another minimum whose objective lies within the level's likelihood-ratio threshold of
+    the best makes that level's interval the union of the best's and the same width around
+    the other minimum, side by side; one above the threshold, or none, changes nothing."""
+    from gprm.fit.sandwich import LR_THRESHOLD, alternative_factors
+
+    u = np.array([0.0, 1.0, -2.0])
+    sd = np.array([0.1, 0.2, 0.5])
+    z = 1.96
+    # the other minimum: parameter 0 three z-sds above, parameter 1 inside, parameter 2 below
+    U = np.array([[3 * z * 0.1, 1.0 + 0.1, -2.0 - 2 * z * 0.5]])
+    lo, hi = alternative_factors(u, sd, U, np.array([2.0]), z, LR_THRESHOLD[0.95])
+    np.testing.assert_allclose(hi, [4.0, 1.0 + 0.1 / (z * 0.2), 1.0])
+    np.testing.assert_allclose(lo, [1.0, 1.0, 3.0])
+    # the same point at 68 %: D = 2 is above that level's threshold (0.99)
+    lo, hi = alternative_factors(u, sd, U, np.array([2.0]), 1.0, LR_THRESHOLD[0.68])
+    np.testing.assert_array_equal(np.concatenate([lo, hi]), 1.0)
+    # none, or one that fits clearly worse
+    for D in (np.zeros(0), np.array([50.0])):
+        lo, hi = alternative_factors(u, sd, U[:D.size], D, z, LR_THRESHOLD[0.95])
+        np.testing.assert_array_equal(np.concatenate([lo, hi]), 1.0)
+    from scipy.stats import chi2
+    # the levels' z^2: chi-square quantiles of 1 dof (68 % is the interval's z = ndtri(0.84))
+    assert LR_THRESHOLD[0.95] == pytest.approx(chi2.ppf(0.95, 1))
+    assert LR_THRESHOLD[0.68] == pytest.approx(chi2.ppf(0.68, 1), rel=1e-4)

@@ -73,7 +73,8 @@ def identify(data: FitData, base: ParameterSet, opts: MultiStartOptions = MultiS
     eq7 = estimate("eq7", x, J, r, obj.dof, len(data.signals), prior, obj.names)
     t_b = time.perf_counter()
     state = FitState(obj, x, J, r, obj.prior, seed=opts.seed, n_draws=n_draws, lm=opts.lm,
-                     n_boot=n_boot, systematics=systematics)
+                     n_boot=n_boot, systematics=systematics,
+                     alternatives=np.asarray(starts.x, float))
     unc = eq7 if uncertainty == "eq7" else compute(uncertainty, state)
     t_a = time.perf_counter()
     adequacy = assess(obj, x, r, effective_parameters(J, x, obj.prior), lm=opts.lm)

@@ -63,6 +63,10 @@ class FitState:
     lm: LMOptions = LMOptions()
     n_boot: int = 30
     systematics: object = None          # gprm.fit.sandwich.Systematics (None: defaults)
+    #: (K, P) physical: the other starts' end points of the multi-start (None: not known);
+    #: the default method widens an interval to every one that fits as well
+    #: (gprm.fit.sandwich.alternative_factors)
+    alternatives: np.ndarray | None = None
 
     @property
     def names(self) -> tuple[str, ...]:
@@ -85,10 +89,13 @@ def state_of(fit, *, systematics=None) -> FitState:
     rr, Jn = obj(obj.to_normalised(x)[None])
     n = obj.data.n_obs
     opts = fit.options
+    starts = getattr(fit, "starts", None)
+    alt = getattr(starts, "x", None)
     return FitState(obj, x, Jn[0, :n] / obj.scale, rr[0, :n], obj.prior, seed=opts.seed,
                     lm=opts.lm,
                     systematics=systematics if systematics is not None else
-                    getattr(fit, "systematics", None))
+                    getattr(fit, "systematics", None),
+                    alternatives=None if alt is None else np.asarray(alt, float))
 
 
 def uncertainty_of(fit, method: str, *, systematics=None):

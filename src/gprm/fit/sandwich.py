@@ -739,6 +739,99 @@ def variance_factors(obj: Objective, x: np.ndarray, Cu: np.ndarray, prior: Prior
     return f[0], f[1]
 
 
+#: the likelihood-ratio thresholds (chi-square, 1 dof) of the 95 % and 68 % levels: another
+#: minimum whose objective lies within this many variance scales of the best is as
+#: compatible with the data as the best fit's own interval edge
+LR_THRESHOLD = {0.95: float(ndtri(0.975)) ** 2, 0.68: float(ndtri(0.84)) ** 2}
+
+
+def alternative_factors(u: np.ndarray, sd: np.ndarray, U_alt: np.ndarray, D_alt: np.ndarray,
+                        z: float, threshold: float) -> tuple[np.ndarray, np.ndarray]:
+    """(lower, upper) (P,) >= 1: each side of the ``z``-interval (centre u, sd ``sd``, in u)
+    stretched so that the interval is the union of its own and the same interval around
+    every other minimum ``U_alt`` (K, P) whose objective lies within ``threshold`` of the
+    best (``D_alt`` (K,): the rise over the best in variance scales): a value the data fit
+    as well as the best is inside the likelihood-ratio region, and a linearisation at the
+    best fit alone cannot see it (the y-plane pair's two edges, docs/fitting.md, "Coverage
+    per parameter")."""
+    lo = np.ones(u.size)
+    hi = np.ones(u.size)
+    ok = np.isfinite(D_alt) & (D_alt <= threshold)
+    if not ok.any():
+        return lo, hi
+    d = U_alt[ok] - u[None, :]                                            # (K', P)
+    w = np.where(sd > 0, z * sd, np.inf)
+    reach = 1.0 + np.abs(d) / w[None, :]
+    lo = np.maximum(lo, np.max(np.where(d < 0, reach, 1.0), axis=0))
+    hi = np.maximum(hi, np.max(np.where(d > 0, reach, 1.0), axis=0))
+    return lo, hi
+
+
+#: the other minima polished under the final objective: those whose unpolished rise is at most
+#: this many variance scales, the lowest ALT_MAX of them
+ALT_PREFILTER = 100.0
+ALT_MAX = 16
+
+
+def _distinct(U: np.ndarray, u0: np.ndarray, sd: np.ndarray) -> np.ndarray:
+    """Indices of the rows of U distinct from each other and from u0 (to 1e-4 prior sd)."""
+    key = np.round((U - u0[None]) / sd[None], 4)
+    _, first = np.unique(key, axis=0, return_index=True)
+    first = np.sort(first)
+    return first[np.max(np.abs(key[first]), axis=1) > 0]
+
+
+def alternative_minima(obj: Objective, x: np.ndarray, X_alt: np.ndarray | None,
+                       prior: Prior, lm=None) -> tuple[np.ndarray, np.ndarray]:
+    """(U (K, P) in the prior's coordinates, D (K,)): the multi-start's other end points that
+    fit nearly as well, polished under the objective the best fit minimises (data and the
+    prior weighed by the data's variance scale; the starts ran with the prior's first
+    weight), distinct from each other and from the best fit ``x``, with the rise of that
+    objective over the best in the variance scale s2 (the prior's weight squared). Only the
+    ALT_MAX lowest within ALT_PREFILTER before the polish are polished (one batch)."""
+    from gprm.fit.engine import polish_kwargs
+    from gprm.fit.lm import levenberg_marquardt_batch
+    from gprm.fit.starts import LMOptions
+
+    x = np.asarray(x, float)
+    P = x.size
+    empty = (np.zeros((0, P)), np.zeros(0))
+    if X_alt is None or len(X_alt) == 0:
+        return empty
+    X = np.asarray(X_alt, float)
+    lo_b, hi_b = obj.bounds()
+    X = X[np.all(np.isfinite(X) & (X > lo_b) & (X < hi_b), axis=1)]
+    if X.shape[0] == 0:
+        return empty
+    u0 = prior.to_u(x[None])[0]
+    X = X[_distinct(prior.to_u(X), u0, prior.sd)]
+    if X.shape[0] == 0:
+        return empty
+    s2 = max(float(prior.weight) ** 2, 1e-300)
+    phi = _objective(obj, np.vstack([x[None], X]))
+    D0 = (phi[1:] - phi[0]) / s2
+    keep = np.flatnonzero(np.isfinite(D0) & (D0 <= ALT_PREFILTER))
+    keep = keep[np.argsort(D0[keep])][:ALT_MAX]
+    if keep.size == 0:
+        return empty
+    lo, hi = obj.bounds_normalised()
+    res = levenberg_marquardt_batch(obj, obj.to_normalised(X[keep]), lower=lo, upper=hi,
+                                    residuals=obj.residuals,
+                                    **polish_kwargs(lm if lm is not None else LMOptions(),
+                                                    200, 1e-12))
+    Xp = obj.to_physical(res.x)
+    ok = np.isfinite(res.chi2) & np.all(np.isfinite(Xp), axis=1)
+    Xp = Xp[ok]
+    if Xp.shape[0] == 0:
+        return empty
+    Up = prior.to_u(Xp)
+    idx = _distinct(Up, u0, prior.sd)
+    if idx.size == 0:
+        return empty
+    phi_p = _objective(obj, Xp[idx])
+    return Up[idx], (phi_p - phi[0]) / s2
+
+
 def stretch_draws(Z: np.ndarray, sd: np.ndarray, f68: tuple, f95: tuple,
                   z: tuple[float, float]) -> np.ndarray:
     """Draws ``Z`` (n, P) from N(0, Cu) (sd (P,) their marginal sds) mapped, coordinate by
@@ -786,6 +879,11 @@ def uncertainty(method: str, state: FitState) -> Uncertainty:
         (ones, ones)
     f_lo, f_hi = np.maximum(s_lo, v95[0]), np.maximum(s_hi, v95[1])
     f68_lo, f68_hi = np.maximum(s_lo, v68[0]), np.maximum(s_hi, v68[1])
+    U_alt, D_alt = alternative_minima(state.obj, x, state.alternatives, prior, state.lm)
+    a95 = alternative_factors(u, sd_u, U_alt, D_alt, z95, LR_THRESHOLD[0.95])
+    a68 = alternative_factors(u, sd_u, U_alt, D_alt, z68, LR_THRESHOLD[0.68])
+    f_lo, f_hi = np.maximum(f_lo, a95[0]), np.maximum(f_hi, a95[1])
+    f68_lo, f68_hi = np.maximum(f68_lo, a68[0]), np.maximum(f68_hi, a68[1])
     lo95, hi95 = u - z95 * sd_u * f_lo, u + z95 * sd_u * f_hi
     lo68, hi68 = u - z68 * sd_u * f68_lo, u + z68 * sd_u * f68_hi
     contraction = sd_u * np.maximum(f_lo, f_hi) / prior.sd
@@ -825,6 +923,12 @@ def uncertainty(method: str, state: FitState) -> Uncertainty:
         "shape_factors": {"lower": [float(v) for v in s_lo], "upper": [float(v) for v in s_hi]},
         "variance_factors": {"lower": [float(v) for v in v95[0]],
                              "upper": [float(v) for v in v95[1]]},
+        "alternative_minima": {
+            "within_95": int(np.sum(D_alt <= LR_THRESHOLD[0.95])),
+            "within_68": int(np.sum(D_alt <= LR_THRESHOLD[0.68])),
+            "distinct": int(D_alt.size),
+            "factors": {"lower": [float(v) for v in a95[0]],
+                        "upper": [float(v) for v in a95[1]]}},
     }
     return Uncertainty(method, state.names, 0.5 * (cov_x + cov_x.T), prior.from_u(lo95),
                        prior.from_u(hi95), prior.from_u(lo68), prior.from_u(hi68), identified,

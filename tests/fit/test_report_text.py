@@ -167,3 +167,19 @@ def test_starts_line_names_raced_starts_only_when_there_are_some():
     d["starts"] = {**d["starts"], "raced": 40, "race": [[3, 25], [6, 5]]}
     line = next(ln for ln in fit_report(d).splitlines() if "starts:" in ln)
     assert "pruned 8, raced 40, failed 2, at best (dchi2<=1) 7" in line
+
+
+def test_report_names_other_minima_and_the_parameters_they_widen_most():
+    """The uncertainty block says how many other minima fit as well as the best and which
+    parameters' intervals they widened by more than half (factors indexed like the
+    correlation's names, not the parameter table, which also lists fixed parameters)."""
+    d = _new_format()
+    d["uncertainty"] = {"method": "sandwich", "details": {
+        "statistical_from": "runs and residuals",
+        "alternative_minima": {"within_95": 2, "within_68": 1, "distinct": 5,
+                               "factors": {"lower": [1.0, 3.0, 1.0],
+                                           "upper": [1.2, 1.0, 1.6]}}}}
+    line = next(ln for ln in fit_report(d).splitlines() if "other minima" in ln)
+    assert "2 of 5" in line and "widened most: g2, kz" in line and "v2" not in line
+    d["uncertainty"]["details"]["alternative_minima"]["within_95"] = 0
+    assert "other minima" not in fit_report(d)

@@ -106,6 +106,20 @@ def fit_report(d: dict, *, min_correl: float = DEFAULT_MIN_CORREL) -> str:
                              "signal's crossing offset beyond its alignment noise)")
             if det.get("statistical_from"):
                 lines.append(f"    statistical part from the {det['statistical_from']}")
+        alt = det.get("alternative_minima") if isinstance(det, dict) else None
+        if isinstance(alt, dict) and alt.get("within_95"):
+            names = list((d.get("correlation") or {}).get("names")
+                         or [n for n, p in (d.get("parameters") or {}).items()
+                             if p.get("fitted", False)])
+            fac = alt.get("factors") or {}
+            wide = [names[i] for i, (a, b) in enumerate(zip(fac.get("lower") or [],
+                                                             fac.get("upper") or []))
+                    if i < len(names) and max(a, b) > 1.5]
+            lines.append(f"    other minima as good as the best (within the 95 % "
+                         f"likelihood-ratio threshold): {alt['within_95']} of "
+                         f"{alt.get('distinct', '?')} other minima near it (starts' end points, "
+                         "polished); the intervals include them"
+                         + (f" (widened most: {', '.join(wide)})" if wide else ""))
         factors = (unc.get("calibration") or {}).get("factors") or {}
         if isinstance(factors, dict) and factors:
             lines.append("    mismatch calibration (sd x factor): "

@@ -66,9 +66,9 @@ from gprm.simulate import observe
 #: docs/fitting.md, "Coverage per source")
 COVERAGE_HEADLINE = (
     "Measured per source of data, 20 campaigns each, on the identified parameters: the 95 % "
-    "intervals held the truth in 96.9 % on the exact model with white noise, 92.4 % on an "
-    "independently written simulator with white noise and 89.9 % with all its imperfections, "
-    "98.8 % on gprm's own generator and 91-98 % with trigger jitter, drive variation between "
+    "intervals held the truth in 96.9 % on the exact model with white noise, 94.1 % on an "
+    "independently written simulator with white noise and 90.5 % with all its imperfections, "
+    "98.8 % on gprm's own generator and 92-98 % with trigger jitter, drive variation between "
     "runs, coloured noise, drift, the nonlinear correction or per-channel gain errors alone; "
     "with an unmodelled mode they are wider than nominal (100 %: a third of the parameters "
     "identified there are mostly the weak prior's, and the mode's transient moves the others "

@@ -19,10 +19,11 @@ Table 3 (as the project's CLI chain check draws them).
 Probes (``PROBES``), defined after the default method was fixed (stop 33) as a check of
 the kind the held-out sources make, never used to choose anything: ``probe-mode-12k`` (the
 generator's mode moved to 12 kHz, among the model's own modes, 1.5 % of each peak),
-``probe-noise-4x`` (white noise 2e-9 m, four times ``white``'s; at ten times z_bk never
-rises above twice the noise and cannot be aligned), ``probe-runs-3`` (gprm's generator as it
-is but 3 actuated runs per position instead of 10: a thin runs' spread), ``probe-sim2-2x``
-(sim2 with every imperfection at twice its default strength).
+``probe-noise-4x`` (white noise 2e-9 m, four times ``white``'s; first defined at ten times
+and moved to four before any of its results was scored, on a misreading: the preprocessing
+failure then seen was probe-runs-3's, and ten-times campaigns do align), ``probe-runs-3``
+(gprm's generator as it is but 3 actuated runs per position instead of 10: a thin runs'
+spread), ``probe-sim2-2x`` (sim2 with every imperfection at twice its default strength).
 
 ``make(source, seed)`` returns (campaign Dataset or CSV folder path, truth ParameterSet).
 """

@@ -54,9 +54,12 @@ from scipy.special import ndtri
 
 from gprm.campaign.preprocess import alignment_shift
 from gprm.errors import GprmInputError
+from gprm.fit.engine import polish_kwargs
+from gprm.fit.lm import levenberg_marquardt_batch
 from gprm.fit.methods import FitState
 from gprm.fit.objective import Objective
 from gprm.fit.prior import Prior
+from gprm.fit.starts import LMOptions
 from gprm.fit.uncertainty import CONTRACTION, Uncertainty
 from gprm.params import batch_from_vectors
 from gprm.simulate import observe
@@ -782,17 +785,14 @@ def _distinct(U: np.ndarray, u0: np.ndarray, sd: np.ndarray) -> np.ndarray:
 
 
 def alternative_minima(obj: Objective, x: np.ndarray, X_alt: np.ndarray | None,
-                       prior: Prior, lm=None) -> tuple[np.ndarray, np.ndarray]:
+                       prior: Prior, lm: LMOptions = LMOptions()
+                       ) -> tuple[np.ndarray, np.ndarray]:
     """(U (K, P) in the prior's coordinates, D (K,)): the multi-start's other end points that
     fit nearly as well, polished under the objective the best fit minimises (data and the
     prior weighed by the data's variance scale; the starts ran with the prior's first
     weight), distinct from each other and from the best fit ``x``, with the rise of that
     objective over the best in the variance scale s2 (the prior's weight squared). Only the
     ALT_MAX lowest within ALT_PREFILTER before the polish are polished (one batch)."""
-    from gprm.fit.engine import polish_kwargs
-    from gprm.fit.lm import levenberg_marquardt_batch
-    from gprm.fit.starts import LMOptions
-
     x = np.asarray(x, float)
     P = x.size
     empty = (np.zeros((0, P)), np.zeros(0))
@@ -817,19 +817,15 @@ def alternative_minima(obj: Objective, x: np.ndarray, X_alt: np.ndarray | None,
     lo, hi = obj.bounds_normalised()
     res = levenberg_marquardt_batch(obj, obj.to_normalised(X[keep]), lower=lo, upper=hi,
                                     residuals=obj.residuals,
-                                    **polish_kwargs(lm if lm is not None else LMOptions(),
-                                                    200, 1e-12))
+                                    **polish_kwargs(lm, 200, 1e-12))
     Xp = obj.to_physical(res.x)
     ok = np.isfinite(res.chi2) & np.all(np.isfinite(Xp), axis=1)
-    Xp = Xp[ok]
-    if Xp.shape[0] == 0:
+    if not ok.any():
         return empty
-    Up = prior.to_u(Xp)
+    Up = prior.to_u(Xp[ok])
     idx = _distinct(Up, u0, prior.sd)
-    if idx.size == 0:
-        return empty
-    phi_p = _objective(obj, Xp[idx])
-    return Up[idx], (phi_p - phi[0]) / s2
+    # the polish's chi2 is the objective there (data and weighted prior rows)
+    return Up[idx], (res.chi2[ok][idx] - phi[0]) / s2
 
 
 def stretch_draws(Z: np.ndarray, sd: np.ndarray, f68: tuple, f95: tuple,

@@ -111,7 +111,8 @@ def intervals(case: Case, method: str):
 def truth_in_fit_time(case: Case):
     """The truth with its lag t0 in the fit's aligned time base: t0 plus the shift the
     alignment rule of preprocessing gives the noise-free truth's x_base (threshold 2 x the
-    measured noise std, align time 1.01 ms), on the record's 200 kHz grid."""
+    measured noise std, align time 1.01 ms), on the record's 200 kHz grid, moved by the
+    whole-sample rounding the data's shift got (the data's crossing_time less align_time)."""
     from gprm.campaign.preprocess import alignment_shift
     from gprm.params import batch
     from gprm.simulate import observe
@@ -122,7 +123,11 @@ def truth_in_fit_time(case: Case):
     y = observe(batch([truth]), t, ("x_base",)).y[0, 0]
     k = list(d.signals).index("x_base")
     thr = 2.0 * float(d.noise_std[k]) if d.noise_std is not None else 1e-9
-    shift = alignment_shift(t, y, thr, align_time=float(d.attrs.get("align_time", 1.01e-3)))
+    t_a = float(d.attrs.get("align_time", 1.01e-3))
+    shift = alignment_shift(t, y, thr, align_time=t_a)
+    if shift is not None and d.crossing_time is not None:
+        # the data's shift was rounded to whole samples: the truth moves with it
+        shift += float(d.crossing_time[k]) - t_a
     return truth, truth.with_values(t0=truth["t0"] + (shift or 0.0))
 
 

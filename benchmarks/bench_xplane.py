@@ -2,10 +2,11 @@
 (issue 21; docs/fitting.md, "Probes, and the x-plane support at higher noise").
 
     .venv/bin/python benchmarks/bench_xplane.py [--sources white,probe-noise-4x]
-        [--campaigns 20] [--starts 100] [--cache DIR] [--direct 6]
+        [--campaigns 20] [--starts 100] [--cache DIR] [--direct 6] [--names k_Bx,c_Bx,d2,m3]
 
 For each campaign of each source (the fits of benchmarks/bench_sources.py, read from
-``--cache`` where present) it measures, for k_Bx, c_Bx, d2 and for comparison m3:
+``--cache`` where present) it measures, for k_Bx, c_Bx, d2 and for comparison m3 (or the
+parameters ``--names`` lists, e.g. k_lr,m1 with ``--direct 0`` for their offsets):
 
 - ``z``: the truth's distance from the best fit in the default interval's own standard
   deviations (the 68 % half-width on the truth's side), in the prior's coordinates;
@@ -53,7 +54,7 @@ def linear_sd(obj, prior, x: np.ndarray) -> np.ndarray:
     return np.sqrt(np.diag(Hinv))
 
 
-def campaign(case, direct: int) -> dict:
+def campaign(case, direct: int, names_of_interest=NAMES) -> dict:
     st = state_of(case.fit)
     obj, prior, x, names = st.obj, st.prior, np.asarray(st.x, float), list(st.names)
     unc = uncertainty_of(case.fit, "sandwich")
@@ -62,8 +63,8 @@ def campaign(case, direct: int) -> dict:
     u, ut = prior.to_u(x), prior.to_u(xt)
     sd_fit, sd_truth = linear_sd(obj, prior, x), linear_sd(obj, prior, xt)
     out = {}
-    idx = [names.index(n) for n in NAMES]
-    for n, i in zip(NAMES, idx):
+    idx = [names.index(n) for n in names_of_interest]
+    for n, i in zip(names_of_interest, idx):
         e = ut[i] - u[i]
         half = (prior.to_u(hi[None])[0][i] - u[i]) if e > 0 else (u[i] - prior.to_u(lo[None])[0][i])
         out[n] = {"z": float(e / half), "ratio": float(sd_truth[i] / sd_fit[i]), "direct": []}
@@ -76,7 +77,7 @@ def campaign(case, direct: int) -> dict:
                                   z_bk_absolute=obj.z_bk_absolute, prior=obj.prior)
             xp, _ = polish_best(o3, xt, case.fit.options.lm)
             up = prior.to_u(xp)
-            for n, i in zip(NAMES, idx):
+            for n, i in zip(names_of_interest, idx):
                 out[n]["direct"].append(float((up[i] - ut[i]) / sd_fit[i]))
     return out
 
@@ -90,14 +91,17 @@ def main(argv=None) -> int:
     ap.add_argument("--cache")
     ap.add_argument("--direct", type=int, default=6,
                     help="data sets made directly from the truth per campaign (0: none)")
+    ap.add_argument("--names", default=",".join(NAMES),
+                    help="fitted parameters to score (comma-separated)")
     a = ap.parse_args(argv)
+    names = tuple(n for n in a.names.split(",") if n)
     print("| source | parameter | rms z | abs z < 1 | mean z (se) | median sd ratio "
           "(truth / fit) | direct data: rms z |")
     print("|---|---|---|---|---|---|---|")
     for src in [s for s in a.sources.split(",") if s]:
-        rows = [campaign(bs.run_case(src, a.seed + k, a.starts, a.cache), a.direct)
+        rows = [campaign(bs.run_case(src, a.seed + k, a.starts, a.cache), a.direct, names)
                 for k in range(a.campaigns)]
-        for n in NAMES:
+        for n in names:
             z = np.array([r[n]["z"] for r in rows])
             ratio = np.array([r[n]["ratio"] for r in rows])
             d = np.array([v for r in rows for v in r[n]["direct"]])

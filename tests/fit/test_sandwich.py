@@ -444,6 +444,14 @@ def test_crossing_offsets_find_a_model_onset_moved_from_the_datas():
         off = crossing_offsets(obj, y)
         assert off[0] == pytest.approx(-delta, abs=0.02 / rate)
         assert off[1] == pytest.approx(0.0, abs=0.02 / rate)
+    # data moved by whole samples put their crossing at crossing_time, off align_time by a
+    # fraction of a sample: a model crossing there has no offset, one at align_time has
+    # the difference
+    data.crossing_time = np.array([t_a + 2.1e-6, t_a - 1.7e-6])
+    y = np.stack([onset_ramp(t_a + 2.1e-6), onset_ramp(t_a)])
+    off = crossing_offsets(obj, y)
+    assert off[0] == pytest.approx(0.0, abs=0.02 / rate)
+    assert off[1] == pytest.approx(-1.7e-6, abs=0.02 / rate)
     # without the rule's attributes nothing is claimed
     data.attrs = {}
     np.testing.assert_array_equal(crossing_offsets(obj, y), 0.0)

@@ -368,7 +368,8 @@ def means_dataset(ms) -> xr.Dataset:
         coords={"signal": ("signal", sig, {"long_name": "laser position"}),
                 "time": ("time", ms.time, {
                     "units": "s", "long_name": "aligned time: each signal crosses "
-                    "threshold_factor x noise_std at align_time"}),
+                    "threshold_factor x noise_std at crossing_time, within half a sample "
+                    "of align_time"}),
                 "run": ("run", np.arange(ms.sync_shift.shape[1]),
                         {"long_name": "index of the actuated run"})})
     if getattr(ms, "runs", None) is not None:
@@ -379,6 +380,12 @@ def means_dataset(ms) -> xr.Dataset:
         ds["interpolation_error"] = (("signal", "time"), ms.interpolation_error, {
             "units": "m", "long_name": "the mean's cubic-spline interpolation less a quintic "
             "one of the same runs at the same times (estimated interpolation error)"})
+    if getattr(ms, "crossing_time", None) is not None:
+        ds["crossing_time"] = (("signal",), ms.crossing_time, {
+            "units": "s", "long_name": "where the mean's first sustained crossing of "
+            "threshold_factor x noise_std lies on the aligned time axis: within half a "
+            "sample of align_time, the shift being whole samples (align_time where it "
+            "never crossed)"})
     if ms.truth_shift is not None:
         ds["truth_shift"] = (("signal",), ms.truth_shift, {
             "units": "s", "long_name": "shift the same alignment rule gives the noise-free "

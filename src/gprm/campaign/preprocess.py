@@ -113,6 +113,10 @@ class MeanSignals:
     #: (signal, time) m: the mean's cubic interpolation less a quintic one of the same runs at
     #: the same points: an estimate of the error the interpolation of step 3 adds
     interpolation_error: np.ndarray | None = None
+    #: (signal,) s: where each mean's first sustained crossing lies on the output time axis,
+    #: within half a sample of align_time (the shift is a whole number of samples);
+    #: align_time for a signal that never crossed
+    crossing_time: np.ndarray | None = None
 
     def to_dataset(self) -> xr.Dataset:
         """The mean-signals NetCDF layout (:func:`gprm.campaign.files.means_dataset`)."""
@@ -266,6 +270,8 @@ def preprocess(campaign: xr.Dataset, config: PreprocessConfig | None = None) -> 
     R = disp.shape[1]
     per = {}
     shift = np.zeros(len(POSITIONS))
+    crossing = np.full(len(POSITIONS), np.nan)
+    exact = np.full(len(POSITIONS), np.nan)          # the shifts before the rounding
     no_cross = []
     # the fitted positions first: a position outside the model that shows no motion above
     # its noise (a flange that barely moves) then takes their median onset
@@ -298,7 +304,15 @@ def preprocess(campaign: xr.Dataset, config: PreprocessConfig | None = None) -> 
             no_cross.append(name)
             shift[i] = np.nan
         else:
-            shift[i] = cfg.align_time - (time[0] + kx * dt)
+            # whole samples: the reference run is then not interpolated at all, and the
+            # crossing lands within half a sample of align_time (``crossing_time``); the
+            # fitted lags take up the rest. A sub-sample shift would interpolate every run
+            # across the motion's onset, where the response has a kink; a cubic spline errs
+            # there, enough to bias k_lr and m1 by about one sd on exact-model campaigns
+            # (docs/data-formats.md, step 3)
+            exact[i] = cfg.align_time - (time[0] + kx * dt)
+            shift[i] = dt * np.round(exact[i] / dt)
+            crossing[i] = time[0] + kx * dt + shift[i]
         per[name] = d
     if no_cross:
         if set(no_cross) & set(MODEL_POSITIONS):
@@ -308,7 +322,8 @@ def preprocess(campaign: xr.Dataset, config: PreprocessConfig | None = None) -> 
                                  "(it never reaches it, or stays above it from the record's "
                                  "start to the motion's onset); cannot align",
                                  source=src, field="displacement")
-        shift[np.isnan(shift)] = np.nanmedian(shift)
+        exact[np.isnan(exact)] = np.nanmedian(exact)
+        shift[np.isnan(shift)] = dt * np.round(exact[np.isnan(shift)] / dt)
     sync = np.array([per[n]["shifts"] for n in POSITIONS]) * dt      # (P, R) s
     # output grid: record samples where every position and run has data
     src_lo = time[0] + shift[:, None] - sync                           # t' >= this
@@ -393,7 +408,10 @@ def preprocess(campaign: xr.Dataset, config: PreprocessConfig | None = None) -> 
             # sampling phase), and its spread over ten sampling phases
             d_ref = offs[i, ref[i]]
             tx = _sampled_crossing(cs, time, d_ref, thr, cfg.hold)
-            truth_shift[i] = np.nan if tx is None else cfg.align_time - tx
+            # the rule's shift, moved by the same whole-sample rounding the data's got, so
+            # that the truth is where the data put it
+            truth_shift[i] = np.nan if tx is None else \
+                cfg.align_time - tx + (shift[i] - exact[i])
             crossings = [_sampled_crossing(cs, time, ph * dt / 10, thr, cfg.hold)
                          for ph in range(10)]
             phases = [x for x in crossings if x is not None]
@@ -406,4 +424,5 @@ def preprocess(campaign: xr.Dataset, config: PreprocessConfig | None = None) -> 
     return MeanSignals(POSITIONS, tgrid, mean, std, sem, nstd, shift,
                        np.full(P, R), sync, ref, table1, dropped, snr, attrs,
                        truth_shift, truth_mean, truth_spread, tuple(no_cross), truth, alignment,
-                       runs=runs, interpolation_error=interp_err)
+                       runs=runs, interpolation_error=interp_err,
+                       crossing_time=np.where(np.isfinite(crossing), crossing, cfg.align_time))

@@ -178,7 +178,8 @@ def _subset(data: FitData, keep: list[int]) -> FitData:
                    None if data.runs is None else data.runs[keep],
                    None if data.noise_std is None else data.noise_std[keep],
                    None if data.interpolation_error is None
-                   else data.interpolation_error[keep])
+                   else data.interpolation_error[keep],
+                   None if data.crossing_time is None else data.crossing_time[keep])
 
 
 def leave_one_signal_out_each(obj: Objective, x: np.ndarray, lm: LMOptions = LMOptions(),

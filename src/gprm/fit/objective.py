@@ -43,6 +43,9 @@ class FitData:
     noise_std: np.ndarray | None = None
     #: (n_signals, T) m: the preprocessing's estimated interpolation error (None: unknown)
     interpolation_error: np.ndarray | None = None
+    #: (n_signals,) s: where preprocessing put each mean's threshold crossing (within half a
+    #: sample of the file's align_time; None: at align_time, as older files have it)
+    crossing_time: np.ndarray | None = None
 
     @property
     def n_obs(self) -> int:
@@ -100,8 +103,11 @@ def fit_data_from_means(ds: xr.Dataset, *, window=DEFAULT_WINDOW, sigma: str = "
     if "interpolation_error" in ds.variables:
         ierr = np.stack([np.asarray(ds["interpolation_error"].sel(signal=s).values,
                                     float)[sel] for s in SIGNALS])
+    cross = None
+    if "crossing_time" in ds.variables:
+        cross = np.array([float(ds["crossing_time"].sel(signal=s)) for s in SIGNALS])
     return FitData(t[sel], vals, sig, SIGNALS, (lo, hi), sigma, source, dict(ds.attrs),
-                   runs, nstd, ierr)
+                   runs, nstd, ierr, cross)
 
 
 @dataclass(frozen=True)

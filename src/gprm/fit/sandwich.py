@@ -69,9 +69,9 @@ from gprm.simulate import observe
 #: docs/fitting.md, "Coverage per source")
 COVERAGE_HEADLINE = (
     "Measured per source of data, 20 campaigns each, on the identified parameters: the 95 % "
-    "intervals held the truth in 96.9 % on the exact model with white noise, 94.1 % on an "
-    "independently written simulator with white noise and 90.5 % with all its imperfections, "
-    "98.8 % on gprm's own generator and 92-98 % with trigger jitter, drive variation between "
+    "intervals held the truth in 92.9 % on the exact model with white noise, 95.1 % on an "
+    "independently written simulator with white noise and 90.0 % with all its imperfections, "
+    "99.6 % on gprm's own generator and 91-97 % with trigger jitter, drive variation between "
     "runs, coloured noise, drift, the nonlinear correction or per-channel gain errors alone; "
     "with an unmodelled mode they are wider than nominal (100 %: a third of the parameters "
     "identified there are mostly the weak prior's, and the mode's transient moves the others "
@@ -236,13 +236,14 @@ def crossing_offsets(obj: Objective, y: np.ndarray) -> np.ndarray:
     """(n_signals,) s: how far the fitted model's own threshold crossing lies from the data's.
 
     Preprocessing moved each mean so that its first sustained crossing of ``threshold_factor``
-    x its noise std is at ``align_time`` (the means file's attributes), and the fitted lags
+    x its noise std is at ``crossing_time`` (within half a sample of the file's
+    ``align_time``; ``align_time`` itself for older files), and the fitted lags
     live in that time base. The same rule applied to the model at the best fit (``y``, (S, T)
     on the data's window) should find its crossing there too. Where it does not, the data's
     crossing was moved by something the model does not have (an unmodelled resonance or
     nonlinearity near the onset, a drive whose shape varies, a run-to-run offset the
     synchronisation left), so the time origin of the aligned data, and with it every lag,
-    is uncertain by that much: the offset (align_time - the model's crossing) is a timing
+    is uncertain by that much: the offset (crossing_time - the model's crossing) is a timing
     error of that signal estimated from the data. Zero where the file lacks the rule's
     attributes, the window does not hold the alignment time, or the model never crosses."""
     d = obj.data
@@ -257,7 +258,9 @@ def crossing_offsets(obj: Objective, y: np.ndarray) -> np.ndarray:
         thr = factor * float(d.noise_std[s])
         if not (thr > 0 and np.all(np.isfinite(y[s]))):
             continue
-        shift = alignment_shift(d.time, y[s], thr, align_time=t_a, hold=hold)
+        cross = getattr(d, "crossing_time", None)
+        target = t_a if cross is None else float(cross[s])
+        shift = alignment_shift(d.time, y[s], thr, align_time=target, hold=hold)
         if shift is not None and np.isfinite(shift):
             out[s] = float(shift)
     return out

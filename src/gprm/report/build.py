@@ -130,7 +130,8 @@ def campaign_section(run: Path) -> Section:
     n_runs = means["n_runs"].values if "n_runs" in means else None
     align = float(means.attrs.get("align_time", 1e-3))
     txt = ("Mean signals of the ten laser positions after synchronisation, averaging and "
-           f"alignment (each signal's 2σ crossing at {align * 1e3:g} ms; the retraction "
+           f"alignment (each signal's 2σ crossing within half a sample of {align * 1e3:g} ms, "
+           "the shifts being whole samples; the retraction "
            "command is at 1 ms, Section 2), with the across-run standard deviation σ(t).")
     if n_runs is not None:
         lo, hi = int(np.min(n_runs)), int(np.max(n_runs))

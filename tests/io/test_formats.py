@@ -19,6 +19,7 @@ from gprm.campaign.files import (has_truth, load_campaign, read_generator, read_
 from gprm.campaign.preprocess import PreprocessConfig, preprocess
 from gprm.campaign.synth import SynthConfig, synth_campaign
 from gprm.cli import app
+from gprm.fit.objective import fit_data_from_means
 from gprm.flight import files as ff
 from gprm.predict import files as pf
 from gprm.simulate import files as sf
@@ -189,6 +190,13 @@ def test_means_metadata_round_trip(tmp_path):
     assert ds["truth_value"].dims == ("parameter",)
     assert ds["parameter_units"].sel(parameter="m2").item() == "kg"
     assert has_truth(ds.attrs) and not has_truth({"title": "lab campaign"})
+    # where each crossing was put (whole-sample alignment) reaches the fit
+    np.testing.assert_array_equal(ds["crossing_time"].values, ms.crossing_time)
+    fd = fit_data_from_means(ds, window=(0.97e-3, 1.2e-3))
+    names = [str(x) for x in ds["signal"].values]
+    np.testing.assert_array_equal(fd.crossing_time,
+                                  [ms.crossing_time[names.index(x)] for x in fd.signals])
+    assert np.all(np.abs(fd.crossing_time - 1.02e-3) <= 0.5 / 200e3 + 1e-12)
 
 
 def test_prediction_metadata_round_trip(tmp_path):

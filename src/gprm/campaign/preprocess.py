@@ -26,11 +26,13 @@ Per position:
    coarse onset (step 0's ``onset_factor``) where |M| is below it (:func:`quiet_start`):
    the crossing that leads into the motion. Elsewhere the first crossing stands (a small
    first lobe of real motion, as x_base has, is the crossing).
-   shift = align_time - t_x; new time = old time + shift.
+   shift = align_time - t_x rounded to whole samples; new time = old time + shift, so the
+   crossing lies within half a sample of align_time (``crossing_time``) and the fitted lags
+   take up the remainder.
 
 The synchronised runs are evaluated once more at (t' - shift + s_r) on the output grid (the
-record grid restricted to where every position and run has data), so each run is interpolated
-once. For synthetic campaigns, the same alignment rule (same threshold) is applied to the
+record grid restricted to where every position and run has data): the reference run (s_r = 0)
+at its own samples, every other run interpolated once. For synthetic campaigns, the same alignment rule (same threshold) is applied to the
 noise-free truth response (``truth_shift``, ``truth_mean``): the aligned means are compared
 with it, and the fit's lags can be compared with the truth (docs/data-formats.md).
 """
@@ -270,7 +272,6 @@ def preprocess(campaign: xr.Dataset, config: PreprocessConfig | None = None) -> 
     R = disp.shape[1]
     per = {}
     shift = np.zeros(len(POSITIONS))
-    crossing = np.full(len(POSITIONS), np.nan)
     exact = np.full(len(POSITIONS), np.nan)          # the shifts before the rounding
     no_cross = []
     # the fitted positions first: a position outside the model that shows no motion above
@@ -312,7 +313,6 @@ def preprocess(campaign: xr.Dataset, config: PreprocessConfig | None = None) -> 
             # (docs/data-formats.md, step 3)
             exact[i] = cfg.align_time - (time[0] + kx * dt)
             shift[i] = dt * np.round(exact[i] / dt)
-            crossing[i] = time[0] + kx * dt + shift[i]
         per[name] = d
     if no_cross:
         if set(no_cross) & set(MODEL_POSITIONS):
@@ -324,6 +324,7 @@ def preprocess(campaign: xr.Dataset, config: PreprocessConfig | None = None) -> 
                                  source=src, field="displacement")
         exact[np.isnan(exact)] = np.nanmedian(exact)
         shift[np.isnan(shift)] = dt * np.round(exact[np.isnan(shift)] / dt)
+    rounding = shift - exact                          # where each crossing now lies, - align
     sync = np.array([per[n]["shifts"] for n in POSITIONS]) * dt      # (P, R) s
     # output grid: record samples where every position and run has data
     src_lo = time[0] + shift[:, None] - sync                           # t' >= this
@@ -411,7 +412,7 @@ def preprocess(campaign: xr.Dataset, config: PreprocessConfig | None = None) -> 
             # the rule's shift, moved by the same whole-sample rounding the data's got, so
             # that the truth is where the data put it
             truth_shift[i] = np.nan if tx is None else \
-                cfg.align_time - tx + (shift[i] - exact[i])
+                cfg.align_time - tx + rounding[i]
             crossings = [_sampled_crossing(cs, time, ph * dt / 10, thr, cfg.hold)
                          for ph in range(10)]
             phases = [x for x in crossings if x is not None]
@@ -425,4 +426,5 @@ def preprocess(campaign: xr.Dataset, config: PreprocessConfig | None = None) -> 
                        np.full(P, R), sync, ref, table1, dropped, snr, attrs,
                        truth_shift, truth_mean, truth_spread, tuple(no_cross), truth, alignment,
                        runs=runs, interpolation_error=interp_err,
-                       crossing_time=np.where(np.isfinite(crossing), crossing, cfg.align_time))
+                       crossing_time=cfg.align_time + np.where(
+                           [n in no_cross for n in POSITIONS], 0.0, rounding))

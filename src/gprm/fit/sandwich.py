@@ -254,11 +254,11 @@ def crossing_offsets(obj: Objective, y: np.ndarray) -> np.ndarray:
     if d.noise_std is None or not (np.isfinite(t_a) and np.isfinite(factor)) \
             or not (d.time[0] < t_a < d.time[-1]):
         return out
+    cross = getattr(d, "crossing_time", None)         # older files: at align_time
     for s in range(len(d.signals)):
         thr = factor * float(d.noise_std[s])
         if not (thr > 0 and np.all(np.isfinite(y[s]))):
             continue
-        cross = getattr(d, "crossing_time", None)
         target = t_a if cross is None else float(cross[s])
         shift = alignment_shift(d.time, y[s], thr, align_time=target, hold=hold)
         if shift is not None and np.isfinite(shift):

@@ -226,6 +226,7 @@ MEANS = Schema("mean-signals NetCDF", (
     Var("n_runs", ("signal",), required=False, min=1.0),
     Var("runs", ("signal", "run", "time"), "m", required=False),
     Var("interpolation_error", ("signal", "time"), "m", required=False),
+    Var("sync_remainder", ("signal", "run"), "s", required=False),
     Var("crossing_time", ("signal",), "s", required=False),
 ), (Attr("align_time", "number", min=0.0, min_open=True),
     Attr("sample_rate", "number", min=0.0, min_open=True),

@@ -143,6 +143,34 @@ def test_reference_run_is_not_interpolated(full_campaign, full_means):
         assert np.max(np.abs(np.diff(diff, 2))) < 1e-9 * scale, p
 
 
+def test_runs_are_measured_samples(full_campaign, full_means):
+    """Every run in ``runs``, not only the reference, is its own record samples less the
+    step-0 baseline, moved by its synchronisation shift rounded to whole samples; the rest of
+    the shift is ``sync_remainder`` (within half a sample, zero for the reference run), and
+    the sub-sample shift the synchronisation estimated is their sum
+    (docs/data-formats.md, step 1)."""
+    t_rec = full_campaign["time"].values
+    dt = t_rec[1] - t_rec[0]
+    rem = full_means.sync_remainder
+    assert np.all(np.abs(rem) <= 0.5 * dt + 1e-15)
+    whole = (full_means.sync_shift - rem) / dt
+    np.testing.assert_allclose(whole, np.rint(whole), atol=1e-9)
+    moved = 0
+    for i, p in enumerate(full_means.signals):
+        ref = int(full_means.reference_run[i])
+        assert rem[i, ref] == 0.0
+        for r in range(full_means.runs.shape[1]):
+            rec = full_campaign["displacement"].sel(position=p).values[r]
+            j = np.rint((full_means.time - full_means.shift[i] - t_rec[0]) / dt
+                        + whole[i, r]).astype(int)
+            diff = full_means.runs[i, r] - rec[j]
+            scale = np.max(np.abs(rec))
+            assert np.max(np.abs(np.diff(diff, 2))) < 1e-9 * scale, (p, r)
+            moved += int(abs(rem[i, r]) > 0.05 * dt)
+    # the campaign has trigger offsets: most runs had a sub-sample rest to leave
+    assert moved > full_means.runs.shape[1]
+
+
 def test_alignment_shift_close_to_truth_rule(full_campaign, full_means):
     """The data's alignment shift equals the shift the same rule gives on the truth sampled
     at the reference run's phase, corrected by that run's trigger offset, within the rule's

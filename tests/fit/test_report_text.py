@@ -183,3 +183,17 @@ def test_report_names_other_minima_and_the_parameters_they_widen_most():
     assert "2 of 5" in line and "widened most: g2, kz" in line and "v2" not in line
     d["uncertainty"]["details"]["alternative_minima"]["within_95"] = 0
     assert "other minima" not in fit_report(d)
+
+
+def test_report_says_the_runs_were_moved_through_the_model():
+    """A fit whose runs carried a sub-sample remainder says so, with the largest remainder
+    and change of the mean (fit.json ``polish.subsample``); a fit without one says nothing."""
+    d = _new_format()
+    assert "sub-sample" not in fit_report(d)
+    d["polish"] = {"subsample": {
+        "x_base": {"max_remainder_s": 2.4e-6, "max_mean_change_m": 3.0e-9,
+                   "max_run_change_m": 9e-9},
+        "z_bk": {"max_remainder_s": 1.2e-6, "max_mean_change_m": 9.2e-8,
+                 "max_run_change_m": 4e-7}}}
+    line = next(ln for ln in fit_report(d).splitlines() if "sub-sample" in ln)
+    assert "2.4 us" in line and "92 nm" in line

@@ -374,8 +374,16 @@ def means_dataset(ms) -> xr.Dataset:
                         {"long_name": "index of the actuated run"})})
     if getattr(ms, "runs", None) is not None:
         ds["runs"] = (("signal", "run", "time"), ms.runs, {
-            "units": "m", "long_name": "each actuated run synchronised and aligned onto the "
-            "output grid (mean, std and sem are taken over these)"})
+            "units": "m", "long_name": "each actuated run aligned onto the output grid and "
+            "moved by whole samples of its synchronisation shift (its own samples; the "
+            "sub-sample rest is sync_remainder)" if getattr(ms, "sync_remainder", None)
+            is not None else "each actuated run synchronised and aligned onto the output "
+            "grid (mean, std and sem are taken over these)"})
+    if getattr(ms, "sync_remainder", None) is not None:
+        ds["sync_remainder"] = (("signal", "run"), ms.sync_remainder, {
+            "units": "s", "long_name": "sync_shift less the whole samples runs were moved "
+            "by: run r in runs matches the reference run at t - sync_remainder (the fit "
+            "moves the runs the rest of the way)"})
     if getattr(ms, "interpolation_error", None) is not None:
         ds["interpolation_error"] = (("signal", "time"), ms.interpolation_error, {
             "units": "m", "long_name": "the mean's cubic-spline interpolation less a quintic "

@@ -32,7 +32,14 @@ Per position:
 
 The synchronised runs are evaluated once more at (t' - shift + s_r) on the output grid (the
 record grid restricted to where every position and run has data): the reference run (s_r = 0)
-at its own samples, every other run interpolated once. For synthetic campaigns, the same alignment rule (same threshold) is applied to the
+at its own samples, every other run interpolated once; mean, std and sem are taken over these.
+The runs written to the file (``runs``, the fit's run-to-run covariance) are not these: each
+is moved by s_r rounded to whole samples, so that every value is one the interferometer
+measured, and the rest of its shift, at most half a sample, is written beside it
+(``sync_remainder``). A cubic spline across the motion's onset, where the response has a
+kink, errs by an amount that depends on the run's sampling phase; on campaigns with trigger
+offsets that error biased k_lr and m1 (docs/data-formats.md, step 1). The fit completes the
+move through the model's own shape (:mod:`gprm.fit.subsample`). For synthetic campaigns, the same alignment rule (same threshold) is applied to the
 noise-free truth response (``truth_shift``, ``truth_mean``): the aligned means are compared
 with it, and the fit's lags can be compared with the truth (docs/data-formats.md).
 """
@@ -109,8 +116,10 @@ class MeanSignals:
     no_crossing: tuple[str, ...] = ()
     truth: dict | None = None             # the campaign's truth (synthetic), name -> SI
     truth_alignment: dict | None = None   # files.truth_alignment (synthetic)
-    #: (signal, run, time) m: each actuated run synchronised and aligned onto the output grid,
-    #: the samples the mean, std and sem are taken over (the fit's run-to-run covariance)
+    #: (signal, run, time) m: each actuated run aligned onto the output grid and moved by its
+    #: synchronisation shift rounded to whole samples (its own samples, not interpolated; the
+    #: fit's run-to-run covariance); mean, std and sem are over the runs interpolated by the
+    #: full sub-sample shift
     runs: np.ndarray | None = None
     #: (signal, time) m: the mean's cubic interpolation less a quintic one of the same runs at
     #: the same points: an estimate of the error the interpolation of step 3 adds
@@ -119,6 +128,10 @@ class MeanSignals:
     #: within half a sample of align_time (the shift is a whole number of samples);
     #: align_time for a signal that never crossed
     crossing_time: np.ndarray | None = None
+    #: (signal, run) s: each run's synchronisation shift less the whole samples ``runs`` moved
+    #: it by (within half a sample; 0 for the reference run): run r in ``runs`` matches the
+    #: reference run at t - sync_remainder[r]
+    sync_remainder: np.ndarray | None = None
 
     def to_dataset(self) -> xr.Dataset:
         """The mean-signals NetCDF layout (:func:`gprm.campaign.files.means_dataset`)."""
@@ -339,6 +352,7 @@ def preprocess(campaign: xr.Dataset, config: PreprocessConfig | None = None) -> 
     std = np.empty_like(mean)
     runs = np.empty((P, R, tgrid.size))
     interp_err = np.empty_like(mean)
+    remainder = np.zeros((P, R))
     for i, name in enumerate(POSITIONS):
         d = per[name]
         at = [np.clip((tgrid - shift[i] - time[0]) / dt + d["shifts"][r], 0, T - 1)
@@ -349,9 +363,15 @@ def preprocess(campaign: xr.Dataset, config: PreprocessConfig | None = None) -> 
         idx = np.arange(T, dtype=float)
         A5 = np.stack([make_interp_spline(idx, d["runs"][r], k=5)(at[r]) for r in range(R)])
         interp_err[i] = A.mean(axis=0) - A5.mean(axis=0)
-        runs[i] = A
         mean[i] = A.mean(axis=0)
         std[i] = A.std(axis=0, ddof=1)
+        # the file's runs: moved by whole samples only (each value a measured sample); the
+        # sub-sample rest is sync_remainder, which the fit completes through the model
+        whole = np.round(d["shifts"])
+        at_w = [np.clip(np.rint((tgrid - shift[i] - time[0]) / dt + whole[r]), 0, T - 1)
+                .astype(int) for r in range(R)]
+        runs[i] = np.stack([d["runs"][r][at_w[r]] for r in range(R)])
+        remainder[i] = (d["shifts"] - whole) * dt
     sem = std / np.sqrt(R)
     nstd = np.array([per[n]["noise_std"] for n in POSITIONS])
     ref = np.array([per[n]["ref"] for n in POSITIONS])
@@ -425,6 +445,6 @@ def preprocess(campaign: xr.Dataset, config: PreprocessConfig | None = None) -> 
     return MeanSignals(POSITIONS, tgrid, mean, std, sem, nstd, shift,
                        np.full(P, R), sync, ref, table1, dropped, snr, attrs,
                        truth_shift, truth_mean, truth_spread, tuple(no_cross), truth, alignment,
-                       runs=runs, interpolation_error=interp_err,
+                       runs=runs, interpolation_error=interp_err, sync_remainder=remainder,
                        crossing_time=cfg.align_time + np.where(
                            [n in no_cross for n in POSITIONS], 0.0, rounding))

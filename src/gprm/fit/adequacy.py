@@ -179,7 +179,8 @@ def _subset(data: FitData, keep: list[int]) -> FitData:
                    None if data.noise_std is None else data.noise_std[keep],
                    None if data.interpolation_error is None
                    else data.interpolation_error[keep],
-                   None if data.crossing_time is None else data.crossing_time[keep])
+                   None if data.crossing_time is None else data.crossing_time[keep],
+                   None if data.sync_remainder is None else data.sync_remainder[keep])
 
 
 def leave_one_signal_out_each(obj: Objective, x: np.ndarray, lm: LMOptions = LMOptions(),

@@ -35,6 +35,7 @@ from scipy.stats import norm
 from gprm.fit.calibration import MISMATCH_CALIBRATION, calibration_factors
 from gprm.fit.engine import polish_best
 from gprm.fit.methods import FitState
+from gprm.fit import subsample
 from gprm.fit.objective import FitData, Objective, fit_data_from_means
 from gprm.fit.prior import Prior
 from gprm.fit.starts import LMOptions
@@ -79,10 +80,17 @@ def synth_config(data: FitData) -> SynthConfig:
 
 def _refit(obj: Objective, data: FitData, x_start: np.ndarray, lm: LMOptions,
            max_iter: int) -> np.ndarray:
-    ob = Objective(data, obj.base, obj.names, obj.scale, obj.piezo, obj.z_bk_absolute,
-                   obj.prior)
-    x, _ = polish_best(ob, x_start, lm, max_iter=max_iter, ftol=1e-8)
-    return x
+    def make(d):
+        return Objective(d, obj.base, obj.names, obj.scale, obj.piezo, obj.z_bk_absolute,
+                         obj.prior)
+
+    def polish(ob, x0):
+        return polish_best(ob, x0, lm, max_iter=max_iter, ftol=1e-8)[0]
+
+    if subsample.applies(data):
+        # the refit sees its runs as the fit saw its own (gprm.fit.subsample)
+        return subsample.correct_and_polish(make, data, x_start, polish)[1]
+    return polish(make(data), x_start)
 
 
 def parametric_bootstrap(obj: Objective, x_hat: np.ndarray, *, n_boot: int = 40,

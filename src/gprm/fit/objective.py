@@ -46,6 +46,11 @@ class FitData:
     #: (n_signals,) s: where preprocessing put each mean's threshold crossing (within half a
     #: sample of the file's align_time; None: at align_time, as older files have it)
     crossing_time: np.ndarray | None = None
+    #: (n_signals, R) s: what of each run's synchronisation shift the whole-sample move left
+    #: (run r's samples match the reference run's at t - sync_remainder); the fit moves the
+    #: runs the rest of the way through the model (gprm.fit.subsample). None: not known
+    #: (older files, or runs interpolated to a common time), or already applied
+    sync_remainder: np.ndarray | None = None
 
     @property
     def n_obs(self) -> int:
@@ -106,8 +111,18 @@ def fit_data_from_means(ds: xr.Dataset, *, window=DEFAULT_WINDOW, sigma: str = "
     cross = None
     if "crossing_time" in ds.variables:
         cross = np.array([float(ds["crossing_time"].sel(signal=s)) for s in SIGNALS])
+    rem = None
+    if runs is not None and "sync_remainder" in ds.variables:
+        rem = np.stack([np.asarray(ds["sync_remainder"].sel(signal=s).values, float)
+                        for s in SIGNALS])
+        dt = float(np.median(np.diff(t))) if t.size > 1 else 0.0
+        if rem.shape != runs.shape[:2] or not np.all(np.isfinite(rem)) \
+                or np.any(np.abs(rem) > dt):
+            raise GprmInputError("sync_remainder must be finite, one value per run and "
+                                 "signal, each within one sample", source=source,
+                                 field="sync_remainder")
     return FitData(t[sel], vals, sig, SIGNALS, (lo, hi), sigma, source, dict(ds.attrs),
-                   runs, nstd, ierr, cross)
+                   runs, nstd, ierr, cross, rem)
 
 
 @dataclass(frozen=True)

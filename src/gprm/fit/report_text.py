@@ -83,6 +83,15 @@ def fit_report(d: dict, *, min_correl: float = DEFAULT_MIN_CORREL) -> str:
     if d.get("window"):
         w = d["window"]
         lines.append(f"    window {w[0] * 1e3:.4g} .. {w[1] * 1e3:.4g} ms")
+    sub = (d.get("polish") or {}).get("subsample")
+    if isinstance(sub, dict) and sub:
+        rem = max((v.get("max_remainder_s", 0.0) for v in sub.values() if isinstance(v, dict)),
+                  default=math.nan)
+        dm = max((v.get("max_mean_change_m", 0.0) for v in sub.values()
+                  if isinstance(v, dict)), default=math.nan)
+        lines.append(f"    runs moved through the model by the sub-sample rest of their "
+                     f"synchronisation (up to {_g(1e6 * rem, '.3g')} us; the mean changed by "
+                     f"up to {_g(1e9 * dm, '.3g')} nm)")
     unc = d.get("uncertainty")
     if isinstance(unc, dict) and unc.get("method"):
         lines.append(f"    uncertainty: {unc['method']}"

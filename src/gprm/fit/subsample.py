@@ -77,7 +77,9 @@ def corrected(data: FitData, corrections: np.ndarray) -> FitData:
 def summary(data: FitData, corrections: np.ndarray) -> dict:
     """What the correction did, per signal, for fit.json: the largest remainder (s), the
     largest change of the mean (m) and of any run (m)."""
-    return {s: {"max_remainder_s": float(np.max(np.abs(data.sync_remainder[i]))),
+    rem = data.sync_remainder if data.sync_remainder is not None else \
+        np.zeros(corrections.shape[:2])
+    return {s: {"max_remainder_s": float(np.max(np.abs(rem[i]))),
                 "max_mean_change_m": float(np.max(np.abs(corrections[i].mean(axis=0)))),
                 "max_run_change_m": float(np.max(np.abs(corrections[i])))}
             for i, s in enumerate(data.signals)}
@@ -88,10 +90,13 @@ def correct_and_polish(make_objective, measured: FitData, x: np.ndarray, polish,
     """(objective, x, corrections): ``passes`` rounds of moving ``measured``'s runs through
     the model at the current point and polishing there. ``make_objective(data)`` builds the
     fit's objective on the given data; ``polish(obj, x)`` returns the polished physical x."""
+    if measured.runs is None or measured.sync_remainder is None:
+        raise ValueError("the data carry no runs with a sub-sample remainder to move")
+    remainder = measured.sync_remainder
     obj = make_objective(measured)
     corr = np.zeros_like(measured.runs)
     for _ in range(int(passes)):
-        corr = run_corrections(obj, x, measured.sync_remainder)
+        corr = run_corrections(obj, x, remainder)
         obj = make_objective(corrected(measured, corr))
         x = polish(obj, x)
     return obj, x, corr

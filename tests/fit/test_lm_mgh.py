@@ -84,22 +84,17 @@ def test_the_set_is_the_papers():
     assert not set(PROCESSOR_DEPENDENT) & set(KNOWN_FAILURES)
 
 
-# runs whose outcome depends on the processor's floating-point kernels, measured on both:
-# solved within the budget on one, not on the other (a run at the budget's edge)
+# runs at the budget's edge, whose evaluation count depends on the processor's floating-point
+# kernels, measured on both: within the budget on one, just over it on the other. Such a run
+# must still reach a listed minimum; it may end on the budget instead of converging.
 PROCESSOR_DEPENDENT = {
-    (35, 10.0): "Chebyquad from 10 x0: solved in under 10,000 residual evaluations on the "
-                "Intel Xeon machine of stop 34 (and CI), 10,405 on an AMD EPYC (stop 35); "
-                "the slow crawl is issue 24's",
+    (35, 10.0): "Chebyquad from 10 x0: converged in under 10,000 residual evaluations on the "
+                "Intel Xeon machine of stop 34 (and CI), needs 10,405 on an AMD EPYC (stop "
+                "35); the slow crawl is issue 24's",
 }
 
 
-def _run_param(n, f):
-    marks = ([pytest.mark.xfail(strict=False, reason=PROCESSOR_DEPENDENT[(n, f)])]
-             if (n, f) in PROCESSOR_DEPENDENT else [])
-    return pytest.param(n, f, id=f"{n}-x{f:g}", marks=marks)
-
-
-@pytest.mark.parametrize("number,factor", [_run_param(n, f) for n, f in RUNS])
+@pytest.mark.parametrize("number,factor", RUNS, ids=[f"{n}-x{f:g}" for n, f in RUNS])
 def test_mgh_run_is_solved(number, factor):
     """The default optimizer (exact Jacobian) reaches a listed minimum; a documented failure
     still fails (so the list, and the count of solved runs it implies, stays exact: a run
@@ -112,5 +107,9 @@ def test_mgh_run_is_solved(number, factor):
             f"now solved; remove it from KNOWN_FAILURES ({KNOWN_FAILURES[(number, factor)]})"
         return
     assert p.solved(res.chi2), (res.chi2, p.minima, res.status, res.nfev)
-    assert res.success, res.message
+    if (number, factor) in PROCESSOR_DEPENDENT:
+        assert res.success or (res.status == "max_nfev" and res.nfev == BUDGET), \
+            (res.status, res.nfev, PROCESSOR_DEPENDENT[(number, factor)])
+    else:
+        assert res.success, res.message
     assert res.chi2 == pytest.approx(float(np.sum(res.fun ** 2)), rel=1e-12, abs=1e-300)

@@ -372,14 +372,16 @@ def means_dataset(ms) -> xr.Dataset:
                     "of align_time"}),
                 "run": ("run", np.arange(ms.sync_shift.shape[1]),
                         {"long_name": "index of the actuated run"})})
+    whole_samples = getattr(ms, "sync_remainder", None) is not None
     if getattr(ms, "runs", None) is not None:
         ds["runs"] = (("signal", "run", "time"), ms.runs, {
-            "units": "m", "long_name": "each actuated run aligned onto the output grid and "
-            "moved by whole samples of its synchronisation shift (its own samples; the "
-            "sub-sample rest is sync_remainder)" if getattr(ms, "sync_remainder", None)
-            is not None else "each actuated run synchronised and aligned onto the output "
-            "grid (mean, std and sem are taken over these)"})
-    if getattr(ms, "sync_remainder", None) is not None:
+            "units": "m", "long_name": (
+                "each actuated run aligned onto the output grid and moved by whole samples of "
+                "its synchronisation shift (its own samples; the sub-sample rest is "
+                "sync_remainder)" if whole_samples else
+                "each actuated run synchronised and aligned onto the output grid (mean, std "
+                "and sem are taken over these)")})
+    if whole_samples:
         ds["sync_remainder"] = (("signal", "run"), ms.sync_remainder, {
             "units": "s", "long_name": "sync_shift less the whole samples runs were moved "
             "by: run r in runs matches the reference run at t - sync_remainder (the fit "

@@ -355,8 +355,8 @@ def preprocess(campaign: xr.Dataset, config: PreprocessConfig | None = None) -> 
     remainder = np.zeros((P, R))
     for i, name in enumerate(POSITIONS):
         d = per[name]
-        at = [np.clip((tgrid - shift[i] - time[0]) / dt + d["shifts"][r], 0, T - 1)
-              for r in range(R)]
+        k = (tgrid - shift[i] - time[0]) / dt          # the record's sample index (whole)
+        at = [np.clip(k + d["shifts"][r], 0, T - 1) for r in range(R)]
         A = np.stack([d["splines"][r](at[r]) for r in range(R)])
         # the interpolation's own error, estimated by a higher-order interpolant of the
         # same samples at the same points (docs/data-formats.md, step 3)
@@ -368,9 +368,8 @@ def preprocess(campaign: xr.Dataset, config: PreprocessConfig | None = None) -> 
         # the file's runs: moved by whole samples only (each value a measured sample); the
         # sub-sample rest is sync_remainder, which the fit completes through the model
         whole = np.round(d["shifts"])
-        at_w = [np.clip(np.rint((tgrid - shift[i] - time[0]) / dt + whole[r]), 0, T - 1)
-                .astype(int) for r in range(R)]
-        runs[i] = np.stack([d["runs"][r][at_w[r]] for r in range(R)])
+        runs[i] = np.stack([d["runs"][r][np.clip(np.rint(k + whole[r]), 0, T - 1).astype(int)]
+                            for r in range(R)])
         remainder[i] = (d["shifts"] - whole) * dt
     sem = std / np.sqrt(R)
     nstd = np.array([per[n]["noise_std"] for n in POSITIONS])

@@ -87,10 +87,11 @@ def _refit(obj: Objective, data: FitData, x_start: np.ndarray, lm: LMOptions,
     def polish(ob, x0):
         return polish_best(ob, x0, lm, max_iter=max_iter, ftol=1e-8)[0]
 
+    ob = make(data)
     if subsample.applies(data):
         # the refit sees its runs as the fit saw its own (gprm.fit.subsample)
-        return subsample.correct_and_polish(make, data, x_start, polish)[1]
-    return polish(make(data), x_start)
+        return subsample.correct_and_polish(ob, make, x_start, polish)[1]
+    return polish(ob, x_start)
 
 
 def parametric_bootstrap(obj: Objective, x_hat: np.ndarray, *, n_boot: int = 40,

@@ -66,16 +66,16 @@ def identify(data: FitData, base: ParameterSet, opts: MultiStartOptions = MultiS
     t_ms = time.perf_counter() - t_start
     best = starts.best_index
     x, polish = polish_best(obj, starts.x[best], opts.lm)
-    if subsample.applies(data):
+    remainder = data.sync_remainder
+    if remainder is not None and subsample.applies(data):
         # the runs' sub-sample remainder, moved through the model at the best point so far
         # (gprm.fit.subsample): correct, polish, and once more at the polished point
-        measured = data
         obj, x, corr = subsample.correct_and_polish(
-            lambda d: Objective.create(d, base, fit_names, piezo=piezo,
-                                       z_bk_absolute=z_bk_absolute, prior=prior),
-            measured, x, lambda o, x0: polish_best(o, x0, opts.lm)[0])
+            obj, lambda d: Objective.create(d, base, fit_names, piezo=piezo,
+                                            z_bk_absolute=z_bk_absolute, prior=prior),
+            x, lambda o, x0: polish_best(o, x0, opts.lm)[0])
+        polish = {**polish, "subsample": subsample.summary(data.signals, remainder, corr)}
         data = obj.data
-        polish = {**polish, "subsample": subsample.summary(measured, corr)}
     if prior is not None:
         # weigh the prior against the data's variance scale, then polish again (the residuals
         # alone here: the Jacobian is needed at the final point only)

@@ -15,13 +15,10 @@ each run is moved by the model's own change over its remainder,
 
 y the model signal at x on the data's time grid. Errors of x enter only through the change
 over at most half a sample (second order), so two passes (best start, then the polished
-point) settle it. They cost two polishes: the 10-start fit of bench_fit_speed.py took 6.4 s
-instead of 2.9 s before this module on the AMD machine of stop 35; one pass took 4.6 s and
-kept the test campaign of tests/fit/test_subsample.py inside its 2e-5 (k_lr 4e-6 off), but
-the coverage tables of docs/fitting.md were measured with two, so two stay until one is
-measured there too. The mean, and sigma (sem or std, as the data were weighed), are then taken
-over the moved runs; they replace the file's, which are over the spline-interpolated runs
-(the multi-start uses those: the same weighting and nearly the same minimum).
+point) settle it; each costs a polish (BENCHMARKS.md, the fit's speed rows). The mean, and
+sigma (sem or std, as the data were weighed), are then taken over the moved runs; they
+replace the file's, which are over the spline-interpolated runs (the multi-start uses
+those: the same weighting and nearly the same minimum).
 """
 
 from __future__ import annotations
@@ -78,26 +75,25 @@ def corrected(data: FitData, corrections: np.ndarray) -> FitData:
                    sync_remainder=None, interpolation_error=None)
 
 
-def summary(data: FitData, corrections: np.ndarray) -> dict:
+def summary(signals, remainder: np.ndarray, corrections: np.ndarray) -> dict:
     """What the correction did, per signal, for fit.json: the largest remainder (s), the
     largest change of the mean (m) and of any run (m)."""
-    rem = data.sync_remainder if data.sync_remainder is not None else \
-        np.zeros(corrections.shape[:2])
-    return {s: {"max_remainder_s": float(np.max(np.abs(rem[i]))),
+    return {s: {"max_remainder_s": float(np.max(np.abs(remainder[i]))),
                 "max_mean_change_m": float(np.max(np.abs(corrections[i].mean(axis=0)))),
                 "max_run_change_m": float(np.max(np.abs(corrections[i])))}
-            for i, s in enumerate(data.signals)}
+            for i, s in enumerate(signals)}
 
 
-def correct_and_polish(make_objective, measured: FitData, x: np.ndarray, polish,
+def correct_and_polish(obj: Objective, make_objective, x: np.ndarray, polish,
                        passes: int = PASSES):
-    """(objective, x, corrections): ``passes`` rounds of moving ``measured``'s runs through
-    the model at the current point and polishing there. ``make_objective(data)`` builds the
-    fit's objective on the given data; ``polish(obj, x)`` returns the polished physical x."""
+    """(objective, x, corrections): ``passes`` rounds of moving the runs of ``obj.data`` (the
+    measured data, with their remainder) through the model at the current point and
+    polishing there. ``make_objective(data)`` builds the fit's objective on other data;
+    ``polish(obj, x)`` returns the polished physical x."""
+    measured = obj.data
     if measured.runs is None or measured.sync_remainder is None:
         raise ValueError("the data carry no runs with a sub-sample remainder to move")
     remainder = measured.sync_remainder
-    obj = make_objective(measured)
     corr = np.zeros_like(measured.runs)
     for _ in range(int(passes)):
         corr = run_corrections(obj, x, remainder)

@@ -115,3 +115,33 @@ def test_fit_with_trigger_offsets_returns_its_truth(jitter_data, jitter_fit):
     print("relative errors, runs moved through the model:", {n: f"{e:.2g}" for n, e in err.items()})
     print("relative errors, interpolated mean:", {n: f"{e:.2g}" for n, e in old.items()})
     assert abs(old["k_lr"]) > 3 * abs(err["k_lr"]) and abs(old["k_lr"]) > 4e-5, old
+
+
+def test_passes_correct_at_each_point_and_leave_the_last_polish_to_the_caller(jitter_data):
+    """``correct_and_polish`` corrects at the given point, polishes, corrects again at the
+    polished point; with ``final_polish=False`` (identify's use: its own polish with the prior
+    weighed follows) the last correction is not polished, and the objective returned holds
+    the runs moved by the corrections at the point returned."""
+    opts = FitOptions()
+    base = opts.parameters(paper())
+    obj = Objective.create(jitter_data, base, tuple(base.fitted))
+    x0 = np.array([base[n] for n in obj.names])
+    x1 = x0 * (1.0 + 1e-3)
+    polished = []
+
+    def polish(o, x):
+        polished.append(np.array(x))
+        return x1
+
+    def make(d):
+        return Objective.create(d, base, tuple(base.fitted))
+
+    out, x, corr = subsample.correct_and_polish(obj, make, x0, polish, final_polish=False)
+    assert len(polished) == subsample.PASSES - 1 and np.array_equal(polished[0], x0)
+    np.testing.assert_array_equal(x, x1)
+    want = subsample.run_corrections(obj, x1, jitter_data.sync_remainder)
+    np.testing.assert_array_equal(corr, want)
+    np.testing.assert_allclose(out.data.runs, jitter_data.runs - want)
+    polished.clear()
+    subsample.correct_and_polish(obj, make, x0, polish)
+    assert len(polished) == subsample.PASSES

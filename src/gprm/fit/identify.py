@@ -69,16 +69,24 @@ def identify(data: FitData, base: ParameterSet, opts: MultiStartOptions = MultiS
     remainder = data.sync_remainder
     if remainder is not None and subsample.applies(data):
         # the runs' sub-sample remainder, moved through the model at the best point so far
-        # (gprm.fit.subsample): correct, polish, and once more at the polished point
+        # (gprm.fit.subsample): correct, polish, correct again at the polished point; the
+        # polish in between at PASS_FTOL (the corrections depend on the point at second
+        # order only), the last one the tight polish below
         obj, x, corr = subsample.correct_and_polish(
             obj, lambda d: Objective.create(d, base, fit_names, piezo=piezo,
                                             z_bk_absolute=z_bk_absolute, prior=prior),
-            x, lambda o, x0: polish_best(o, x0, opts.lm)[0])
+            x, lambda o, x0: polish_best(o, x0, opts.lm, ftol=subsample.PASS_FTOL)[0],
+            final_polish=False)
         polish = {**polish, "subsample": subsample.summary(data.signals, remainder, corr)}
         data = obj.data
+        if prior is None:
+            x, polish_c = polish_best(obj, x, opts.lm)
+            polish = {**polish, "corrected": polish_c}
     if prior is not None:
         # weigh the prior against the data's variance scale, then polish again (the residuals
-        # alone here: the Jacobian is needed at the final point only)
+        # alone here: the Jacobian is needed at the final point only; after the runs'
+        # correction the point is the last pass's, not yet polished on its data: its chi2
+        # lies above the minimum's by ~1e-4 relative, nothing in s2)
         r = obj.residuals(obj.to_normalised(x)[None])[0, :obj.data.n_obs]
         s2 = time_correlation_factor(r, len(data.signals)) * float(r @ r) / obj.dof
         obj = obj.with_prior(prior.with_weight(np.sqrt(max(s2, 1e-300))))

@@ -33,6 +33,12 @@ from gprm.fit.objective import FitData, Objective
 #: second at the point the first polish reached)
 PASSES = 2
 
+#: relative chi-square tolerance of the polish between two corrections (the last polish is
+#: the caller's, at its own tolerance): the corrections change with the point at second order
+#: only (over at most half a sample), so the intermediate point needs no more than the
+#: multi-start's class of precision; 1e-12 there cost 2-3x the iterations (BENCHMARKS.md)
+PASS_FTOL = 1e-9
+
 
 def applies(data: FitData) -> bool:
     """Whether ``data`` carries runs with a sub-sample remainder still to move."""
@@ -85,18 +91,21 @@ def summary(signals, remainder: np.ndarray, corrections: np.ndarray) -> dict:
 
 
 def correct_and_polish(obj: Objective, make_objective, x: np.ndarray, polish,
-                       passes: int = PASSES):
+                       passes: int = PASSES, *, final_polish: bool = True):
     """(objective, x, corrections): ``passes`` rounds of moving the runs of ``obj.data`` (the
     measured data, with their remainder) through the model at the current point and
     polishing there. ``make_objective(data)`` builds the fit's objective on other data;
-    ``polish(obj, x)`` returns the polished physical x."""
+    ``polish(obj, x)`` returns the polished physical x. ``final_polish=False`` leaves out the
+    last round's polish, for a caller whose own next step is a polish on the returned
+    objective (``identify``'s polish with the prior weighed, at a tight tolerance)."""
     measured = obj.data
     if measured.runs is None or measured.sync_remainder is None:
         raise ValueError("the data carry no runs with a sub-sample remainder to move")
     remainder = measured.sync_remainder
     corr = np.zeros_like(measured.runs)
-    for _ in range(int(passes)):
+    for k in range(int(passes)):
         corr = run_corrections(obj, x, remainder)
         obj = make_objective(corrected(measured, corr))
-        x = polish(obj, x)
+        if final_polish or k < int(passes) - 1:
+            x = polish(obj, x)
     return obj, x, corr

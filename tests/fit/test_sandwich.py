@@ -599,3 +599,39 @@ def test_alternative_minima_that_fit_as_well_widen_only_their_side():
     # the levels' z^2: chi-square quantiles of 1 dof (68 % is the interval's z = ndtri(0.84))
     assert LR_THRESHOLD[0.95] == pytest.approx(chi2.ppf(0.95, 1))
     assert LR_THRESHOLD[0.68] == pytest.approx(chi2.ppf(0.68, 1), rel=1e-4)
+
+
+def test_minima_nearer_than_alt_same_are_one_and_could_not_move_an_interval():
+    """Two polished minima count as one where their Mahalanobis distance under the fit's
+    covariance is at most ALT_SAME; kept or not, such a neighbour of the best moves no side
+    of an interval by more than ALT_SAME / z, so dropping it loses nothing reported."""
+    from gprm.fit.sandwich import (ALT_SAME, LR_THRESHOLD, _distinct_minima,
+                                   alternative_factors)
+
+    rng = np.random.default_rng(7)
+    P = 5
+    A = rng.standard_normal((P, P))
+    Cu = A @ A.T + 0.1 * np.eye(P)
+    L = np.linalg.cholesky(Cu)
+    u0 = rng.standard_normal(P)
+
+    def at(dist, base=u0):
+        v = rng.standard_normal(P)
+        return base + L @ (dist * v / np.linalg.norm(v))       # Mahalanobis ``dist`` away
+
+    far = at(3.0)
+    U = np.array([at(0.5 * ALT_SAME),          # the best's own basin: dropped
+                  far,                         # another minimum: kept
+                  at(0.5 * ALT_SAME, far),     # the same other minimum, higher: dropped
+                  at(1.5)])                    # a third: kept
+    D = np.array([0.0, 0.5, 0.6, 2.0])
+    np.testing.assert_array_equal(_distinct_minima(U, D, u0, Cu), [1, 3])
+    # the order is the rises', not the rows': the lower of the pair stands for it
+    np.testing.assert_array_equal(_distinct_minima(U, np.array([0.0, 0.7, 0.6, 2.0]), u0, Cu),
+                                  [2, 3])
+    sd = np.sqrt(np.diag(Cu))
+    for z, level in ((1.96, 0.95), (1.0, 0.68)):
+        for _ in range(50):
+            lo, hi = alternative_factors(u0, sd, at(ALT_SAME)[None], np.zeros(1), z,
+                                         LR_THRESHOLD[level])
+            assert max(lo.max(), hi.max()) <= 1.0 + ALT_SAME / z + 1e-12

@@ -777,6 +777,13 @@ def alternative_factors(u: np.ndarray, sd: np.ndarray, U_alt: np.ndarray, D_alt:
 #: this many variance scales, the lowest ALT_MAX of them
 ALT_PREFILTER = 100.0
 ALT_MAX = 16
+#: two minima are one where their Mahalanobis distance under the fit's covariance Cu is at most
+#: this: a minimum that near the best moves no interval side by more than ALT_SAME / z (1 % of
+#: the 95 % half-width, 2 % of the 68 %), so telling it apart would not change what is reported
+ALT_SAME = 0.02
+#: the polish's relative chi-square tolerance: it leaves an end point of the best's basin
+#: ~0.01 Mahalanobis units from the best (the demo's 1000-start fit), inside ALT_SAME
+ALT_FTOL = 1e-9
 
 
 def _distinct(U: np.ndarray, u0: np.ndarray, sd: np.ndarray) -> np.ndarray:
@@ -787,15 +794,36 @@ def _distinct(U: np.ndarray, u0: np.ndarray, sd: np.ndarray) -> np.ndarray:
     return first[np.max(np.abs(key[first]), axis=1) > 0]
 
 
+def _distinct_minima(U: np.ndarray, D: np.ndarray, u0: np.ndarray,
+                     Cu: np.ndarray) -> np.ndarray:
+    """Indices of the rows of U (minima, D their rises), lowest rise first, whose Mahalanobis
+    distance under ``Cu`` from u0 and from every lower row kept exceeds ALT_SAME."""
+    w, V = np.linalg.eigh(0.5 * (Cu + Cu.T))
+    w = np.clip(w, np.max(np.abs(w)) * 1e-14 + 1e-300, None)
+    Wt = ((U - u0[None]) @ V) / np.sqrt(w)[None]                 # whitened offsets
+    kept: list[int] = []
+    for i in np.argsort(D, kind="stable"):
+        if np.linalg.norm(Wt[i]) <= ALT_SAME:
+            continue
+        if any(np.linalg.norm(Wt[i] - Wt[j]) <= ALT_SAME for j in kept):
+            continue
+        kept.append(int(i))
+    return np.asarray(kept, int)
+
+
 def alternative_minima(obj: Objective, x: np.ndarray, X_alt: np.ndarray | None,
-                       prior: Prior, lm: LMOptions = LMOptions()
+                       prior: Prior, Cu: np.ndarray, lm: LMOptions = LMOptions()
                        ) -> tuple[np.ndarray, np.ndarray]:
     """(U (K, P) in the prior's coordinates, D (K,)): the multi-start's other end points that
     fit nearly as well, polished under the objective the best fit minimises (data and the
     prior weighed by the data's variance scale; the starts ran with the prior's first
     weight), distinct from each other and from the best fit ``x``, with the rise of that
     objective over the best in the variance scale s2 (the prior's weight squared). Only the
-    ALT_MAX lowest within ALT_PREFILTER before the polish are polished (one batch)."""
+    ALT_MAX lowest within ALT_PREFILTER before the polish are polished (one batch, to
+    ALT_FTOL). Distinct: further than ALT_SAME from the best and from every lower one in the
+    Mahalanobis distance under the fit's covariance ``Cu`` (in u) (:func:`_distinct_minima`;
+    a polished end point of the best's own basin lands nearer, and one that did not would
+    widen an interval by a few per cent at most)."""
     x = np.asarray(x, float)
     P = x.size
     empty = (np.zeros((0, P)), np.zeros(0))
@@ -814,21 +842,22 @@ def alternative_minima(obj: Objective, x: np.ndarray, X_alt: np.ndarray | None,
     phi = _objective(obj, np.vstack([x[None], X]))
     D0 = (phi[1:] - phi[0]) / s2
     keep = np.flatnonzero(np.isfinite(D0) & (D0 <= ALT_PREFILTER))
-    keep = keep[np.argsort(D0[keep])][:ALT_MAX]
+    keep = keep[np.argsort(D0[keep], kind="stable")][:ALT_MAX]
     if keep.size == 0:
         return empty
     lo, hi = obj.bounds_normalised()
     res = levenberg_marquardt_batch(obj, obj.to_normalised(X[keep]), lower=lo, upper=hi,
                                     residuals=obj.residuals,
-                                    **polish_kwargs(lm, 200, 1e-12))
+                                    **polish_kwargs(lm, 200, ALT_FTOL))
     Xp = obj.to_physical(res.x)
     ok = np.isfinite(res.chi2) & np.all(np.isfinite(Xp), axis=1)
     if not ok.any():
         return empty
     Up = prior.to_u(Xp[ok])
-    idx = _distinct(Up, u0, prior.sd)
     # the polish's chi2 is the objective there (data and weighted prior rows)
-    return Up[idx], (res.chi2[ok][idx] - phi[0]) / s2
+    Dp = (res.chi2[ok] - phi[0]) / s2
+    idx = _distinct_minima(Up, Dp, u0, Cu)
+    return Up[idx], Dp[idx]
 
 
 def stretch_draws(Z: np.ndarray, sd: np.ndarray, f68: tuple, f95: tuple,
@@ -878,7 +907,7 @@ def uncertainty(method: str, state: FitState) -> Uncertainty:
         (ones, ones)
     f_lo, f_hi = np.maximum(s_lo, v95[0]), np.maximum(s_hi, v95[1])
     f68_lo, f68_hi = np.maximum(s_lo, v68[0]), np.maximum(s_hi, v68[1])
-    U_alt, D_alt = alternative_minima(state.obj, x, state.alternatives, prior, state.lm)
+    U_alt, D_alt = alternative_minima(state.obj, x, state.alternatives, prior, Cu, state.lm)
     a95 = alternative_factors(u, sd_u, U_alt, D_alt, z95, LR_THRESHOLD[0.95])
     a68 = alternative_factors(u, sd_u, U_alt, D_alt, z68, LR_THRESHOLD[0.68])
     f_lo, f_hi = np.maximum(f_lo, a95[0]), np.maximum(f_hi, a95[1])

@@ -135,7 +135,17 @@ def test_local_cluster_binds_to_localhost_without_dashboard(obj, monkeypatch):
     monkeypatch.setattr(distributed, "Client", FakeClient)
     monkeypatch.setattr(distributed, "as_completed", lambda futs: futs)
     ref = run_multistart(obj, OPTS)
+    # the fit's own workers without a dashboard: a process pool, no Dask cluster at all
+    # (nothing listens; stop 36)
     out = run_multistart(obj, OPTS, workers=2)
+    assert seen == {}
+    np.testing.assert_array_equal(ref.x, out.x)
+    # the cluster the studies start (benchmarks/_studies.py) and a dashboard needs
+    from gprm.fit.engine import local_cluster
+
+    cluster = local_cluster(2)
+    client = distributed.Client(cluster, security=cluster.security)
+    client.run(__import__("gprm.fit.engine", fromlist=["x"])._stop_http_server)
     # no dashboard: distributed would serve one on 8787 for dashboard_address=None (issue 22)
     assert seen["host"] == "127.0.0.1" and seen["dashboard_address"] == "127.0.0.1:0"
     assert seen["scheduler_kwargs"] == {"dashboard": False} and seen["stopped_http"]
@@ -146,13 +156,13 @@ def test_local_cluster_binds_to_localhost_without_dashboard(obj, monkeypatch):
     assert seen["protocol"] == "tls://" and isinstance(seen["security"], Security)
     assert seen["security"].require_encryption
     assert seen["client_security"] == FakeCluster.security
-    np.testing.assert_array_equal(ref.x, out.x)
     from gprm.fit.commands import dask_dashboard
 
     seen.clear()
     with dask_dashboard("127.0.0.1:8787"):
-        run_multistart(obj, OPTS, workers=2)
+        out = run_multistart(obj, OPTS, workers=2)
     assert seen["dashboard_address"] == "127.0.0.1:8787"
+    np.testing.assert_array_equal(ref.x, out.x)
     assert "stopped_http" not in seen and "ran" not in seen
     seen.clear()
     out = run_multistart(obj, OPTS, scheduler="tcp://10.1.2.3:8786")   # an existing cluster
@@ -325,7 +335,10 @@ def test_the_real_local_cluster_refuses_clients_without_its_credentials(obj):
     finally:
         cluster.close()
     ref = run_multistart(obj, OPTS)
-    out = run_multistart(obj, OPTS, workers=1)              # gprm's fit over TLS
+    from gprm.fit.commands import dask_dashboard
+
+    with dask_dashboard("127.0.0.1:0"):                     # gprm's fit over TLS
+        out = run_multistart(obj, OPTS, workers=1)
     np.testing.assert_array_equal(ref.x, out.x)
 
 

@@ -159,14 +159,15 @@ def test_checkpoint_from_other_inputs_is_refused(case, tmp_path):
 
 
 @pytest.mark.slow
-def test_same_result_for_one_and_two_dask_workers(case):
+def test_same_result_in_process_on_a_dask_worker_and_on_two_local_workers(case):
     truth, ds, data = case
     obj = Objective.create(data, paper())
     opts = MultiStartOptions(n_starts=4, seed=7, chunk_size=1, lm=LMOptions(max_iter=8))
     from distributed import LocalCluster
 
     inproc = run_multistart(obj, opts, workers=0)
-    # one worker on an existing cluster (the --scheduler path), two on a local cluster
+    # one worker on an existing Dask cluster (the --scheduler path), two local worker
+    # processes (the default pool)
     with LocalCluster(n_workers=1, threads_per_worker=1, processes=True,
                       dashboard_address=":0", silence_logs=40) as cluster:
         one = run_multistart(obj, opts, scheduler=cluster.scheduler_address)

@@ -140,17 +140,20 @@ def run_fit(means: str | os.PathLike | xr.Dataset, opts: FitOptions = FitOptions
             params: str | os.PathLike | ParameterSet | None = None, workers: int = 0,
             scheduler: str | None = None, checkpoint_dir: str | os.PathLike | None = None,
             progress: Callable[..., None] | None = None,
-            source: str | None = None) -> FitResult:
+            source: str | None = None, executor=None) -> FitResult:
     """Multi-start identification (Sec. 3.1) of a mean-signals file or dataset.
 
     ``params``: the parameter set (constants, fitted set, bounds): a TOML file (its
     ``[systematics]`` table states the instrument's gain and timing errors), a
-    :class:`ParameterSet`, or None for the paper's. ``workers``: local Dask worker processes
-    (0: in this process); the result does not depend on it. ``checkpoint_dir``: chunks of
+    :class:`ParameterSet`, or None for the paper's. ``workers``: local worker processes
+    (0: in this process; :func:`gprm.fit.engine.run_multistart`); the result does not
+    depend on it. ``checkpoint_dir``: chunks of
     starts already done are read back from it (resuming). ``progress(done, total)`` as chunks
     finish, in starts (finished, requested); a callback that takes a ``best_chi2`` keyword
     also gets the smallest chi-square reached so far (nan before the first chunk): the one
-    progress callback of ``gprm fit``, ``gprm run`` and ``gprm demo``.
+    progress callback of ``gprm fit``, ``gprm run`` and ``gprm demo``. ``executor``: local
+    worker processes made by the caller (:func:`gprm.fit.engine.local_pool`), used instead
+    of ``workers`` and left open.
     """
     if not isinstance(opts, FitOptions):
         raise GprmInputError(f"expected FitOptions, got {type(opts).__name__}", field="opts")
@@ -169,4 +172,4 @@ def run_fit(means: str | os.PathLike | xr.Dataset, opts: FitOptions = FitOptions
                     progress=progress, profile=opts.profile, z_bk_absolute=opts.z_bk_absolute,
                     band_samples=opts.band_samples, uncertainty=opts.uncertainty,
                     prior_width=opts.prior_width or None, n_boot=opts.boot,
-                    systematics=opts.systematics(stated))
+                    systematics=opts.systematics(stated), executor=executor)

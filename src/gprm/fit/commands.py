@@ -35,7 +35,7 @@ def register(app: typer.Typer, synth_app: typer.Typer) -> None:
         sigma: str = typer.Option("sem", "--sigma", help="weights: sem (standard error of "
                                   "the mean) or std (the paper's across-run std)"),
         workers: Optional[int] = typer.Option(None, "--workers", parser=Int(min=0),
-                                              help="local Dask worker processes (default: "
+                                              help="local worker processes (default: "
                                               "one per core, at most one per chunk of "
                                               "starts, 0 where that is fewer than 2: "
                                               "in this process, the fastest then; the "
@@ -179,12 +179,16 @@ def register(app: typer.Typer, synth_app: typer.Typer) -> None:
         # there before (a resumed fit) keeps its chunks
         keep = dict(only_if_empty=ckpt.exists())
         err = Console(stderr=True)
-        with starts_progress(err, starts) as progress:
+        from gprm.fit.engine import worker_pool
+
+        # the workers are started (forked) before the progress display starts its thread
+        with worker_pool(workers, scheduler=scheduler, dashboard=dashboard) as pool, \
+                starts_progress(err, starts) as progress:
             try:
                 with dask_dashboard(dashboard):
                     res = run_fit(ds, opts, params=base, workers=workers,
                                   scheduler=scheduler, checkpoint_dir=ckpt,
-                                  progress=progress, source=str(means))
+                                  progress=progress, source=str(means), executor=pool)
             except GprmInputError as exc:
                 remove_checkpoints(ckpt, **keep)               # refused: leave nothing behind
                 if exc.field in ("checkpoint", "scheduler"):   # name the option as typed

@@ -1,8 +1,9 @@
 """Execution engine of the multi-start identification: starts are drawn once from the seed
 (:mod:`gprm.fit.starts`), split into chunks, and each chunk runs Levenberg-Marquardt in
 lock-step (one batched simulation per iteration serves the whole chunk). Chunks are
-independent tasks: they run in-process or on a Dask cluster (one BLAS thread each), are
-checkpointed as they finish, and a rerun with the same inputs resumes from the checkpoints.
+independent tasks: they run in-process, on local worker processes (a process pool; a local
+Dask cluster where a dashboard is asked for) or on an existing Dask cluster (one BLAS thread
+each), are checkpointed as they finish, and a rerun with the same inputs resumes from the checkpoints.
 Because the starts and the chunking depend only on the seed and the options, results are
 identical whatever the number of workers.
 """
@@ -16,6 +17,8 @@ import inspect
 import json
 import os
 import re
+import sys
+import threading
 from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any, Callable
@@ -307,6 +310,58 @@ def default_workers(n_starts: int, chunk_size: int, cores: int | None = None) ->
     return n if n >= 2 else 0
 
 
+def pool_context():
+    """The multiprocessing context of the fit's local worker processes (:func:`local_pool`).
+
+    ``fork`` on Linux where this process runs no thread but its main one: the workers start
+    at once, with every module the fit needs already imported, and nothing can hold a lock
+    in them that no thread of theirs will release. Where another thread runs (the CLI's
+    progress display, a Jupyter kernel's, a Dask client's) forking could leave such a lock
+    behind, so ``forkserver``: a fresh server process imports :mod:`gprm.fit.engine` once
+    and the workers are forked from it. ``spawn`` where neither exists."""
+    import multiprocessing as mp
+
+    methods = mp.get_all_start_methods()
+    if sys.platform.startswith("linux") and "fork" in methods \
+            and threading.active_count() == 1:
+        return mp.get_context("fork")
+    if "forkserver" in methods:
+        ctx = mp.get_context("forkserver")
+        ctx.set_forkserver_preload(["gprm.fit.engine"])
+        return ctx
+    return mp.get_context("spawn")
+
+
+def local_pool(n_workers: int):
+    """The fit's local worker processes, ``n_workers`` of them (``--workers N``, no dashboard,
+    no scheduler): a :class:`concurrent.futures.ProcessPoolExecutor` of
+    :func:`pool_context`. No network listener and no scheduler: the chunks and their
+    results travel over the processes' own pipes. Replaces the local Dask cluster of stops
+    up to 35 as the default, whose start, first imports and close cost about 5 s of a
+    1000-start fit on the 2-core machine (BENCHMARKS.md, "Fit speed targets", stop 36); a
+    dashboard asked for (``--dashboard``) still starts that cluster (:func:`local_cluster`)."""
+    import concurrent.futures as cf
+
+    return cf.ProcessPoolExecutor(max_workers=int(n_workers), mp_context=pool_context())
+
+
+@contextlib.contextmanager
+def worker_pool(n_workers: int, *, scheduler: str | None = None, dashboard: str | None = None):
+    """A started :func:`local_pool` of ``n_workers`` for :func:`run_multistart`'s
+    ``executor`` (None where the fit runs in process, on ``scheduler``, or on the Dask
+    cluster a ``dashboard`` needs), shut down on leaving. Entered before any thread starts
+    (``gprm fit`` enters it before its progress display), its workers are forked then."""
+    if n_workers <= 0 or scheduler or dashboard:
+        yield None
+        return
+    pool = local_pool(n_workers)
+    try:
+        pool.submit(int).result()        # the workers start now
+        yield pool
+    finally:
+        pool.shutdown(wait=True, cancel_futures=True)
+
+
 def local_worker_config() -> dict:
     """Dask settings for the local cluster's workers (a warmed-up chunk of 250 demo starts:
     14.8 s CPU with Dask's defaults, 12.7 s with these, 8.5 s in one process;
@@ -390,9 +445,13 @@ def run_multistart(obj: Objective, opts: MultiStartOptions = MultiStartOptions()
                    workers: int = 0, scheduler: str | None = None,
                    checkpoint_dir: str | os.PathLike | None = None,
                    progress: Callable[..., None] | None = None,
-                   stop_after: int | None = None) -> StartsOutcome:
-    """Run all starts. ``workers=0`` runs in this process; ``workers>0`` starts a local Dask
-    cluster with that many single-threaded worker processes; ``scheduler`` connects to an
+                   stop_after: int | None = None, executor=None) -> StartsOutcome:
+    """Run all starts. ``workers=0`` runs in this process; ``workers>0`` runs the chunks on
+    that many local worker processes (:func:`local_pool`; a local Dask cluster,
+    :func:`local_cluster`, where a dashboard was asked for); ``executor``: such a pool made
+    by the caller (``gprm fit`` makes its own before its progress display starts a thread,
+    so that the workers can be forked, :func:`pool_context`), used instead of ``workers``
+    and left open; ``scheduler`` connects to an
     existing cluster instead, connected as distributed connects any client: with no security
     object from gprm, so a ``tls://`` address takes its credentials from the user's Dask
     configuration (``distributed.comm.tls.*``; docs/fitting.md). ``progress(done, total)`` is called as chunks finish, counting
@@ -426,7 +485,15 @@ def run_multistart(obj: Objective, opts: MultiStartOptions = MultiStartOptions()
         if stop_after is not None and new >= stop_after and len(results) < total:
             raise KeyboardInterrupt("stopped after the requested number of chunks")
 
-    if pending and (workers > 0 or scheduler):
+    if pending and executor is not None and not scheduler:
+        _run_on_pool(executor, pending, finish)
+    elif pending and workers > 0 and not scheduler and not _dashboard_asked():
+        pool = local_pool(workers)
+        try:
+            _run_on_pool(pool, pending, finish)
+        finally:
+            pool.shutdown(wait=True)
+    elif pending and (workers > 0 or scheduler):
         import dask
         from distributed import Client, as_completed
 
@@ -463,6 +530,33 @@ def run_multistart(obj: Objective, opts: MultiStartOptions = MultiStartOptions()
         chi2=cat["chi2"][order], iterations=cat["iterations"][order],
         converged=cat["converged"][order], status=cat["status"][order].astype(str),
         resampled=cat["resampled"][order])
+
+
+def _run_on_pool(pool, pending, finish) -> None:
+    """The chunks ``pending`` on the process pool ``pool``, ``finish`` called with each
+    result as it comes; a stop (an error, ``stop_after``, ^C) cancels the chunks not begun
+    and lets the running ones end on their own."""
+    import concurrent.futures as cf
+
+    futs = [pool.submit(run_chunk, t) for t in pending]
+    try:
+        for fut in cf.as_completed(futs):
+            finish(fut.result())
+    except BaseException:
+        for f in futs:
+            f.cancel()
+        raise
+
+
+def _dashboard_asked() -> bool:
+    """Whether a Dask dashboard was asked for (``gprm.dashboard-address``, set by ``gprm fit
+    --dashboard``): only Dask's local cluster serves one. Dask is not imported to find out
+    where nothing has imported it (then nothing can have set it)."""
+    if "dask" not in sys.modules:
+        return False
+    import dask
+
+    return bool(dask.config.get("gprm.dashboard-address", None))
 
 
 def takes_keyword(f: Callable, name: str) -> bool:

@@ -31,7 +31,8 @@ def identify(data: FitData, base: ParameterSet, opts: MultiStartOptions = MultiS
              checkpoint_dir=None, progress=None, profile: bool = False, band_samples: int = 200,
              z_bk_absolute: bool = False, stop_after: int | None = None,
              uncertainty: str = DEFAULT_METHOD, prior_width: float | None = DEFAULT_WIDTH,
-             n_draws: int = 400, n_boot: int = 40, systematics=None) -> FitResult:
+             n_draws: int = 400, n_boot: int = 40, systematics=None,
+             executor=None) -> FitResult:
     """Multi-start identification of ``names`` (default: the set's fitted parameters).
 
     With ``prior_width`` (default) every start minimises chi-square plus the weak prior of
@@ -40,7 +41,9 @@ def identify(data: FitData, base: ParameterSet, opts: MultiStartOptions = MultiS
     uncertainty comes from ``uncertainty`` (:mod:`gprm.fit.uncertainty`). ``prior_width=None``
     is the paper's unregularised fit (its uncertainty then is Eq. 7 or eq7-corr).
     ``systematics``: the instrument's stated systematics (gprm.fit.sandwich.Systematics;
-    None: its documented defaults) the default method marginalises.
+    None: its documented defaults) the default method marginalises. ``executor``: a pool of
+    local worker processes the caller made (:func:`gprm.fit.engine.local_pool`), used for
+    the starts instead of ``workers``.
 
     Where the data carry runs moved by whole samples with their sub-sample remainder
     (``data.sync_remainder``, written by ``gprm preprocess``), the best start's point moves
@@ -61,6 +64,7 @@ def identify(data: FitData, base: ParameterSet, opts: MultiStartOptions = MultiS
     obj = Objective.create(data, base, fit_names, piezo=piezo, z_bk_absolute=z_bk_absolute,
                            prior=prior)
     starts = run_multistart(obj, opts, workers=workers, scheduler=scheduler,
+                            executor=executor,
                             checkpoint_dir=checkpoint_dir, progress=progress,
                             stop_after=stop_after)
     t_ms = time.perf_counter() - t_start

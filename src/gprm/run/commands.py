@@ -33,7 +33,7 @@ def register(app: typer.Typer, synth_app: typer.Typer) -> None:
                                  "and synthetic telemetry"),
         starts: Optional[int] = typer.Option(None, "--starts", parser=Int(min=1), help="random starts of the fit "
                                              "(default 1000, or 50 with --quick)"),
-        workers: Optional[int] = typer.Option(None, "--workers", parser=Int(min=0), help="local Dask worker "
+        workers: Optional[int] = typer.Option(None, "--workers", parser=Int(min=0), help="local worker "
                                               "processes for the fit (default: one per core, "
                                               "at most one per chunk of 250 starts, 0 where "
                                               "that is fewer than 2, as with --quick: in "

@@ -26,7 +26,7 @@ class RunOptions:
     preprocess, fit: the stages' options (``fit.seed`` seeds the starts and the fit bands).
     predict_samples: parameter sets drawn for the prediction and impact-curve bands.
     releases: synthetic releases (when ``telemetry`` is None).
-    workers: local Dask worker processes for the fit (0: in this process); the result does
+    workers: local worker processes for the fit (0: in this process); the result does
         not depend on it, so it is not part of any hash.
     """
 

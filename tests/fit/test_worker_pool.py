@@ -81,3 +81,27 @@ def test_a_stop_cancels_the_chunks_not_begun(obj, tmp_path):
     again = run_multistart(obj, OPTS, workers=2, checkpoint_dir=ck)
     np.testing.assert_array_equal(ref.x, again.x)
 
+
+
+def test_gprm_run_hands_its_pool_to_the_fit_stage(monkeypatch, tmp_path):
+    """`gprm run`/`demo` start the fit's workers before their progress display and pass them
+    through the chain to run_fit (the fit stage is the only user)."""
+    from gprm.run import stages
+    from gprm.run.options import RunOptions
+
+    seen = {}
+
+    def fake_run_fit(*args, **kw):
+        seen.update(kw)
+        raise RuntimeError("stop here")
+
+    monkeypatch.setattr(stages, "run_fit", fake_run_fit)
+    marker = object()
+    fit = {s.name: s for s in stages.chain(RunOptions(), executor=marker)}["fit"]
+    with pytest.raises(RuntimeError, match="stop here"):
+        fit.run(tmp_path, RunOptions(), lambda *a, **k: None)
+    assert seen["executor"] is marker
+    fit = {s.name: s for s in stages.chain(RunOptions())}["fit"]
+    with pytest.raises(RuntimeError, match="stop here"):
+        fit.run(tmp_path, RunOptions(), lambda *a, **k: None)
+    assert seen["executor"] is None

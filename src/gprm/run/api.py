@@ -68,17 +68,21 @@ def _check_sources(opts: RunOptions) -> None:
 
 
 def run_chain(out: str | os.PathLike, opts: RunOptions = RunOptions(), *, progress=None,
-              command: str | None = None, report_html: bool = True) -> RunResult:
+              command: str | None = None, report_html: bool = True,
+              executor=None) -> RunResult:
     """Run the chain of ``opts`` into ``out`` (created if needed), resuming what is up to
     date (see :mod:`gprm.run.engine`). A campaign or telemetry path that does not exist, or
     an ``out`` that cannot be a run directory (:func:`check_run_outputs`), is a
     :class:`GprmInputError` (field ``out``) before anything runs; a stage that fails on its input is recorded
-    in ``run.json`` (status ``failed``, with the message) and blocks the stages after it."""
+    in ``run.json`` (status ``failed``, with the message) and blocks the stages after it.
+    ``executor``: the fit's local worker processes (:func:`gprm.fit.engine.worker_pool`),
+    made by a caller that starts threads before the fit (a progress display) so that they
+    are forked first; None: the fit makes its own."""
     if not isinstance(opts, RunOptions):
         raise GprmInputError(f"expected RunOptions, got {type(opts).__name__}", field="opts")
     _check_sources(opts)
     check_run_outputs(out, opts)
-    return run_stages(out, opts, chain(opts), progress=progress, command=command,
+    return run_stages(out, opts, chain(opts, executor), progress=progress, command=command,
                       report_html=report_html)
 
 

@@ -86,9 +86,13 @@ def run_and_print(out: Path, opts, *, demo: bool) -> None:
 
         opts = replace(opts, campaign=None, telemetry=None)
     check_run_outputs(out, opts, field="--out")    # before the progress display starts
-    with _Progress(Console(stderr=True), titles) as prog:
+    from gprm.fit.engine import worker_pool
+
+    # the fit's workers start (are forked) before the progress display starts its thread
+    with worker_pool(opts.workers) as pool, _Progress(Console(stderr=True), titles) as prog:
         res = (run_demo if demo else run_chain)(out, opts, progress=prog.event,
-                                                command="gprm " + " ".join(sys.argv[1:]))
+                                                command="gprm " + " ".join(sys.argv[1:]),
+                                                executor=pool)
     print_summary(Console(), res, titles, name)
     failed = [r for r in res.records if r.status == "failed"]
     if failed:

@@ -14,6 +14,7 @@ The run directory (see ``docs/README.md``)::
 
 from __future__ import annotations
 
+import functools
 import hashlib
 import os
 import shutil
@@ -131,12 +132,12 @@ def _preprocess(run: Path, opts: RunOptions, step) -> dict:
 FIT_CHECKPOINTS = "fit.json.ckpt"
 
 
-def _fit(run: Path, opts: RunOptions, step) -> dict:
+def _fit(run: Path, opts: RunOptions, step, executor=None) -> dict:
     ckpt = run / FIT_CHECKPOINTS
     existed = ckpt.exists()
     try:
         res = run_fit(run / "means.nc", opts.fit, workers=opts.workers, checkpoint_dir=ckpt,
-                      progress=step)
+                      progress=step, executor=executor)
     except GprmInputError:          # refused: no checkpoint folder of its own left behind
         remove_checkpoints(ckpt, only_if_empty=existed)
         raise
@@ -222,9 +223,11 @@ def _impact(run: Path, opts: RunOptions, step) -> dict:
 
 # ----------------------------------------------------------------------------- the chain
 
-def chain(opts: RunOptions) -> tuple[Stage, ...]:
+def chain(opts: RunOptions, executor=None) -> tuple[Stage, ...]:
     """The stages for ``opts``: where the campaign and the telemetry come from decides the
-    first stage's settings and what the telemetry stage needs; the rest is fixed."""
+    first stage's settings and what the telemetry stage needs; the rest is fixed.
+    ``executor``: the fit's local worker processes, made by the caller
+    (:func:`gprm.fit.engine.worker_pool`; None: the fit makes its own)."""
     tel_inputs = () if opts.telemetry is not None else ("fit.json",)
     return (
         Stage("campaign", "campaign (synthetic)" if opts.campaign is None else
@@ -232,7 +235,7 @@ def chain(opts: RunOptions) -> tuple[Stage, ...]:
         Stage("preprocess", "preprocess", ("campaign.nc",), ("means.nc",),
               lambda o: asdict(o.preprocess), _preprocess),
         Stage("fit", "fit (multi-start LM)", ("means.nc",), ("fit.json", "fit.nc"),
-              lambda o: asdict(o.fit), _fit),
+              lambda o: asdict(o.fit), functools.partial(_fit, executor=executor)),
         Stage("predict", "predict + what-ifs", ("fit.json", "means.nc"),
               tuple(PREDICT_FILES.values()) + ("whatif.json",),
               lambda o: {"samples": o.predict_samples, "seed": o.seed} | PREDICT_SPAN,

@@ -105,3 +105,47 @@ def test_gprm_run_hands_its_pool_to_the_fit_stage(monkeypatch, tmp_path):
     with pytest.raises(RuntimeError, match="stop here"):
         fit.run(tmp_path, RunOptions(), lambda *a, **k: None)
     assert seen["executor"] is None
+
+
+_KILLED = """
+import os, sys
+from concurrent.futures.process import BrokenProcessPool
+import numpy as np
+sys.path.insert(0, sys.argv[1])
+from means_factory import make_means
+import gprm.fit.engine as engine
+from gprm.fit.objective import Objective, fit_data_from_means
+from gprm.fit.starts import LMOptions, MultiStartOptions
+from gprm.params import paper
+
+obj = Objective.create(fit_data_from_means(make_means(paper(), seed=1)), paper())
+opts = MultiStartOptions(n_starts=6, seed=5, chunk_size=2, lm=LMOptions(max_iter=4))
+ref = engine.run_multistart(obj, opts)
+real = engine.run_chunk
+
+def dying(task):
+    if task.index == 2:
+        os._exit(3)                       # the worker dies (the OOM killer, a kill -9)
+    return real(task)
+
+engine.run_chunk = dying
+try:
+    engine.run_multistart(obj, opts, workers=2, checkpoint_dir=sys.argv[2])
+    print("no error")
+except BrokenProcessPool:
+    print("broken")
+engine.run_chunk = real
+again = engine.run_multistart(obj, opts, workers=2, checkpoint_dir=sys.argv[2])
+print("same" if np.array_equal(ref.x, again.x) else "different")
+"""
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="the check forks (Linux)")
+def test_a_worker_that_dies_ends_the_fit_with_an_error_and_a_rerun_resumes(tmp_path):
+    """A worker process killed mid-fit breaks the pool: the fit ends with an error (the
+    CLI prints it as one line), the chunks finished before are kept, and a rerun with the
+    same checkpoint folder completes to the uninterrupted result."""
+    here = str(__import__("pathlib").Path(__file__).parent)
+    out = subprocess.run([sys.executable, "-c", _KILLED, here, str(tmp_path / "ck")],
+                         capture_output=True, text=True, timeout=300)
+    assert out.stdout.split() == ["broken", "same"], (out.stdout, out.stderr[-2000:])

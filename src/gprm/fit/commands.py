@@ -42,9 +42,11 @@ def register(app: typer.Typer, synth_app: typer.Typer) -> None:
                                               "result does not depend on it)"),
         scheduler: Optional[str] = typer.Option(None, "--scheduler",
                                                 help="address of an existing Dask scheduler"),
-        dashboard: Optional[str] = typer.Option(None, "--dashboard", help="serve the Dask "
-                                                "dashboard of the local cluster at this "
-                                                "address, e.g. 127.0.0.1:8787 (default: none)"),
+        dashboard: Optional[str] = typer.Option(None, "--dashboard", help="run the workers on a "
+                                                "local Dask cluster and serve its dashboard "
+                                                "at this address, e.g. 127.0.0.1:8787 "
+                                                "(default: none; the workers are then a "
+                                                "plain process pool)"),
         chunk: int = typer.Option(250, "--chunk", parser=Int(min=1),
                                   help="starts per lock-step chunk (part of "
                                   "the result's definition, like the seed; smaller chunks "

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import subprocess
 import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -13,7 +14,7 @@ import pytest
 from gprm.fit.engine import run_multistart, worker_pool
 from gprm.fit.starts import LMOptions, MultiStartOptions
 
-sys.path.insert(0, str(__import__("pathlib").Path(__file__).parent))
+sys.path.insert(0, str(Path(__file__).parent))
 from means_factory import make_means  # noqa: E402
 
 OPTS = MultiStartOptions(n_starts=6, seed=5, chunk_size=2, lm=LMOptions(max_iter=4))
@@ -28,7 +29,7 @@ def obj():
 
 
 _PROBE = """
-import threading, time
+import threading
 from gprm.fit.engine import pool_context
 print(pool_context().get_start_method())
 stop = threading.Event()
@@ -63,6 +64,7 @@ def test_a_pool_gives_the_in_process_result_and_is_left_open(obj):
 
 
 def test_no_pool_where_the_fit_runs_elsewhere():
+    """In process, on a scheduler, or on the Dask cluster a dashboard needs: no pool."""
     for kw in ({"n_workers": 0}, {"n_workers": 2, "scheduler": "tcp://127.0.0.1:1"},
                {"n_workers": 2, "dashboard": "127.0.0.1:0"}):
         with worker_pool(**kw) as pool:
@@ -80,7 +82,6 @@ def test_a_stop_cancels_the_chunks_not_begun(obj, tmp_path):
     assert len(list(ck.glob("chunk_*.npz"))) == 1
     again = run_multistart(obj, OPTS, workers=2, checkpoint_dir=ck)
     np.testing.assert_array_equal(ref.x, again.x)
-
 
 
 def test_gprm_run_hands_its_pool_to_the_fit_stage(monkeypatch, tmp_path):
@@ -145,7 +146,7 @@ def test_a_worker_that_dies_ends_the_fit_with_an_error_and_a_rerun_resumes(tmp_p
     """A worker process killed mid-fit breaks the pool: the fit ends with an error (the
     CLI prints it as one line), the chunks finished before are kept, and a rerun with the
     same checkpoint folder completes to the uninterrupted result."""
-    here = str(__import__("pathlib").Path(__file__).parent)
+    here = str(Path(__file__).parent)
     out = subprocess.run([sys.executable, "-c", _KILLED, here, str(tmp_path / "ck")],
                          capture_output=True, text=True, timeout=300)
     assert out.stdout.split() == ["broken", "same"], (out.stdout, out.stderr[-2000:])

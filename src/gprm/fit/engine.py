@@ -488,11 +488,8 @@ def run_multistart(obj: Objective, opts: MultiStartOptions = MultiStartOptions()
     if pending and executor is not None and not scheduler:
         _run_on_pool(executor, pending, finish)
     elif pending and workers > 0 and not scheduler and not _dashboard_asked():
-        pool = local_pool(workers)
-        try:
+        with worker_pool(workers) as pool:
             _run_on_pool(pool, pending, finish)
-        finally:
-            pool.shutdown(wait=True)
     elif pending and (workers > 0 or scheduler):
         import dask
         from distributed import Client, as_completed
@@ -505,11 +502,9 @@ def run_multistart(obj: Objective, opts: MultiStartOptions = MultiStartOptions()
                 raise GprmInputError(f"cannot connect to the Dask scheduler {scheduler!r} "
                                      f"({type(exc).__name__}: {exc})",
                                      field="scheduler") from None
-        else:
+        else:                       # a dashboard was asked for (else the pool above)
             cluster = local_cluster(workers, dask.config.get("gprm.dashboard-address", None))
             client = Client(cluster, security=cluster.security)   # its TLS credentials
-            if not dask.config.get("gprm.dashboard-address", None):
-                client.run(_stop_http_server)        # the workers': no listener left
         try:
             futs = [client.submit(run_chunk, t, pure=False) for t in pending]
             for fut in as_completed(futs):

@@ -15,7 +15,8 @@ each run is moved by the model's own change over its remainder,
 
 y the model signal at x on the data's time grid. Errors of x enter only through the change
 over at most half a sample (second order), so two passes (best start, then the polished
-point) settle it; each costs a polish (BENCHMARKS.md, the fit's speed rows). The mean, and
+point) settle it; the first is followed by a polish to PASS_FTOL, the second by the fit's
+own final polish. The mean, and
 sigma (sem or std, as the data were weighed), are then taken over the moved runs; they
 replace the file's, which are over the spline-interpolated runs (the multi-start uses
 those: the same weighting and nearly the same minimum).
@@ -36,7 +37,8 @@ PASSES = 2
 #: relative chi-square tolerance of the polish between two corrections (the last polish is
 #: the caller's, at its own tolerance): the corrections change with the point at second order
 #: only (over at most half a sample), so the intermediate point needs no more than the
-#: multi-start's class of precision; 1e-12 there cost 2-3x the iterations (BENCHMARKS.md)
+#: multi-start's class of precision; 1e-12 there took about twice the iterations (200, the
+#: limit, against 94 on the demo campaign; BENCHMARKS.md, "Fit speed targets", stop 36)
 PASS_FTOL = 1e-9
 
 

@@ -149,6 +149,9 @@ class Adequacy:
     signals: tuple[SignalCheck, ...]
     adequate: bool
     reasons: tuple[str, ...]
+    #: the unmodelled resonance the fit found and marginalised (gprm.fit.resonance.Resonance's
+    #: JSON), or None
+    resonance: dict | None = None
 
     @property
     def reduced_chi2(self) -> float:
@@ -158,7 +161,8 @@ class Adequacy:
         return {"verdict": "adequate" if self.adequate else "not described",
                 "chi2": self.chi2, "dof": self.dof, "reduced_chi2": self.reduced_chi2,
                 "p_value": self.p_value, "reasons": list(self.reasons),
-                "signals": [s.to_json() for s in self.signals]}
+                "signals": [s.to_json() for s in self.signals],
+                "resonance": self.resonance}
 
     @classmethod
     def from_json(cls, d: dict) -> "Adequacy":
@@ -168,7 +172,8 @@ class Adequacy:
                                 s.get("peak_p_fisher_g", float("nan")))
                     for s in d.get("signals", []))
         return cls(float(d["chi2"]), float(d["dof"]), float(d["p_value"]), sig,
-                   d.get("verdict") == "adequate", tuple(d.get("reasons", [])))
+                   d.get("verdict") == "adequate", tuple(d.get("reasons", [])),
+                   d.get("resonance"))
 
 
 def _subset(data: FitData, keep: list[int]) -> FitData:
@@ -256,6 +261,10 @@ def leave_one_signal_out(obj: Objective, x: np.ndarray, lm: LMOptions = LMOption
     ok = np.isfinite(res.chi2) & (res.chi2 <= res.chi2_0)
     XS = np.where(ok[:, None], obj.to_physical(res.x), x[None])
     y = obj.model(np.concatenate([x[None], XS])).y                 # (1 + S, S, T)
+    if obj.projection is not None:
+        # the data the fit describes: less what the projection took (the resonance)
+        from gprm.fit.resonance import fitted_part
+        y = y + fitted_part(obj, x)[None]
     own = np.mean(((d.values - y[0]) / d.sigma) ** 2, axis=1)
     out = np.full(S, np.nan)
     for s in range(S):
@@ -276,14 +285,17 @@ def effective_parameters(J: np.ndarray, x: np.ndarray, prior: Prior | None) -> f
 
 
 def assess(obj: Objective, x: np.ndarray, r: np.ndarray, p_eff: float, *,
-           lm: LMOptions = LMOptions(), loso: bool = True) -> Adequacy:
+           lm: LMOptions = LMOptions(), loso: bool = True, resonance=None) -> Adequacy:
     """The adequacy checks of the module docstring for the fit at ``x`` with weighted data
-    residuals ``r`` (N,) and effective number of parameters ``p_eff``."""
+    residuals ``r`` (N,) and effective number of parameters ``p_eff``. ``resonance``: the
+    unmodelled resonance the fit marginalised (gprm.fit.resonance.Resonance), or None; its
+    nuisances count against the degrees of freedom, and it is a reason the model does not
+    describe the data."""
     d = obj.data
     S, T = d.values.shape
     R = np.asarray(r, float).reshape(S, T)
     chi2 = float(np.sum(R * R))
-    dof = float(max(R.size - p_eff, 1.0))
+    dof = float(max(R.size - p_eff - obj.n_nuisance, 1.0))
     p = float(chdtrc(dof, chi2))
     lags = int(max(1, min(10, T // 5)))
     fs = 1.0 / float(np.median(np.diff(d.time))) if T > 1 else 1.0
@@ -298,6 +310,8 @@ def assess(obj: Objective, x: np.ndarray, r: np.ndarray, p_eff: float, *,
         checks.append(SignalCheck(d.signals[s], float(np.mean(R[s] ** 2)), q, pq, lags, lag1,
                                   pf, share, float(ratios[s]), fisher_g(R[s])[1]))
     reasons = []
+    if resonance is not None:
+        reasons.append(resonance.summary())
     if p < P_CHI2:
         reasons.append(f"chi-square {chi2:.4g} on {dof:.0f} degrees of freedom (reduced "
                        f"{chi2 / dof:.3g}, p = {p:.2g}): the residuals are larger than the "
@@ -309,7 +323,8 @@ def assess(obj: Objective, x: np.ndarray, r: np.ndarray, p_eff: float, *,
                            f"power at {c.peak_frequency / 1e3:.3g} kHz"
                            + (f", Fisher's g p = {c.peak_p:.2g}" if np.isfinite(c.peak_p)
                               else "") + ")")
-    return Adequacy(chi2, dof, p, tuple(checks), not reasons, tuple(reasons))
+    return Adequacy(chi2, dof, p, tuple(checks), not reasons, tuple(reasons),
+                    None if resonance is None else resonance.to_json())
 
 
 def verdict_text(a: Adequacy, method: str, details: dict | None = None) -> str:
@@ -319,6 +334,11 @@ def verdict_text(a: Adequacy, method: str, details: dict | None = None) -> str:
                 f"(p = {a.p_value:.2g}) and every signal's residuals are white.")
     else:
         head = ("The model does not describe the data: " + "; ".join(a.reasons) + ".")
+    if a.resonance:
+        head += (" The resonance's amplitudes, frequency, damping and onset are free "
+                 "nuisance parameters of the fit (its residuals are projected off them), so "
+                 "every parameter they trade off with is widened by them; the checks above "
+                 "are of the residuals that remain.")
     if method != "sandwich":
         return head + (f" The intervals ({method}) do not use the residuals' structure.")
     ratio = (details or {}).get("residual_over_runs")

@@ -64,6 +64,9 @@ class FitOptions:
     #: else gprm.fit.sandwich.Systematics' documented defaults)
     gain_sd: float | None = None              # relative gain error of each channel
     timing_sd: float | None = None            # s, timing offset of each channel
+    #: search the residuals for an unmodelled resonance and marginalise one that is found
+    #: (gprm.fit.resonance; with a prior only)
+    resonance: bool = True
 
     def __post_init__(self):
         check_int("starts", self.starts, 1)
@@ -80,7 +83,7 @@ class FitOptions:
         object.__setattr__(self, "window", (float(w[0]), float(w[1])))
         if self.sigma not in ("sem", "std"):
             raise GprmInputError(f"must be sem or std, got {self.sigma!r}", field="sigma")
-        for name in ("fit_offsets", "profile", "z_bk_absolute"):
+        for name in ("fit_offsets", "profile", "z_bk_absolute", "resonance"):
             if not isinstance(getattr(self, name), bool):
                 raise GprmInputError(f"must be true or false, got {getattr(self, name)!r}",
                                      field=name)
@@ -172,4 +175,5 @@ def run_fit(means: str | os.PathLike | xr.Dataset, opts: FitOptions = FitOptions
                     progress=progress, profile=opts.profile, z_bk_absolute=opts.z_bk_absolute,
                     band_samples=opts.band_samples, uncertainty=opts.uncertainty,
                     prior_width=opts.prior_width or None, n_boot=opts.boot,
-                    systematics=opts.systematics(stated), executor=executor)
+                    systematics=opts.systematics(stated), executor=executor,
+                    resonance=opts.resonance)

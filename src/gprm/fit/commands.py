@@ -112,6 +112,10 @@ def register(app: typer.Typer, synth_app: typer.Typer) -> None:
         no_fit_offsets: bool = typer.Option(False, "--no-fit-offsets", help="do not fit the "
                                             "per-signal alignment offsets dt_x_head, "
                                             "dt_y_base, dt_y_head (fitted by default)"),
+        no_resonance: bool = typer.Option(False, "--no-resonance", help="do not search the "
+                                          "residuals for an unmodelled resonance (by "
+                                          "default one that is found is marginalised as a "
+                                          "nuisance; docs/fitting.md)"),
     ):
         """Multi-start Levenberg-Marquardt identification (Sec. 3.1)."""
         import os
@@ -143,7 +147,8 @@ def register(app: typer.Typer, synth_app: typer.Typer) -> None:
                         band_samples=band_samples, profile=profile,
                         z_bk_absolute=z_bk_absolute, uncertainty=uncertainty,
                         prior_width=prior_width, boot=boot, gain_sd=gain_sd,
-                        timing_sd=None if timing_sd is None else _seconds(timing_sd))
+                        timing_sd=None if timing_sd is None else _seconds(timing_sd),
+                        resonance=not no_resonance)
         ckpt = checkpoint if checkpoint is not None else Path(str(out) + ".ckpt")
         check_outputs({out: "--out", out.with_suffix(".nc"): "--out (its .nc sidecar)"},
                       inputs=[means, params], folders={ckpt: "--checkpoint"})

@@ -17,6 +17,7 @@ from gprm.fit.engine import polish_best, run_multistart, single_thread_blas
 from gprm.fit.objective import FitData, Objective
 from gprm.fit.prior import DEFAULT_WIDTH, default_prior
 from gprm.fit.result import FitResult
+from gprm.fit import resonance as resonance_mod
 from gprm.fit import subsample
 from gprm.fit.starts import MultiStartOptions
 from gprm.fit.methods import DEFAULT_METHOD, NEEDS_PRIOR, FitState, compute
@@ -32,7 +33,7 @@ def identify(data: FitData, base: ParameterSet, opts: MultiStartOptions = MultiS
              z_bk_absolute: bool = False, stop_after: int | None = None,
              uncertainty: str = DEFAULT_METHOD, prior_width: float | None = DEFAULT_WIDTH,
              n_draws: int = 400, n_boot: int = 40, systematics=None,
-             executor=None) -> FitResult:
+             executor=None, resonance: bool = True) -> FitResult:
     """Multi-start identification of ``names`` (default: the set's fitted parameters).
 
     With ``prior_width`` (default) every start minimises chi-square plus the weak prior of
@@ -43,7 +44,9 @@ def identify(data: FitData, base: ParameterSet, opts: MultiStartOptions = MultiS
     ``systematics``: the instrument's stated systematics (gprm.fit.sandwich.Systematics;
     None: its documented defaults) the default method marginalises. ``executor``: a pool of
     local worker processes the caller made (:func:`gprm.fit.engine.local_pool`), used for
-    the starts instead of ``workers``.
+    the starts instead of ``workers``. ``resonance``: search the residuals for an unmodelled
+    resonance of the mechanism and, where one is found, marginalise it
+    (:mod:`gprm.fit.resonance`; with a prior only).
 
     Where the data carry runs moved by whole samples with their sub-sample remainder
     (``data.sync_remainder``, written by ``gprm preprocess``), the best start's point moves
@@ -86,6 +89,14 @@ def identify(data: FitData, base: ParameterSet, opts: MultiStartOptions = MultiS
         if prior is None:
             x, polish_c = polish_best(obj, x, opts.lm)
             polish = {**polish, "corrected": polish_c}
+    found = None
+    if prior is not None and resonance:
+        # an unmodelled resonance in the residuals: marginalised (gprm.fit.resonance)
+        obj, x, found = resonance_mod.marginalise(
+            obj, x, lambda o, x0: polish_best(o, x0, opts.lm, ftol=subsample.PASS_FTOL)[0],
+            jacobian=_data_jacobian)
+        if found is not None:
+            polish = {**polish, "resonance": found.to_json()}
     if prior is not None:
         # weigh the prior against the data's variance scale, then polish again (the residuals
         # alone here: the Jacobian is needed at the final point only; after the runs'
@@ -105,7 +116,8 @@ def identify(data: FitData, base: ParameterSet, opts: MultiStartOptions = MultiS
                      alternatives=np.asarray(starts.x, float))
     unc = eq7 if uncertainty == "eq7" else compute(uncertainty, state)
     t_a = time.perf_counter()
-    adequacy = assess(obj, x, r, effective_parameters(J, x, obj.prior), lm=opts.lm)
+    adequacy = assess(obj, x, r, effective_parameters(J, x, obj.prior), lm=opts.lm,
+                      resonance=found)
     t_adequacy = time.perf_counter() - t_a
     cov, msg = unc.covariance, unc.message
     lo, hi = obj.bounds_normalised()
@@ -128,7 +140,7 @@ def identify(data: FitData, base: ParameterSet, opts: MultiStartOptions = MultiS
                "total": round(time.perf_counter() - t_start, 3)}
     return FitResult(obj.names, params, chi2, obj.dof, cov, msg, at_b, starts, opts, data,
                      piezo, bands, profiles, timings, z_bk_absolute, polish, unc, eq7, prior,
-                     systematics, adequacy)
+                     systematics, adequacy, found)
 
 
 def _data_jacobian(obj: Objective, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -137,6 +137,10 @@ class Objective:
     z_bk_absolute: bool = False
     #: the weak prior's rows appended to the residuals (gprm.fit.prior), or None
     prior: Prior | None = None
+    #: (N, k) orthonormal columns in the weighted data space that the data residuals and
+    #: their Jacobian are projected off: nuisances eliminated by variable projection (an
+    #: unmodelled resonance, gprm.fit.resonance), or None
+    projection: np.ndarray | None = field(default=None, compare=False, repr=False)
     # the parameter rows and prepared simulation of the last ``residuals`` call (see __call__)
     _last: dict = field(default_factory=dict, init=False, repr=False, compare=False)
 
@@ -146,7 +150,8 @@ class Objective:
 
     @classmethod
     def create(cls, data: FitData, base: ParameterSet, names=None, *, piezo: int = 2,
-               z_bk_absolute: bool = False, prior: Prior | None = None) -> "Objective":
+               z_bk_absolute: bool = False, prior: Prior | None = None,
+               projection: np.ndarray | None = None) -> "Objective":
         names = tuple(base.fitted if names is None else names)
         if not names:
             raise GprmInputError("no parameters to fit", field="fit")
@@ -160,12 +165,41 @@ class Objective:
         scale = np.where(scale > 0, scale, 1.0)
         if prior is not None and tuple(prior.names) != names:
             raise ValueError("prior names differ from the fitted names")
-        return cls(data, base, names, scale, piezo, z_bk_absolute, prior)
+        obj = cls(data, base, names, scale, piezo, z_bk_absolute, prior)
+        return obj if projection is None else obj.with_projection(projection)
 
     def with_prior(self, prior: Prior | None) -> "Objective":
         """The same objective with another prior (or none)."""
         return Objective(self.data, self.base, self.names, self.scale, self.piezo,
-                         self.z_bk_absolute, prior)
+                         self.z_bk_absolute, prior, self.projection)
+
+    def with_projection(self, projection: np.ndarray | None) -> "Objective":
+        """The same objective with its data residuals projected off the orthonormal columns
+        ``projection`` (N, k) (None: not projected)."""
+        Q = None if projection is None else np.asarray(projection, float)
+        if Q is not None and (Q.ndim != 2 or Q.shape[0] != self.data.n_obs):
+            raise ValueError(f"a projection needs {self.data.n_obs} rows, got {Q.shape}")
+        return Objective(self.data, self.base, self.names, self.scale, self.piezo,
+                         self.z_bk_absolute, self.prior, Q)
+
+    @property
+    def n_nuisance(self) -> int:
+        """The nuisances the projection eliminates (its columns)."""
+        return 0 if self.projection is None else int(self.projection.shape[1])
+
+    def _project(self, r: np.ndarray, J: np.ndarray | None = None):
+        """Data rows of r (B, N') [and J (B, N', P)] projected off ``projection``."""
+        Q = self.projection
+        if Q is None:
+            return r if J is None else (r, J)
+        n = self.data.n_obs
+        r = r.copy()
+        r[:, :n] -= (r[:, :n] @ Q) @ Q.T
+        if J is None:
+            return r
+        J = J.copy()
+        J[:, :n] -= np.einsum("nk,bkp->bnp", Q, np.einsum("nk,bnp->bkp", Q, J[:, :n]))
+        return r, J
 
     @property
     def n_params(self) -> int:
@@ -173,7 +207,7 @@ class Objective:
 
     @property
     def dof(self) -> int:
-        return self.data.n_obs - self.n_params
+        return self.data.n_obs - self.n_params - self.n_nuisance
 
     def bounds(self) -> tuple[np.ndarray, np.ndarray]:
         """Physical bounds (P,) of the fitted parameters (the set's, else the registry's)."""
@@ -228,6 +262,7 @@ class Objective:
         w = self._weights                                              # (S, T)
         r = ((self.data.values[None] - obs.y) * w[None]).reshape(Xn.shape[0], -1)
         J = (-obs.dy * w[None, :, :, None] * self.scale).reshape(Xn.shape[0], -1, Xn.shape[1])
+        r, J = self._project(r, J)
         if self.prior is None:
             return r, J
         X = self.to_physical(Xn)
@@ -243,6 +278,7 @@ class Objective:
         obs = self.model(self.to_physical(Xn))
         self._last["entry"] = ({x.tobytes(): i for i, x in enumerate(Xn)}, obs.prepared)
         r = ((self.data.values[None] - obs.y) * self._weights[None]).reshape(Xn.shape[0], -1)
+        r = self._project(r)
         if self.prior is None:
             return r
         return np.concatenate([r, self.prior.residuals(self.to_physical(Xn))], axis=1)

@@ -46,6 +46,8 @@ class FitResult:
     systematics: object = None
     #: does the model describe the data
     adequacy: Adequacy | None = None
+    #: the unmodelled resonance the fit marginalised (gprm.fit.resonance.Resonance), or None
+    resonance: object = None
 
     def combinations(self) -> list[dict]:
         """What the data determine among the not-identified parameters
@@ -60,8 +62,10 @@ class FitResult:
         prior = self.prior
         if prior is not None and self.uncertainty is not None and np.isfinite(self.uncertainty.s2):
             prior = prior.with_weight(np.sqrt(self.uncertainty.s2))
+        basis = getattr(getattr(self, "resonance", None), "basis", None)
         return Objective.create(self.data, self.params, self.names, piezo=self.piezo,
-                                z_bk_absolute=self.z_bk_absolute, prior=prior)
+                                z_bk_absolute=self.z_bk_absolute, prior=prior,
+                                projection=basis)
 
     @property
     def identified(self) -> tuple[str, ...]:

@@ -59,6 +59,7 @@ from gprm.fit.lm import levenberg_marquardt_batch
 from gprm.fit.methods import FitState
 from gprm.fit.objective import Objective
 from gprm.fit.prior import Prior
+from gprm.fit.resonance import fitted_part
 from gprm.fit.starts import LMOptions
 from gprm.fit.uncertainty import CONTRACTION, Uncertainty
 from gprm.params import batch_from_vectors
@@ -532,12 +533,17 @@ def error_model(obj: Objective, x: np.ndarray, J: np.ndarray, r: np.ndarray, pri
     S, T = d.values.shape
     x = np.asarray(x, float)
     Ju, Hinv, B, y, dy = _linearised(obj, x, J, prior)
-    p_eff = float(np.trace(Ju @ B.reshape(x.size, -1)))
+    # the residuals' lost degrees of freedom: the parameters' and the nuisances' the
+    # objective projects off (an unmodelled resonance, gprm.fit.resonance)
+    p_eff = float(np.trace(Ju @ B.reshape(x.size, -1))) + getattr(obj, "n_nuisance", 0)
     L = default_max_lag(T) if max_lag is None else int(max_lag)
     R = r.reshape(S, T)
     dev = run_deviations(d.runs, d.sigma) if d.runs is not None else None
     a_sd = alignment_sd(obj, y, dy)
-    c_off = crossing_offsets(obj, y)
+    # the fitted signal's crossing: with a marginalised resonance, the model plus what the
+    # projection took from the data (gprm.fit.resonance), which the data's crossing saw too
+    c_off = crossing_offsets(obj, y if getattr(obj, "projection", None) is None
+                             else y + fitted_part(obj, x))
     g_sd = np.array([systematics.for_signal(s)[0] for s in d.signals])
     t_sd = np.array([np.hypot(systematics.for_signal(s)[1], a_sd[i])
                      for i, s in enumerate(d.signals)])

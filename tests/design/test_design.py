@@ -521,3 +521,43 @@ def test_greedy_selection_keeps_the_budget_and_never_beats_the_exhaustive(paper_
     assert 0 < len(r.recommended.additions) <= cfg.cost.max_additions
     assert r.recommended.hours <= cfg.cost.budget
     assert 1.0 < r.recommended.gain["release"] <= paper_design.recommended.gain["release"] + 1e-12
+
+
+def test_a_marginalised_resonance_is_projected_off_each_channel(setup):
+    """Where the fit found a resonance (fit.json's adequacy.resonance), each channel's
+    information is that of its signal projected off the resonance's two columns (written out
+    here with the fit's own basis, gprm.fit.resonance.response): free amplitude and phase,
+    no prior. It never adds information, and a resonance whose onset lies after the window
+    takes none."""
+    from gprm.design.information import window_times
+    from gprm.fit.resonance import response
+    from gprm.simulate.core import ROW_LAGS
+
+    ps, names, prior, x = setup
+    block = Block(FIVE, runs=10)
+    dxdu = np.where(prior.log, x, 1.0)[None]
+    lags = ("x_head", "y_base", "y_head")
+    res = (31e3, 0.015, 0.0)
+    kw = dict(gain_sd=0.0, timing_sd=0.0, lag_sd=0.0, fitted_lag_channels=lags)
+    F0 = block_information(ps, names, x[None], dxdu, block, WHITE, **kw)[0]
+    F1 = block_information(ps, names, x[None], dxdu, block, replace(WHITE, resonance=res),
+                           **kw)[0]
+    t = window_times(block)
+    Y, D, _ = block_signals(ps, names, x[None], block, 2)
+    var = WHITE.white ** 2 / block.runs
+    F_ref = np.zeros_like(F0)
+    for ci, ch in enumerate(MODEL_CHANNELS):
+        on = ps["t_c"] + ps["t0"] + sum(ps[n] for n in ROW_LAGS.get(ch, ()))
+        g = response(t, on, ps["tau_v"], res[0], res[1])
+        Q, _ = np.linalg.qr(np.stack([g.real, g.imag], 1))
+        J = D[0, ci] * dxdu[0][None, :]
+        J = J - Q @ (Q.T @ J)
+        F_ref += J.T @ J / var
+    scale = np.sqrt(np.outer(np.diag(F_ref), np.diag(F_ref)))
+    seen = scale > 1e-10 * scale.max()
+    assert np.max(np.abs(F1 - F_ref)[seen] / scale[seen]) < 1e-6
+    assert np.linalg.eigvalsh(F0 - F1).min() > -1e-9 * np.abs(F0).max()
+    assert np.trace(F1) < np.trace(F0)
+    late = replace(WHITE, resonance=(31e3, 0.015, 1.0))          # onset 1 s after the window
+    F2 = block_information(ps, names, x[None], dxdu, block, late, **kw)[0]
+    np.testing.assert_allclose(F2, F0, rtol=1e-9, atol=1e-12 * np.abs(F0).max())

@@ -121,7 +121,12 @@ def _fit_window_and_rate(fm: FittedModel) -> tuple[tuple[float, float], float, d
     det = unc.get("details") or {}
     syst = det.get("systematics") or {}
     s2 = unc.get("s2")
+    res = (unc.get("adequacy") or {}).get("resonance") or {}
+    resonance = ((float(res["frequency_hz"]), float(res["damping"]),
+                  float(res.get("onset_shift_s", 0.0)))
+                 if isinstance(res, dict) and "frequency_hz" in res else ())
     return window, rate, {
+        "resonance": resonance,
         "sigma": sig, "model": model,
         "s2": float(s2) if isinstance(s2, (int, float)) and np.isfinite(s2) else 1.0,
         "gain": tuple((k, float(v.get("gain_sd") or 0.0)) for k, v in syst.items()
@@ -303,7 +308,7 @@ def run_design(model, config: DesignConfig | None = None, *, candidates_path=Non
     if data is not None:
         n0, v = estimate_noise(data["sigma"], data["model"], cfg.base_runs)
         extra = {"mismatch": max(data["s2"] - 1.0, 0.0), "gain": data["gain"],
-                 "align": data["align"]}
+                 "align": data["align"], "resonance": data["resonance"]}
     else:
         n0, v = DEFAULT_NOISE.white, DEFAULT_NOISE.variability
         extra = {}

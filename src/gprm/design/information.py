@@ -15,6 +15,12 @@ the fit window, the noise model (docs/design.md) is
 and its information is J^T (n0^2/R I + V S V^T)^-1 J with J = d y_c / d u and V = [y_c,
 dy_c/dt]: the nuisances a_c and tau_c marginalised (Woodbury). Channels are measured in
 separate runs, so their information adds, and so does that of the block's drives.
+
+Where the fit found an unmodelled resonance (gprm.fit.resonance; fit.json
+``uncertainty.adequacy.resonance``), each channel also carries it as the fit does: its
+response to the block's drive (the same frequency and damping, the channel's own onset) with
+a free amplitude and phase, two more columns of V with no prior (their information is lost
+whatever the runs), so that a design is credited only with what the fit can use.
 """
 
 from __future__ import annotations
@@ -54,6 +60,9 @@ class NoiseModel:
     base_rate: float = 200e3
     gain: tuple[tuple[str, float], ...] = ()
     align: tuple[tuple[str, float], ...] = ()
+    #: (frequency Hz, damping, onset shift s) of the unmodelled resonance the fit
+    #: marginalised, or () where it found none
+    resonance: tuple = ()
 
     def gain_of(self, channel: str) -> float:
         d = dict(self.gain)
@@ -147,6 +156,29 @@ def block_signals(params: ParameterSet, names: tuple[str, ...], X: np.ndarray, b
     return Y, D[..., :len(names)], ydot
 
 
+def resonance_columns(params: ParameterSet, names: tuple[str, ...], X: np.ndarray,
+                      block: Block, resonance: tuple) -> np.ndarray:
+    """(B, C, T, 2): Re and Im of the resonance's response (gprm.fit.resonance.response) in
+    each channel of the block's window, from each row's drive onset (t_c + t0 + the
+    channel's lags for a model output) with the block's retraction time constant."""
+    from gprm.fit.resonance import response
+    from gprm.simulate.core import ROW_LAGS
+
+    f, zeta, shift = resonance
+    pb = batch_from_vectors(params, names, X)
+    t = window_times(block)
+    tau = np.asarray(pb["tau_v"], float) * block.retraction
+    base = np.asarray(pb["t_c"], float) + np.asarray(pb["t0"], float) + shift
+    out = np.zeros((X.shape[0], len(block.channels), t.size, 2))
+    for ci, ch in enumerate(block.channels):
+        lags = ROW_LAGS.get(ch.name, ()) if ch.is_model_output else ()
+        on = base + sum(np.asarray(pb[n], float) for n in lags)
+        for b in range(X.shape[0]):
+            g = response(t, float(on[b]), float(tau[b]), f, zeta)
+            out[b, ci, :, 0], out[b, ci, :, 1] = g.real, g.imag
+    return out
+
+
 #: the error components block_information can be restricted to (docs/design.md, "Two parts")
 COMPONENTS = ("all", "runs", "floor")
 #: the floor component's mismatch where the fit shows none, relative to the base campaign's
@@ -185,6 +217,8 @@ def block_information(params: ParameterSet, names: tuple[str, ...], X: np.ndarra
     for drive in block.drives:
         Y, D, Yd = block_signals(params, names, X, block, drive, z_bk_absolute=z_bk_absolute)
         Ju = D * dx_du[:, None, None, :]                        # (B, C, T, P)
+        G = (resonance_columns(params, names, X, block, noise.resonance)
+             if noise.resonance else None)
         for ci, ch in enumerate(block.channels):
             own_lag = not (ch.is_model_output and (ch.name == "x_base" or ch.name == "z_bk"
                                                    or ch.name in fitted_lag_channels))
@@ -206,11 +240,22 @@ def block_information(params: ParameterSet, names: tuple[str, ...], X: np.ndarra
             if var_t > 0:
                 V.append(Yd[:, ci] * w)
                 s2.append(var_t)
+            if G is not None:
+                # the resonance's amplitude and phase: free (no prior)
+                V += [G[:, ci, :, 0] * w, G[:, ci, :, 1] * w]
+                s2 += [np.inf, np.inf]
             Fc = np.einsum("btp,btq->bpq", J, J)
             if V:
                 Vm = np.stack(V, -1)                            # (B, T, k)
                 VJ = np.einsum("btk,btp->bkp", Vm, J)
-                M = np.einsum("btk,btl->bkl", Vm, Vm) + np.diag(1.0 / np.asarray(s2))[None]
+                VV = np.einsum("btk,btl->bkl", Vm, Vm)
+                M = VV + np.diag(1.0 / np.asarray(s2))[None]
+                if G is not None:
+                    # a free column that is zero in this window (onset after it) carries
+                    # nothing: a ridge far below the columns' own scale keeps M invertible
+                    idx = np.arange(len(s2) - 2, len(s2))
+                    dv = VV[:, idx, idx]
+                    M[:, idx, idx] += np.where(dv > 0, 1e-12 * dv, 1.0)
                 Fc = Fc - np.einsum("bkp,bkq->bpq", VJ, np.linalg.solve(M, VJ))
             F += Fc
     return 0.5 * (F + np.swapaxes(F, 1, 2))

@@ -88,6 +88,11 @@ def test_reduced_chi2_near_one_and_truth_recovered(case, best):
     # and a parameter reported with a small error is one the data determine
     small = res.stderr < 0.1 * np.abs(res.x)
     assert np.all(u.identified[small])
+    # the model describes these data: no resonance marginalised, the strongest candidate of
+    # the search recorded with its ratio under the threshold (gprm.fit.resonance)
+    assert res.resonance is None and "resonance" not in res.polish
+    search = res.polish["resonance_search"]
+    assert search["found"] is False and search["strongest"]["ratio"] < search["threshold"]
 
 
 def test_coverage_over_several_campaigns():

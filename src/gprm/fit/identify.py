@@ -91,12 +91,19 @@ def identify(data: FitData, base: ParameterSet, opts: MultiStartOptions = MultiS
             polish = {**polish, "corrected": polish_c}
     found = None
     if prior is not None and resonance:
-        # an unmodelled resonance in the residuals: marginalised (gprm.fit.resonance)
+        # an unmodelled resonance in the residuals: marginalised where found
+        # (gprm.fit.resonance); the strongest candidate is recorded either way
+        r0, J0 = _data_jacobian(obj, x)
+        candidate = resonance_mod.search(obj, x, r0, J0, obj.prior)
         obj, x, found = resonance_mod.marginalise(
             obj, x, lambda o, x0: polish_best(o, x0, opts.lm, ftol=subsample.PASS_FTOL)[0],
-            jacobian=_data_jacobian)
+            jacobian=_data_jacobian, found=candidate)
         if found is not None:
             polish = {**polish, "resonance": found.to_json()}
+        elif candidate is not None:
+            polish = {**polish, "resonance_search": {
+                "found": False, "threshold": resonance_mod.DETECT_RATIO,
+                "strongest": candidate.to_json()}}
     if prior is not None:
         # weigh the prior against the data's variance scale, then polish again (the residuals
         # alone here: the Jacobian is needed at the final point only; after the runs'

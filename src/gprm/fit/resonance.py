@@ -390,16 +390,18 @@ def fitted_part(obj: Objective, x: np.ndarray) -> np.ndarray:
 
 
 def marginalise(obj: Objective, x: np.ndarray, polish, *, jacobian,
-                ratio: float = DETECT_RATIO) -> tuple[Objective, np.ndarray, Resonance | None]:
+                ratio: float = DETECT_RATIO, found: Resonance | None = None
+                ) -> tuple[Objective, np.ndarray, Resonance | None]:
     """Search the fit at ``x`` for a resonance; where one is found (its chi-square drop at
     least ``ratio`` times the noise's, :func:`noise_drop`),
     project it off (:func:`projection`), polish (``polish(obj, x) -> x``), refine the
     resonance at the polished point and polish once more. ``jacobian(obj, x) -> (r, J)``:
     the weighted data residuals and their physical Jacobian. Returns the objective the fit
     now minimises (``obj`` unchanged where nothing was found), its minimum and the
-    resonance (None where none)."""
+    resonance (None where none). ``found``: the :func:`search` at ``x``, when already made."""
     r, J = jacobian(obj, x)
-    found = search(obj, x, r, J, obj.prior)
+    if found is None:
+        found = search(obj, x, r, J, obj.prior)
     if found is None or not found.ratio >= ratio:
         return obj, x, None
     res = found

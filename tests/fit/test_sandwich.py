@@ -635,3 +635,40 @@ def test_minima_nearer_than_alt_same_are_one_and_could_not_move_an_interval():
             lo, hi = alternative_factors(u0, sd, at(ALT_SAME)[None], np.zeros(1), z,
                                          LR_THRESHOLD[level])
             assert max(lo.max(), hi.max()) <= 1.0 + ALT_SAME / z + 1e-12
+
+
+def test_student_intervals_from_few_runs_hold_their_level():
+    """A linear estimator from the mean of R = 3 runs of five signals with unequal noise:
+    the runs' variance estimate has the Satterthwaite degrees of freedom (between R - 1 and
+    S (R - 1)), and the interval with Student's quantile at those degrees holds the truth at
+    its level where the normal quantile does not (Monte Carlo, 20 000 campaigns); the factor
+    is SciPy's t over the normal quantile, 1 at infinite degrees."""
+    from scipy.stats import t as student
+
+    from gprm.fit.sandwich import satterthwaite, student_factors
+
+    rng = np.random.default_rng(7)
+    S, T, R, n = 5, 20, 3, 20000
+    A = rng.standard_normal((S, T))
+    B = A / np.sum(A * A)                            # the one-parameter least-squares row
+    noise = np.array([3.0, 1.0, 0.5, 0.3, 0.2])      # unequal: fewer effective degrees
+    runs = noise[None, :, None, None] * rng.standard_normal((n, S, R, T))
+    est = np.einsum("st,nst->n", B, runs.mean(axis=2))
+    dev = runs - runs.mean(axis=2, keepdims=True)
+    v = np.einsum("st,nsrt->nsr", B, dev) ** 2
+    v = v.sum(axis=2) / (R * (R - 1))                # (n, S): each signal's runs variance
+    sd = np.sqrt(v.sum(axis=1))
+    nu = np.array([satterthwaite(vi[:, None], R)[0] for vi in v[:2000]])
+    assert np.all((nu >= R - 1 - 1e-9) & (nu <= S * (R - 1) + 1e-9))
+    nu_all = np.concatenate([nu, [satterthwaite(vi[:, None], R)[0] for vi in v[2000:]]])
+    lo, hi = _binomial_range(0.95, n)
+    normal = np.mean(np.abs(est) <= 1.959964 * sd)
+    t_cov = np.mean(np.abs(est) <= 1.959964 * student_factors(nu_all, 0.95) * sd)
+    assert normal < lo                               # the normal quantile under-covers
+    assert lo - 0.01 <= t_cov <= hi + 0.01           # Student's holds its level
+    np.testing.assert_allclose(student_factors(np.array([4.0, np.inf]), 0.95),
+                               [student.ppf(0.975, 4) / 1.959964, 1.0], rtol=1e-6)
+    # equal contributions: S (R - 1); one signal alone: R - 1
+    np.testing.assert_allclose(satterthwaite(np.ones((S, 1)), R), [S * (R - 1)])
+    np.testing.assert_allclose(satterthwaite(np.array([[1.0], [0], [0], [0], [0]]), R),
+                               [R - 1])

@@ -596,6 +596,9 @@ def propagate(obj: Objective, x: np.ndarray, J: np.ndarray, prior: Prior,
                          err.gain_estimated, err.alignment_sd, err.p_eff, err.max_lag)
 
 
+#: the runs' share of the variance counted as estimated (Student's t, :func:`runs_dof`)
+STUDENT = True
+
 #: steps along a parameter's posterior direction, in its standard deviations, at which the
 #: objective's actual rise is compared with its quadratic approximation
 SHAPE_STEPS = (0.5, 1.0, 1.5, 2.0, 3.0, 4.0, 6.0, 8.0)
@@ -890,6 +893,51 @@ def stretch_draws(Z: np.ndarray, sd: np.ndarray, f68: tuple, f95: tuple,
     return np.sign(t) * g * sd[None, :]
 
 
+def runs_dof(obj: Objective, x: np.ndarray, J: np.ndarray, prior: Prior, err: ErrorModel,
+             parts: SandwichParts) -> np.ndarray:
+    """(P,) the effective degrees of freedom of each parameter's variance (Satterthwaite).
+
+    The runs' part of signal s is b_s^T S_s b_s with S_s the sample covariance of R runs:
+    sigma_s^2 chi2_{R-1} / (R - 1). Summed over the signals its degrees of freedom are
+    (sum_s v_s)^2 / sum_s v_s^2 / (R - 1), between R - 1 and S (R - 1). Only the runs' share
+    is counted as estimated (where the residuals' part is the larger, and for the
+    systematics and the prior, none: infinite), so nu = V^2 / (V_runs^2 / nu_runs) for the
+    parameter's whole variance V. Infinite without runs."""
+    P = x.size
+    if err.dev is None or parts.runs is None or err.dev.shape[1] < 2:
+        return np.full(P, np.inf)
+    S, R, T = err.dev.shape
+    _, _, Bs, _, _ = _linearised(obj, x, J, prior)
+    v = np.zeros((S, P))
+    for s in range(S):
+        Z = err.dev[s] @ Bs[:, s, :].T                               # (R, P)
+        v[s] = np.sum(Z * Z, axis=0) / (R * (R - 1))
+    vr = v.sum(axis=0)
+    nu_runs = satterthwaite(v, R)
+    runs_lead = np.diag(parts.runs) >= np.diag(parts.residuals)
+    total = np.clip(np.diag(parts.total), 1e-300, None)
+    nu = total ** 2 / np.maximum(vr ** 2 / nu_runs, 1e-300)
+    return np.where(runs_lead & (vr > 0), nu, np.inf)
+
+
+def satterthwaite(v: np.ndarray, R: int) -> np.ndarray:
+    """(P,) degrees of freedom of sum_s v_s (v: (S, P)), each v_s a variance estimated from
+    R runs (R - 1 degrees of freedom): (sum_s v_s)^2 / sum_s v_s^2 / (R - 1)."""
+    v = np.asarray(v, float)
+    return v.sum(axis=0) ** 2 / np.maximum(np.sum(v ** 2, axis=0) / (R - 1), 1e-300)
+
+
+def student_factors(nu: np.ndarray, level: float) -> np.ndarray:
+    """(P,) t_nu / z at the two-sided ``level``: how much wider an interval whose variance
+    has nu degrees of freedom is than the normal one (1 where nu is infinite)."""
+    from scipy.stats import t as student
+
+    q = 0.5 + level / 2
+    z = ndtri(q)
+    nu = np.asarray(nu, float)
+    return np.where(np.isfinite(nu), student.ppf(q, np.maximum(nu, 1.0)) / z, 1.0)
+
+
 def uncertainty(method: str, state: FitState) -> Uncertainty:
     """The ``sandwich`` method through the one interface (gprm.fit.methods)."""
     prior = state.prior
@@ -918,6 +966,13 @@ def uncertainty(method: str, state: FitState) -> Uncertainty:
     a68 = alternative_factors(u, sd_u, U_alt, D_alt, z68, LR_THRESHOLD[0.68])
     f_lo, f_hi = np.maximum(f_lo, a95[0]), np.maximum(f_hi, a95[1])
     f68_lo, f68_hi = np.maximum(f68_lo, a68[0]), np.maximum(f68_hi, a68[1])
+    # the runs' share of the variance is estimated from R runs: Student's t with its
+    # Satterthwaite degrees of freedom instead of the normal quantile
+    nu = runs_dof(state.obj, x, state.J, prior, err, parts) if STUDENT else \
+        np.full(x.size, np.inf)
+    t95, t68 = student_factors(nu, 0.95), student_factors(nu, 0.68)
+    f_lo, f_hi = f_lo * t95, f_hi * t95
+    f68_lo, f68_hi = f68_lo * t68, f68_hi * t68
     lo95, hi95 = u - z95 * sd_u * f_lo, u + z95 * sd_u * f_hi
     lo68, hi68 = u - z68 * sd_u * f68_lo, u + z68 * sd_u * f68_hi
     contraction = sd_u * np.maximum(f_lo, f_hi) / prior.sd
@@ -951,6 +1006,7 @@ def uncertainty(method: str, state: FitState) -> Uncertainty:
                                                   if err.crossing_offset is not None else 0.0)}
                         for i, s in enumerate(state.obj.data.signals)},
         "time_origin_sd_s": err.origin_sd,
+        "degrees_of_freedom": [float(v) if np.isfinite(v) else None for v in nu],
         "stated": syst.to_json(),
         "gain_estimated": parts.gain_estimated,
         "max_lag": parts.max_lag, "p_eff": parts.p_eff,

@@ -15,14 +15,23 @@ What it does to a fit that ignores it. The part of the resonance that the model'
 imitate moves the parameters (a bias that no residual shows); the rest stays in the residuals,
 where the sandwich's residual covariance prices it as if it were noise. On the per-source
 coverage study it made the fit's intervals 1.6 times too wide on average and some parameters'
-errors still 0.9 sd one way in every campaign (docs/fitting.md, "An unmodelled resonance").
+errors still 0.9 sd one way in every campaign (docs/fitting.md, "An unmodelled resonance as
+a nuisance").
 
 What the fit does instead (variable projection). The frequency and damping are found by a
 search over the residuals (:func:`search`): for each (f, zeta) on a grid, the residuals'
-chi-square drop when the 2S columns are fitted jointly with the parameters' own columns
-(linearised at the fit), refined locally; the drop's F statistic, with a Bonferroni factor
-for the grid, says whether the resonance is there (``P_DETECT``). Where it is, the fit
-minimises the residuals projected off the resonance's columns and off their derivatives
+chi-square drop when the 2S columns are fitted jointly with the parameters' own columns and
+one gain column per channel (linearised at the fit), refined locally in f, zeta and an onset
+shift.
+
+Detection. The resonance counts as found where that drop is at least ``DETECT_RATIO`` times
+what the same columns take from noise as the campaign shows it (:func:`noise_drop`: the
+runs' deviations from their mean, scaled to the mean's noise), so that the noise's size and
+time correlation are the data's own. The drop's F test against white residuals, Bonferroni
+over the grid, is reported but does not decide: residuals of a campaign whose drive varies
+between runs or whose noise is coloured are not white, and it "found" resonances there. The
+gain columns keep a channel's gain error (the signal's own shape in the residuals) from
+being read as a resonance. Where one is found, the fit minimises the residuals projected off the resonance's columns and off their derivatives
 with respect to the frequency, the damping and the onset (:func:`projection`): that is the
 joint least-squares fit with the 2S amplitudes, the frequency, the damping and an onset shift
 as free nuisance parameters, linearised in the last three, and the amplitudes eliminated.

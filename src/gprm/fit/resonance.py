@@ -50,7 +50,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy.stats import f as f_distribution
+from scipy.special import fdtrc
 
 from gprm.fit.objective import Objective
 from gprm.fit.prior import Prior
@@ -335,7 +335,7 @@ def search(obj: Objective, x: np.ndarray, r: np.ndarray, J: np.ndarray,
     before = float(lin.r @ lin.r)
     dof = max(S * T - lin.p_eff - k, 1.0)
     F = (drop / (2 * S)) / max((before - drop) / dof, 1e-300)
-    p = float(f_distribution.sf(F, 2 * S, dof))
+    p = float(fdtrc(2 * S, dof, F))
     n_tests = max(freqs.size * len(DAMPINGS), 1)
     D = basis(obj, x, f, z, on)
     null = noise_drop(obj, lin, D, (before - drop) / dof)

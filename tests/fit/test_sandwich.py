@@ -664,6 +664,7 @@ def test_student_intervals_from_few_runs_hold_their_level():
     lo, hi = _binomial_range(0.95, n)
     normal = np.mean(np.abs(est) <= 1.959964 * sd)
     t_cov = np.mean(np.abs(est) <= 1.959964 * student_factors(nu_all, 0.95) * sd)
+    print(f"3 runs: normal quantile {100 * normal:.1f} %, Student's {100 * t_cov:.1f} %")
     assert normal < lo                               # the normal quantile under-covers
     assert lo - 0.01 <= t_cov <= hi + 0.01           # Student's holds its level
     np.testing.assert_allclose(student_factors(np.array([4.0, np.inf]), 0.95),

@@ -34,6 +34,7 @@ from scipy.special import chdtrc, comb
 from gprm.fit.engine import polish_best, polish_kwargs
 from gprm.fit.lm import levenberg_marquardt_batch
 from gprm.fit.objective import FitData, Objective
+from gprm.fit.resonance import fitted_part
 from gprm.fit.prior import Prior
 from gprm.fit.starts import LMOptions
 
@@ -263,7 +264,6 @@ def leave_one_signal_out(obj: Objective, x: np.ndarray, lm: LMOptions = LMOption
     y = obj.model(np.concatenate([x[None], XS])).y                 # (1 + S, S, T)
     if obj.projection is not None:
         # the data the fit describes: less what the projection took (the resonance)
-        from gprm.fit.resonance import fitted_part
         y = y + fitted_part(obj, x)[None]
     own = np.mean(((d.values - y[0]) / d.sigma) ** 2, axis=1)
     out = np.full(S, np.nan)

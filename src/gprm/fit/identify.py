@@ -97,7 +97,7 @@ def identify(data: FitData, base: ParameterSet, opts: MultiStartOptions = MultiS
         candidate = resonance_mod.search(obj, x, r0, J0, obj.prior)
         obj, x, found = resonance_mod.marginalise(
             obj, x, lambda o, x0: polish_best(o, x0, opts.lm, ftol=subsample.PASS_FTOL)[0],
-            jacobian=_data_jacobian, found=candidate)
+            jacobian=_data_jacobian, found=candidate, at=(r0, J0))
         if found is not None:
             polish = {**polish, "resonance": found.to_json()}
         elif candidate is not None:

@@ -198,7 +198,7 @@ class Objective:
         if J is None:
             return r
         J = J.copy()
-        J[:, :n] -= np.einsum("nk,bkp->bnp", Q, np.einsum("nk,bnp->bkp", Q, J[:, :n]))
+        J[:, :n] -= np.matmul(Q[None], np.matmul(Q.T[None], J[:, :n]))
         return r, J
 
     @property

@@ -141,16 +141,27 @@ def onsets(obj: Objective, x: np.ndarray) -> tuple[np.ndarray, float]:
     return on, value("tau_v")
 
 
-def response(time: np.ndarray, onset: float, tau_v: float, frequency: float,
-             damping: float) -> np.ndarray:
-    """(T,) complex: g(t - onset) of the module docstring (zero before the onset)."""
-    w = 2.0 * np.pi * frequency
-    lam = -damping * w + 1j * w * np.sqrt(max(1.0 - damping ** 2, 0.0))
+def poles(frequency, damping) -> np.ndarray:
+    """lam = -zeta w + i w sqrt(1 - zeta^2) of the module docstring (broadcast)."""
+    w = 2.0 * np.pi * np.asarray(frequency, float)
+    z = np.asarray(damping, float)
+    return -z * w + 1j * w * np.sqrt(np.clip(1.0 - z ** 2, 0.0, None))
+
+
+def responses(time: np.ndarray, onset: float, tau_v: float, lam: np.ndarray) -> np.ndarray:
+    """(G, T) complex: g(t - onset) of the module docstring for each pole of ``lam`` (G,)."""
+    lam = np.atleast_1d(np.asarray(lam, complex))
     a = 1.0 / tau_v
     s = np.asarray(time, float) - onset
     sp = np.clip(s, 0.0, None)
-    g = (np.exp(lam * sp) - np.exp(-a * sp)) / (lam + a)
-    return np.where(s > 0, g, 0.0)
+    g = (np.exp(lam[:, None] * sp[None, :]) - np.exp(-a * sp)[None, :]) / (lam + a)[:, None]
+    return np.where(s[None, :] > 0, g, 0.0)
+
+
+def response(time: np.ndarray, onset: float, tau_v: float, frequency: float,
+             damping: float) -> np.ndarray:
+    """(T,) complex: g(t - onset) of the module docstring (zero before the onset)."""
+    return responses(time, onset, tau_v, poles(frequency, damping))[0]
 
 
 def basis(obj: Objective, x: np.ndarray, frequency: float, damping: float,
@@ -252,10 +263,8 @@ def grid_drops(obj: Objective, x: np.ndarray, lin: _Linearised, freqs: np.ndarra
     d = obj.data
     S, T = d.values.shape
     on, tau = onsets(obj, x)
-    a = 1.0 / tau
-    w = 2.0 * np.pi * np.asarray(freqs, float)[None, :]
-    z = np.asarray(dampings, float)[:, None]
-    lam = (-z * w + 1j * w * np.sqrt(np.clip(1.0 - z ** 2, 0.0, None))).reshape(-1)   # (G,)
+    lam = poles(np.asarray(freqs, float)[None, :],
+                np.asarray(dampings, float)[:, None]).reshape(-1)                   # (G,)
     n_g = lam.size
     Ju, Hinv = lin.Ju, lin.Hinv
     v = lin.free(lin.r)                                    # M r
@@ -263,11 +272,7 @@ def grid_drops(obj: Objective, x: np.ndarray, lin: _Linearised, freqs: np.ndarra
     DtD = np.zeros((n_g, 2 * S, 2 * S))
     b = np.zeros((n_g, 2 * S))
     for s in range(S):
-        sp = d.time - on[s]
-        spc = np.clip(sp, 0.0, None)
-        g = (np.exp(lam[:, None] * spc[None, :]) - np.exp(-a * spc)[None, :]) \
-            / (lam + a)[:, None]
-        g = np.where(sp[None, :] > 0, g, 0.0) / d.sigma[s][None, :]                  # (G, T)
+        g = responses(d.time, on[s], tau, lam) / d.sigma[s][None, :]                # (G, T)
         block = slice(s * T, (s + 1) * T)
         parts = np.stack([g.real, g.imag], axis=2)                                   # (G, T, 2)
         K[:, :, 2 * s:2 * s + 2] = np.matmul(Ju[block].T[None], parts)
@@ -399,16 +404,17 @@ def fitted_part(obj: Objective, x: np.ndarray) -> np.ndarray:
 
 
 def marginalise(obj: Objective, x: np.ndarray, polish, *, jacobian,
-                ratio: float = DETECT_RATIO, found: Resonance | None = None
-                ) -> tuple[Objective, np.ndarray, Resonance | None]:
+                ratio: float = DETECT_RATIO, found: Resonance | None = None,
+                at: tuple | None = None) -> tuple[Objective, np.ndarray, Resonance | None]:
     """Search the fit at ``x`` for a resonance; where one is found (its chi-square drop at
     least ``ratio`` times the noise's, :func:`noise_drop`),
     project it off (:func:`projection`), polish (``polish(obj, x) -> x``), refine the
     resonance at the polished point and polish once more. ``jacobian(obj, x) -> (r, J)``:
     the weighted data residuals and their physical Jacobian. Returns the objective the fit
     now minimises (``obj`` unchanged where nothing was found), its minimum and the
-    resonance (None where none). ``found``: the :func:`search` at ``x``, when already made."""
-    r, J = jacobian(obj, x)
+    resonance (None where none). ``found``, ``at``: the :func:`search` at ``x`` and the
+    (r, J) it was made with, when already computed."""
+    r, J = jacobian(obj, x) if at is None else at
     if found is None:
         found = search(obj, x, r, J, obj.prior)
     if found is None or not found.ratio >= ratio:

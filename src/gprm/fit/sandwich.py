@@ -150,6 +150,9 @@ class SandwichParts:
     alignment_sd: np.ndarray        # (n_signals,) s, the alignment's own error (from data)
     p_eff: float
     max_lag: int
+    #: (S, P) each signal's runs part of every parameter's variance (None: no runs)
+    runs_by_signal: np.ndarray | None = None
+    n_runs: int = 0
 
     def share(self) -> dict[str, np.ndarray]:
         """Each source's share of every parameter's variance (P,) (they sum to 1)."""
@@ -573,6 +576,11 @@ def propagate(obj: Objective, x: np.ndarray, J: np.ndarray, prior: Prior,
     Ju, Hinv, Bs, y, dy = _linearised(obj, x, J, prior, y)
     V_runs, V_res, V_stat = statistical_covariance(Bs, err.R, err.dev, err.max_lag, err.p_eff,
                                                    whitenings=err.whitenings)
+    by_signal = None
+    if err.dev is not None and err.dev.shape[1] >= 2:
+        n_r = err.dev.shape[1]
+        by_signal = np.stack([np.sum((err.dev[s] @ Bs[:, s, :].T) ** 2, axis=0)
+                              for s in range(S)]) / (n_r * (n_r - 1))
     V_gain = np.zeros((P, P))
     V_time = np.zeros((P, P))
     V_interp = np.zeros((P, P))
@@ -594,11 +602,9 @@ def propagate(obj: Objective, x: np.ndarray, J: np.ndarray, prior: Prior,
     total = V_stat + V_gain + V_time + V_interp + V_prior
     return SandwichParts(V_runs, V_res, V_stat, V_gain, V_time, V_interp, V_prior,
                          0.5 * (total + total.T), err.timing_sd, err.gain_sd,
-                         err.gain_estimated, err.alignment_sd, err.p_eff, err.max_lag)
+                         err.gain_estimated, err.alignment_sd, err.p_eff, err.max_lag,
+                         by_signal, 0 if err.dev is None else int(err.dev.shape[1]))
 
-
-#: the runs' share of the variance counted as estimated (Student's t, :func:`runs_dof`)
-STUDENT = True
 
 #: steps along a parameter's posterior direction, in its standard deviations, at which the
 #: objective's actual rise is compared with its quadratic approximation
@@ -894,8 +900,7 @@ def stretch_draws(Z: np.ndarray, sd: np.ndarray, f68: tuple, f95: tuple,
     return np.sign(t) * g * sd[None, :]
 
 
-def runs_dof(obj: Objective, x: np.ndarray, J: np.ndarray, prior: Prior, err: ErrorModel,
-             parts: SandwichParts) -> np.ndarray:
+def runs_dof(parts: SandwichParts) -> np.ndarray:
     """(P,) the effective degrees of freedom of each parameter's variance (Satterthwaite).
 
     The runs' part of signal s is b_s^T S_s b_s with S_s the sample covariance of R runs:
@@ -904,17 +909,12 @@ def runs_dof(obj: Objective, x: np.ndarray, J: np.ndarray, prior: Prior, err: Er
     is counted as estimated (where the residuals' part is the larger, and for the
     systematics and the prior, none: infinite), so nu = V^2 / (V_runs^2 / nu_runs) for the
     parameter's whole variance V. Infinite without runs."""
-    P = x.size
-    if err.dev is None or parts.runs is None or err.dev.shape[1] < 2:
+    P = parts.total.shape[0]
+    v = parts.runs_by_signal
+    if v is None or parts.runs is None or parts.n_runs < 2:
         return np.full(P, np.inf)
-    S, R, T = err.dev.shape
-    _, _, Bs, _, _ = _linearised(obj, x, J, prior)
-    v = np.zeros((S, P))
-    for s in range(S):
-        Z = err.dev[s] @ Bs[:, s, :].T                               # (R, P)
-        v[s] = np.sum(Z * Z, axis=0) / (R * (R - 1))
     vr = v.sum(axis=0)
-    nu_runs = satterthwaite(v, R)
+    nu_runs = satterthwaite(v, parts.n_runs)
     runs_lead = np.diag(parts.runs) >= np.diag(parts.residuals)
     total = np.clip(np.diag(parts.total), 1e-300, None)
     nu = total ** 2 / np.maximum(vr ** 2 / nu_runs, 1e-300)
@@ -970,8 +970,7 @@ def uncertainty(method: str, state: FitState) -> Uncertainty:
     f68_lo, f68_hi = np.maximum(f68_lo, a68[0]), np.maximum(f68_hi, a68[1])
     # the runs' share of the variance is estimated from R runs: Student's t with its
     # Satterthwaite degrees of freedom instead of the normal quantile
-    nu = runs_dof(state.obj, x, state.J, prior, err, parts) if STUDENT else \
-        np.full(x.size, np.inf)
+    nu = runs_dof(parts)
     t95, t68 = student_factors(nu, 0.95), student_factors(nu, 0.68)
     f_lo, f_hi = f_lo * t95, f_hi * t95
     f68_lo, f68_hi = f68_lo * t68, f68_hi * t68

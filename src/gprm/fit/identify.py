@@ -82,7 +82,8 @@ def identify(data: FitData, base: ParameterSet, opts: MultiStartOptions = MultiS
         obj, x, corr = subsample.correct_and_polish(
             obj, lambda d: Objective.create(d, base, fit_names, piezo=piezo,
                                             z_bk_absolute=z_bk_absolute, prior=prior),
-            x, lambda o, x0: polish_best(o, x0, opts.lm, ftol=subsample.PASS_FTOL)[0],
+            x, lambda o, x0: polish_best(o, x0, opts.lm, ftol=subsample.PASS_FTOL,
+                                     settle=True)[0],
             final_polish=False)
         polish = {**polish, "subsample": subsample.summary(data.signals, remainder, corr)}
         data = obj.data
@@ -96,7 +97,8 @@ def identify(data: FitData, base: ParameterSet, opts: MultiStartOptions = MultiS
         r0, J0 = _data_jacobian(obj, x)
         candidate = resonance_mod.search(obj, x, r0, J0, obj.prior)
         obj, x, found = resonance_mod.marginalise(
-            obj, x, lambda o, x0: polish_best(o, x0, opts.lm, ftol=subsample.PASS_FTOL)[0],
+            obj, x, lambda o, x0: polish_best(o, x0, opts.lm, ftol=subsample.PASS_FTOL,
+                                     settle=True)[0],
             jacobian=_data_jacobian, found=candidate, at=(r0, J0))
         if found is not None:
             polish = {**polish, "resonance": found.to_json()}

@@ -598,6 +598,7 @@ POLISH_STEP_BOUND = 1.0
 #: The final polish is not settled (ftol 1e-12).
 SETTLE = 1e-3
 SETTLE_WINDOW = 5
+SETTLE_ROUNDS = 4
 
 
 def polish_kwargs(lm: LMOptions, max_iter: int = 200, ftol: float = 1e-12, *,
@@ -626,17 +627,27 @@ def polish_best(obj: Objective, x: np.ndarray, lm: LMOptions, *, max_iter: int =
     the variance scale over :data:`SETTLE_WINDOW` iterations. ``trust_region``: as
     :func:`polish_kwargs`."""
     lo, hi = obj.bounds_normalised()
-    x0 = obj.to_normalised(x)[None]
-    tol = 0.0
-    if settle:
-        tol = SETTLE * float(obj.chi2(x0)[0]) / max(int(obj.dof), 1)
-        tol = tol if np.isfinite(tol) and tol > 0 else 0.0
-    res = levenberg_marquardt_batch(obj, x0, lower=lo, upper=hi,
-                                    residuals=obj.residuals,
-                                    **polish_kwargs(lm, max_iter, ftol, settle_tol=tol,
-                                                    trust_region=trust_region))
-    info = {"chi2_before": float(res.chi2_0[0]), "chi2_after": float(res.chi2[0]),
-            "iterations": int(res.iterations[0]), "status": str(res.status[0])}
-    if not np.isfinite(res.chi2[0]) or res.chi2[0] > res.chi2_0[0]:
-        return x, info
-    return obj.to_physical(res.x[0]), info
+    xn = obj.to_normalised(np.asarray(x, float))[None]
+    kw = polish_kwargs(lm, max_iter, ftol, trust_region=trust_region)
+    info: dict = {"iterations": 0}
+    moved = False
+    for _ in range(SETTLE_ROUNDS if settle else 1):
+        if settle:
+            # the variance scale at this round's start: a round that ended below half its
+            # start's chi-square settled against too large a scale, and another follows
+            tol = SETTLE * float(obj.chi2(xn)[0]) / max(int(obj.dof), 1)
+            kw.update(stall_window=SETTLE_WINDOW,
+                      stall_tol=tol if np.isfinite(tol) and tol > 0 else 0.0)
+        res = levenberg_marquardt_batch(obj, xn, lower=lo, upper=hi,
+                                        residuals=obj.residuals, **kw)
+        c0, c1 = float(res.chi2_0[0]), float(res.chi2[0])
+        info.setdefault("chi2_before", c0)
+        info["iterations"] += int(res.iterations[0])
+        info["status"] = str(res.status[0])
+        if not np.isfinite(c1) or c1 > c0:
+            info.setdefault("chi2_after", c1)
+            break
+        xn, info["chi2_after"], moved = res.x[:1], c1, True
+        if not (settle and info["status"] == "stalled" and c1 < 0.5 * c0):
+            break
+    return (obj.to_physical(xn[0]) if moved else x), info

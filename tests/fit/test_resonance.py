@@ -235,3 +235,39 @@ def test_the_time_origin_stays_the_mechanism_models_with_a_resonance(resonant):
     np.testing.assert_allclose(error_model(pobj, x, Jp, rp, pobj.prior).crossing_offset, own)
     with_res = crossing_offsets(obj, obj.model(x[None]).y[0] + rm.fitted_part(pobj, x))
     assert np.max(np.abs(with_res - own)) > 1e-8
+
+
+def test_the_sidecar_and_the_report_show_the_marginalised_resonance(resonant, tmp_path):
+    """A fit that marginalises a resonance writes what it took off (sidecar
+    ``resonance_fitted``: the projection's part of data - model at the best fit), and the
+    report's residual figure draws the residuals less it: what the fit minimised."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    from gprm.fit.files import fit_sidecar
+    from gprm.fit.identify import identify
+    from gprm.fit.starts import MultiStartOptions
+    from gprm.report import figures as F
+
+    truth, data = resonant
+    res = identify(data, truth, MultiStartOptions(n_starts=4, seed=3), band_samples=20)
+    assert res.resonance is not None and res.resonance.basis is not None
+    side = fit_sidecar(res)
+    part = side["resonance_fitted"].values
+    assert side["resonance_fitted"].attrs["units"] == "m"
+    # the identity: data - model - part, weighted, are the projected objective's residuals
+    d = res.data
+    before = ((d.values - side["model_best"].values) / d.sigma).ravel()
+    after = before - (part / d.sigma).ravel()
+    Q = res.resonance.basis
+    np.testing.assert_allclose(after, before - Q @ (Q.T @ before),
+                               atol=1e-9 * np.abs(before).max())
+    # and it is the resonance: it takes most of what the mechanism model leaves
+    assert after @ after < 0.2 * (before @ before)
+    fig = F.fig_residuals(side)
+    ax = fig.axes[0]
+    assert "resonance" in ax.get_title() and len(ax.lines) == 2 * len(d.signals)
+    matplotlib.pyplot.close(fig)
+    fig = F.fig_fit(side)
+    assert any("resonance" in (ln.get_label() or "") for ln in fig.axes[0].lines)
+    matplotlib.pyplot.close(fig)

@@ -65,7 +65,7 @@ FIT_SIDECAR = Schema("fit sidecar NetCDF", (
     Var("status", ("start",), numeric=False, required=False),
     *(Var(v, ("signal", "time"), "m", required=False, finite=False)
       for v in ("model_best", "band_linear_std", "band_sample_std", "band_sample_lo",
-                "band_sample_hi")),
+                "band_sample_hi", "resonance_fitted")),
     Var("covariance", ("param", "param2"), required=False, finite=False),
     Var("posterior_draws", ("draw", "param"), required=False, finite=False),
 ))
@@ -570,6 +570,12 @@ def fit_sidecar(res: FitResult) -> xr.Dataset:
         ds["band_sample_lo"] = (("signal", "time"), b.sample_lo)
         ds["band_sample_hi"] = (("signal", "time"), b.sample_hi)
         ds.attrs["band_samples"] = b.n_samples
+        found = getattr(res, "resonance", None)
+        if found is not None and found.basis is not None:
+            from gprm.fit.resonance import projected_part
+
+            ds["resonance_fitted"] = (("signal", "time"), projected_part(
+                found.basis, res.data.values, res.data.sigma, b.best))
     if res.covariance is not None:
         ds["covariance"] = (("param", "param2"), res.covariance)
         ds = ds.assign_coords(param2=list(res.names))
@@ -585,7 +591,7 @@ def fit_sidecar(res: FitResult) -> xr.Dataset:
         if v in ds.variables:
             ds[v].attrs.setdefault("long_name", long_name)
     for v in ("data_mean", "data_sigma", "model_best", "band_linear_std",
-              "band_sample_std", "band_sample_lo", "band_sample_hi"):
+              "band_sample_std", "band_sample_lo", "band_sample_hi", "resonance_fitted"):
         if v in ds:
             ds[v].attrs["units"] = "m"
     ds["time"].attrs["units"] = "s"
@@ -605,6 +611,8 @@ _SIDECAR_LONG_NAMES = {
     "band_sample_std": "standard deviation of the signal over the method's draws",
     "band_sample_lo": "2.5 % quantile of the signal over the method's draws",
     "band_sample_hi": "97.5 % quantile of the signal over the method's draws",
+    "resonance_fitted": "the unmodelled resonance the fit marginalised, at the best fit (its "
+                        "and its nuisance columns' least-squares part of data - model_best)",
     "start": "index of the random start",
     "param": "fitted parameter",
     "param2": "fitted parameter (second index of the covariance)",

@@ -394,13 +394,20 @@ def fitted_part(obj: Objective, x: np.ndarray) -> np.ndarray:
     """(S, T) m: what the projection takes from the data at ``x`` (the resonance and its
     nuisances' least-squares part of the residuals), zero without a projection."""
     d = obj.data
-    S, T = d.values.shape
     Q = getattr(obj, "projection", None)
     if Q is None:
-        return np.zeros((S, T))
-    y = obj.model(np.asarray(x, float)[None]).y[0]
-    raw = ((d.values - y) / d.sigma).reshape(-1)
-    return (Q @ (Q.T @ raw)).reshape(S, T) * d.sigma
+        return np.zeros(d.values.shape)
+    return projected_part(Q, d.values, d.sigma, obj.model(np.asarray(x, float)[None]).y[0])
+
+
+def projected_part(basis: np.ndarray, values: np.ndarray, sigma: np.ndarray,
+                   model: np.ndarray) -> np.ndarray:
+    """(S, T) m: the part of the residuals ``values - model`` (S, T) that the orthonormal
+    columns ``basis`` (S T, k; weighted by 1 / ``sigma``) hold: what a fit projected off
+    them does not describe with its parameters (:func:`fitted_part` at a fit's point)."""
+    S, T = values.shape
+    raw = ((values - model) / sigma).reshape(-1)
+    return (basis @ (basis.T @ raw)).reshape(S, T) * sigma
 
 
 def marginalise(obj: Objective, x: np.ndarray, polish, *, jacobian,

@@ -361,14 +361,21 @@ def fit_section(run: Path) -> tuple[Section, dict | None]:
                                   "signal's offset beyond its noise is the aligned data's time "
                                   "origin error, carried by t0 (docs/fitting.md)."))
     if side is not None:
+        res = "resonance_fitted" in side
         s.blocks.append(fig_to_img(F.fig_fit(side), "Best fit over the mean signals with "
                                    "±σ and the 95 % model band from the parameter covariance "
-                                   "(cf. Fig. 6)", "fig-fit"))
+                                   "(cf. Fig. 6)" + ("; dashed: the best fit plus the "
+                                   "unmodelled resonance the fit found and marginalised "
+                                   "(its nuisance columns' part of the residuals)" if res
+                                   else ""), "fig-fit"))
         fig = F.fig_residuals(side)
         if fig is not None:
-            s.blocks.append(fig_to_img(fig, "Normalised residuals (mean signal − best fit)/σ "
-                                       "per signal: systematic structure shows what the model "
-                                       "leaves out", "fig-residuals"))
+            s.blocks.append(fig_to_img(fig, (
+                "Normalised residuals (mean signal − best fit − the marginalised resonance)/σ "
+                "per signal, what the fit minimised (thin: before the resonance is taken "
+                "off)" if res else "Normalised residuals (mean signal − best fit)/σ per "
+                "signal") + ": systematic structure shows what the model leaves out",
+                "fig-residuals"))
         s.blocks.append(fig_to_img(F.fig_waterfall(side), "Waterfall of the starts: final χ² "
                                    "of every start, sorted; starts within Δχ² ≤ 1 of the best "
                                    "found the same minimum", "fig-waterfall"))

@@ -73,6 +73,10 @@ def fig_fit(side, signals=("x_base", "x_head", "y_base", "y_head", "z_bk")):
                 ax.fill_between(t, lo, hi, color=COLORS["band"], alpha=0.55, lw=0,
                                 label=label)
             ax.plot(t, m, "-", lw=1.3, color=COLORS["model"], label="best fit")
+            if "resonance_fitted" in side:
+                ax.plot(t, m + side["resonance_fitted"].sel(signal=s).values * UM, "--",
+                        lw=1.0, color=COLORS["model"],
+                        label="best fit + resonance (marginalised)")
         ax.set_title(s)
         ax.set_ylabel("displacement [µm]")
     handles, labels = flat[0].get_legend_handles_labels()
@@ -475,20 +479,29 @@ def fig_release_fit(tele, imp: dict, release: int = 0):
 
 def fig_residuals(side, signals=("x_base", "x_head", "y_base", "y_head", "z_bk")):
     """Normalised residuals (mean signal - best fit) / sigma of the fitted signals: where the
-    model departs from the data (the paper discusses these deviations after Fig. 6)."""
+    model departs from the data (the paper discusses these deviations after Fig. 6). Where
+    the fit marginalised an unmodelled resonance (sidecar ``resonance_fitted``), the lines
+    are what the fit minimised, (data - fit - resonance) / sigma, and the residuals before
+    taking the resonance off are drawn thin beneath them."""
     if "model_best" not in side:
         return None
     t = side["time"].values * MS
     fig, ax = plt.subplots(figsize=(8.0, 3.0))
+    res = "resonance_fitted" in side
     for s in signals:
         r = (side["data_mean"].sel(signal=s).values - side["model_best"].sel(signal=s).values) \
             / side["data_sigma"].sel(signal=s).values
+        if res:
+            ax.plot(t, r, "-", lw=0.6, alpha=0.35, color=_color(s))
+            r = r - side["resonance_fitted"].sel(signal=s).values \
+                / side["data_sigma"].sel(signal=s).values
         ax.plot(t, r, "-", lw=1.0, color=_color(s), label=s)
     ax.axhspan(-2, 2, color="#dddddd", alpha=0.5, lw=0, label="±2")
     ax.set_xlabel("time [ms]")
-    ax.set_ylabel("(data − fit) / σ")
+    ax.set_ylabel("(data − fit − resonance) / σ" if res else "(data − fit) / σ")
     ax.legend(ncol=6, loc="upper center", bbox_to_anchor=(0.5, -0.25))
-    ax.set_title("Normalised residuals of the best fit")
+    ax.set_title("Normalised residuals of the best fit" + (
+        ", the marginalised resonance taken off (thin: with it)" if res else ""))
     fig.tight_layout()
     return fig
 

@@ -73,8 +73,8 @@ def test_local_workers_keep_dasks_thread_settings_without_the_malloc_trim_thresh
 
 def test_jacobian_at_rows_just_evaluated_reuses_their_spectrum_bit_for_bit():
     """Objective.__call__ on rows of the last residuals call reuses their eigen-
-    decompositions; the residuals and Jacobian equal a fresh evaluation bit for bit, and a
-    pickled objective (a Dask task) carries no cached rows."""
+    decompositions and modal convolutions; the residuals and Jacobian equal a fresh
+    evaluation bit for bit, and a pickled objective (a Dask task) carries no cached rows."""
     import pickle
     import sys
     from pathlib import Path
@@ -93,7 +93,9 @@ def test_jacobian_at_rows_just_evaluated_reuses_their_spectrum_bit_for_bit():
         1 + 0.1 * rng.uniform(-1, 1, (6, len(obj.names))))
     obj.residuals(X)
     rows = X[[4, 1, 1]]                                  # a subset, reordered, repeated
-    assert obj._prepared_for(rows) is not None
+    prep = obj._prepared_for(rows)
+    assert prep is not None and prep.convolutions is not None
+    assert prep.convolutions.E.shape[0] == 3             # the modal convolutions, taken too
     r1, J1 = obj(rows)
     fresh = Objective.create(data, p)
     assert fresh._prepared_for(rows) is None

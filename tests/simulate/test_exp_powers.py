@@ -79,3 +79,47 @@ def test_combined_convolutions_equal_their_textbook_forms():
         assert np.max(np.abs(I - I_ref) / sI) < 1e-12
         assert np.max(np.abs(I2 - I_ref) / sI) < 1e-12
         assert np.max(np.abs(J - J_ref) / sJ) < 1e-11
+
+
+def test_kept_convolutions_give_the_sensitivities_bit_for_bit_and_only_where_they_match(
+        monkeypatch):
+    """observe(..., keep_convolutions=True) keeps E, e^{-t/tau_v}, I and u; a call with
+    sensitivities for the same sets (or a subset, reordered) and times computes only J from
+    them and returns exactly a fresh call's outputs; other times or another drive are not
+    served from them (the result is a fresh call's there too)."""
+    from gprm.params import batch, paper
+    from gprm.simulate.core import observe
+
+    p = paper()
+    rng = np.random.default_rng(3)
+    sets = [p.with_vector(p.vector() * (1 + 0.05 * rng.uniform(-1, 1, len(p.fitted))))
+            for _ in range(4)]
+    pb = batch(sets)
+    t = 0.97e-3 + 5e-6 * np.arange(47)
+    names = ("x_base", "x_head", "y_base", "y_head", "z_bk")
+    sens = ("k_lr", "m2", "t0", "t1", "dt_x_head", "b1")
+    first = observe(pb, t, names, keep_convolutions=True)
+    conv = first.prepared.convolutions
+    assert conv is not None and observe(pb, t, names).prepared.convolutions is None
+    rows = np.array([2, 0, 0])
+    sub = {k: np.atleast_1d(v)[rows] if np.size(v) == 4 else v for k, v in pb.items()}
+    from gprm.simulate import modal
+
+    calls = []
+    base = modal.conv_default_base
+    monkeypatch.setattr(modal, "conv_default_base",
+                        lambda *a, **k: calls.append(1) or base(*a, **k))
+    reused = observe(sub, t, names, sensitivities=sens, prepared=first.prepared.take(rows))
+    assert calls == []                      # E, I and u came from the kept convolutions
+    fresh = observe(sub, t, names, sensitivities=sens)
+    assert calls == [1]
+    np.testing.assert_array_equal(reused.y, fresh.y)
+    np.testing.assert_array_equal(reused.dy, fresh.dy)
+    # other times: the kept convolutions do not match and are not used
+    t2 = t + 1e-6
+    other = observe(sub, t2, names, sensitivities=sens, prepared=first.prepared.take(rows))
+    np.testing.assert_array_equal(other.dy, observe(sub, t2, names, sensitivities=sens).dy)
+    assert conv.take(rows).matching(conv.lam[rows], conv.tv[rows] + 1e-6, conv.V0[rows],
+                                    conv.tau_v[rows]) is None
+    assert conv.take(rows).matching(conv.lam[rows], conv.tv[rows], conv.V0[rows] * 1.01,
+                                    conv.tau_v[rows]) is None

@@ -226,14 +226,18 @@ class Objective:
     def to_normalised(self, X: np.ndarray) -> np.ndarray:
         return np.asarray(X) / self.scale
 
-    def model(self, X: np.ndarray, *, jacobian: bool = False, times=None, prepared=None):
-        """Model signals for physical parameter rows X (B, P): y (B, S, T) [, dy (B,S,T,P)]."""
+    def model(self, X: np.ndarray, *, jacobian: bool = False, times=None, prepared=None,
+              keep: bool = False):
+        """Model signals for physical parameter rows X (B, P): y (B, S, T) [, dy (B,S,T,P)].
+        ``keep``: keep the modal convolutions in the result's ``prepared`` (for a Jacobian
+        at these rows next, :func:`gprm.simulate.core.observe`)."""
         X = np.atleast_2d(X)
         pb = batch_from_vectors(self.base, self.names, X)
         t = self.data.time if times is None else np.asarray(times, float)
         obs = observe(pb, t, self.data.signals, piezo=self.piezo,
                       sensitivities=self.names if jacobian else (),
-                      z_bk_absolute=self.z_bk_absolute, prepared=prepared)
+                      z_bk_absolute=self.z_bk_absolute, prepared=prepared,
+                      keep_convolutions=keep)
         return obs
 
     def _prepared_for(self, Xn: np.ndarray):
@@ -254,8 +258,9 @@ class Objective:
 
         Sets that cannot be simulated give NaN residuals (the optimiser treats them as a
         worse step, or as a failed start). Rows that the last :meth:`residuals` call
-        evaluated reuse its eigen-decompositions (bit-identical results; one decomposition
-        per accepted point instead of two).
+        evaluated reuse its eigen-decompositions and modal convolutions (bit-identical
+        results; one decomposition and one set of exponentials per accepted point instead of
+        two).
         """
         Xn = np.atleast_2d(np.asarray(Xn, float))
         obs = self.model(self.to_physical(Xn), jacobian=True, prepared=self._prepared_for(Xn))
@@ -275,7 +280,7 @@ class Objective:
     def residuals(self, Xn: np.ndarray) -> np.ndarray:
         """Residuals only (no sensitivities), for any batch of normalised rows."""
         Xn = np.atleast_2d(np.asarray(Xn, float))
-        obs = self.model(self.to_physical(Xn))
+        obs = self.model(self.to_physical(Xn), keep=True)
         self._last["entry"] = ({x.tobytes(): i for i, x in enumerate(Xn)}, obs.prepared)
         r = ((self.data.values[None] - obs.y) * self._weights[None]).reshape(Xn.shape[0], -1)
         r = self._project(r)

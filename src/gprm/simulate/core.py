@@ -103,18 +103,21 @@ class Prepared:
     pb: dict
     singular: np.ndarray
     spectrum: modal.Spectrum
+    convolutions: "modal.Convolutions | None" = None
 
     def take(self, rows) -> "Prepared":
         rows = np.asarray(rows)
         n = self.singular.shape[0]
         pb = {k: (v[rows] if np.shape(v)[:1] == (n,) else v) for k, v in self.pb.items()}
-        return Prepared(pb, self.singular[rows], self.spectrum.take(rows))
+        conv = None if self.convolutions is None else self.convolutions.take(rows)
+        return Prepared(pb, self.singular[rows], self.spectrum.take(rows), conv)
 
 
 def observe(pb: dict[str, np.ndarray], times, names: Sequence[str] = OUTPUTS, *,
             piezo: int = 2, voltage: VoltageTrace | None = None,
             sensitivities: Sequence[str] = (), z_bk_absolute: bool = False,
-            prepared: Prepared | None = None) -> Observation:
+            prepared: Prepared | None = None,
+            keep_convolutions: bool = False) -> Observation:
     """Batched exact simulation of ``names`` at ``times`` for parameter batch ``pb``.
 
     Sets that cannot be simulated (unstable, singular, degenerate eigenvalues) are returned
@@ -127,17 +130,25 @@ def observe(pb: dict[str, np.ndarray], times, names: Sequence[str] = OUTPUTS, *,
 
     ``prepared``: the ``.prepared`` of an earlier call for the same sets (or its ``take`` of
     some of them), to skip the eigen-decomposition; ``pb`` must still be those sets.
+    ``keep_convolutions``: keep the modal convolutions in ``.prepared`` too
+    (:class:`~gprm.simulate.modal.Convolutions`), so that a call for the same sets and times
+    with sensitivities computes only their derivative in the modes (the fit's Jacobian at a
+    point whose residuals it just evaluated; bit for bit the same result). Off by default:
+    they are several times the size of the outputs.
     """
     pb = {k: np.atleast_1d(np.asarray(v, float)) for k, v in pb.items()}
     times = np.asarray(times, float)
     H, lags, dH = observation_rows(pb, names, z_bk_absolute=z_bk_absolute)
+    conv = None
     if prepared is None:
         pb, singular, desc = _guard_singular(pb, piezo)
         spec = None
     else:
         pb, singular, desc, spec = prepared.pb, prepared.singular, None, prepared.spectrum
+        conv = prepared.convolutions
     sol = modal.solve(pb, times, H, lags, piezo=piezo, trace=voltage,
-                      sens=tuple(sensitivities), dH=dH, desc=desc, spec=spec)
+                      sens=tuple(sensitivities), dH=dH, desc=desc, spec=spec, conv=conv,
+                      keep_conv=keep_convolutions)
     ok, reason = sol.ok.copy(), sol.reason.copy()
     y, dy = sol.y, sol.dy
     if singular.any():
@@ -149,7 +160,7 @@ def observe(pb: dict[str, np.ndarray], times, names: Sequence[str] = OUTPUTS, *,
     dy_out = dy
     assert sol.spectrum is not None  # solve() always hands back the batch's spectrum
     return Observation(tuple(names), times, y, dy_out, tuple(sensitivities), ok, reason,
-                       Prepared(pb, singular, sol.spectrum))
+                       Prepared(pb, singular, sol.spectrum, sol.convolutions))
 
 
 def _guard_singular(pb, piezo):

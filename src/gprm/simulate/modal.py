@@ -140,6 +140,15 @@ def conv_default(lam, tau, V0, tau_v, need_J=True, period=None):
     Taylor series where |w| < 0.05 (10 terms, truncation < 1e-15). Elsewhere the sums lose
     at most about three digits to cancellation (relative error ~1e-13 of the term).
     """
+    E, ea, I, u = conv_default_base(lam, tau, V0, tau_v, period)
+    J = conv_default_J(lam, tau, V0, tau_v, E, ea) if need_J else None
+    return I, J, u
+
+
+def conv_default_base(lam, tau, V0, tau_v, period=None):
+    """:func:`conv_default` without J: E = e^{L t} (B, n, T), e^{-a t} (B, 1, T), I and u,
+    so that J can be computed later from E and e^{-a t} (:func:`conv_default_J`) with the
+    same values as one call with ``need_J`` (each entry's arithmetic is the same)."""
     a = (1.0 / tau_v)[:, None, None]
     t = np.clip(tau, 0.0, None)[:, None, :]
     L = lam[:, :, None]
@@ -149,32 +158,54 @@ def conv_default(lam, tau, V0, tau_v, need_J=True, period=None):
     live = t > 0                                   # t = 0: I = J = 0
     shape = E.shape
     u = np.where(tau > 0, V0[:, None] * (np.exp(-t[:, 0] / tau_v[:, None]) - 1.0), 0.0)
-    J = None
     with np.errstate(all="ignore"):
         c3 = 1.0 / L
         c2 = 1.0 / La
         c1E = (-a * c3 * c2) * E
         I = c1E + (c3 - c2 * ea)
-        if need_J:
-            J = c1E * (t - c2 - c3) + (c2 * c2) * ea - c3 * c3
-    m = ((np.abs(L) * t < 0.1) | (np.abs(La) * t < 0.1)) & live
-    m |= ~np.isfinite(I) & live
+    m = _small_entries(L, La, t, live, I)
     if m.any():
-        Lm = np.broadcast_to(L, shape)[m]
-        Lam = np.broadcast_to(La, shape)[m]
-        tm = np.broadcast_to(t, shape)[m]
-        eam = np.broadcast_to(ea, shape)[m]
-        Em = E[m]
+        Lm, Lam, tm, eam, Em = _masked(m, shape, L, La, t, ea, E)
+        I[m] = _term_a(Lam, tm, eam, Em) - _term_0(Lm, tm, Em)
+    I = V0[:, None, None] * np.where(live, I, 0.0)
+    return E, ea, I, u
+
+
+def conv_default_J(lam, tau, V0, tau_v, E, ea):
+    """J = dI/dlam of :func:`conv_default` from the E and e^{-a t} of
+    :func:`conv_default_base` for the same arguments."""
+    a = (1.0 / tau_v)[:, None, None]
+    t = np.clip(tau, 0.0, None)[:, None, :]
+    L = lam[:, :, None]
+    La = L + a
+    live = t > 0
+    shape = E.shape
+    with np.errstate(all="ignore"):
+        c3 = 1.0 / L
+        c2 = 1.0 / La
+        c1E = (-a * c3 * c2) * E
+        I = c1E + (c3 - c2 * ea)                   # only for the small-entry mask
+        J = c1E * (t - c2 - c3) + (c2 * c2) * ea - c3 * c3
+    m = _small_entries(L, La, t, live, I)
+    if m.any():
+        Lm, Lam, tm, eam, Em = _masked(m, shape, L, La, t, ea, E)
         t0 = _term_0(Lm, tm, Em)
         ta = _term_a(Lam, tm, eam, Em)
-        I[m] = ta - t0
-        if need_J:
-            J[m] = _dterm_a(Lam, tm, eam, Em, ta) - _dterm_0(Lm, tm, Em, t0)
-    V0b = V0[:, None, None]
-    I = V0b * np.where(live, I, 0.0)
-    if need_J:
-        J = V0b * np.where(live, J, 0.0)
-    return I, J, u
+        J[m] = _dterm_a(Lam, tm, eam, Em, ta) - _dterm_0(Lm, tm, Em, t0)
+    return V0[:, None, None] * np.where(live, J, 0.0)
+
+
+def _small_entries(L, La, t, live, I):
+    """Entries where the closed forms cancel (|L t| or |(L + a) t| < 0.1) or I is not
+    finite: recomputed from the accurate forms."""
+    m = ((np.abs(L) * t < 0.1) | (np.abs(La) * t < 0.1)) & live
+    m |= ~np.isfinite(I) & live
+    return m
+
+
+def _masked(m, shape, L, La, t, ea, E):
+    return (np.broadcast_to(L, shape)[m], np.broadcast_to(La, shape)[m],
+            np.broadcast_to(t, shape)[m], np.broadcast_to(ea, shape)[m], E[m])
 
 
 def _term_0(L, t, E):
@@ -262,6 +293,42 @@ class ModalSolution:
     reason: np.ndarray
     sens_names: tuple[str, ...]
     spectrum: "Spectrum | None" = None
+    convolutions: "Convolutions | None" = None
+
+
+@dataclass(frozen=True)
+class Convolutions:
+    """The default profile's modal convolutions of one :func:`solve` call, kept so that a
+    later call for the same sets, times and lags (the Jacobian at a point whose residuals
+    were just evaluated) computes only J (:func:`conv_default_J`): the times ``tv`` (B, T'),
+    the modes ``lam`` (B, S), V0 and tau_v (B,) they were made for, and E = e^{lam t},
+    e^{-t/tau_v}, I (B, S, T') and u (B, T'). Each row's values are its own (elementwise
+    arithmetic), so a subset of rows (``take``) serves a subset of the sets."""
+
+    tv: np.ndarray
+    lam: np.ndarray
+    V0: np.ndarray
+    tau_v: np.ndarray
+    E: np.ndarray
+    ea: np.ndarray
+    I: np.ndarray
+    u: np.ndarray
+
+    def take(self, rows) -> "Convolutions":
+        rows = np.asarray(rows)
+        return Convolutions(*(getattr(self, f)[rows] for f in
+                              ("tv", "lam", "V0", "tau_v", "E", "ea", "I", "u")))
+
+    def matching(self, lam, tv, V0, tau_v):
+        """(E, ea, I, u) for these modes (the first S of each row's), times and drive, or
+        None where they are not exactly the ones these were made for."""
+        S = lam.shape[1]
+        if (S > self.lam.shape[1] or tv.shape != self.tv.shape
+                or not np.array_equal(tv, self.tv) or not np.array_equal(V0, self.V0)
+                or not np.array_equal(tau_v, self.tau_v)
+                or not np.array_equal(lam, self.lam[:, :S])):
+            return None
+        return self.E[:, :S], self.ea, self.I[:, :S], self.u
 
 
 @dataclass(frozen=True)
@@ -390,7 +457,8 @@ def _real_matmul(a, b):
 
 def solve(pb: dict, times: np.ndarray, H: np.ndarray, lags, *, piezo: int,
           trace=None, sens: tuple[str, ...] = (), dH: dict | None = None,
-          desc=None, spec: Spectrum | None = None) -> ModalSolution:
+          desc=None, spec: Spectrum | None = None,
+          conv: Convolutions | None = None, keep_conv: bool = False) -> ModalSolution:
     """Evaluate observables ``y = H z`` at record ``times`` for a batch ``pb``.
 
     H: (B, n_obs, 17) rows over the state. lags: per row, a tuple of parameter names whose
@@ -409,6 +477,11 @@ def solve(pb: dict, times: np.ndarray, H: np.ndarray, lags, *, piezo: int,
     contractions of one real matrix product [rows of Y^T and D beta Y^T] @ dQ over all P
     parameters at once, where Y = [Xi; Xi Lambda; Xi Lambda^2] and dQ stacks dK, dC, dM; the
     17 x 17 matrices G are never formed.
+
+    spec: the sets' :class:`Spectrum` from an earlier call (skips the eigen-decomposition).
+    conv: the :class:`Convolutions` an earlier call kept (``keep_conv``) for the same sets;
+    used where they match these modes, times and drive exactly (then only J is computed),
+    ignored otherwise.
     """
     times = np.asarray(times, float)
     Bn = pb["t0"].shape[0]
@@ -446,9 +519,15 @@ def solve(pb: dict, times: np.ndarray, H: np.ndarray, lags, *, piezo: int,
     grouped = lag_groups(pb, lags, Bn) if nobs else [(np.zeros(Bn), np.zeros(0, bool))]
     groups = [rows for _, rows in grouped]
     tv = np.concatenate([tau - g[:, None] if g.any() else tau for g, _ in grouped], axis=1)
+    kept = None
     if trace is None:
-        I, J, u = conv_default(lamS, tv, pb["V0"], pb["tau_v"], need_J=bool(names),
-                               period=T)
+        V0, tau_v = pb["V0"], pb["tau_v"]
+        parts = None if conv is None else conv.matching(lamS, tv, V0, tau_v)
+        E, ea, I, u = parts if parts is not None else conv_default_base(lamS, tv, V0, tau_v,
+                                                                         period=T)
+        J = conv_default_J(lamS, tv, V0, tau_v, E, ea) if names else None
+        if keep_conv:
+            kept = Convolutions(tv, lamS, V0, tau_v, E, ea, I, u)
     else:
         kt, ku = trace.knots(0.0)
         I, J, u = conv_trace(lamS, tv, kt, ku)
@@ -511,7 +590,7 @@ def solve(pb: dict, times: np.ndarray, H: np.ndarray, lags, *, piezo: int,
         y[~ok] = np.nan
         if dy is not None:
             dy[~ok] = np.nan
-    return ModalSolution(y, dy, ok, reason, names, spec)
+    return ModalSolution(y, dy, ok, reason, names, spec, kept)
 
 
 def _sparse_product(R, sd):

@@ -4,9 +4,11 @@ dt_y_head are not scored by bench_sources.py (their truth is the generator's lag
 alignment's offset), so this scores them as the demo's summary does
 (`gprm.report.summary.truth_recovery` on `truth_for_fit`), next to the x-plane B support.
 
-    .venv/bin/python benchmarks/bench_lags.py [--seeds 0-9] [--starts 30]
+    .venv/bin/python benchmarks/bench_lags.py [--seeds 0-9] [--starts 30] [--source NAME]
 
-For each seed: `synth_campaign(seed)`, `preprocess`, `run_fit` with ``--starts`` starts, once
+For each seed: `synth_campaign(seed)` (the demo's campaign for seed 0; ``--source``: a
+gprm-generator source of benchmarks/sources.py instead, e.g. ``mode-1``, its truth drawn
+within +-10 % of Table 3), `preprocess`, `run_fit` with ``--starts`` starts, once
 with the resonance search (the default) and once without (``FitOptions(resonance=False)``);
 prints z = (fit - truth) / sd per parameter and, per variant, the mean and rms z and how many
 truths lie outside the 95 % interval.
@@ -30,6 +32,8 @@ from gprm.fit.api import FitOptions, run_fit
 from gprm.fit.files import write_fit
 from gprm.report.summary import truth_for_fit, truth_from_means, truth_recovery
 
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
 NAMES = ("t0", "t1", "dt_x_head", "dt_y_base", "dt_y_head", "k_Bx", "c_Bx", "d2")
 
 
@@ -44,6 +48,8 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--seeds", default="0-9")
     ap.add_argument("--starts", type=int, default=30)
+    ap.add_argument("--source", default=None,
+                    help="a gprm-generator source of benchmarks/sources.py (not sim2)")
     a = ap.parse_args()
     print(f"- command: `.venv/bin/python benchmarks/bench_lags.py {' '.join(sys.argv[1:])}`")
     z: dict[bool, dict[str, list[float]]] = {True: {}, False: {}}
@@ -53,7 +59,13 @@ def main() -> None:
         for s in seeds_of(a.seeds):
             d = Path(tmp) / str(s)
             d.mkdir()
-            write_means(preprocess(synth_campaign(seed=s)), d / "means.nc")
+            if a.source:
+                import sources
+
+                camp, _ = sources.make(a.source, s)
+            else:
+                camp = synth_campaign(seed=s)
+            write_means(preprocess(camp), d / "means.nc")
             for res_on in (True, False):
                 res = run_fit(str(d / "means.nc"), FitOptions(starts=a.starts, resonance=res_on),
                               workers=0)

@@ -506,7 +506,10 @@ def time_derivative(obj: Objective, x: np.ndarray, J: np.ndarray, y: np.ndarray)
 
     Every signal is the response at t - t0, so dy/dt = -dy/dt0: the t0 column of the
     weighted residuals' Jacobian J (N, P) (r = (data - y) / sigma) times sigma when t0 is
-    fitted, else one simulation with t0's sensitivity. A finite difference of ``y`` on the
+    fitted and the objective projects nothing off, else one simulation with t0's
+    sensitivity (a projected objective's columns are projected: until stop 38 that column
+    was taken there too, a derivative mixed across the signals, and the lags' intervals
+    came out about ten times too narrow with a resonance marginalised). A finite difference of ``y`` on the
     data's grid will not do: with ~5 samples per period of the fastest modes it is visibly
     off (tests/fit/test_sandwich.py), so a timing error, which the fitted lags absorb
     exactly, leaked onto the physical parameters through the difference (docs/fitting.md,
@@ -515,8 +518,10 @@ def time_derivative(obj: Objective, x: np.ndarray, J: np.ndarray, y: np.ndarray)
     d = obj.data
     S, T = d.values.shape
     names = list(getattr(obj, "names", ()))
-    if ORIGIN_LAG in names:
+    if ORIGIN_LAG in names and getattr(obj, "projection", None) is None:
         return J[:, names.index(ORIGIN_LAG)].reshape(S, T) * d.sigma
+    # with a projection (a resonance marginalised) J's columns are projected, mixing the
+    # signals' rows: the model's own derivative takes one simulation
     if hasattr(obj, "base"):
         pb = batch_from_vectors(obj.base, names, np.asarray(x, float)[None])
         obs = observe(pb, d.time, d.signals, piezo=obj.piezo, sensitivities=(ORIGIN_LAG,),

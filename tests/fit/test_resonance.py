@@ -271,3 +271,28 @@ def test_the_sidecar_and_the_report_show_the_marginalised_resonance(resonant, tm
     fig = F.fig_fit(side)
     assert any("resonance" in (ln.get_label() or "") for ln in fig.axes[0].lines)
     matplotlib.pyplot.close(fig)
+
+
+def test_the_timing_parts_derivative_is_the_models_own_with_a_resonance_projected_off(resonant):
+    """The sandwich's timing part moves each signal along the model's time derivative. With a
+    resonance projected off, the Jacobian's t0 column is projected (mixed across the signals'
+    rows) and is not that derivative: taking it made the lags' intervals about ten times too
+    narrow (docs/fitting.md, "The lags' intervals"). The projected objective's derivative is
+    the plain one's."""
+    from gprm.fit.sandwich import time_derivative
+
+    truth, data = resonant
+    obj = _objective(data, truth)
+    x = truth.vector(obj.names)
+    r, J = _data_jacobian(obj, x)
+    found = rm.search(obj, x, r, J, obj.prior)
+    pobj = obj.with_projection(rm.projection(obj, x, r, J, obj.prior, found))
+    rp, Jp = _data_jacobian(pobj, x)
+    y = obj.model(x[None]).y[0]
+    plain = time_derivative(obj, x, J, y)
+    projected = time_derivative(pobj, x, Jp, y)
+    np.testing.assert_allclose(projected, plain, rtol=1e-9, atol=1e-12 * np.abs(plain).max())
+    # the projected column itself is something else (what the timing part used to take)
+    k = list(obj.names).index("t0")
+    col = Jp[:, k].reshape(plain.shape) * data.sigma
+    assert np.max(np.abs(col - plain)) > 0.01 * np.abs(plain).max()

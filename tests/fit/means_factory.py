@@ -25,3 +25,20 @@ def make_means(truth: ParameterSet, *, seed: int = 0, sem: float = 2e-10, rel: f
                     coords={"signal": list(OUTPUTS), "time": t})
     ds.attrs["truth_json"] = "{}"
     return ds
+
+
+def perturbed_problem(seed: int = 5):
+    """(objective, x): the weak-prior objective of synthetic signals of the paper set moved
+    by up to 3 % (``seed``), and a point up to 2 % off that truth in every fitted parameter,
+    so that a polish from it has far to go (chi-square ~35 times its minimum's)."""
+    from gprm.fit.objective import Objective, fit_data_from_means
+    from gprm.fit.prior import default_prior
+    from gprm.params import paper
+
+    p = paper()
+    rng = np.random.default_rng(seed)
+    truth = p.with_vector(p.vector() * (1 + 0.03 * rng.uniform(-1, 1, len(p.fitted))))
+    data = fit_data_from_means(make_means(truth, seed=2, rel=0.02), source="synthetic")
+    obj = Objective.create(data, p, prior=default_prior(p, tuple(p.fitted)))
+    x = truth.vector(obj.names) * (1 + 0.02 * rng.uniform(-1, 1, len(obj.names)))
+    return obj, x

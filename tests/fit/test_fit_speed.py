@@ -17,12 +17,11 @@ from gprm.fit.adequacy import (LOSO_FTOL, LeftOut, leave_one_signal_out,
                                leave_one_signal_out_each, periodogram)
 from gprm.fit.engine import single_thread_blas
 from gprm.fit.lm import levenberg_marquardt_batch
-from gprm.fit.objective import Objective, fit_data_from_means
-from gprm.fit.prior import default_prior
+from gprm.fit.objective import Objective
 from gprm.params import paper
 
 sys.path.insert(0, str(Path(__file__).parent))
-from means_factory import make_means  # noqa: E402
+from means_factory import perturbed_problem  # noqa: E402
 
 
 @pytest.mark.parametrize("n", [47, 48, 2, 3])
@@ -79,13 +78,7 @@ def test_indexed_batch_is_each_problem_alone_and_matches_scipy(geodesic):
 def fitted():
     """An objective with the prior on synthetic signals, and a point a few per cent off the
     truth (so that every leave-one-out polish moves)."""
-    p = paper()
-    rng = np.random.default_rng(5)
-    truth = p.with_vector(p.vector() * (1 + 0.03 * rng.uniform(-1, 1, len(p.fitted))))
-    data = fit_data_from_means(make_means(truth, seed=2, rel=0.02), source="synthetic")
-    obj = Objective.create(data, p, prior=default_prior(p, tuple(p.fitted)))
-    x = truth.vector(obj.names) * (1 + 0.02 * rng.uniform(-1, 1, len(obj.names)))
-    return obj, x
+    return perturbed_problem(5)
 
 
 def test_left_out_objective_is_the_objective_without_the_signal(fitted):

@@ -11,26 +11,17 @@ import numpy as np
 import pytest
 
 from gprm.fit.engine import SETTLE, polish_best, single_thread_blas
-from gprm.fit.objective import Objective, fit_data_from_means
-from gprm.fit.prior import default_prior
 from gprm.fit.starts import LMOptions
-from gprm.params import paper
 
 sys.path.insert(0, str(Path(__file__).parent))
-from means_factory import make_means  # noqa: E402
+from means_factory import perturbed_problem  # noqa: E402
 
 
 @pytest.fixture(scope="module")
 def far():
     """The weak-prior objective of synthetic signals and a point 2 % off the truth in every
     parameter: chi-square 35 times its minimum's."""
-    p = paper()
-    rng = np.random.default_rng(5)
-    truth = p.with_vector(p.vector() * (1 + 0.03 * rng.uniform(-1, 1, len(p.fitted))))
-    data = fit_data_from_means(make_means(truth, seed=2, rel=0.02), source="synthetic")
-    obj = Objective.create(data, p, prior=default_prior(p, tuple(p.fitted)))
-    x = truth.vector(obj.names) * (1 + 0.02 * rng.uniform(-1, 1, len(obj.names)))
-    return obj, x
+    return perturbed_problem(5)
 
 
 def _chi2(obj, x):

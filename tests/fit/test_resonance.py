@@ -122,6 +122,18 @@ def test_projected_objective_is_the_projection_written_out():
         obj.with_projection(Q[:-1])
 
 
+def _projected_at_truth(data, truth):
+    """(objective, the objective with the resonance found at the truth projected off, the
+    truth x, the plain Jacobian there, the projected residuals and Jacobian there)."""
+    obj = _objective(data, truth)
+    x = truth.vector(obj.names)
+    r, J = _data_jacobian(obj, x)
+    found = rm.search(obj, x, r, J, obj.prior)
+    pobj = obj.with_projection(rm.projection(obj, x, r, J, obj.prior, found))
+    rp, Jp = _data_jacobian(pobj, x)
+    return obj, pobj, x, J, rp, Jp
+
+
 @pytest.fixture(scope="module")
 def resonant():
     return _data(f=41e3, zeta=0.02, rel=0.01, seed=1)
@@ -224,12 +236,7 @@ def test_the_time_origin_stays_the_mechanism_models_with_a_resonance(resonant):
     truth, data = resonant
     data = replace(data, attrs={"align_time": 1.01e-3, "threshold_factor": 2.0},
                    noise_std=np.full(len(SIGNALS), NOISE))
-    obj = _objective(data, truth)
-    x = truth.vector(obj.names)
-    r, J = _data_jacobian(obj, x)
-    found = rm.search(obj, x, r, J, obj.prior)
-    pobj = obj.with_projection(rm.projection(obj, x, r, J, obj.prior, found))
-    rp, Jp = _data_jacobian(pobj, x)
+    obj, pobj, x, J, rp, Jp = _projected_at_truth(data, truth)
     own = crossing_offsets(obj, obj.model(x[None]).y[0])
     assert np.any(own != 0)
     np.testing.assert_allclose(error_model(pobj, x, Jp, rp, pobj.prior).crossing_offset, own)
@@ -282,12 +289,7 @@ def test_the_timing_parts_derivative_is_the_models_own_with_a_resonance_projecte
     from gprm.fit.sandwich import time_derivative
 
     truth, data = resonant
-    obj = _objective(data, truth)
-    x = truth.vector(obj.names)
-    r, J = _data_jacobian(obj, x)
-    found = rm.search(obj, x, r, J, obj.prior)
-    pobj = obj.with_projection(rm.projection(obj, x, r, J, obj.prior, found))
-    rp, Jp = _data_jacobian(pobj, x)
+    obj, pobj, x, J, rp, Jp = _projected_at_truth(data, truth)
     y = obj.model(x[None]).y[0]
     plain = time_derivative(obj, x, J, y)
     projected = time_derivative(pobj, x, Jp, y)

@@ -628,26 +628,26 @@ def polish_best(obj: Objective, x: np.ndarray, lm: LMOptions, *, max_iter: int =
     :func:`polish_kwargs`."""
     lo, hi = obj.bounds_normalised()
     xn = obj.to_normalised(np.asarray(x, float))[None]
-    kw = polish_kwargs(lm, max_iter, ftol, trust_region=trust_region)
+    chi2 = float(obj.chi2(xn)[0]) if settle else np.nan
     info: dict = {"iterations": 0}
     moved = False
     for _ in range(SETTLE_ROUNDS if settle else 1):
-        if settle:
-            # the variance scale at this round's start: a round that ended below half its
-            # start's chi-square settled against too large a scale, and another follows
-            tol = SETTLE * float(obj.chi2(xn)[0]) / max(int(obj.dof), 1)
-            kw.update(stall_window=SETTLE_WINDOW,
-                      stall_tol=tol if np.isfinite(tol) and tol > 0 else 0.0)
-        res = levenberg_marquardt_batch(obj, xn, lower=lo, upper=hi,
-                                        residuals=obj.residuals, **kw)
-        c0, c1 = float(res.chi2_0[0]), float(res.chi2[0])
+        # settling: against the variance scale at this round's start; a round that ended
+        # below half its start's chi-square settled against too large a scale, and another
+        # follows
+        tol = SETTLE * chi2 / max(int(obj.dof), 1) if settle else 0.0
+        res = levenberg_marquardt_batch(
+            obj, xn, lower=lo, upper=hi, residuals=obj.residuals,
+            **polish_kwargs(lm, max_iter, ftol, trust_region=trust_region,
+                            settle_tol=tol if np.isfinite(tol) and tol > 0 else 0.0))
+        c0, chi2 = float(res.chi2_0[0]), float(res.chi2[0])
         info.setdefault("chi2_before", c0)
         info["iterations"] += int(res.iterations[0])
         info["status"] = str(res.status[0])
-        if not np.isfinite(c1) or c1 > c0:
-            info.setdefault("chi2_after", c1)
+        if not np.isfinite(chi2) or chi2 > c0:
+            info.setdefault("chi2_after", chi2)
             break
-        xn, info["chi2_after"], moved = res.x[:1], c1, True
-        if not (settle and info["status"] == "stalled" and c1 < 0.5 * c0):
+        xn, info["chi2_after"], moved = res.x[:1], chi2, True
+        if not (settle and info["status"] == "stalled" and chi2 < 0.5 * c0):
             break
     return (obj.to_physical(xn[0]) if moved else x), info

@@ -570,7 +570,7 @@ def fit_sidecar(res: FitResult) -> xr.Dataset:
         ds["band_sample_lo"] = (("signal", "time"), b.sample_lo)
         ds["band_sample_hi"] = (("signal", "time"), b.sample_hi)
         ds.attrs["band_samples"] = b.n_samples
-        found = getattr(res, "resonance", None)
+        found = getattr(res, "resonance", None)     # a FitRecord need not have one
         if found is not None and found.basis is not None:
             from gprm.fit.resonance import projected_part
 

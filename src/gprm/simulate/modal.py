@@ -24,7 +24,7 @@ distinct eigenvalues; sets whose eigenvalues nearly coincide (relative gap below
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 
 import numpy as np
 
@@ -140,72 +140,60 @@ def conv_default(lam, tau, V0, tau_v, need_J=True, period=None):
     Taylor series where |w| < 0.05 (10 terms, truncation < 1e-15). Elsewhere the sums lose
     at most about three digits to cancellation (relative error ~1e-13 of the term).
     """
-    E, ea, I, u = conv_default_base(lam, tau, V0, tau_v, period)
-    J = conv_default_J(lam, tau, V0, tau_v, E, ea) if need_J else None
+    E, ea, I, u, small = conv_default_base(lam, tau, V0, tau_v, period)
+    J = conv_default_J(lam, tau, V0, tau_v, E, ea, small) if need_J else None
     return I, J, u
 
 
-def conv_default_base(lam, tau, V0, tau_v, period=None):
-    """:func:`conv_default` without J: E = e^{L t} (B, n, T), e^{-a t} (B, 1, T), I and u,
-    so that J can be computed later from E and e^{-a t} (:func:`conv_default_J`) with the
-    same values as one call with ``need_J`` (each entry's arithmetic is the same)."""
+def _factors(lam, tau, tau_v):
+    """The per-entry pieces both I and J are made of: a = 1/tau_v, t = max(tau, 0), L, L + a,
+    the live entries (t > 0) and the per-mode factors c3 = 1/L, c2 = 1/(L + a)."""
     a = (1.0 / tau_v)[:, None, None]
     t = np.clip(tau, 0.0, None)[:, None, :]
     L = lam[:, :, None]
     La = L + a
+    with np.errstate(all="ignore"):
+        return a, t, L, La, t > 0, 1.0 / L, 1.0 / La
+
+
+def conv_default_base(lam, tau, V0, tau_v, period=None):
+    """:func:`conv_default` without J: E = e^{L t} (B, n, T), e^{-a t} (B, 1, T), I, u and
+    the entries recomputed from the accurate forms (``small``, (B, n, T) bool), so that J can
+    be computed later (:func:`conv_default_J`) with the same values as one call with
+    ``need_J`` (each entry's arithmetic is the same)."""
+    a, t, L, La, live, c3, c2 = _factors(lam, tau, tau_v)
     E = exp_lt(lam, tau, period)
     ea = np.exp(-a * t)
-    live = t > 0                                   # t = 0: I = J = 0
-    shape = E.shape
     u = np.where(tau > 0, V0[:, None] * (np.exp(-t[:, 0] / tau_v[:, None]) - 1.0), 0.0)
     with np.errstate(all="ignore"):
-        c3 = 1.0 / L
-        c2 = 1.0 / La
-        c1E = (-a * c3 * c2) * E
-        I = c1E + (c3 - c2 * ea)
-    m = _small_entries(L, La, t, live, I)
-    if m.any():
-        Lm, Lam, tm, eam, Em = _masked(m, shape, L, La, t, ea, E)
-        I[m] = _term_a(Lam, tm, eam, Em) - _term_0(Lm, tm, Em)
+        I = (-a * c3 * c2) * E + (c3 - c2 * ea)
+    # where an argument is small (|L t| or |(L + a) t| < 0.1) the sums cancel, or I is not
+    # finite: those entries come from the accurate forms
+    small = ((np.abs(L) * t < 0.1) | (np.abs(La) * t < 0.1) | ~np.isfinite(I)) & live
+    if small.any():
+        Lm, Lam, tm, eam, Em = _masked(small, L, La, t, ea, E)
+        I[small] = _term_a(Lam, tm, eam, Em) - _term_0(Lm, tm, Em)
     I = V0[:, None, None] * np.where(live, I, 0.0)
-    return E, ea, I, u
+    return E, ea, I, u, small
 
 
-def conv_default_J(lam, tau, V0, tau_v, E, ea):
-    """J = dI/dlam of :func:`conv_default` from the E and e^{-a t} of
+def conv_default_J(lam, tau, V0, tau_v, E, ea, small):
+    """J = dI/dlam of :func:`conv_default` from the E, e^{-a t} and ``small`` of
     :func:`conv_default_base` for the same arguments."""
-    a = (1.0 / tau_v)[:, None, None]
-    t = np.clip(tau, 0.0, None)[:, None, :]
-    L = lam[:, :, None]
-    La = L + a
-    live = t > 0
-    shape = E.shape
+    a, t, L, La, live, c3, c2 = _factors(lam, tau, tau_v)
     with np.errstate(all="ignore"):
-        c3 = 1.0 / L
-        c2 = 1.0 / La
-        c1E = (-a * c3 * c2) * E
-        I = c1E + (c3 - c2 * ea)                   # only for the small-entry mask
-        J = c1E * (t - c2 - c3) + (c2 * c2) * ea - c3 * c3
-    m = _small_entries(L, La, t, live, I)
-    if m.any():
-        Lm, Lam, tm, eam, Em = _masked(m, shape, L, La, t, ea, E)
+        J = (-a * c3 * c2) * E * (t - c2 - c3) + (c2 * c2) * ea - c3 * c3
+    if small.any():
+        Lm, Lam, tm, eam, Em = _masked(small, L, La, t, ea, E)
         t0 = _term_0(Lm, tm, Em)
         ta = _term_a(Lam, tm, eam, Em)
-        J[m] = _dterm_a(Lam, tm, eam, Em, ta) - _dterm_0(Lm, tm, Em, t0)
+        J[small] = _dterm_a(Lam, tm, eam, Em, ta) - _dterm_0(Lm, tm, Em, t0)
     return V0[:, None, None] * np.where(live, J, 0.0)
 
 
-def _small_entries(L, La, t, live, I):
-    """Entries where the closed forms cancel (|L t| or |(L + a) t| < 0.1) or I is not
-    finite: recomputed from the accurate forms."""
-    m = ((np.abs(L) * t < 0.1) | (np.abs(La) * t < 0.1)) & live
-    m |= ~np.isfinite(I) & live
-    return m
-
-
-def _masked(m, shape, L, La, t, ea, E):
-    return (np.broadcast_to(L, shape)[m], np.broadcast_to(La, shape)[m],
-            np.broadcast_to(t, shape)[m], np.broadcast_to(ea, shape)[m], E[m])
+def _masked(m, L, La, t, ea, E):
+    """L, L + a, t, e^{-a t} and E at the entries ``m`` (E's shape), 1-D."""
+    return tuple(np.broadcast_to(v, E.shape)[m] for v in (L, La, t, ea)) + (E[m],)
 
 
 def _term_0(L, t, E):
@@ -302,8 +290,9 @@ class Convolutions:
     later call for the same sets, times and lags (the Jacobian at a point whose residuals
     were just evaluated) computes only J (:func:`conv_default_J`): the times ``tv`` (B, T'),
     the modes ``lam`` (B, S), V0 and tau_v (B,) they were made for, and E = e^{lam t},
-    e^{-t/tau_v}, I (B, S, T') and u (B, T'). Each row's values are its own (elementwise
-    arithmetic), so a subset of rows (``take``) serves a subset of the sets."""
+    e^{-t/tau_v}, I (B, S, T'), u (B, T') and the entries taken from the accurate forms
+    (``small``). Each row's values are its own (elementwise arithmetic), so a subset of rows
+    (``take``) serves a subset of the sets."""
 
     tv: np.ndarray
     lam: np.ndarray
@@ -313,14 +302,14 @@ class Convolutions:
     ea: np.ndarray
     I: np.ndarray
     u: np.ndarray
+    small: np.ndarray
 
     def take(self, rows) -> "Convolutions":
         rows = np.asarray(rows)
-        return Convolutions(*(getattr(self, f)[rows] for f in
-                              ("tv", "lam", "V0", "tau_v", "E", "ea", "I", "u")))
+        return Convolutions(*(getattr(self, f.name)[rows] for f in fields(self)))
 
     def matching(self, lam, tv, V0, tau_v):
-        """(E, ea, I, u) for these modes (the first S of each row's), times and drive, or
+        """(E, ea, I, u, small) for these modes (the first S of each row's), times and drive, or
         None where they are not exactly the ones these were made for."""
         S = lam.shape[1]
         if (S > self.lam.shape[1] or tv.shape != self.tv.shape
@@ -328,7 +317,7 @@ class Convolutions:
                 or not np.array_equal(tau_v, self.tau_v)
                 or not np.array_equal(lam, self.lam[:, :S])):
             return None
-        return self.E[:, :S], self.ea, self.I[:, :S], self.u
+        return self.E[:, :S], self.ea, self.I[:, :S], self.u, self.small[:, :S]
 
 
 @dataclass(frozen=True)
@@ -523,11 +512,11 @@ def solve(pb: dict, times: np.ndarray, H: np.ndarray, lags, *, piezo: int,
     if trace is None:
         V0, tau_v = pb["V0"], pb["tau_v"]
         parts = None if conv is None else conv.matching(lamS, tv, V0, tau_v)
-        E, ea, I, u = parts if parts is not None else conv_default_base(lamS, tv, V0, tau_v,
-                                                                         period=T)
-        J = conv_default_J(lamS, tv, V0, tau_v, E, ea) if names else None
+        E, ea, I, u, small = parts if parts is not None else conv_default_base(
+            lamS, tv, V0, tau_v, period=T)
+        J = conv_default_J(lamS, tv, V0, tau_v, E, ea, small) if names else None
         if keep_conv:
-            kept = Convolutions(tv, lamS, V0, tau_v, E, ea, I, u)
+            kept = Convolutions(tv, lamS, V0, tau_v, E, ea, I, u, small)
     else:
         kt, ku = trace.knots(0.0)
         I, J, u = conv_trace(lamS, tv, kt, ku)

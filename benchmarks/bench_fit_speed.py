@@ -375,6 +375,42 @@ def compare(before: str, after: str) -> None:
           f"identified set different on {differ}")
 
 
+def polishes(args) -> None:
+    """Each polish of one 10-start fit of the demo's campaign (captured as identify calls
+    them) run again three ways: Algorithm 1's damping update, the trust region, the trust
+    region settled; iterations, status and the chi-square reached (docs/fitting.md, "Speed",
+    stop 38)."""
+    import numpy as np
+
+    import gprm.fit.identify as identify_module
+    from gprm.fit.engine import polish_best
+
+    print(machine("scipy"))
+    calls = []
+    real = identify_module.polish_best
+
+    def capture(obj, x, lm, **kw):
+        calls.append((obj, np.array(x, float), lm, kw))
+        return real(obj, x, lm, **kw)
+
+    with tempfile.TemporaryDirectory() as tmp:
+        path = means_file(Path(tmp))
+        identify_module.polish_best = capture
+        try:
+            fit(path, 10)
+        finally:
+            identify_module.polish_best = real
+    print("| polish | ftol | Algorithm 1 | trust region | trust region, settled |\n"
+          "|---|---|---|---|---|")
+    for i, (obj, x, lm, kw) in enumerate(calls):
+        ftol = kw.get("ftol", 1e-12)
+        cells = []
+        for extra in ({"trust_region": False}, {}, {"settle": True}):
+            _, info = polish_best(obj, x, lm, ftol=ftol, **extra)
+            cells.append(f"{info['iterations']} ({info['status']}), {info['chi2_after']:.6f}")
+        print(f"| {i + 1} | {ftol:g} | " + " | ".join(cells) + " |")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--repeat", type=int, default=5)
@@ -382,6 +418,8 @@ def main() -> None:
     ap.add_argument("--no-big", action="store_true")
     ap.add_argument("--no-cli", action="store_true")
     ap.add_argument("--profile", action="store_true")
+    ap.add_argument("--polishes", action="store_true",
+                    help="each polish of a 10-start fit three ways (stop 38's comparison)")
     ap.add_argument("--campaigns", type=int, default=0)
     ap.add_argument("--starts", type=int, default=200)
     ap.add_argument("--json", default="fit_speed_campaigns.jsonl")
@@ -402,7 +440,9 @@ def main() -> None:
         RACE = Race()(args.race)
     else:
         RACE = None
-    if args.chunk_phases:
+    if args.polishes:
+        polishes(args)
+    elif args.chunk_phases:
         chunk_phases(args)
     elif args.cluster_cost:
         cluster_cost(args.cluster_cost)

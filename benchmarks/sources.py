@@ -44,7 +44,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 # the coverage study's truths: the 21 physical parameters, each x U(0.9, 1.1) of Table 3
 from bench_coverage import PHYSICAL, draw_truth  # noqa: E402
 
-__all__ = ["NOISE_SCAN", "PHYSICAL", "PROBES", "SOURCES", "draw_truth", "make"]
+__all__ = ["NOISE_SCAN", "PHYSICAL", "PROBES", "SOURCES", "draw_truth", "frame_shift",
+           "make"]
 
 
 _OFF = dict(nonlinear=False, mode_rel=0.0, trigger_max=0.0, v0_rel=0.0, tau_rel=0.0,
@@ -128,3 +129,35 @@ def make(source: str, seed: int, workdir: str | None = None):
         camp["displacement"] = camp["displacement"] * (1.0 + camp["position"].copy(data=g))
         camp["gain_error"] = (("position",), g)
     return camp, truth
+
+
+def trigger_offsets(campaign) -> dict[str, np.ndarray]:
+    """{position: (runs,) s} each actuated run's trigger offset as its source recorded it (the
+    run's command at t_c + offset): gprm's generator in the Dataset's ``trigger_offset``,
+    sim2 in the folder's truth.json (``realisation.trigger_jitter_s``). Zeros where the
+    source has none."""
+    import json
+
+    if hasattr(campaign, "sizes"):
+        if "trigger_offset" not in campaign.variables:
+            return {}
+        off = campaign["trigger_offset"]
+        return {str(p): np.asarray(off.sel(position=p).values, float)
+                for p in off["position"].values}
+    real = json.loads((Path(campaign) / "truth.json").read_text())["realisation"]
+    return {p: np.asarray(j, float) for p, j in zip(real["positions"],
+                                                     real["trigger_jitter_s"])}
+
+
+def frame_shift(campaign, means) -> np.ndarray:
+    """(signals,) s: where the preprocessed means put the source's own time, per signal: the
+    trigger offset of the run the others were synchronised to plus the shift preprocessing
+    moved the mean by. The truth's lag of a signal in the fit's aligned time base is its own
+    lag plus this (``campaign``: the Dataset or CSV folder ``make`` returned; ``means``:
+    gprm.campaign.preprocess.MeanSignals)."""
+    off = trigger_offsets(campaign)
+    out = np.asarray(means.shift, float).copy()
+    for i, s in enumerate(means.signals):
+        if s in off and off[s].size:
+            out[i] += float(off[s][int(means.reference_run[i])])
+    return out

@@ -39,9 +39,11 @@ measured, and the rest of its shift, at most half a sample, is written beside it
 (``sync_remainder``). A cubic spline across the motion's onset, where the response has a
 kink, errs by an amount that depends on the run's sampling phase; on campaigns with trigger
 offsets that error biased k_lr and m1 (docs/data-formats.md, step 1). The fit completes the
-move through the model's own shape (:mod:`gprm.fit.subsample`). For synthetic campaigns, the same alignment rule (same threshold) is applied to the
-noise-free truth response (``truth_shift``, ``truth_mean``): the aligned means are compared
-with it, and the fit's lags can be compared with the truth (docs/data-formats.md).
+move through the model's own shape (:mod:`gprm.fit.subsample`). For synthetic campaigns,
+the truth is put on the aligned axis exactly as the data were (``truth_shift``: the reference
+run's trigger offset plus the alignment's shift; ``truth_mean``: the noise-free truth moved by
+it): the aligned means are compared with it, and the fit's lags with the truth's
+(docs/data-formats.md).
 """
 
 from __future__ import annotations
@@ -424,19 +426,18 @@ def preprocess(campaign: xr.Dataset, config: PreprocessConfig | None = None) -> 
         for i in range(P):
             cs = CubicSpline(tt, clean[i])
             thr = cfg.threshold_factor * nstd[i]
-            # the same rule on the truth sampled like the data (at the reference run's
-            # sampling phase), and its spread over ten sampling phases
-            d_ref = offs[i, ref[i]]
-            tx = _sampled_crossing(cs, time, d_ref, thr, cfg.hold)
-            # the rule's shift, moved by the same whole-sample rounding the data's got, so
-            # that the truth is where the data put it
-            truth_shift[i] = np.nan if tx is None else \
-                cfg.align_time - tx + rounding[i]
+            # where the data's axis puts the truth's own time, exactly: the mean lives on the
+            # reference run's record (its command at t_c + that run's trigger offset), moved
+            # by the alignment's shift. (Until stop 39: the alignment rule applied to the
+            # noise-free truth, which differs from this by the noise's and the sampling
+            # phase's move of the data's crossing, 0.1-1.2 us: docs/data-formats.md.)
+            truth_shift[i] = shift[i] + offs[i, ref[i]]
+            # the rule's inherent jitter: its crossing on the truth over ten sampling phases
             crossings = [_sampled_crossing(cs, time, ph * dt / 10, thr, cfg.hold)
                          for ph in range(10)]
             phases = [x for x in crossings if x is not None]
             truth_spread[i] = float(np.ptp(phases)) if phases else np.nan
-            ts_ = tgrid - (0.0 if tx is None else truth_shift[i])
+            ts_ = tgrid - truth_shift[i]
             truth_mean[i] = np.where(ts_ < tt[0], 0.0, cs(np.clip(ts_, tt[0], tt[-1])))
     alignment = None
     if truth is not None and truth_shift is not None:

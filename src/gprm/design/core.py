@@ -22,9 +22,10 @@ Where the fit says how its variance splits (the default ``sandwich``: fit.json
 ``uncertainty.details``), the carry-over is done in **two parts** (:func:`variance_parts`):
 the part of each parameter's variance that averages down over runs (the runs' spread, the
 alignment) and the part that does not (the residuals' excess over the runs' spread: model
-mismatch; the gain and stated timing errors; the time origin of t0). Each part has its own
-information (``block_information(component=...)``), calibration kappa and per-parameter
-carry-over, and a design's variance is their sum: more runs shrink only the first.
+mismatch; the gain and stated timing errors; in older fits the time origin of t0). Each part
+has its own information (``block_information(component=...)``), calibration kappa and
+per-parameter carry-over, and a design's variance is their sum: more runs shrink only the
+first.
 """
 
 from __future__ import annotations
@@ -221,9 +222,9 @@ def variance_parts(doc: dict, names: tuple[str, ...], fit_var: np.ndarray, x: np
     rho = ``residual_over_runs``^2 (the residuals' variance over the runs'), 1/rho of it is
     the runs' (A) and the rest the residuals' excess, mismatch common to every run (B). The
     gain share (stated and estimated gain errors) is B. The timing share is the alignment's
-    (A) where no timing error is stated, else B; for t0 the time origin's variance
-    (``time_origin_sd_s``, the crossing offset the model cannot explain) is taken out of it
-    into B. Interpolation and prior shares: A (they shrink as the data grow). A fit of mean
+    (A) where no timing error is stated, else B; for t0 in fit files made before stop 39 the
+    time origin's variance (``time_origin_sd_s``, then the crossing offset on t0; the default
+    no longer adds it) is taken out of it into B. Interpolation and prior shares: A (they shrink as the data grow). A fit of mean
     signals without their runs (no ``residual_over_runs``) is not split."""
     unc = doc.get("uncertainty") or {}
     det = unc.get("details") or {}

@@ -109,10 +109,6 @@ def fit_report(d: dict, *, min_correl: float = DEFAULT_MIN_CORREL) -> str:
                                  f" (alignment {_g(1e9 * v.get('alignment_sd_s', math.nan), '.3g')}"
                                  f" ns, crossing offset "
                                  f"{_g(1e9 * v.get('crossing_offset_s', math.nan), '+.3g')} ns)")
-            if _finite(det.get("time_origin_sd_s")):
-                lines.append(f"    time origin of the aligned data (on t0): "
-                             f"{_g(1e9 * det['time_origin_sd_s'], '.3g')} ns (the reference "
-                             "signal's crossing offset beyond its alignment noise)")
             if det.get("statistical_from"):
                 lines.append(f"    statistical part from the {det['statistical_from']}")
         alt = det.get("alternative_minima") if isinstance(det, dict) else None

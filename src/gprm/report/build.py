@@ -357,9 +357,10 @@ def fit_section(run: Path) -> tuple[Section, dict | None]:
                                   "the gain errors' size the residuals show; the timing adds "
                                   "the alignment's noise, estimated from the data. The model "
                                   "crossing offset is where the fitted model crosses the "
-                                  "alignment threshold against the data; the reference "
-                                  "signal's offset beyond its noise is the aligned data's time "
-                                  "origin error, carried by t0 (docs/fitting.md)."))
+                                  "alignment threshold against the data: a diagnostic of "
+                                  "what the model lacks at the onset, not an error of the "
+                                  "lags, which live in the data's aligned time axis "
+                                  "(docs/fitting.md)."))
     if side is not None:
         res = "resonance_fitted" in side
         s.blocks.append(fig_to_img(F.fig_fit(side), "Best fit over the mean signals with "

@@ -25,7 +25,7 @@ import pickle
 import sys
 import tempfile
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -99,7 +99,7 @@ def run_case(source: str, seed: int, starts: int, cache: str | None) -> Case:
             # seed fixes it) for that one number, the fit untouched
             with tempfile.TemporaryDirectory(prefix="gprm-src-") as tmp:
                 shift = _campaign(source, seed, tmp)[3]
-            case = Case(case.source, case.seed, case.truth, case.fit, case.seconds, shift)
+            case = replace(case, frame_shift=shift)
             _save(case, path)
         return case
     t = time.perf_counter()
@@ -122,11 +122,9 @@ def run_case(source: str, seed: int, starts: int, cache: str | None) -> Case:
 PRIOR_DOMINATED = 0.5
 
 
-def intervals(case: Case, method: str):
-    """(names, identified, {level: (lo, hi)}, best, prior share (P,) or None) of ``method`` on
-    this case's fit."""
-    from gprm.fit.methods import uncertainty_of
-    unc = uncertainty_of(case.fit, method)
+def intervals(case: Case, unc):
+    """(names, identified, {level: (lo, hi)}, best, prior share (P,) or None) of the
+    uncertainty ``unc`` of this case's fit."""
     lv = {L: unc.interval(L) for L in LEVELS}
     share = (unc.details or {}).get("sources", {}).get("prior")
     return (unc.names, np.asarray(unc.identified), lv, case.fit.x,
@@ -149,25 +147,35 @@ def truth_in_fit_time(case: Case):
     return truth, truth.with_values(t0=truth["t0"] + shift)
 
 
-def prediction_scores(case: Case, method: str, samples: int = 200) -> dict:
+def prediction_scores(case: Case, u, samples: int = 200) -> dict:
     """Overshoots, kinetic-energy histogram and velocity curves (benchmarks/bench_coverage.py's
-    scores) of ``method``'s draws against the truth."""
+    scores) of the draws of the uncertainty ``u`` of this case's fit against the truth."""
     from bench_coverage import curve_cover, energy_cover, prediction_cover
     from gprm.fit.files import FittedModel
-    from gprm.fit.methods import uncertainty_of
     from gprm.predict.trajectories import default_times
 
-    u = uncertainty_of(case.fit, method)
-    fm = FittedModel(case.fit.params, u.covariance, piezo=2, draws=u.draws, uncertainty=method)
+    fm = FittedModel(case.fit.params, u.covariance, piezo=2, draws=u.draws,
+                     uncertainty=u.method)
     truth, truth_t = truth_in_fit_time(case)
     return {"pred": prediction_cover(fm, truth, default_times(), samples, case.seed),
             "energy": energy_cover(fm, truth_t, samples, case.seed),
             "curves": curve_cover(fm, truth_t, samples, case.seed)}
 
 
-def score(case: Case, method: str, predictions: bool = False) -> dict:
-    names, ident, lv, best, share = intervals(case, method)
-    out = {"source": case.source, "seed": case.seed, "method": method,
+def score(case: Case, method: str, predictions: bool = False, *,
+          alignment_noise: bool = True) -> dict:
+    """The case's coverage with ``method`` (its uncertainty computed once for the parameters,
+    t0 and the predictions); ``alignment_noise=False``: the sandwich without each signal's
+    alignment noise in its timing error (a development check, docs/fitting.md, "The time
+    axis of a campaign's truth"), labelled as such in the tables."""
+    from gprm.fit.methods import uncertainty_of
+    from gprm.fit.sandwich import Systematics
+
+    unc = uncertainty_of(case.fit, method, systematics=None if alignment_noise else
+                         Systematics(alignment_noise=False))
+    names, ident, lv, best, share = intervals(case, unc)
+    label = method if alignment_noise else f"{method}, no alignment noise"
+    out = {"source": case.source, "seed": case.seed, "method": label,
            "n_identified": 0, "n_all": 0, "best_outside": 0, "n_prior": 0}
     for L in LEVELS:
         out[f"id_in{round(100 * L)}"] = 0
@@ -200,7 +208,7 @@ def score(case: Case, method: str, predictions: bool = False) -> dict:
     out.update(t0_scores(case, names, lv, best))
     out["not_identified"] = [n for k, n in enumerate(names) if n in case.truth and not ident[k]]
     if predictions:
-        out.update(prediction_scores(case, method))
+        out.update(prediction_scores(case, unc))
     return out
 
 
@@ -209,7 +217,7 @@ def t0_scores(case: Case, names, lv: dict, best) -> dict:
     inside the 95 % / 68 % intervals, the error and the 68 % half-width (s), and the fitted
     model's crossing offset of x_base (the fit's fit.json diagnostic, s)."""
     names = list(names)
-    if "t0" not in names or case.frame_shift is None:
+    if "t0" not in names:
         return {}
     k = names.index("t0")
     t_true = truth_in_fit_time(case)[1]["t0"]
@@ -366,12 +374,13 @@ def misses_table(rows: list[dict]) -> str:
 
 
 def _job(index: int, jobs: list):
-    """Job ``index`` of ``jobs`` (source, seed, starts, cache, methods, predictions): its
-    scores and the seconds its fit took. A Dask task of benchmarks/_studies.py's map_seeds,
-    which keys tasks by an integer; the result depends only on the job."""
-    source, seed, starts, cache, methods, predictions = jobs[index]
+    """Job ``index`` of ``jobs`` (source, seed, starts, cache, methods, predictions,
+    alignment noise): its scores and the seconds its fit took. A Dask task of
+    benchmarks/_studies.py's map_seeds, which keys tasks by an integer; the result depends
+    only on the job."""
+    source, seed, starts, cache, methods, predictions, align = jobs[index]
     case = run_case(source, seed, starts, cache)
-    return [score(case, m, predictions) for m in methods], case.seconds
+    return [score(case, m, predictions, alignment_noise=align) for m in methods], case.seconds
 
 
 def main(argv=None) -> int:
@@ -388,6 +397,9 @@ def main(argv=None) -> int:
                     help="campaigns as Dask tasks on the cluster of this scheduler address")
     ap.add_argument("--predictions", action="store_true",
                     help="also score overshoots, KE histogram and velocity curves (slower)")
+    ap.add_argument("--no-alignment-noise", action="store_true",
+                    help="a development check: the sandwich without each signal's alignment "
+                    "noise in its timing error (the rows labelled so)")
     ap.add_argument("--json")
     ap.add_argument("--cache")
     ap.add_argument("--from-json", nargs="+")
@@ -416,7 +428,8 @@ def main(argv=None) -> int:
     if unknown:
         ap.error(f"unknown source(s) {unknown}; one of {', '.join(known)}")
     methods = [m for m in a.methods.split(",") if m]
-    jobs = [(s, a.seed + i, a.starts, a.cache, methods, a.predictions) for s in srcs
+    jobs = [(s, a.seed + i, a.starts, a.cache, methods, a.predictions,
+             not a.no_alignment_noise) for s in srcs
             for i in range(a.campaigns)]
     t0 = time.perf_counter()
     rows: list[dict] = []

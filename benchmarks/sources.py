@@ -131,33 +131,18 @@ def make(source: str, seed: int, workdir: str | None = None):
     return camp, truth
 
 
-def trigger_offsets(campaign) -> dict[str, np.ndarray]:
-    """{position: (runs,) s} each actuated run's trigger offset as its source recorded it (the
-    run's command at t_c + offset): gprm's generator in the Dataset's ``trigger_offset``,
-    sim2 in the folder's truth.json (``realisation.trigger_jitter_s``). Zeros where the
-    source has none."""
-    import json
-
-    if hasattr(campaign, "sizes"):
-        if "trigger_offset" not in campaign.variables:
-            return {}
-        off = campaign["trigger_offset"]
-        return {str(p): np.asarray(off.sel(position=p).values, float)
-                for p in off["position"].values}
-    real = json.loads((Path(campaign) / "truth.json").read_text())["realisation"]
-    return {p: np.asarray(j, float) for p, j in zip(real["positions"],
-                                                     real["trigger_jitter_s"])}
-
-
 def frame_shift(campaign, means) -> np.ndarray:
     """(signals,) s: where the preprocessed means put the source's own time, per signal: the
     trigger offset of the run the others were synchronised to plus the shift preprocessing
     moved the mean by. The truth's lag of a signal in the fit's aligned time base is its own
     lag plus this (``campaign``: the Dataset or CSV folder ``make`` returned; ``means``:
-    gprm.campaign.preprocess.MeanSignals)."""
-    off = trigger_offsets(campaign)
-    out = np.asarray(means.shift, float).copy()
-    for i, s in enumerate(means.signals):
-        if s in off and off[s].size:
-            out[i] += float(off[s][int(means.reference_run[i])])
-    return out
+    gprm.campaign.preprocess.MeanSignals). gprm's generator: preprocessing's own
+    ``truth_shift``, which is this; sim2: its truth.json's trigger jitter."""
+    if means.truth_shift is not None:
+        return np.asarray(means.truth_shift, float)
+    import json
+
+    real = json.loads((Path(campaign) / "truth.json").read_text())["realisation"]
+    jitter = dict(zip(real["positions"], real["trigger_jitter_s"]))
+    return np.array([float(means.shift[i]) + float(jitter[s][int(means.reference_run[i])])
+                     for i, s in enumerate(means.signals)])

@@ -544,6 +544,41 @@ def test_timing_error_moves_only_the_lags_it_is_absorbed_by():
     assert np.all(sd_time[~lags] < 1e-2 * sd_stat[~lags])
 
 
+def test_the_alignment_noise_switch_removes_only_that_timing_term():
+    """Each signal's timing error is the stated one combined with its alignment noise (the
+    mean's noise at the alignment time over its slope); ``alignment_noise=False`` (the
+    development check of docs/fitting.md, "The time axis of a campaign's truth") leaves the
+    stated part alone."""
+    from dataclasses import replace
+
+    from gprm.fit.objective import Objective, fit_data_from_means
+    from gprm.fit.prior import default_prior
+    from gprm.fit.sandwich import error_model
+    from gprm.params import paper
+    from pathlib import Path
+    sys.path.insert(0, str(Path(__file__).parent))
+    from means_factory import make_means
+
+    p = paper()
+    data = fit_data_from_means(make_means(p, seed=3), source="synthetic")
+    data = replace(data, attrs={**data.attrs, "align_time": 1.01e-3})
+    obj = Objective.create(data, p)
+    x = p.vector(obj.names)
+    y = obj.model(x[None]).y[0]
+    J = -obj.model(x[None], jacobian=True).dy[0].reshape(-1, x.size) / \
+        data.sigma.reshape(-1, 1)
+    r = ((data.values - y) / data.sigma).reshape(-1)
+    prior = default_prior(p, obj.names)
+    stated = 2e-8
+    on = error_model(obj, x, J, r, prior, Systematics(timing_sd=stated, estimate_gain=False))
+    off = error_model(obj, x, J, r, prior, Systematics(timing_sd=stated, estimate_gain=False,
+                                                       alignment_noise=False))
+    assert np.all(on.alignment_sd > 0)
+    np.testing.assert_allclose(on.timing_sd, np.hypot(stated, on.alignment_sd))
+    np.testing.assert_array_equal(off.timing_sd, stated)
+    np.testing.assert_array_equal(off.alignment_sd, on.alignment_sd)
+
+
 def test_fisher_g_test_is_exact_on_white_noise_and_finds_an_oscillation():
     """Fisher's g of 47 white Gaussian samples (23 ordinates): the exact p-value's
     distribution is uniform (the fraction below 0.01, 0.05 and 0.5 within the binomial

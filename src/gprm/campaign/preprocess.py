@@ -430,7 +430,7 @@ def preprocess(campaign: xr.Dataset, config: PreprocessConfig | None = None) -> 
             # reference run's record (its command at t_c + that run's trigger offset), moved
             # by the alignment's shift. (Until stop 39: the alignment rule applied to the
             # noise-free truth, which differs from this by the noise's and the sampling
-            # phase's move of the data's crossing, 0.1-1.2 us: docs/data-formats.md.)
+            # phase's move of the data's crossing, under half a sample: docs/data-formats.md.)
             truth_shift[i] = shift[i] + offs[i, ref[i]]
             # the rule's inherent jitter: its crossing on the truth over ten sampling phases
             crossings = [_sampled_crossing(cs, time, ph * dt / 10, thr, cfg.hold)

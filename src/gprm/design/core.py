@@ -224,8 +224,9 @@ def variance_parts(doc: dict, names: tuple[str, ...], fit_var: np.ndarray, x: np
     gain share (stated and estimated gain errors) is B. The timing share is the alignment's
     (A) where no timing error is stated, else B; for t0 in fit files made before stop 39 the
     time origin's variance (``time_origin_sd_s``, then the crossing offset on t0; the default
-    no longer adds it) is taken out of it into B. Interpolation and prior shares: A (they shrink as the data grow). A fit of mean
-    signals without their runs (no ``residual_over_runs``) is not split."""
+    no longer adds it) is taken out of it into B. Interpolation and prior shares: A (they
+    shrink as the data grow). A fit of mean signals without their runs (no
+    ``residual_over_runs``) is not split."""
     unc = doc.get("uncertainty") or {}
     det = unc.get("details") or {}
     shares = det.get("variance_shares")

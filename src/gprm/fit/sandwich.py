@@ -109,6 +109,9 @@ class Systematics:
     #: stretch each side of an interval to z sds of the estimator linearised where the side
     #: ends (:func:`variance_factors`)
     variance_check: bool = True
+    #: add each signal's alignment noise (:func:`alignment_sd`) to its timing error; off: a
+    #: development check (docs/fitting.md, "The time axis of a campaign's truth")
+    alignment_noise: bool = True
 
     def __post_init__(self):
         for name in ("gain_sd", "timing_sd"):
@@ -133,6 +136,7 @@ class Systematics:
         return {"gain_sd": self.gain_sd, "timing_sd_s": self.timing_sd,
                 "estimate_gain": self.estimate_gain, "shape_check": self.shape_check,
                 "variance_check": self.variance_check,
+                "alignment_noise": self.alignment_noise,
                 "per_signal": {s: {"gain_sd": g, "timing_sd_s": t}
                                for s, g, t in self.per_signal}}
 
@@ -250,10 +254,10 @@ def crossing_offsets(obj: Objective, y: np.ndarray) -> np.ndarray:
     on the data's window) should find its crossing there too. Where it does not, the data's
     crossing was moved by something the model does not have (an unmodelled resonance or
     nonlinearity near the onset, a drive whose shape varies, a run-to-run offset the
-    synchronisation left), so the time origin of the aligned data, and with it every lag,
-    is uncertain by that much: the offset (crossing_time - the model's crossing) is a timing
-    error of that signal estimated from the data. Zero where the file lacks the rule's
-    attributes, the window does not hold the alignment time, or the model never crosses."""
+    synchronisation left): the offset (crossing_time - the model's crossing) is a diagnostic
+    of the onset, not an error of the lags, which are estimated in the data's aligned axis
+    (docs/fitting.md, "The time axis of a campaign's truth"). Zero where the file lacks the
+    rule's attributes, the window does not hold the alignment time, or the model never crosses."""
     d = obj.data
     out = np.zeros(len(d.signals))
     t_a = float(d.attrs.get("align_time", np.nan))
@@ -511,8 +515,8 @@ def time_derivative(obj: Objective, x: np.ndarray, J: np.ndarray, y: np.ndarray)
     fitted and the objective projects nothing off, else one simulation with t0's
     sensitivity (a projected objective's columns are projected: until stop 38 that column
     was taken there too, a derivative mixed across the signals, and the lags' intervals
-    came out about ten times too narrow with a resonance marginalised). A finite difference of ``y`` on the
-    data's grid will not do: with ~5 samples per period of the fastest modes it is visibly
+    came out about ten times too narrow with a resonance marginalised). A finite difference
+    of ``y`` on the data's grid will not do: with ~5 samples per period of the fastest modes it is visibly
     off (tests/fit/test_sandwich.py), so a timing error, which the fitted lags absorb
     exactly, leaked onto the physical parameters through the difference (docs/fitting.md,
     "What no spread shows": the timing part).
@@ -562,7 +566,8 @@ def error_model(obj: Objective, x: np.ndarray, J: np.ndarray, r: np.ndarray, pri
     # reference run's own timing (its noise and shape through the synchronisation), which
     # the synchronised runs cannot show; without it t0's intervals held the truth in the
     # data's axis in 30-65 % at 68 % (docs/fitting.md, "The time axis of a campaign's truth")
-    t_sd = np.array([np.hypot(systematics.for_signal(s)[1], a_sd[i])
+    t_sd = np.array([np.hypot(systematics.for_signal(s)[1],
+                              a_sd[i] if systematics.alignment_noise else 0.0)
                      for i, s in enumerate(d.signals)])
     g_est = estimate_gain_sd(Ju, Hinv, R, y, d.sigma, d.runs, max_lag=L)
     if systematics.estimate_gain:

@@ -81,8 +81,10 @@ def test_noise_std_estimator_on_white_noise():
 def test_aligned_means_match_truth_within_sigma(request, which):
     """Mean signals vs the noise-free truth put on the aligned axis as the data were
     (truth_mean): within sigma (RMS over the fit window <= 1), and the time offset that
-    matches them best is a small part of a sample (at most 0.09 here: what the
-    synchronisation leaves; docs/data-formats.md)."""
+    matches them best is a small part of a sample: at most 0.03 here, the mean's own noise.
+    (With the reference run's trigger offset for the truth's time, as at stop 39, it is 0.087
+    on y_head of the full campaign: the reference run's own timing noise, which the
+    synchronisation passes to every run; docs/data-formats.md.)"""
     ms = request.getfixturevalue(f"{which}_means")
     t = ms.time
     sel = (t >= WINDOW[0]) & (t <= WINDOW[1])
@@ -96,7 +98,7 @@ def test_aligned_means_match_truth_within_sigma(request, which):
             return np.mean(((cs(t[sel] + d * dt) - tr) / S) ** 2)  # noqa: B023
 
         r = minimize_scalar(chi, bounds=(-2.0, 2.0), method="bounded")
-        assert abs(r.x) < 0.15, (p, r.x)
+        assert abs(r.x) < 0.05, (p, r.x)
         assert np.sqrt(r.fun) <= 1.0, (p, np.sqrt(r.fun))
         # and without any correction the mean is the truth to a few per cent of its peak
         assert np.max(np.abs(ms.mean[i, sel] - tr)) < 0.1 * np.max(np.abs(tr))
@@ -172,8 +174,9 @@ def test_runs_are_measured_samples(full_campaign, full_means):
 
 
 def test_truth_shift_is_where_the_datas_axis_puts_the_truths_time(full_campaign, full_means):
-    """The truth sits on the aligned axis exactly as the data were put there: truth_shift is
-    the reference run's trigger offset plus the data's alignment shift. The alignment rule
+    """The truth sits on the aligned axis as the data were put there: truth_shift is the
+    runs' average of (trigger offset - synchronisation shift), the time of the average of the
+    synchronised runs, plus the data's alignment shift. The alignment rule
     applied to the noise-free truth itself (sampled at the reference run's phase) gives
     nearly the same shift: the noise and the sampling move the data's crossing by less than
     half a sample (the difference is what the fit's lags would be scored against if the
@@ -191,7 +194,8 @@ def test_truth_shift_is_where_the_datas_axis_puts_the_truths_time(full_campaign,
     for p in MODEL_POSITIONS:
         i = POSITIONS.index(p)
         ref = full_means.reference_run[i]
-        assert full_means.truth_shift[i] == full_means.shift[i] + off[i, ref]
+        assert full_means.truth_shift[i] == pytest.approx(
+            full_means.shift[i] + np.mean(off[i] - full_means.sync_shift[i]), rel=0, abs=1e-15)
         cs = CubicSpline(tt, full_campaign["truth_displacement"].sel(position=p).values)
         tx = _sampled_crossing(cs, time, off[i, ref], cfg.threshold_factor *
                                full_means.noise_std[i], cfg.hold)

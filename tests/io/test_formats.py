@@ -161,11 +161,11 @@ def test_new_writers_give_the_numbers_the_old_ones_did(tmp_path):
     old_shift, new_shift = old_m["shift"].values, new_m["shift"].values
     np.testing.assert_allclose(new_shift, dt * np.round(old_shift / dt), rtol=0, atol=1e-15)
     # the legacy truth_shift was the alignment rule applied to the noise-free truth; since
-    # stop 39 it is where the data's axis puts the truth's time exactly (the reference run's
-    # trigger offset plus the data's shift), within half a sample of the rule's
+    # stop 40 it is where the data's axis puts the truth's time (the runs' average of trigger
+    # offset less synchronisation shift, plus the data's shift), within half a sample of the
+    # rule's
     off = new_c["trigger_offset"].sel(position=list(new_m["signal"].values)).values
-    ref = new_m["reference_run"].values
-    exact = new_shift + off[np.arange(off.shape[0]), ref]
+    exact = new_shift + np.mean(off - new_m["sync_shift"].values, axis=1)
     np.testing.assert_allclose(new_m["truth_shift"].values, exact, rtol=0, atol=1e-15)
     rule = old_m["truth_shift"].values + new_shift - old_shift
     model = [list(new_m["signal"].values).index(p) for p in ("x_base", "x_head", "y_base",

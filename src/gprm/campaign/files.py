@@ -399,7 +399,8 @@ def means_dataset(ms) -> xr.Dataset:
     if ms.truth_shift is not None:
         ds["truth_shift"] = (("signal",), ms.truth_shift, {
             "units": "s", "long_name": "where the aligned axis puts the truth's own time: the "
-            "reference run's trigger offset plus the alignment shift (synthetic campaigns)"})
+            "runs' average of (trigger offset - synchronisation shift) plus the alignment "
+            "shift (synthetic campaigns)"})
         ds["truth_shift_spread"] = (("signal",), ms.truth_shift_spread, {
             "units": "s", "long_name": "range of the truth's alignment shift over ten "
             "sampling phases (the rule's inherent jitter at this sample rate)"})

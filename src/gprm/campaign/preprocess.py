@@ -40,10 +40,10 @@ measured, and the rest of its shift, at most half a sample, is written beside it
 kink, errs by an amount that depends on the run's sampling phase; on campaigns with trigger
 offsets that error biased k_lr and m1 (docs/data-formats.md, step 1). The fit completes the
 move through the model's own shape (:mod:`gprm.fit.subsample`). For synthetic campaigns,
-the truth is put on the aligned axis exactly as the data were (``truth_shift``: the reference
-run's trigger offset plus the alignment's shift; ``truth_mean``: the noise-free truth moved by
-it): the aligned means are compared with it, and the fit's lags with the truth's
-(docs/data-formats.md).
+the truth is put on the aligned axis as the data were (``truth_shift``: the runs' average
+of (trigger offset - synchronisation shift), the time of the mean of the synchronised runs,
+plus the alignment's shift; ``truth_mean``: the noise-free truth moved by it): the aligned
+means are compared with it, and the fit's lags with the truth's (docs/data-formats.md).
 """
 
 from __future__ import annotations
@@ -426,12 +426,16 @@ def preprocess(campaign: xr.Dataset, config: PreprocessConfig | None = None) -> 
         for i in range(P):
             cs = CubicSpline(tt, clean[i])
             thr = cfg.threshold_factor * nstd[i]
-            # where the data's axis puts the truth's own time, exactly: the mean lives on the
-            # reference run's record (its command at t_c + that run's trigger offset), moved
-            # by the alignment's shift. (Until stop 39: the alignment rule applied to the
-            # noise-free truth, which differs from this by the noise's and the sampling
-            # phase's move of the data's crossing, under half a sample: docs/data-formats.md.)
-            truth_shift[i] = shift[i] + offs[i, ref[i]]
+            # where the data's axis puts the truth's own time: the mean is the average of the
+            # runs, each read at its own record moved by its synchronisation shift, so its
+            # time is the runs' average of (trigger offset - synchronisation shift), moved by
+            # the alignment's shift. (Stop 39 took the reference run's trigger offset alone:
+            # that differs from this by the synchronisation's average error, which is the
+            # reference run's own timing noise and moved the yardstick by about one run's
+            # timing error, several times a fitted t0's; until stop 39: the alignment rule
+            # applied to the noise-free truth. docs/data-formats.md, "The truth on the
+            # aligned axis".)
+            truth_shift[i] = shift[i] + float(np.mean(offs[i] - sync[i]))
             # the rule's inherent jitter: its crossing on the truth over ten sampling phases
             crossings = [_sampled_crossing(cs, time, ph * dt / 10, thr, cfg.hold)
                          for ph in range(10)]

@@ -561,3 +561,24 @@ def test_a_marginalised_resonance_is_projected_off_each_channel(setup):
     late = replace(WHITE, resonance=(31e3, 0.015, 1.0))          # onset 1 s after the window
     F2 = block_information(ps, names, x[None], dxdu, block, late, **kw)[0]
     np.testing.assert_allclose(F2, F0, rtol=1e-9, atol=1e-12 * np.abs(F0).max())
+
+
+def test_design_counts_the_alignment_noise_the_fit_counted():
+    """The design's noise model takes a channel's alignment timing noise from the fit only
+    where the fit counted it: its recorded timing sd beyond the stated one (combined in
+    quadrature), which since stop 40 is nothing for a signal whose own lag was fitted and
+    the alignment sd for one held fixed; older files without the timing sd: the
+    alignment sd."""
+    from gprm.design.core import _alignment_counted
+
+    a, st = 3e-7, 1e-7
+    stated = {"timing_sd_s": st, "per_signal": {"y_head": {"gain_sd": 0.0,
+                                                           "timing_sd_s": 0.0}}}
+    assert _alignment_counted({"alignment_sd_s": a, "timing_sd_s": st}, stated,
+                              "x_head") == 0.0
+    assert _alignment_counted({"alignment_sd_s": a, "timing_sd_s": float(np.hypot(st, a))},
+                              stated, "x_head") == pytest.approx(a, rel=1e-12)
+    # a per-signal statement overrides the global one
+    assert _alignment_counted({"alignment_sd_s": a, "timing_sd_s": a}, stated,
+                              "y_head") == pytest.approx(a, rel=1e-12)
+    assert _alignment_counted({"alignment_sd_s": a}, stated, "x_head") == a

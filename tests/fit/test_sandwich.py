@@ -544,16 +544,18 @@ def test_timing_error_moves_only_the_lags_it_is_absorbed_by():
     assert np.all(sd_time[~lags] < 1e-2 * sd_stat[~lags])
 
 
-def test_the_alignment_noise_switch_removes_only_that_timing_term():
-    """Each signal's timing error is the stated one combined with its alignment noise (the
-    mean's noise at the alignment time over its slope); ``alignment_noise=False`` (the
-    development check of docs/fitting.md, "The time axis of a campaign's truth") leaves the
-    stated part alone."""
+def test_alignment_noise_joins_only_the_signals_whose_own_lag_is_held_fixed():
+    """A fitted lag absorbs its signal's alignment noise exactly (the data and its place in
+    the aligned axis move together), so by default ("fixed-lags") a signal's timing error is
+    the stated one alone where its own lag is fitted, and the stated one combined with its
+    alignment noise (the mean's noise at the alignment time over its slope) where it is held
+    fixed; "all" (stop 39's default) adds it everywhere, "none" nowhere."""
     from dataclasses import replace
 
+    from gprm.fit.api import FitOptions
     from gprm.fit.objective import Objective, fit_data_from_means
     from gprm.fit.prior import default_prior
-    from gprm.fit.sandwich import error_model
+    from gprm.fit.sandwich import error_model, own_lag, propagate
     from gprm.params import paper
     from pathlib import Path
     sys.path.insert(0, str(Path(__file__).parent))
@@ -562,21 +564,46 @@ def test_the_alignment_noise_switch_removes_only_that_timing_term():
     p = paper()
     data = fit_data_from_means(make_means(p, seed=3), source="synthetic")
     data = replace(data, attrs={**data.attrs, "align_time": 1.01e-3})
-    obj = Objective.create(data, p)
-    x = p.vector(obj.names)
-    y = obj.model(x[None]).y[0]
-    J = -obj.model(x[None], jacobian=True).dy[0].reshape(-1, x.size) / \
-        data.sigma.reshape(-1, 1)
-    r = ((data.values - y) / data.sigma).reshape(-1)
-    prior = default_prior(p, obj.names)
+    assert [own_lag(s) for s in data.signals] == ["t0", "dt_x_head", "dt_y_base",
+                                                   "dt_y_head", "t1"]
     stated = 2e-8
-    on = error_model(obj, x, J, r, prior, Systematics(timing_sd=stated, estimate_gain=False))
-    off = error_model(obj, x, J, r, prior, Systematics(timing_sd=stated, estimate_gain=False,
-                                                       alignment_noise=False))
+
+    def parts(names, mode):
+        obj = Objective.create(data, p, names)
+        x = p.vector(obj.names)
+        y = obj.model(x[None]).y[0]
+        J = -obj.model(x[None], jacobian=True).dy[0].reshape(-1, x.size) / \
+            data.sigma.reshape(-1, 1)
+        r = ((data.values - y) / data.sigma).reshape(-1)
+        prior = default_prior(p, obj.names)
+        err = error_model(obj, x, J, r, prior, Systematics(timing_sd=stated,
+                                                           estimate_gain=False,
+                                                           alignment_noise=mode))
+        return obj, err, propagate(obj, x, J, prior, err, y)
+
+    every = tuple(FitOptions().parameters(p).fitted)       # the CLI's: the offsets fitted
+    assert {"t0", "t1", "dt_x_head", "dt_y_base", "dt_y_head"} <= set(every)
+    _, on, _ = parts(every, "fixed-lags")
     assert np.all(on.alignment_sd > 0)
-    np.testing.assert_allclose(on.timing_sd, np.hypot(stated, on.alignment_sd))
-    np.testing.assert_array_equal(off.timing_sd, stated)
-    np.testing.assert_array_equal(off.alignment_sd, on.alignment_sd)
+    np.testing.assert_array_equal(on.timing_sd, stated)
+    _, al, _ = parts(every, "all")
+    np.testing.assert_allclose(al.timing_sd, np.hypot(stated, al.alignment_sd))
+    _, no, _ = parts(every, "none")
+    np.testing.assert_array_equal(no.timing_sd, stated)
+    np.testing.assert_array_equal(no.alignment_sd, on.alignment_sd)
+    # dt_x_head held fixed: x_head's alignment noise joins its timing error, no other's
+    held = tuple(n for n in every if n != "dt_x_head")
+    obj, fx, V = parts(held, "fixed-lags")
+    k = list(data.signals).index("x_head")
+    want = np.full(len(data.signals), float(stated))
+    want[k] = np.hypot(stated, fx.alignment_sd[k])
+    np.testing.assert_allclose(fx.timing_sd, want)
+    # and it widens t0, now x_head's only lag
+    _, _, V0 = parts(held, "none")
+    i0 = list(obj.names).index("t0")
+    assert V.timing[i0, i0] > 1.5 * V0.timing[i0, i0]
+    with pytest.raises(GprmInputError, match="alignment_noise"):
+        Systematics(alignment_noise="yes")
 
 
 def test_fisher_g_test_is_exact_on_white_noise_and_finds_an_oscillation():

@@ -132,8 +132,22 @@ def _fit_window_and_rate(fm: FittedModel) -> tuple[tuple[float, float], float, d
         "s2": float(s2) if isinstance(s2, (int, float)) and np.isfinite(s2) else 1.0,
         "gain": tuple((k, float(v.get("gain_sd") or 0.0)) for k, v in syst.items()
                       if isinstance(v, dict)),
-        "align": tuple((k, float(v.get("alignment_sd_s") or 0.0)) for k, v in syst.items()
-                       if isinstance(v, dict))}
+        "align": tuple((k, _alignment_counted(v, det.get("stated") or {}, k))
+                       for k, v in syst.items() if isinstance(v, dict))}
+
+
+def _alignment_counted(entry: dict, stated: dict, signal: str) -> float:
+    """s: the alignment noise the fit counted in ``signal``'s timing error: its timing sd
+    beyond the stated one (the sandwich combines them in quadrature, and since stop 40 adds
+    the alignment's only where the signal's own lag is held fixed: gprm.fit.sandwich); a
+    file without the timing sd: its alignment sd."""
+    a_sd = float(entry.get("alignment_sd_s") or 0.0)
+    used = entry.get("timing_sd_s")
+    if not isinstance(used, (int, float)):
+        return a_sd
+    per = (stated.get("per_signal") or {}).get(signal) or {}
+    st = float(per.get("timing_sd_s", stated.get("timing_sd_s")) or 0.0)
+    return float(min(a_sd, np.sqrt(max(float(used) ** 2 - st ** 2, 0.0))))
 
 
 def prior_of(fm: FittedModel, width: float | None = None) -> Prior:

@@ -99,8 +99,9 @@ def fit_report(d: dict, *, min_correl: float = DEFAULT_MIN_CORREL) -> str:
         det = unc.get("details") or {}
         syst = det.get("systematics") if isinstance(det, dict) else None
         if isinstance(syst, dict) and syst:
-            lines.append("    systematics marginalised (1 sd; timing = stated (+) the alignment's "
-                         "noise, from the data; the crossing offset is where the fitted model "
+            lines.append("    systematics marginalised (1 sd; timing = stated, (+) the alignment's "
+                         "noise from the data where the signal's own lag is held fixed (a "
+                         "fitted lag absorbs it); the crossing offset is where the fitted model "
                          "crosses the alignment threshold against the data):")
             for sig, v in syst.items():
                 if isinstance(v, dict):

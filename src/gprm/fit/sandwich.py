@@ -30,11 +30,11 @@ independent ways, each from the data:
     with the priors the user states (:class:`Systematics`): a gain error g of signal s moves
     its data by g y_s (the model signal), a timing error by -tau dy_s/dt. Each is a rank-one
     term ``sd^2 (B v)(B v)^T``; a gain error the parameters can absorb therefore widens
-    exactly what it would bias. The timing sd of each signal also carries the alignment's
-    own error, estimated from the data: the mean's noise at the alignment time over its slope
-    (a conservative stand-in for the error of the aligned axis's anchor, the reference run's
-    own timing, which the synchronised runs cannot show: docs/fitting.md, "The time axis of
-    a campaign's truth").
+    exactly what it would bias. A signal whose own lag is held fixed also carries its
+    alignment's error, estimated from the data (the mean's noise at the alignment time over
+    its slope); where the lag is fitted it absorbs that error exactly, and the lag lives in
+    the aligned data's axis, so nothing is added (docs/fitting.md, "The time axis of a
+    campaign's truth").
     The fitted model's crossing offset (:func:`crossing_offsets`) is reported, not added:
     the lags live in the aligned data's time axis, which the offset does not make uncertain
     (docs/fitting.md, "The time axis of a campaign's truth").
@@ -68,6 +68,7 @@ from gprm.fit.starts import LMOptions
 from gprm.fit.uncertainty import CONTRACTION, Uncertainty
 from gprm.params import batch_from_vectors
 from gprm.simulate import observe
+from gprm.simulate.core import ROW_LAGS
 
 
 #: the per-source coverage study's headline for the report (benchmarks/bench_sources.py;
@@ -91,11 +92,12 @@ class Systematics:
     gain_sd: relative calibration (gain) error of each laser channel, 1 (default 0: an
     interferometer's displacement scale comes from its laser wavelength, so a stated default
     would be a guess; whatever gain error the residuals show is estimated and used anyway,
-    ``estimate_gain``; docs/fitting.md, "Instrument systematics"). timing_sd: s, timing offset of each channel beyond what the alignment fits
-    (default 0: each signal is aligned at its own threshold crossing and its lag is fitted,
-    docs/model.md, so a constant channel delay is absorbed; the alignment's own error is
-    estimated from the data and added). ``per_signal``: optional overrides
-    ``{signal: (gain_sd, timing_sd)}``.
+    ``estimate_gain``; docs/fitting.md, "Instrument systematics"). timing_sd: s, timing
+    offset of each channel beyond what the alignment fits (default 0: each signal is aligned
+    at its own threshold crossing and its lag is fitted, docs/model.md, so a constant channel
+    delay is absorbed; where a signal's lag is held fixed, the alignment's own error is
+    estimated from the data and added, ``alignment_noise``). ``per_signal``: optional
+    overrides ``{signal: (gain_sd, timing_sd)}``.
     """
 
     gain_sd: float = 0.0
@@ -109,11 +111,16 @@ class Systematics:
     #: stretch each side of an interval to z sds of the estimator linearised where the side
     #: ends (:func:`variance_factors`)
     variance_check: bool = True
-    #: add each signal's alignment noise (:func:`alignment_sd`) to its timing error; off: a
-    #: development check (docs/fitting.md, "The time axis of a campaign's truth")
-    alignment_noise: bool = True
+    #: which signals' alignment noise (:func:`alignment_sd`) joins their timing error:
+    #: "fixed-lags" (default) those whose own lag (:data:`OWN_LAG`) is not fitted, which
+    #: nothing else absorbs; "all" every signal (stop 39's default, a development check:
+    #: a fitted lag absorbs it exactly, so it only widens the lags); "none"
+    alignment_noise: str = "fixed-lags"
 
     def __post_init__(self):
+        if self.alignment_noise not in ALIGNMENT_NOISE:
+            raise GprmInputError(f"must be one of {', '.join(ALIGNMENT_NOISE)}, got "
+                                 f"{self.alignment_noise!r}", field="systematics.alignment_noise")
         for name in ("gain_sd", "timing_sd"):
             v = getattr(self, name)
             if isinstance(v, bool) or not isinstance(v, (int, float)) or not np.isfinite(v) \
@@ -242,6 +249,34 @@ def alignment_sd(obj: Objective, y: np.ndarray, dy: np.ndarray) -> np.ndarray:
         slope = max(abs(float(dy[s, k])), data_slope)
         out[s] = min(noise / slope, dt) if slope > 0 else dt
     return out
+
+
+#: the lag every signal is evaluated behind (gprm.simulate.observe): dy/dt = -dy/dt0
+#: (:func:`time_derivative`)
+ORIGIN_LAG = "t0"
+
+
+#: the choices of :attr:`Systematics.alignment_noise`
+ALIGNMENT_NOISE = ("fixed-lags", "all", "none")
+
+
+def own_lag(signal: str) -> str:
+    """The lag parameter that moves ``signal`` alone: t0 for the reference x_base, t1 for
+    z_bk, the alignment offset of the others (gprm.simulate.core.ROW_LAGS)."""
+    return ROW_LAGS.get(signal, (ORIGIN_LAG,))[-1]
+
+
+def alignment_noise_used(obj: Objective, mode: str = "fixed-lags") -> np.ndarray:
+    """(n_signals,) bool: whose alignment noise joins the signal's timing error under
+    ``mode`` (:attr:`Systematics.alignment_noise`): with "fixed-lags", the signals whose own
+    lag (:func:`own_lag`) the objective does not fit."""
+    signals = obj.data.signals
+    if mode == "all":
+        return np.ones(len(signals), bool)
+    if mode == "none":
+        return np.zeros(len(signals), bool)
+    fitted = set(getattr(obj, "names", ()))
+    return np.array([own_lag(s) not in fitted for s in signals])
 
 
 def crossing_offsets(obj: Objective, y: np.ndarray) -> np.ndarray:
@@ -485,11 +520,6 @@ class ErrorModel:
     whitenings: tuple | None = None
 
 
-#: the lag every signal is evaluated behind (gprm.simulate.observe): dy/dt = -dy/dt0
-#: (:func:`time_derivative`)
-ORIGIN_LAG = "t0"
-
-
 def _linearised(obj: Objective, x: np.ndarray, J: np.ndarray, prior: Prior,
                 y: np.ndarray | None = None):
     """(Ju, Hinv, B (P, S, T), y (S, T), dy (S, T)): the estimator's linearisation at ``x``
@@ -561,13 +591,15 @@ def error_model(obj: Objective, x: np.ndarray, J: np.ndarray, r: np.ndarray, pri
     # the truth in the data's axis while the offset is 1.7-2.8 us: docs/fitting.md)
     c_off = crossing_offsets(obj, y)
     g_sd = np.array([systematics.for_signal(s)[0] for s in d.signals])
-    # the alignment's noise: with every lag fitted it moved the data's axis rather than a
-    # lag's error in it, but it also stands in for the error of the axis's anchor, the
-    # reference run's own timing (its noise and shape through the synchronisation), which
-    # the synchronised runs cannot show; without it t0's intervals held the truth in the
-    # data's axis in 30-65 % at 68 % (docs/fitting.md, "The time axis of a campaign's truth")
-    t_sd = np.array([np.hypot(systematics.for_signal(s)[1],
-                              a_sd[i] if systematics.alignment_noise else 0.0)
+    # the alignment's noise moves a signal's data and its place in the data's axis together:
+    # a fitted lag absorbs it exactly and is estimated in that axis, so it is no error there.
+    # A signal whose own lag is held fixed cannot follow it. (Stop 39 added it to every
+    # signal, as a stand-in for an error of the axis's anchor, the reference run's timing:
+    # that was the studies' yardstick erring, which took the reference run's trigger offset
+    # for the time of the runs' average; docs/fitting.md, "The time axis of a campaign's
+    # truth".)
+    used = alignment_noise_used(obj, systematics.alignment_noise)
+    t_sd = np.array([np.hypot(systematics.for_signal(s)[1], a_sd[i] if used[i] else 0.0)
                      for i, s in enumerate(d.signals)])
     g_est = estimate_gain_sd(Ju, Hinv, R, y, d.sigma, d.runs, max_lag=L)
     if systematics.estimate_gain:

@@ -45,7 +45,7 @@ SPREAD_OF = ("t0", "t1", "dt_x_head", "dt_y_base", "dt_y_head", "d2", "k_Bx", "c
 
 def one_campaign(seed: int, starts: int, n_boot: int, grids, acc, diag) -> None:
     sf = bc.synthetic_fit(seed, starts)
-    truth, truth_t, fit = sf.truth, sf.truth_t, sf.fit
+    truth_t, fit = sf.truth_t, sf.fit
     lap, prior, x, names = fit.uncertainty, fit.prior, fit.x, list(fit.names)
     refits = parametric_bootstrap(fit.objective(), x, n_boot=n_boot, seed=seed)
 
@@ -84,7 +84,7 @@ def one_campaign(seed: int, starts: int, n_boot: int, grids, acc, diag) -> None:
                     int(un.lower68[i] <= tv <= un.upper68[i]), 1)
         fm = FittedModel(fit.params, un.covariance, piezo=2, draws=un.draws,
                          uncertainty="generator-bootstrap")
-        q = bc.prediction_cover(fm, truth, default_times(), 200, seed)
+        q = bc.prediction_cover(fm, truth_t, default_times(), 200, seed)
         add("overshoots", q["in95"], q["in68"], q["n"])
         for g in grids:
             q = bc.energy_cover(fm, truth_t, 200, seed, n_points=g)

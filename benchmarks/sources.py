@@ -133,16 +133,20 @@ def make(source: str, seed: int, workdir: str | None = None):
 
 def frame_shift(campaign, means) -> np.ndarray:
     """(signals,) s: where the preprocessed means put the source's own time, per signal: the
-    trigger offset of the run the others were synchronised to plus the shift preprocessing
-    moved the mean by. The truth's lag of a signal in the fit's aligned time base is its own
-    lag plus this (``campaign``: the Dataset or CSV folder ``make`` returned; ``means``:
-    gprm.campaign.preprocess.MeanSignals). gprm's generator: preprocessing's own
-    ``truth_shift``, which is this; sim2: its truth.json's trigger jitter."""
+    runs' average of (trigger offset - synchronisation shift), the time of the average of the
+    synchronised runs, plus the shift preprocessing moved the mean by. The truth's lag of a
+    signal in the fit's aligned time base is its own lag plus this (``campaign``: the Dataset
+    or CSV folder ``make`` returned; ``means``: gprm.campaign.preprocess.MeanSignals). gprm's
+    generator: preprocessing's own ``truth_shift``, which is this; sim2: from its
+    truth.json's trigger jitter. (Stop 39 took the reference run's trigger offset: off by the
+    synchronisation's average error, docs/fitting.md, "The time axis of a campaign's
+    truth".)"""
     if means.truth_shift is not None:
         return np.asarray(means.truth_shift, float)
     import json
 
     real = json.loads((Path(campaign) / "truth.json").read_text())["realisation"]
     jitter = dict(zip(real["positions"], real["trigger_jitter_s"]))
-    return np.array([float(means.shift[i]) + float(jitter[s][int(means.reference_run[i])])
+    return np.array([float(means.shift[i])
+                     + float(np.mean(np.asarray(jitter[s], float) - means.sync_shift[i]))
                      for i, s in enumerate(means.signals)])

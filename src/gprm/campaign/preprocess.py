@@ -433,8 +433,8 @@ def preprocess(campaign: xr.Dataset, config: PreprocessConfig | None = None) -> 
             # that differs from this by the synchronisation's average error, which is the
             # reference run's own timing noise and moved the yardstick by about one run's
             # timing error, several times a fitted t0's; until stop 39: the alignment rule
-            # applied to the noise-free truth. docs/data-formats.md, "The truth on the
-            # aligned axis".)
+            # applied to the noise-free truth. docs/data-formats.md, "The truth after
+            # alignment, and what t0 means".)
             truth_shift[i] = shift[i] + float(np.mean(offs[i] - sync[i]))
             # the rule's inherent jitter: its crossing on the truth over ten sampling phases
             crossings = [_sampled_crossing(cs, time, ph * dt / 10, thr, cfg.hold)

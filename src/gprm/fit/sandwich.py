@@ -112,7 +112,7 @@ class Systematics:
     #: ends (:func:`variance_factors`)
     variance_check: bool = True
     #: which signals' alignment noise (:func:`alignment_sd`) joins their timing error:
-    #: "fixed-lags" (default) those whose own lag (:data:`OWN_LAG`) is not fitted, which
+    #: "fixed-lags" (default) those whose own lag (:func:`own_lag`) is not fitted, which
     #: nothing else absorbs; "all" every signal (stop 39's default, a development check:
     #: a fitted lag absorbs it exactly, so it only widens the lags); "none"
     alignment_noise: str = "fixed-lags"

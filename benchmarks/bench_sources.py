@@ -437,7 +437,7 @@ def main(argv=None) -> int:
         print(parameter_table(rows))
         return 0
     srcs = [s for s in a.sources.split(",") if s]
-    known = sources.SOURCES + sources.PROBES + sources.NOISE_SCAN
+    known = sources.SOURCES + sources.PROBES + sources.NOISE_SCAN + sources.SIM2_ALONE
     unknown = [s for s in srcs if s not in known]
     if unknown:
         ap.error(f"unknown source(s) {unknown}; one of {', '.join(known)}")

@@ -44,8 +44,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 # the coverage study's truths: the 21 physical parameters, each x U(0.9, 1.1) of Table 3
 from bench_coverage import PHYSICAL, draw_truth  # noqa: E402
 
-__all__ = ["NOISE_SCAN", "PHYSICAL", "PROBES", "SOURCES", "draw_truth", "frame_shift",
-           "make"]
+__all__ = ["NOISE_SCAN", "PHYSICAL", "PROBES", "SIM2_ALONE", "SOURCES", "draw_truth", "frame_shift",
+           "make", "sim2_imperfections"]
 
 
 _OFF = dict(nonlinear=False, mode_rel=0.0, trigger_max=0.0, v0_rel=0.0, tau_rel=0.0,
@@ -78,6 +78,9 @@ PROBES = ("probe-mode-12k", "probe-noise-4x", "probe-runs-3", "probe-sim2-2x")
 #: the exact model with white noise at 2x and 3x ``white``'s: where between 1x and the 4x
 #: probe the x-plane B support's intervals stop holding (docs/fitting.md)
 NOISE_SCAN = ("noise-2x", "noise-3x")
+#: sim2 with one of its own imperfections at its default size and the others off (its white
+#: floor stays): which of them a shortfall on ``sim2`` comes from (docs/fitting.md)
+SIM2_ALONE = ("sim2-jitter", "sim2-drive", "sim2-gain", "sim2-resonance", "sim2-noise")
 _PROBE_CONFIG = {"probe-mode-12k": {**_OFF, "mode_rel": 0.015, "mode_freq": 12e3},
                  "probe-noise-4x": {**_OFF, "noise_white": 2e-9},
                  "probe-runs-3": {"n_runs": 3},
@@ -90,17 +93,27 @@ def _sim2():
     return sim2
 
 
+def sim2_imperfections(source: str):
+    """sim2's Imperfections for a sim2 source: ``sim2`` its defaults, ``sim2-white`` none
+    (white noise), ``probe-sim2-2x`` each at twice its default, ``sim2-<name>``
+    (:data:`SIM2_ALONE`) that one alone at its default."""
+    sim2 = _sim2()
+    if source == "probe-sim2-2x":
+        return replace(sim2.PRESETS["default"], jitter=2.0, drive=2.0, gain=2.0,
+                       resonance=2.0, noise=2.0)
+    if source in SIM2_ALONE:
+        return replace(sim2.PRESETS["white"], **{source.split("-", 1)[1]: 1.0})
+    if source in ("sim2", "sim2-white"):
+        return sim2.PRESETS["white" if source == "sim2-white" else "default"]
+    raise ValueError(f"not a sim2 source: {source!r}")
+
+
 def make(source: str, seed: int, workdir: str | None = None):
     """(campaign, truth): a Dataset for gprm's generator, a CSV folder for sim2."""
     if source.startswith("sim2") or source == "probe-sim2-2x":
         sim2 = _sim2()
         out = Path(workdir or tempfile.mkdtemp(prefix="gprm-sim2-")) / f"{source}-{seed}"
-        if source == "probe-sim2-2x":
-            imp = replace(sim2.PRESETS["default"], jitter=2.0, drive=2.0, gain=2.0,
-                          resonance=2.0, noise=2.0)
-        else:
-            imp = sim2.PRESETS["white" if source == "sim2-white" else "default"]
-        truth = sim2.make_campaign(out, seed, imperfections=imp)
+        truth = sim2.make_campaign(out, seed, imperfections=sim2_imperfections(source))
         values = truth["parameters"]
         return out, paper().with_values(**{k: float(v) for k, v in values.items()
                                             if k in paper().values})

@@ -197,3 +197,23 @@ def test_white_preset_is_white_noise_only(monkeypatch):
     monkeypatch.setattr(sim2, "DRIFT_SD", 0.0)
     y = np.stack([sim2._noise(rng, 301, sim2.Imperfections(), h) for _ in range(400)])
     assert np.sqrt(np.mean(y ** 2)) == pytest.approx(5e-10, rel=0.1)
+
+
+def test_the_sources_that_switch_on_one_sim2_imperfection_at_a_time():
+    """benchmarks/sources.py's sim2-<name> sources (each of sim2's imperfections alone, the
+    others off, its white floor kept) and the named presets: each source gets the strengths
+    its name says."""
+    import sources
+
+    fields = ("jitter", "drive", "gain", "resonance", "noise")
+    assert sources.SIM2_ALONE == tuple(f"sim2-{f}" for f in fields)
+    for f in fields:
+        imp = sources.sim2_imperfections(f"sim2-{f}")
+        assert {g: getattr(imp, g) for g in fields} == {g: float(g == f) for g in fields}
+        assert imp.nonlinear == 0.0 and imp.noise_floor == sim2.Imperfections().noise_floor
+    assert sources.sim2_imperfections("sim2") == sim2.PRESETS["default"]
+    assert sources.sim2_imperfections("sim2-white") == sim2.PRESETS["white"]
+    twice = sources.sim2_imperfections("probe-sim2-2x")
+    assert all(getattr(twice, f) == 2.0 for f in fields)
+    with pytest.raises(ValueError, match="not a sim2 source"):
+        sources.sim2_imperfections("generator")

@@ -39,6 +39,7 @@ from gprm.campaign.preprocess import PreprocessConfig, preprocess  # noqa: E402
 from gprm.fit.api import FitOptions  # noqa: E402
 from gprm.fit.identify import identify  # noqa: E402
 from gprm.fit.objective import fit_data_from_means  # noqa: E402
+from gprm.fit.sandwich import ALIGNMENT_NOISE, Systematics  # noqa: E402
 from gprm.fit.starts import MultiStartOptions  # noqa: E402
 from gprm.params import paper  # noqa: E402
 
@@ -100,7 +101,7 @@ def run_case(source: str, seed: int, starts: int, cache: str | None) -> Case:
         with open(path, "rb") as f:
             got = _CaseUnpickler(f).load()
         case = Case(**got) if isinstance(got, dict) else got
-        if case.frame_shift is None or case.frame_axis != FRAME_AXIS:
+        if case.frame_axis != FRAME_AXIS:
             # a cache from before the frame shift was kept, or kept by another definition:
             # the campaign made again (its seed fixes it) for that one number, the fit
             # untouched
@@ -140,8 +141,8 @@ def intervals(case: Case, unc):
 
 def truth_in_fit_time(case: Case):
     """The truth with its lag t0 in the fit's aligned time base: t0 plus the case's frame
-    shift (the trigger offset of the run the others were synchronised to, plus the shift
-    preprocessing moved x_base's mean by). This is the time axis the data were given, and so
+    shift (``sources.frame_shift`` of x_base: the time of the mean of its synchronised runs,
+    plus the shift preprocessing moved it by). This is the time axis the data were given, and so
     the one every fitted lag and prediction lives in, exactly, whatever the source adds at the
     onset. (Until stop 39 the shift was the alignment rule applied to the model's noise-free
     x_base: on sources whose onset carries something the model lacks, an unmodelled mode
@@ -173,16 +174,15 @@ def prediction_scores(case: Case, u, samples: int = 200) -> dict:
 
 
 def score(case: Case, method: str, predictions: bool = False, *,
-          alignment_noise: str = "fixed-lags") -> dict:
+          alignment_noise: str | None = None) -> dict:
     """The case's coverage with ``method`` (its uncertainty computed once for the parameters,
     t0 and the predictions); ``alignment_noise``: the sandwich's
-    ``Systematics.alignment_noise`` (other than the default: a development check,
+    ``Systematics.alignment_noise`` (None: its default; another: a development check,
     docs/fitting.md, "The time axis of a campaign's truth", labelled as such in the
     tables)."""
     from gprm.fit.methods import uncertainty_of
-    from gprm.fit.sandwich import Systematics
 
-    default = alignment_noise == Systematics().alignment_noise
+    default = alignment_noise in (None, Systematics().alignment_noise)
     unc = uncertainty_of(case.fit, method, systematics=None if default else
                          Systematics(alignment_noise=alignment_noise))
     names, ident, lv, best, share = intervals(case, unc)
@@ -409,8 +409,8 @@ def main(argv=None) -> int:
                     help="campaigns as Dask tasks on the cluster of this scheduler address")
     ap.add_argument("--predictions", action="store_true",
                     help="also score overshoots, KE histogram and velocity curves (slower)")
-    ap.add_argument("--alignment-noise", default="fixed-lags",
-                    choices=("fixed-lags", "all", "none"),
+    ap.add_argument("--alignment-noise", default=Systematics().alignment_noise,
+                    choices=ALIGNMENT_NOISE,
                     help="whose alignment noise joins a signal's timing error in the "
                     "sandwich (Systematics.alignment_noise; other than the default: a "
                     "development check, the rows labelled so; all: stop 39's default)")

@@ -37,6 +37,7 @@ from pathlib import Path
 
 import numpy as np
 
+from gprm.campaign.preprocess import truth_axis_shift
 from gprm.campaign.synth import SynthConfig, nonlinear_correction, synth_campaign
 from gprm.params import paper
 
@@ -44,8 +45,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 # the coverage study's truths: the 21 physical parameters, each x U(0.9, 1.1) of Table 3
 from bench_coverage import PHYSICAL, draw_truth  # noqa: E402
 
-__all__ = ["NOISE_SCAN", "PHYSICAL", "PROBES", "SIM2_ALONE", "SOURCES", "draw_truth", "frame_shift",
-           "make", "sim2_imperfections"]
+__all__ = ["NOISE_SCAN", "PHYSICAL", "PROBES", "SIM2_ALONE", "SOURCES", "draw_truth",
+           "frame_shift", "make", "sim2_imperfections"]
 
 
 _OFF = dict(nonlinear=False, mode_rel=0.0, trigger_max=0.0, v0_rel=0.0, tau_rel=0.0,
@@ -150,8 +151,8 @@ def frame_shift(campaign, means) -> np.ndarray:
     synchronised runs, plus the shift preprocessing moved the mean by. The truth's lag of a
     signal in the fit's aligned time base is its own lag plus this (``campaign``: the Dataset
     or CSV folder ``make`` returned; ``means``: gprm.campaign.preprocess.MeanSignals). gprm's
-    generator: preprocessing's own ``truth_shift``, which is this; sim2: from its
-    truth.json's trigger jitter. (Stop 39 took the reference run's trigger offset: off by the
+    generator: preprocessing's own ``truth_shift``, which is this; sim2: the same rule
+    (gprm.campaign.preprocess.truth_axis_shift) on its truth.json's trigger jitter. (Stop 39 took the reference run's trigger offset: off by the
     synchronisation's average error, docs/fitting.md, "The time axis of a campaign's
     truth".)"""
     if means.truth_shift is not None:
@@ -160,6 +161,4 @@ def frame_shift(campaign, means) -> np.ndarray:
 
     real = json.loads((Path(campaign) / "truth.json").read_text())["realisation"]
     jitter = dict(zip(real["positions"], real["trigger_jitter_s"]))
-    return np.array([float(means.shift[i])
-                     + float(np.mean(np.asarray(jitter[s], float) - means.sync_shift[i]))
-                     for i, s in enumerate(means.signals)])
+    return truth_axis_shift(means.shift, [jitter[s] for s in means.signals], means.sync_shift)

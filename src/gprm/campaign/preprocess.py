@@ -207,6 +207,19 @@ def _sampled_crossing(f, time: np.ndarray, delay: float, threshold: float, hold:
     return None if tx is None else tx - delay
 
 
+def truth_axis_shift(shift, trigger_offset, sync_shift) -> np.ndarray:
+    """(signals,) s: where the aligned means put a source's own time (its command at t_c),
+    per signal: the time of the mean of the synchronised runs, i.e. the runs' average of
+    (trigger offset - synchronisation shift), plus the alignment shift. ``shift`` (signals,),
+    ``trigger_offset`` and ``sync_shift`` (signals, runs), all s: the source's offsets, and
+    the synchronisation's (MeanSignals.sync_shift). (Stop 39 took the reference run's
+    trigger offset alone, which differs by the synchronisation's average error: about the
+    reference run's own timing error; docs/data-formats.md, "The truth after alignment, and
+    what t0 means".)"""
+    return (np.asarray(shift, float)
+            + np.mean(np.asarray(trigger_offset, float) - np.asarray(sync_shift, float), axis=1))
+
+
 def alignment_shift(time, y, threshold: float, *, align_time: float = 1.0e-3,
                     hold: int = 1) -> float | None:
     """The step-3 alignment applied to one sampled signal (for example a model output on the
@@ -420,22 +433,12 @@ def preprocess(campaign: xr.Dataset, config: PreprocessConfig | None = None) -> 
                            float)
         offs = (np.asarray(campaign["trigger_offset"].sel(position=list(POSITIONS)).values)
                 if "trigger_offset" in campaign.variables else np.zeros((P, R)))
-        truth_shift = np.empty(P)
+        truth_shift = truth_axis_shift(shift, offs, sync)
         truth_spread = np.empty(P)
         truth_mean = np.empty_like(mean)
         for i in range(P):
             cs = CubicSpline(tt, clean[i])
             thr = cfg.threshold_factor * nstd[i]
-            # where the data's axis puts the truth's own time: the mean is the average of the
-            # runs, each read at its own record moved by its synchronisation shift, so its
-            # time is the runs' average of (trigger offset - synchronisation shift), moved by
-            # the alignment's shift. (Stop 39 took the reference run's trigger offset alone:
-            # that differs from this by the synchronisation's average error, which is the
-            # reference run's own timing noise and moved the yardstick by about one run's
-            # timing error, several times a fitted t0's; until stop 39: the alignment rule
-            # applied to the noise-free truth. docs/data-formats.md, "The truth after
-            # alignment, and what t0 means".)
-            truth_shift[i] = shift[i] + float(np.mean(offs[i] - sync[i]))
             # the rule's inherent jitter: its crossing on the truth over ten sampling phases
             crossings = [_sampled_crossing(cs, time, ph * dt / 10, thr, cfg.hold)
                          for ph in range(10)]

@@ -184,6 +184,20 @@ def test_report_names_other_minima_and_the_parameters_they_widen_most():
     assert "other minima" not in fit_report(d)
 
 
+def test_report_lists_the_parameters_whose_variance_has_few_degrees_of_freedom():
+    """Student's t: the uncertainty block lists, fewest first, each parameter whose variance
+    has fewer than STUDENT_SHOWN degrees of freedom with the part they came from (indexed
+    like the correlation's names); none such, no line."""
+    d = _new_format()
+    d["uncertainty"] = {"method": "sandwich", "details": {
+        "degrees_of_freedom": [12.0, None, 5.5],
+        "degrees_of_freedom_from": ["runs", None, "residuals"]}}
+    line = next(ln for ln in fit_report(d).splitlines() if "Student" in ln)
+    assert line.endswith("kz 5.5 (residuals), v2 12 (runs)") and "g2" not in line
+    d["uncertainty"]["details"]["degrees_of_freedom"] = [40.0, None, None]
+    assert "Student" not in fit_report(d)
+
+
 def test_report_says_the_runs_were_moved_through_the_model():
     """A fit whose runs carried a sub-sample remainder says so, with the largest remainder
     and change of the mean (fit.json ``polish.subsample``); a fit without one says nothing."""

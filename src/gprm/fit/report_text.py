@@ -66,6 +66,11 @@ def correlations_above(corr: dict | None, min_correl: float = DEFAULT_MIN_CORREL
     return sorted(out, key=lambda t: -abs(t[2]))
 
 
+#: `gprm show` lists the parameters whose variance has fewer degrees of freedom than this
+#: (Student's t widens their 95 % interval by more than about 6 %)
+STUDENT_SHOWN = 30.0
+
+
 def fit_report(d: dict, *, min_correl: float = DEFAULT_MIN_CORREL) -> str:
     """lmfit-style report of a fit dictionary (the content of fit.json)."""
     lines = [f"[[Fit]] model {d.get('model', '?')}, piezo {d.get('piezo', '?')}, "
@@ -126,6 +131,20 @@ def fit_report(d: dict, *, min_correl: float = DEFAULT_MIN_CORREL) -> str:
                          f"{alt.get('distinct', '?')} other minima near it (starts' end points, "
                          "polished); the intervals include them"
                          + (f" (widened most: {', '.join(wide)})" if wide else ""))
+        dof = det.get("degrees_of_freedom") if isinstance(det, dict) else None
+        if isinstance(dof, list) and dof:
+            names = list((d.get("correlation") or {}).get("names")
+                         or [n for n, p in (d.get("parameters") or {}).items()
+                             if p.get("fitted", False)])
+            src = det.get("degrees_of_freedom_from") or [None] * len(dof)
+            few = [(names[i], v, src[i] if i < len(src) else None)
+                   for i, v in enumerate(dof)
+                   if i < len(names) and _finite(v) and v < STUDENT_SHOWN]
+            if few:
+                lines.append("    Student's t (variance estimated from few degrees of freedom; "
+                             "nu, from): " + ", ".join(
+                                 f"{n} {_g(v, '.3g')}" + (f" ({s})" if s else "")
+                                 for n, v, s in sorted(few, key=lambda t: t[1])))
         factors = (unc.get("calibration") or {}).get("factors") or {}
         if isinstance(factors, dict) and factors:
             lines.append("    mismatch calibration (sd x factor): "

@@ -174,19 +174,25 @@ def prediction_scores(case: Case, u, samples: int = 200) -> dict:
 
 
 def score(case: Case, method: str, predictions: bool = False, *,
-          alignment_noise: str | None = None) -> dict:
+          alignment_noise: str | None = None, residual_dof: bool | None = None) -> dict:
     """The case's coverage with ``method`` (its uncertainty computed once for the parameters,
-    t0 and the predictions); ``alignment_noise``: the sandwich's
-    ``Systematics.alignment_noise`` (None: its default; another: a development check,
-    docs/fitting.md, "The time axis of a campaign's truth", labelled as such in the
-    tables)."""
+    t0 and the predictions); ``alignment_noise``, ``residual_dof``: the sandwich's
+    ``Systematics.alignment_noise`` and ``Systematics.residual_dof`` (None: the default;
+    another: a development check, docs/fitting.md, labelled as such in the tables)."""
     from gprm.fit.methods import uncertainty_of
 
-    default = alignment_noise in (None, Systematics().alignment_noise)
+    d0 = Systematics()
+    align = d0.alignment_noise if alignment_noise is None else alignment_noise
+    rdof = d0.residual_dof if residual_dof is None else bool(residual_dof)
+    default = (align, rdof) == (d0.alignment_noise, d0.residual_dof)
     unc = uncertainty_of(case.fit, method, systematics=None if default else
-                         Systematics(alignment_noise=alignment_noise))
+                         Systematics(alignment_noise=align, residual_dof=rdof))
     names, ident, lv, best, share = intervals(case, unc)
-    label = method if default else f"{method}, alignment noise {alignment_noise}"
+    label = method
+    if align != d0.alignment_noise:
+        label += f", alignment noise {align}"
+    if rdof != d0.residual_dof:
+        label += ", residuals' t " + ("on" if rdof else "off")
     out = {"source": case.source, "seed": case.seed, "method": label,
            "n_identified": 0, "n_all": 0, "best_outside": 0, "n_prior": 0}
     for L in LEVELS:
@@ -387,12 +393,13 @@ def misses_table(rows: list[dict]) -> str:
 
 def _job(index: int, jobs: list):
     """Job ``index`` of ``jobs`` (source, seed, starts, cache, methods, predictions,
-    alignment noise): its scores and the seconds its fit took. A Dask task of
+    alignment noise, residuals' t): its scores and the seconds its fit took. A Dask task of
     benchmarks/_studies.py's map_seeds, which keys tasks by an integer; the result depends
     only on the job."""
-    source, seed, starts, cache, methods, predictions, align = jobs[index]
+    source, seed, starts, cache, methods, predictions, align, rdof = jobs[index]
     case = run_case(source, seed, starts, cache)
-    return [score(case, m, predictions, alignment_noise=align) for m in methods], case.seconds
+    return ([score(case, m, predictions, alignment_noise=align, residual_dof=rdof)
+             for m in methods], case.seconds)
 
 
 def main(argv=None) -> int:
@@ -414,6 +421,10 @@ def main(argv=None) -> int:
                     help="whose alignment noise joins a signal's timing error in the "
                     "sandwich (Systematics.alignment_noise; other than the default: a "
                     "development check, the rows labelled so; all: stop 39's default)")
+    ap.add_argument("--no-residual-dof", action="store_true",
+                    help="Student's t for the runs' part only, not where the residuals' "
+                    "kernel estimate leads (Systematics.residual_dof=False: stop 37-40's "
+                    "method, a development check, the rows labelled so)")
     ap.add_argument("--json")
     ap.add_argument("--cache")
     ap.add_argument("--from-json", nargs="+")
@@ -443,7 +454,7 @@ def main(argv=None) -> int:
         ap.error(f"unknown source(s) {unknown}; one of {', '.join(known)}")
     methods = [m for m in a.methods.split(",") if m]
     jobs = [(s, a.seed + i, a.starts, a.cache, methods, a.predictions,
-             a.alignment_noise) for s in srcs
+             a.alignment_noise, not a.no_residual_dof) for s in srcs
             for i in range(a.campaigns)]
     t0 = time.perf_counter()
     rows: list[dict] = []

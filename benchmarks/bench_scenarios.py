@@ -1,7 +1,7 @@
 """Benchmark of the impact scenarios (issue 23, docs/flight.md §10-11):
 `.venv/bin/python benchmarks/bench_scenarios.py [--observations [--tm-offset MM ...]]
 [--recovery] [--likelihood-study] [--refine-study] [--oracle-study] [--geometry-study]
-[--mixture-choice [--sets M]] [--impact-times]
+[--mixture-choice [--sets M]] [--pooled-choice [--sets M]] [--impact-times]
 [--seeds N] [--seed0 S] [--releases R] [--draws K]`.
 
 `--observations`: for every scenario of `gprm.flight.scenario.SCENARIOS`, N campaigns of R
@@ -33,6 +33,11 @@ contact geometry and masses for every parameter set) against ones with each set'
 `--mixture-choice`: on the likelihood study's kind of truths, the scenario chosen per release
 under the method's Gaussian summary of the parameter sets and under their exact mixture (M
 sets, three floors): whether the choice is limited by the Gaussian or by marginalising the fit.
+
+`--pooled-choice`: truths whose parameter set is drawn once per file (one mechanism) or per
+release, each release's scenario chosen under the exact mixture over M sets weighted equally
+or by the file's other releases (whether sharing the mechanism across releases recovers what
+the oracle study says knowing the set allows).
 
 `--impact-times`: the impact-time analysis (issue 14's) on scenario truths, per impact model.
 Prints markdown."""
@@ -464,6 +469,82 @@ def oracle_study(fm, seed: int, truths: int, draws: int) -> dict:
     return {"sigma": [float(x) for x in sigma], "variants": res}
 
 
+class _OneSet:
+    """The fit ``fm`` with every draw of its parameter sets the same one (seeded): a file of
+    releases of one mechanism, whose parameter set is one draw of the fit's uncertainty."""
+
+    def __init__(self, fm, seed: int):
+        self._fm, self._seed = fm, int(seed)
+
+    def __getattr__(self, name):
+        return getattr(self._fm, name)
+
+    def sample(self, n: int, seed: int = 0) -> dict:
+        one = self._fm.sample(1, seed=self._seed)
+        return {k: np.repeat(np.atleast_1d(v)[:1], n) for k, v in one.items()}
+
+
+def pooled_choice_study(fm, seeds, releases: int, draws: int, n_model: int) -> dict:
+    """Can the other releases of a file tell the per-release choice which parameter set the
+    mechanism has (docs/flight.md §11)? On truths of xz, yz, two (TM centred), with the
+    file's parameter set drawn once (``shared``: one mechanism) or per release (``per
+    release``: as ``draw_truths`` draws them), the velocities measured with the median
+    telemetry σ; each release's scenario chosen by the evidence under the exact mixture
+    over ``n_model`` parameter sets with the method's floor and allowance, the sets weighted
+    equally (``unpooled``) or by their likelihood given the file's other releases
+    (``pooled``: p(set | others) ∝ Π over the others of the mean over scenarios of each
+    one's evidence at that set). Also the median effective number of sets the pooled
+    weights keep."""
+    from scipy.special import logsumexp
+
+    from gprm.flight.inference import InferenceOptions
+    from gprm.flight.scenario import COMPARED, ScenarioPrior, draw_truths
+
+    prior = ScenarioPrior(tm_offset=0.0)
+    opts = InferenceOptions(n_draws=draws, n_model=n_model)
+    raw = set_velocities(fm, opts, prior)
+    floor = np.array([opts.floor[0]] * 3 + [opts.floor[1]] * 3)
+    sig = np.nanmedian(np.concatenate([s_ for *_, s_ in scenario_campaigns(fm, [0], 11)]), 0)
+    sig = np.nan_to_num(sig)
+    rng = np.random.default_rng([int(seeds[0]), 41])
+
+    def per_set_logz(y):
+        out = []
+        for k in COMPARED:
+            Y, ok = raw[k]
+            Yn = np.nan_to_num(Y)
+            var = sig ** 2 + floor ** 2 + (opts.rel_floor * Yn) ** 2
+            lp = -0.5 * np.sum((y - Yn) ** 2 / var + np.log(2 * np.pi * var), -1)
+            lp = np.where(ok, lp, -np.inf)
+            out.append(logsumexp(lp, axis=1) - np.log(Y.shape[1]))
+        return np.array(out)                                   # (scenarios, sets)
+
+    res: dict = {}
+    for mode in ("shared", "per release"):
+        ess = []
+        for s in seeds:
+            for ik, kind in enumerate(COMPARED):
+                m = _OneSet(fm, 7 * s + ik) if mode == "shared" else fm
+                tr = draw_truths(m, [kind] * releases, s + SCENARIO_SEED_STRIDE * ik, prior)
+                y = tr.velocity + sig * rng.standard_normal(tr.velocity.shape)
+                L = np.array([per_set_logz(yi) for yi in y])   # (R, K, M)
+                marg = logsumexp(L, axis=1) - np.log(len(COMPARED))
+                for i in range(len(y)):
+                    lw = marg[np.arange(len(y)) != i].sum(0)
+                    lw = lw - logsumexp(lw)
+                    ess.append(float(np.exp(-logsumexp(2 * lw))))
+                    for name, lz in (("unpooled", logsumexp(L[i], axis=1)),
+                                     ("pooled", logsumexp(L[i] + lw, axis=1))):
+                        r = res.setdefault((mode, name), {"n": 0, "right": 0, "confusion": {}})
+                        chosen = COMPARED[int(np.argmax(lz))]
+                        r["n"] += 1
+                        r["right"] += chosen == kind
+                        count(r["confusion"], kind, chosen)
+        for name in ("unpooled", "pooled"):
+            res[(mode, name)]["ess_median"] = float(np.median(ess))
+    return {"n_model": n_model, "variants": res}
+
+
 def per_set_predictives(fm, opts, prior) -> dict:
     """The method's prior predictives with **each parameter set's own** contact geometry,
     TM centre and masses (the points of ``named_points`` move with the fitted v2, g2,
@@ -593,8 +674,13 @@ def main() -> None:
     ap.add_argument("--mixture-choice", action="store_true",
                     help="the per-release choice under the Gaussian summary of the parameter "
                          "sets and under their exact mixture (--sets N of them; §11)")
+    ap.add_argument("--pooled-choice", action="store_true",
+                    help="the per-release choice with the parameter set pooled over the "
+                         "file's other releases, on truths with one set per file and one "
+                         "per release (--sets N; §11)")
     ap.add_argument("--sets", type=int, default=48,
-                    help="--mixture-choice: parameter sets from the fit (n_model)")
+                    help="--mixture-choice, --pooled-choice: parameter sets from the fit "
+                         "(n_model)")
     ap.add_argument("--tm-offset", type=float, nargs="+", default=None, metavar="MM",
                     help="--observations: the TM's largest lateral offset from the head "
                          "axis, mm (one table per value; default: ScenarioPrior's)")
@@ -613,6 +699,7 @@ def main() -> None:
           f"{'--oracle-study ' if a.oracle_study else ''}"
           f"{'--geometry-study ' if a.geometry_study else ''}"
           f"{'--mixture-choice --sets ' + str(a.sets) + ' ' if a.mixture_choice else ''}"
+          f"{'--pooled-choice --sets ' + str(a.sets) + ' ' if a.pooled_choice else ''}"
           f"{'--scenario ' + a.scenario + ' ' if a.scenario != 'two' else ''}"
           f"--seeds {a.seeds} --seed0 {a.seed0} --releases {a.releases} --draws {a.draws}"
           + ("" if a.rel_floor is None else f" --rel-floor {a.rel_floor}")
@@ -727,6 +814,19 @@ def main() -> None:
         for v, r in out["variants"].items():
             print(f"| {v} | {r['right']}/{r['n']} ({100 * r['right'] / r['n']:.1f} %) | "
                   + ", ".join(f"{k} {c}" for k, c in sorted(r["confusion"].items())) + " |")
+        print()
+    if a.pooled_choice:
+        t0 = time.perf_counter()
+        out = pooled_choice_study(fm, seeds, a.releases, a.draws, a.sets)
+        study_heading(f"The choice with the parameter set pooled over a file's releases "
+                      f"({a.sets} sets)", a, t0)
+        print("| truths' parameter set | sets weighted | right scenario | confusion "
+              "(truth->chosen) | median effective sets (pooled) |\n|---|---|---|---|---|")
+        for (mode, v), r in out["variants"].items():
+            print(f"| {mode} | {v} | {r['right']}/{r['n']} "
+                  f"({100 * r['right'] / r['n']:.1f} %) | "
+                  + ", ".join(f"{k} {c}" for k, c in sorted(r["confusion"].items()))
+                  + f" | {r['ess_median']:.1f} |")
         print()
     if a.oracle_study:
         t0 = time.perf_counter()

@@ -759,7 +759,6 @@ def test_residual_dof_matches_the_kernel_estimates_moments(prewhiten):
     Bs = B.reshape(P, S, T)
     M = np.eye(N) - Ju @ B
     sig = np.repeat(rng.uniform(0.5, 2.0, S), T)
-    R0 = (M @ (sig * rng.standard_normal(N))).reshape(S, T)
     max_lag = T // 4
     p_eff = float(np.trace(Ju @ B))
     if prewhiten:

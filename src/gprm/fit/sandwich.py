@@ -966,10 +966,10 @@ def runs_dof(parts: SandwichParts, nu_res: np.ndarray | None = None) -> np.ndarr
     total = np.clip(np.diag(parts.total), 1e-300, None)
     nu = np.full(P, np.inf)
     v = parts.runs_by_signal
-    has_runs = v is not None and parts.runs is not None and parts.n_runs >= 2
     vres = np.clip(np.diag(parts.residuals), 0.0, None)
-    runs_lead = (np.diag(parts.runs) >= vres) if has_runs else np.zeros(P, bool)
-    if has_runs:
+    runs_lead = np.zeros(P, bool)
+    if v is not None and parts.runs is not None and parts.n_runs >= 2:
+        runs_lead = np.diag(parts.runs) >= vres
         vr = v.sum(axis=0)
         nu_runs = satterthwaite(v, parts.n_runs)
         nu = np.where(runs_lead & (vr > 0),

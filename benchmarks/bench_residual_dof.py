@@ -48,7 +48,8 @@ def campaign(case) -> dict:
     parts = sw.propagate(state.obj, x, state.J, state.prior, err)
     Ju, Hinv = sw._estimator(x, state.J, state.prior)
     E, V, target = sw.residual_moments(Ju, Hinv, err.R, err.max_lag, err.p_eff,
-                                       whitenings=err.whitenings)
+                                       whitenings=err.whitenings,
+                                       projection=getattr(state.obj, "projection", None))
     nu = np.where(V > 0, 2 * E ** 2 / np.maximum(V, 1e-300), np.inf)
     ident = np.asarray(case.fit.uncertainty.identified, bool)
     vres = np.diag(parts.residuals)

@@ -737,15 +737,16 @@ def test_student_intervals_from_few_runs_hold_their_level():
                                [R - 1])
 
 
-@pytest.mark.parametrize("prewhiten", [False, True])
-def test_residual_dof_matches_the_kernel_estimates_moments(prewhiten):
+@pytest.mark.parametrize("prewhiten,projected", [(False, False), (True, False), (True, True)])
+def test_residual_dof_matches_the_kernel_estimates_moments(prewhiten, projected):
     """The residual kernel estimate of a linear fit of five signals (47 samples each, a
     weak prior) is a quadratic form in the data's error: its mean and variance under
     independent Gaussian errors are exact (residual_dof), so Satterthwaite's degrees of
     freedom 2 E^2 / Var must match those of the estimates computed by
     statistical_covariance on simulated errors (the same prewhitening filter held fixed;
     4000 draws: the sampled nu within 12 % of the formula's and the sampled mean within 5 %
-    of residual_moments' mean, for every parameter)."""
+    of residual_moments' mean, for every parameter); also with the residuals projected off
+    orthonormal nuisance columns (an unmodelled resonance's, two per signal)."""
     from gprm.fit.sandwich import (Whitening, residual_dof, residual_moments,
                                    statistical_covariance, whitening)
 
@@ -754,13 +755,24 @@ def test_residual_dof_matches_the_kernel_estimates_moments(prewhiten):
     N = S * T
     Ju = rng.standard_normal((N, P)) * np.repeat(rng.uniform(0.3, 2.0, S), T)[:, None]
     Ju[: 2 * T, 0] *= 4.0                               # one parameter led by two signals
+    Qp = None
+    if projected:                           # two nuisance columns per signal, orthonormal
+        t = np.arange(T)
+        cols = []
+        for s in range(S):
+            for f in (np.sin, np.cos):
+                c = np.zeros(N)
+                c[s * T:(s + 1) * T] = np.exp(-t / 20.0) * f(2 * np.pi * t / 7.0)
+                cols.append(c)
+        Qp = np.linalg.qr(np.stack(cols, 1))[0]
+        Ju = Ju - Qp @ (Qp.T @ Ju)            # the projected objective's Jacobian
     Hinv = np.linalg.inv(Ju.T @ Ju + np.diag(np.full(P, 0.5)))
     B = Hinv @ Ju.T
     Bs = B.reshape(P, S, T)
-    M = np.eye(N) - Ju @ B
+    M = np.eye(N) - Ju @ B - (0.0 if Qp is None else Qp @ Qp.T)
     sig = np.repeat(rng.uniform(0.5, 2.0, S), T)
     max_lag = T // 4
-    p_eff = float(np.trace(Ju @ B))
+    p_eff = float(np.trace(Ju @ B)) + (0 if Qp is None else Qp.shape[1])
     if prewhiten:
         ar = rng.standard_normal(T + 2)                 # a fixed AR(2) filter per signal
         w = tuple(whitening(np.convolve(ar, [1.0, 0.6], "same")[:T] + 0.1 * s, 2)
@@ -769,7 +781,8 @@ def test_residual_dof_matches_the_kernel_estimates_moments(prewhiten):
     else:
         w = (None,) * S
     # the working model's scale is each signal's residual mean square: hand it sigma
-    nu = residual_dof(Ju, Hinv, sig.reshape(S, T), max_lag, p_eff, whitenings=w)
+    nu = residual_dof(Ju, Hinv, sig.reshape(S, T), max_lag, p_eff, whitenings=w,
+                      projection=Qp)
     Q = np.empty((4000, P))
     for i in range(Q.shape[0]):
         r = (M @ (sig * rng.standard_normal(N))).reshape(S, T)
@@ -780,7 +793,7 @@ def test_residual_dof_matches_the_kernel_estimates_moments(prewhiten):
         Q[i] = np.diag(V)
     nu_mc = 2 * Q.mean(0) ** 2 / Q.var(0)
     E, _, target = residual_moments(Ju, Hinv, sig.reshape(S, T), max_lag, p_eff,
-                                    whitenings=w)
+                                    whitenings=w, projection=Qp)
     print("nu formula", np.round(nu, 2), "sampled", np.round(nu_mc, 2),
           "mean / target", np.round(E / target, 3))
     np.testing.assert_allclose(nu_mc, nu, rtol=0.12)

@@ -951,7 +951,7 @@ def stretch_draws(Z: np.ndarray, sd: np.ndarray, f68: tuple, f95: tuple,
     return np.sign(t) * g * sd[None, :]
 
 
-def runs_dof(parts: SandwichParts, nu_res: np.ndarray | None = None) -> np.ndarray:
+def statistical_dof(parts: SandwichParts, nu_res: np.ndarray | None = None) -> np.ndarray:
     """(P,) the effective degrees of freedom of each parameter's variance (Satterthwaite).
 
     The runs' part of signal s is b_s^T S_s b_s with S_s the sample covariance of R runs:
@@ -982,7 +982,8 @@ def runs_dof(parts: SandwichParts, nu_res: np.ndarray | None = None) -> np.ndarr
 
 
 def residual_moments(Ju: np.ndarray, Hinv: np.ndarray, R: np.ndarray, max_lag: int,
-                     p_eff: float, kernel: str = DEFAULT_KERNEL, whitenings=None
+                     p_eff: float, kernel: str = DEFAULT_KERNEL, whitenings=None,
+                     projection: np.ndarray | None = None
                      ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(mean, variance, target), each (P,): the residual kernel (HAC) estimate of each
     parameter's variance under a Gaussian working model of independent errors, and the
@@ -997,12 +998,18 @@ def residual_moments(Ju: np.ndarray, Hinv: np.ndarray, R: np.ndarray, max_lag: i
 
     Ju: (N, P) the weighted data Jacobian in the prior's coordinates; Hinv: (P, P);
     R: (S, T) the weighted residuals; ``whitenings``: each signal's :func:`whitening`
-    (None entries: no filter; None: computed from R)."""
+    (None entries: no filter; None: computed from R); ``projection``: the orthonormal
+    columns (N, k) the objective projects its residuals off (an unmodelled resonance,
+    :mod:`gprm.fit.resonance`; Ju then is the projected Jacobian), so that M = I - Q Q^T -
+    Ju Hinv Ju^T."""
     R = np.asarray(R, float)
     S, T = R.shape
     N, P = Ju.shape
     B = Hinv @ Ju.T                                        # (P, N)
     M = np.eye(N) - Ju @ B
+    if projection is not None:
+        Q = np.asarray(projection, float)
+        M -= Q @ Q.T
     if whitenings is None:
         whitenings = tuple(whitening(R[s], PREWHITEN_ORDER) for s in range(S))
     lag = np.abs(np.arange(T)[:, None] - np.arange(T)[None, :])
@@ -1031,18 +1038,19 @@ def residual_moments(Ju: np.ndarray, Hinv: np.ndarray, R: np.ndarray, max_lag: i
 
 
 def residual_dof(Ju: np.ndarray, Hinv: np.ndarray, R: np.ndarray, max_lag: int,
-                 p_eff: float, kernel: str = DEFAULT_KERNEL, whitenings=None) -> np.ndarray:
+                 p_eff: float, kernel: str = DEFAULT_KERNEL, whitenings=None,
+                 projection: np.ndarray | None = None) -> np.ndarray:
     """(P,) degrees of freedom of each parameter's residual kernel (HAC) variance estimate:
     Satterthwaite's nu = 2 E[Q]^2 / Var[Q] of :func:`residual_moments` (the degrees of
     freedom Bell and McCaffrey give a cluster-robust variance, here for a kernel one: a
     window of a quarter of ~47 samples per signal leaves it 4-11 on the studies' campaigns,
     where the runs' part has 9-45 with 10 runs). Same arguments."""
-    E, V, _ = residual_moments(Ju, Hinv, R, max_lag, p_eff, kernel, whitenings)
+    E, V, _ = residual_moments(Ju, Hinv, R, max_lag, p_eff, kernel, whitenings, projection)
     return np.where(V > 0, 2.0 * E ** 2 / np.maximum(V, 1e-300), np.inf)
 
 
 def dof_sources(parts: SandwichParts, nu: np.ndarray) -> list[str | None]:
-    """(P,) which statistical part each finite degrees of freedom of :func:`runs_dof` came
+    """(P,) which statistical part each finite degrees of freedom of :func:`statistical_dof` came
     from: "runs" or "residuals" (None: infinite, the normal quantile)."""
     vres = np.diag(parts.residuals)
     runs = np.diag(parts.runs) if parts.runs is not None else np.full(vres.shape, -np.inf)
@@ -1104,8 +1112,9 @@ def uncertainty(method: str, state: FitState) -> Uncertainty:
     if syst.residual_dof:
         Ju_r, Hinv_r = _estimator(x, state.J, prior)
         nu_res = residual_dof(Ju_r, Hinv_r, err.R, err.max_lag, err.p_eff,
-                              whitenings=err.whitenings)
-    nu = runs_dof(parts, nu_res)
+                              whitenings=err.whitenings,
+                              projection=getattr(state.obj, "projection", None))
+    nu = statistical_dof(parts, nu_res)
     t95, t68 = student_factors(nu, 0.95), student_factors(nu, 0.68)
     f_lo, f_hi = f_lo * t95, f_hi * t95
     f68_lo, f68_hi = f68_lo * t68, f68_hi * t68

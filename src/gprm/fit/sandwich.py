@@ -1043,7 +1043,7 @@ def residual_dof(Ju: np.ndarray, Hinv: np.ndarray, R: np.ndarray, max_lag: int,
     """(P,) degrees of freedom of each parameter's residual kernel (HAC) variance estimate:
     Satterthwaite's nu = 2 E[Q]^2 / Var[Q] of :func:`residual_moments` (the degrees of
     freedom Bell and McCaffrey give a cluster-robust variance, here for a kernel one: a
-    window of a quarter of ~47 samples per signal leaves it 4-11 on the studies' campaigns,
+    window of a quarter of ~47 samples per signal leaves it 4-12 on the studies' campaigns,
     where the runs' part has 9-45 with 10 runs). Same arguments."""
     E, V, _ = residual_moments(Ju, Hinv, R, max_lag, p_eff, kernel, whitenings, projection)
     return np.where(V > 0, 2.0 * E ** 2 / np.maximum(V, 1e-300), np.inf)

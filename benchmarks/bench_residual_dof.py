@@ -7,7 +7,7 @@ independent errors against the variance it estimates.
         [--campaigns 20] [--starts 100] [--cache DIR]
 
 For each campaign of each source (the fits of benchmarks/bench_sources.py, read from
-``--cache`` where present), over the identified parameters:
+``--cache`` where present), over the parameters the cached fit reported as identified:
 
 - ``residuals lead``: the share where the residuals' estimate is the larger of the two
   statistical parts (the runs' and the residuals'), where Student's t takes its degrees of
@@ -54,7 +54,7 @@ def campaign(case) -> dict:
     ident = np.asarray(case.fit.uncertainty.identified, bool)
     vres = np.diag(parts.residuals)
     vruns = np.diag(parts.runs) if parts.runs is not None else np.zeros_like(vres)
-    lead = ident & (vres > vruns)
+    lead = ident & ~sw.runs_lead(parts)
     return {"n": int(ident.sum()), "lead": int(lead.sum()), "nu": nu[lead].tolist(),
             "ratio": (E / target)[ident].tolist(),
             "res_runs": (vres / np.clip(vruns, 1e-300, None))[ident].tolist()}

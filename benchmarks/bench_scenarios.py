@@ -196,6 +196,17 @@ def tally_unknowns(r: dict, params: dict, w, ds, i: int) -> None:
         r["in50"][k] += abs(pit - 0.5) <= 0.25
 
 
+def _set_log_likelihood(Y, ok, y, sig, use, floor, rel_floor):
+    """(sets, draws) ln N(y; y_mk, diag(σ² + floor² + (rel y_mk)²)) of the measured
+    components ``use`` at every parameter set m and prior draw k (Y (M, K, 6), ok (M, K));
+    −inf where the set gives no impact at the draw."""
+    fl = np.array([floor[0]] * 3 + [floor[1]] * 3)[use]
+    Yu = np.nan_to_num(Y[..., use])
+    var = sig[use] ** 2 + fl ** 2 + (rel_floor * Yu) ** 2
+    lp = -0.5 * np.sum((y[use] - Yu) ** 2 / var + np.log(2 * np.pi * var), -1)
+    return np.where(ok, lp, -np.inf)
+
+
 def _mixture_log_likelihood(Y, ok, y, sig, use, floor, rel_floor):
     """ln L_k (K,) of the prior draws under the exact mixture over the parameter sets:
     L_k = mean over the sets m giving an impact of N(y; y_mk, diag(σ² + floor² + (rel y_mk)²))
@@ -203,11 +214,7 @@ def _mixture_log_likelihood(Y, ok, y, sig, use, floor, rel_floor):
     from scipy.special import logsumexp
 
     valid = ok.mean(0) >= 0.75
-    fl = np.array([floor[0]] * 3 + [floor[1]] * 3)[use]
-    Yu = np.nan_to_num(Y[:, valid][..., use])
-    var = sig[use] ** 2 + fl ** 2 + (rel_floor * Yu) ** 2
-    lp = -0.5 * np.sum((y[use] - Yu) ** 2 / var + np.log(2 * np.pi * var), -1)
-    lp = np.where(ok[:, valid], lp, -np.inf)
+    lp = _set_log_likelihood(Y[:, valid], ok[:, valid], y, sig, use, floor, rel_floor)
     ll = np.full(valid.size, -np.inf)
     ll[valid] = logsumexp(lp, axis=0) - np.log(ok[:, valid].sum(0))
     return ll
@@ -503,21 +510,15 @@ def pooled_choice_study(fm, seeds, releases: int, draws: int, n_model: int) -> d
     prior = ScenarioPrior(tm_offset=0.0)
     opts = InferenceOptions(n_draws=draws, n_model=n_model)
     raw = set_velocities(fm, opts, prior)
-    floor = np.array([opts.floor[0]] * 3 + [opts.floor[1]] * 3)
     sig = np.nanmedian(np.concatenate([s_ for *_, s_ in scenario_campaigns(fm, [0], 11)]), 0)
     sig = np.nan_to_num(sig)
+    every = np.ones(6, bool)
     rng = np.random.default_rng([int(seeds[0]), 41])
 
-    def per_set_logz(y):
-        out = []
-        for k in COMPARED:
-            Y, ok = raw[k]
-            Yn = np.nan_to_num(Y)
-            var = sig ** 2 + floor ** 2 + (opts.rel_floor * Yn) ** 2
-            lp = -0.5 * np.sum((y - Yn) ** 2 / var + np.log(2 * np.pi * var), -1)
-            lp = np.where(ok, lp, -np.inf)
-            out.append(logsumexp(lp, axis=1) - np.log(Y.shape[1]))
-        return np.array(out)                                   # (scenarios, sets)
+    def per_set_logz(y):                                       # (scenarios, sets)
+        return np.array([logsumexp(_set_log_likelihood(*raw[k], y, sig, every, opts.floor,
+                                                       opts.rel_floor), axis=1)
+                         - np.log(raw[k][0].shape[1]) for k in COMPARED])
 
     res: dict = {}
     for mode in ("shared", "per release"):

@@ -152,9 +152,9 @@ def frame_shift(campaign, means) -> np.ndarray:
     signal in the fit's aligned time base is its own lag plus this (``campaign``: the Dataset
     or CSV folder ``make`` returned; ``means``: gprm.campaign.preprocess.MeanSignals). gprm's
     generator: preprocessing's own ``truth_shift``, which is this; sim2: the same rule
-    (gprm.campaign.preprocess.truth_axis_shift) on its truth.json's trigger jitter. (Stop 39 took the reference run's trigger offset: off by the
-    synchronisation's average error, docs/fitting.md, "The time axis of a campaign's
-    truth".)"""
+    (gprm.campaign.preprocess.truth_axis_shift) on its truth.json's trigger jitter. (Stop 39
+    took the reference run's trigger offset: off by the synchronisation's average error,
+    docs/fitting.md, "The time axis of a campaign's truth".)"""
     if means.truth_shift is not None:
         return np.asarray(means.truth_shift, float)
     import json

@@ -66,6 +66,13 @@ def correlations_above(corr: dict | None, min_correl: float = DEFAULT_MIN_CORREL
     return sorted(out, key=lambda t: -abs(t[2]))
 
 
+def _fitted_names(d: dict) -> list[str]:
+    """The fitted parameters in the order of the uncertainty's per-parameter lists (the
+    correlation's names, else the parameter table's fitted entries)."""
+    return list((d.get("correlation") or {}).get("names")
+                or [n for n, p in (d.get("parameters") or {}).items() if p.get("fitted", False)])
+
+
 #: `gprm show` lists the parameters whose variance has fewer degrees of freedom than this
 #: (Student's t widens their 95 % interval by more than about 6 %)
 STUDENT_SHOWN = 30.0
@@ -119,9 +126,7 @@ def fit_report(d: dict, *, min_correl: float = DEFAULT_MIN_CORREL) -> str:
                 lines.append(f"    statistical part from the {det['statistical_from']}")
         alt = det.get("alternative_minima") if isinstance(det, dict) else None
         if isinstance(alt, dict) and alt.get("within_95"):
-            names = list((d.get("correlation") or {}).get("names")
-                         or [n for n, p in (d.get("parameters") or {}).items()
-                             if p.get("fitted", False)])
+            names = _fitted_names(d)
             fac = alt.get("factors") or {}
             wide = [names[i] for i, (a, b) in enumerate(zip(fac.get("lower") or [],
                                                              fac.get("upper") or []))
@@ -133,9 +138,7 @@ def fit_report(d: dict, *, min_correl: float = DEFAULT_MIN_CORREL) -> str:
                          + (f" (widened most: {', '.join(wide)})" if wide else ""))
         dof = det.get("degrees_of_freedom") if isinstance(det, dict) else None
         if isinstance(dof, list) and dof:
-            names = list((d.get("correlation") or {}).get("names")
-                         or [n for n, p in (d.get("parameters") or {}).items()
-                             if p.get("fitted", False)])
+            names = _fitted_names(d)
             src = det.get("degrees_of_freedom_from") or [None] * len(dof)
             few = [(names[i], v, src[i] if i < len(src) else None)
                    for i, v in enumerate(dof)

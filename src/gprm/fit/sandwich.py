@@ -211,12 +211,17 @@ KERNELS = {"bartlett": bartlett, "parzen": parzen}
 DEFAULT_KERNEL = "parzen"
 
 
+def lag_weights(T: int, max_lag: int, kernel: str = "bartlett") -> np.ndarray:
+    """The HAC's weights of lags 1 .. min(max_lag, T - 1) for a series of T samples (lag 0
+    has weight 1)."""
+    return KERNELS[kernel](np.arange(1, min(max_lag, T - 1) + 1), max_lag)
+
+
 def hac_meat(E: np.ndarray, max_lag: int, kernel: str = "bartlett") -> np.ndarray:
     """Kernel-weighted sum over one signal's scores E (T, P): sum_t e_t e_t^T plus the lag
     terms up to ``max_lag`` weighted by ``kernel`` (``bartlett``: Newey-West)."""
     S = E.T @ E
-    w = KERNELS[kernel](np.arange(1, min(max_lag, E.shape[0] - 1) + 1), max_lag)
-    for lag, wl in enumerate(w, start=1):
+    for lag, wl in enumerate(lag_weights(E.shape[0], max_lag, kernel), start=1):
         G = E[lag:].T @ E[:-lag]
         S += wl * (G + G.T)
     return S
@@ -951,6 +956,15 @@ def stretch_draws(Z: np.ndarray, sd: np.ndarray, f68: tuple, f95: tuple,
     return np.sign(t) * g * sd[None, :]
 
 
+def runs_lead(parts: SandwichParts) -> np.ndarray:
+    """(P,) where the runs' part of a parameter's variance is the larger statistical part
+    (and can be counted: a file with runs, at least two); elsewhere the residuals' leads."""
+    P = parts.total.shape[0]
+    if parts.runs_by_signal is None or parts.runs is None or parts.n_runs < 2:
+        return np.zeros(P, bool)
+    return np.diag(parts.runs) >= np.clip(np.diag(parts.residuals), 0.0, None)
+
+
 def statistical_dof(parts: SandwichParts, nu_res: np.ndarray | None = None) -> np.ndarray:
     """(P,) the effective degrees of freedom of each parameter's variance (Satterthwaite).
 
@@ -967,15 +981,14 @@ def statistical_dof(parts: SandwichParts, nu_res: np.ndarray | None = None) -> n
     nu = np.full(P, np.inf)
     v = parts.runs_by_signal
     vres = np.clip(np.diag(parts.residuals), 0.0, None)
-    runs_lead = np.zeros(P, bool)
-    if v is not None and parts.runs is not None and parts.n_runs >= 2:
-        runs_lead = np.diag(parts.runs) >= vres
+    lead = runs_lead(parts)
+    if v is not None and lead.any():
         vr = v.sum(axis=0)
         nu_runs = satterthwaite(v, parts.n_runs)
-        nu = np.where(runs_lead & (vr > 0),
+        nu = np.where(lead & (vr > 0),
                       total ** 2 / np.maximum(vr ** 2 / nu_runs, 1e-300), nu)
     if nu_res is not None:
-        res = ~runs_lead & (vres > 0) & np.isfinite(nu_res)
+        res = ~lead & (vres > 0) & np.isfinite(nu_res)
         nu = np.where(res, total ** 2 / np.maximum(vres ** 2 / np.where(res, nu_res, 1.0),
                                                    1e-300), nu)
     return nu
@@ -1013,8 +1026,7 @@ def residual_moments(Ju: np.ndarray, Hinv: np.ndarray, R: np.ndarray, max_lag: i
     if whitenings is None:
         whitenings = tuple(whitening(R[s], PREWHITEN_ORDER) for s in range(S))
     lag = np.abs(np.arange(T)[:, None] - np.arange(T)[None, :])
-    K = np.where(lag == 0, 1.0, KERNELS[kernel](np.maximum(lag, 1), max_lag)
-                 * (lag <= max_lag))
+    K = np.concatenate([[1.0], lag_weights(T, max_lag, kernel), np.zeros(T)])[lag]
     Hs = [np.eye(T) if w is None else w.H for w in whitenings]
     Fs = [np.eye(T) if w is None else np.linalg.inv(w.H) for w in whitenings]
     sig2 = np.repeat(np.mean(R ** 2, axis=1), T)           # (N,) the working model
@@ -1050,12 +1062,11 @@ def residual_dof(Ju: np.ndarray, Hinv: np.ndarray, R: np.ndarray, max_lag: int,
 
 
 def dof_sources(parts: SandwichParts, nu: np.ndarray) -> list[str | None]:
-    """(P,) which statistical part each finite degrees of freedom of :func:`statistical_dof` came
-    from: "runs" or "residuals" (None: infinite, the normal quantile)."""
-    vres = np.diag(parts.residuals)
-    runs = np.diag(parts.runs) if parts.runs is not None else np.full(vres.shape, -np.inf)
-    return [None if not np.isfinite(v) else ("runs" if r >= q else "residuals")
-            for v, r, q in zip(nu, runs, vres)]
+    """(P,) which statistical part each finite degrees of freedom of :func:`statistical_dof`
+    came from (:func:`runs_lead`): "runs" or "residuals" (None: infinite, the normal
+    quantile)."""
+    return [None if not np.isfinite(v) else ("runs" if r else "residuals")
+            for v, r in zip(nu, runs_lead(parts))]
 
 
 def satterthwaite(v: np.ndarray, R: int) -> np.ndarray:

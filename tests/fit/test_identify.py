@@ -38,7 +38,10 @@ def truth_set(seed: int):
 def case():
     truth = truth_set(1)
     ds = make_means(truth, seed=1)
-    data = fit_data_from_means(ds, source="synthetic")
+    # the factory's sem is the noise's own sd, not an estimate from runs: weighed as given
+    # (pooling is for estimated weights, gprm.fit.objective.pooled_sigma), so the chi-square
+    # statistics below are exact
+    data = fit_data_from_means(ds, source="synthetic", sigma_pool=0)
     return truth, ds, data
 
 
@@ -105,7 +108,7 @@ def test_coverage_over_several_campaigns():
     z_all = []
     for seed in range(6):
         truth = truth_set(10 + seed)
-        data = fit_data_from_means(make_means(truth, seed=100 + seed))
+        data = fit_data_from_means(make_means(truth, seed=100 + seed), sigma_pool=0)
         obj = Objective.create(data, paper())
         lo, hi = obj.bounds_normalised()
         xt = obj.to_normalised(truth.vector(obj.names))

@@ -18,7 +18,7 @@ from gprm.campaign.synth import SynthConfig, synth_campaign
 from gprm.fit import subsample
 from gprm.fit.api import FitOptions
 from gprm.fit.identify import identify
-from gprm.fit.objective import Objective, fit_data_from_means
+from gprm.fit.objective import SIGMA_POOL, Objective, fit_data_from_means, pooled_sigma
 from gprm.fit.starts import MultiStartOptions
 from gprm.params import paper
 
@@ -82,7 +82,8 @@ def test_run_corrections_are_the_model_moved_by_each_remainder(jitter_data):
 def test_corrected_runs_agree_to_the_noise_and_sigma_follows_them(jitter_data, jitter_fit):
     """Moved by the fitted model's own shape, the runs of this nearly noise-free campaign
     agree with each other to far below the spread the sub-sample offsets leave; mean and
-    sigma are taken over them (sem and std as the data were weighed)."""
+    sigma are taken over them (sem and std as the data were weighed, pooled over as many
+    neighbouring samples as the file's sigma was)."""
     obj = Objective.create(jitter_data, jitter_fit.params, jitter_fit.names)
     x = np.asarray(jitter_fit.x)
     corr = subsample.run_corrections(obj, x, jitter_data.sync_remainder)
@@ -92,8 +93,10 @@ def test_corrected_runs_agree_to_the_noise_and_sigma_follows_them(jitter_data, j
     assert np.all(after < 0.01 * before), (before, after)
     np.testing.assert_allclose(fixed.values, fixed.runs.mean(axis=1))
     R = fixed.runs.shape[1]
-    np.testing.assert_allclose(fixed.sigma, fixed.runs.std(axis=1, ddof=1) / np.sqrt(R))
-    as_std = subsample.corrected(replace(jitter_data, sigma_kind="std"), corr)
+    assert jitter_data.sigma_pool == SIGMA_POOL > 0
+    np.testing.assert_allclose(fixed.sigma, pooled_sigma(
+        fixed.runs.std(axis=1, ddof=1) / np.sqrt(R), SIGMA_POOL))
+    as_std = subsample.corrected(replace(jitter_data, sigma_kind="std", sigma_pool=0), corr)
     np.testing.assert_allclose(as_std.sigma, as_std.runs.std(axis=1, ddof=1))
     assert fixed.sync_remainder is None and fixed.interpolation_error is None
 

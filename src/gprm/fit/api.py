@@ -20,7 +20,7 @@ import xarray as xr
 from gprm.campaign.files import read_means
 from gprm.errors import GprmInputError
 from gprm.fit.identify import identify
-from gprm.fit.objective import fit_data_from_means
+from gprm.fit.objective import SIGMA_POOL, fit_data_from_means
 from gprm.fit.prior import DEFAULT_WIDTH
 from gprm.fit.result import FitResult
 from gprm.fit.starts import DEFAULT_RACE, LMOptions, MultiStartOptions, check_race
@@ -43,6 +43,8 @@ class FitOptions:
     sampling: str = "uniform"                 # or "lhs"
     window: tuple[float, float] = (0.97e-3, 1.2e-3)
     sigma: str = "sem"                        # or "std" (the paper's across-run std)
+    #: samples on each side over which sigma(t)^2 is pooled (gprm.fit.objective.pooled_sigma)
+    sigma_pool: int = SIGMA_POOL
     fit_offsets: bool = True                  # also fit dt_x_head, dt_y_base, dt_y_head
     piezo: int = 2
     chunk: int = 250
@@ -83,6 +85,7 @@ class FitOptions:
         object.__setattr__(self, "window", (float(w[0]), float(w[1])))
         if self.sigma not in ("sem", "std"):
             raise GprmInputError(f"must be sem or std, got {self.sigma!r}", field="sigma")
+        check_int("sigma_pool", self.sigma_pool, 0)
         for name in ("fit_offsets", "profile", "z_bk_absolute", "resonance"):
             if not isinstance(getattr(self, name), bool):
                 raise GprmInputError(f"must be true or false, got {getattr(self, name)!r}",
@@ -166,7 +169,8 @@ def run_fit(means: str | os.PathLike | xr.Dataset, opts: FitOptions = FitOptions
         ds, src = means, source or str(means.attrs.get("source", "mean signals"))
     else:
         ds, src = read_means(means), source or str(means)
-    data = fit_data_from_means(ds, window=opts.window, sigma=opts.sigma, source=src)
+    data = fit_data_from_means(ds, window=opts.window, sigma=opts.sigma, source=src,
+                               sigma_pool=opts.sigma_pool)
     base = params if isinstance(params, ParameterSet) else load_params(params)
     stated = {} if params is None or isinstance(params, ParameterSet) else \
         read_systematics(params)

@@ -114,7 +114,7 @@ def parametric_bootstrap(obj: Objective, x_hat: np.ndarray, *, n_boot: int = 40,
                               config=cfg, correction=corr)
         means = preprocess(camp, pcfg).to_dataset()
         db = fit_data_from_means(means, window=data.window, sigma=data.sigma_kind,
-                                 source=f"bootstrap {b}")
+                                 source=f"bootstrap {b}", sigma_pool=data.sigma_pool)
         out[b] = _refit(obj, db, x_hat, lm, max_iter) - time_base_shift(means, obj.names)
     return out
 
@@ -162,7 +162,7 @@ def run_bootstrap(campaign: xr.Dataset, obj: Objective, x_hat: np.ndarray, *,
         camp["displacement"] = (("position", "run", "time"), vals, disp.attrs)
         means = preprocess(camp, pcfg).to_dataset()
         db = fit_data_from_means(means, window=data.window, sigma=data.sigma_kind,
-                                 source=f"run bootstrap {b}")
+                                 source=f"run bootstrap {b}", sigma_pool=data.sigma_pool)
         out[b] = _refit(obj, db, x_hat, lm, max_iter)
     return out
 

@@ -34,6 +34,11 @@ def register(app: typer.Typer, synth_app: typer.Typer) -> None:
                                         "'0.97,1.2 ms'; bare numbers are s)"),
         sigma: str = typer.Option("sem", "--sigma", help="weights: sem (standard error of "
                                   "the mean) or std (the paper's across-run std)"),
+        sigma_pool: int = typer.Option(3, "--sigma-pool", parser=Int(min=0),
+                                       help="samples on each side over which sigma(t)^2 is "
+                                       "averaged before it weighs the residuals (0: sample "
+                                       "by sample; a sample's own sem from R runs is too "
+                                       "noisy a weight, docs/fitting.md)"),
         workers: Optional[int] = typer.Option(None, "--workers", parser=Int(min=0),
                                               help="local worker processes (default: "
                                               "one per core, at most one per chunk of "
@@ -139,7 +144,8 @@ def register(app: typer.Typer, synth_app: typer.Typer) -> None:
             raise GprmInputError(f"expected a scheduler address such as tcp://HOST:PORT or "
                                  f"HOST:PORT, got {scheduler!r}", field="--scheduler")
         opts = _options(FitOptions, starts=starts, seed=seed, spread=spread, sampling=sampling,
-                        window=window, sigma=sigma, fit_offsets=not no_fit_offsets,
+                        window=window, sigma=sigma, sigma_pool=sigma_pool,
+                        fit_offsets=not no_fit_offsets,
                         piezo=piezo, chunk=chunk, max_iter=max_iter,
                         stall_window=stall_window, stall_tol=stall_tol,
                         prune_after=prune_after, prune_factor=prune_factor,
@@ -168,7 +174,8 @@ def register(app: typer.Typer, synth_app: typer.Typer) -> None:
             # between 100 and 400 samples over 5 x 47 and 5 x 181 points,
             # benchmarks/bench_memory.py; docs/README.md), + 50 MB
             n_points = int(fit_data_from_means(ds, window=opts.window, sigma=opts.sigma,
-                                               source=str(means)).values.size)
+                                               source=str(means),
+                                               sigma_pool=opts.sigma_pool).values.size)
             check_memory(band_samples, 1200.0 * n_points, fixed=50e6, field="--band-samples",
                          what=f"{band_samples} band samples of {n_points} data points",
                          integer=True)

@@ -463,6 +463,7 @@ def fit_document(res: FitResult) -> dict:
         "version": gprm.__version__, "seed": res.options.seed,
         "window": [float(res.data.window[0]), float(res.data.window[1])],
         "signals": list(res.data.signals), "sigma": res.data.sigma_kind,
+        "sigma_pool": int(res.data.sigma_pool),
         "z_bk_absolute": res.z_bk_absolute,
         "parameters": params,
         "chi2": float(res.chi2), "dof": int(res.dof),

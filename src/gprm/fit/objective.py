@@ -22,6 +22,38 @@ from gprm.simulate import OUTPUTS, observe
 
 SIGNALS: tuple[str, ...] = OUTPUTS
 DEFAULT_WINDOW = (0.97e-3, 1.2e-3)
+#: samples on each side over which each signal's sigma(t)^2 is averaged before it weighs the
+#: residuals (:func:`pooled_sigma`): 7 samples, so a campaign of R runs weighs each sample
+#: with a variance of about 7 (R - 1) degrees of freedom instead of R - 1
+SIGMA_POOL = 3
+
+
+def pooled_sigma(sigma: np.ndarray, half_width: int) -> np.ndarray:
+    """sigma(t) (..., T) with its square averaged over the ``half_width`` samples on each side
+    of every sample (fewer at the ends); 0 returns ``sigma`` unchanged.
+
+    Why: the standard error of a mean of R runs, taken sample by sample, is an estimate with
+    R - 1 degrees of freedom. Weighting the residuals by its inverse makes each weighted
+    error Student-t distributed with R - 1 dof, whose variance is (R - 1) / (R - 3) (9 / 7
+    for ten runs), and the runs' own spread, weighted by the same estimate, cannot show it
+    (its weighted spread is 1 by construction): the estimator is noisier than the runs'
+    covariance says (the estimated-weights effect of weighted least squares, Bement and
+    Williams 1969). Pooling the variance over neighbouring samples gives each weight about
+    (2 half_width + 1) (R - 1) dof; the shape of sigma(t) over a few samples is kept.
+    docs/fitting.md, "Weights pooled over neighbouring samples".
+    """
+    k = int(half_width)
+    if k < 0:
+        raise ValueError(f"half_width must be >= 0, got {half_width!r}")
+    sigma = np.asarray(sigma, float)
+    if k == 0 or sigma.shape[-1] < 2:
+        return sigma
+    T = sigma.shape[-1]
+    c = np.cumsum(np.concatenate([np.zeros(sigma.shape[:-1] + (1,)), sigma ** 2], axis=-1),
+                  axis=-1)
+    lo = np.clip(np.arange(T) - k, 0, T)
+    hi = np.clip(np.arange(T) + k + 1, 0, T)
+    return np.sqrt((c[..., hi] - c[..., lo]) / (hi - lo))
 
 
 @dataclass(frozen=True)
@@ -51,6 +83,9 @@ class FitData:
     #: runs the rest of the way through the model (gprm.fit.subsample). None: not known
     #: (older files, or runs interpolated to a common time), or already applied
     sync_remainder: np.ndarray | None = None
+    #: samples on each side over which ``sigma`` was pooled (:func:`pooled_sigma`; 0: as
+    #: given); a recomputed sigma (gprm.fit.subsample) is pooled the same way
+    sigma_pool: int = 0
 
     @property
     def n_obs(self) -> int:
@@ -58,15 +93,21 @@ class FitData:
 
 
 def fit_data_from_means(ds: xr.Dataset, *, window=DEFAULT_WINDOW, sigma: str = "sem",
-                        source: str = "mean signals") -> FitData:
+                        source: str = "mean signals", sigma_pool: int = SIGMA_POOL
+                        ) -> FitData:
     """Select the five fitted signals in ``window`` from a mean-signals dataset (the output
     of ``gprm preprocess``: dims ``signal``, ``time``; vars ``mean`` and ``std``/``sem``).
 
     sigma: ``sem`` (standard error of the mean signal; chi-square then follows its
     distribution, reduced chi-square ~ 1 for a correct model) or ``std`` (the paper's weighting
     by the standard deviation across runs). Eq. 7's covariance is the same for both, since it
-    rescales by the residual variance.
+    rescales by the residual variance. sigma_pool: the chosen sigma's square averaged over
+    this many samples on each side within the window (:func:`pooled_sigma`; 0: sample by
+    sample, as stops 1-41 weighed).
     """
+    if isinstance(sigma_pool, bool) or not isinstance(sigma_pool, (int, np.integer)) \
+            or sigma_pool < 0:
+        raise GprmInputError(f"must be an integer >= 0, got {sigma_pool!r}", field="sigma_pool")
     for var in ("mean", sigma):
         if var not in ds.variables:
             raise GprmInputError(f"mean-signals file has no variable '{var}' (sigma '{sigma}' "
@@ -121,8 +162,8 @@ def fit_data_from_means(ds: xr.Dataset, *, window=DEFAULT_WINDOW, sigma: str = "
             raise GprmInputError("sync_remainder must be finite, one value per run and "
                                  "signal, each within one sample", source=source,
                                  field="sync_remainder")
-    return FitData(t[sel], vals, sig, SIGNALS, (lo, hi), sigma, source, dict(ds.attrs),
-                   runs, nstd, ierr, cross, rem)
+    return FitData(t[sel], vals, pooled_sigma(sig, int(sigma_pool)), SIGNALS, (lo, hi), sigma,
+                   source, dict(ds.attrs), runs, nstd, ierr, cross, rem, int(sigma_pool))
 
 
 @dataclass(frozen=True)

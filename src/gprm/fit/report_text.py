@@ -81,7 +81,8 @@ STUDENT_SHOWN = 30.0
 def fit_report(d: dict, *, min_correl: float = DEFAULT_MIN_CORREL) -> str:
     """lmfit-style report of a fit dictionary (the content of fit.json)."""
     lines = [f"[[Fit]] model {d.get('model', '?')}, piezo {d.get('piezo', '?')}, "
-             f"sigma={d.get('sigma', '?')}"]
+             f"sigma={d.get('sigma', '?')}"
+             + (f" pooled over +-{d['sigma_pool']} samples" if d.get("sigma_pool") else "")]
     st = d.get("starts") or {}
     if st:
         lines.append(f"    starts: {st.get('requested', '?')}, converged "

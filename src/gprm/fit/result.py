@@ -97,7 +97,9 @@ class FitResult:
     # ------------------------------------------------------------------ report
     def summary(self) -> str:
         """A readable fit report (lmfit-like)."""
-        lines = [f"[[Fit]] model {MODEL_NAME}, piezo {self.piezo}, sigma={self.data.sigma_kind}",
+        pool = self.data.sigma_pool
+        lines = [f"[[Fit]] model {MODEL_NAME}, piezo {self.piezo}, sigma={self.data.sigma_kind}"
+                 + (f" pooled over +-{pool} samples" if pool else ""),
                  f"    starts: {self.starts.chi2.size}, converged "
                  f"{int(self.starts.converged.sum())}, at best (dchi2<=1) "
                  f"{self.starts.n_at_best()}",

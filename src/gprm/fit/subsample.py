@@ -28,7 +28,7 @@ from dataclasses import replace
 
 import numpy as np
 
-from gprm.fit.objective import FitData, Objective
+from gprm.fit.objective import FitData, Objective, pooled_sigma
 
 #: passes of correction and polish after the multi-start (the first at the best start, the
 #: second at the point the first polish reached)
@@ -69,14 +69,16 @@ def run_corrections(obj: Objective, x: np.ndarray, remainder: np.ndarray) -> np.
 def corrected(data: FitData, corrections: np.ndarray) -> FitData:
     """``data`` with each run moved by ``corrections`` (S, R, T) (:func:`run_corrections`):
     the runs less their corrections, the mean and sigma taken over them again
-    (``sigma_kind`` sem: std / sqrt(R); std: std; ddof 1). They replace the file's mean and
+    (``sigma_kind`` sem: std / sqrt(R); std: std; ddof 1; pooled over ``sigma_pool`` samples
+    on each side as the file's was, gprm.fit.objective.pooled_sigma). They replace the file's mean and
     sigma, which ``gprm preprocess`` took over runs interpolated by a cubic spline; so the
     file's interpolation-error estimate goes too. The result carries no remainder (nothing
     is left to move)."""
     runs = data.runs - corrections
     R = runs.shape[1]
     std = runs.std(axis=1, ddof=1)
-    sigma = std / np.sqrt(R) if data.sigma_kind == "sem" else std
+    sigma = pooled_sigma(std / np.sqrt(R) if data.sigma_kind == "sem" else std,
+                         data.sigma_pool)
     # a sample where every run agrees exactly (never in measured data) keeps its weight
     sigma = np.where(sigma > 0, sigma, data.sigma)
     return replace(data, values=runs.mean(axis=1), sigma=sigma, runs=runs,

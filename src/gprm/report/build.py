@@ -314,7 +314,9 @@ def fit_section(run: Path) -> tuple[Section, dict | None]:
            f"{', '.join(f'{r}:{q}' for r, q in st.get('race') or [])}; the counts are of "
            f"the starts that ran on)" if st.get("raced") else "")
         + f". χ² = {fit['chi2']:.5g} for {fit['dof']} degrees of freedom "
-        f"(reduced χ² = {fit['reduced_chi2']:.4g}; weights: {fit.get('sigma', 'sem')}). "
+        f"(reduced χ² = {fit['reduced_chi2']:.4g}; weights: {fit.get('sigma', 'sem')}"
+        + (f", its square pooled over ±{fit['sigma_pool']} samples" if fit.get("sigma_pool")
+           else "") + "). "
         f"Covariance (Eq. 7): {fit.get('covariance_message', 'ok')}."))
     unc = fit.get("uncertainty") or {}
     phys = [n for n, p in fit["parameters"].items() if p.get("fitted") and n not in

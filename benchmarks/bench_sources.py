@@ -38,7 +38,7 @@ from gprm.campaign.files import read_campaign_dir  # noqa: E402
 from gprm.campaign.preprocess import PreprocessConfig, preprocess  # noqa: E402
 from gprm.fit.api import FitOptions  # noqa: E402
 from gprm.fit.identify import identify  # noqa: E402
-from gprm.fit.objective import fit_data_from_means  # noqa: E402
+from gprm.fit.objective import SIGMA_POOL, fit_data_from_means  # noqa: E402
 from gprm.fit.sandwich import ALIGNMENT_NOISE, Systematics  # noqa: E402
 from gprm.fit.starts import MultiStartOptions  # noqa: E402
 from gprm.params import paper  # noqa: E402
@@ -95,12 +95,21 @@ def _save(case: Case, path: Path) -> None:
     tmpf.replace(path)
 
 
-def run_case(source: str, seed: int, starts: int, cache: str | None) -> Case:
+def run_case(source: str, seed: int, starts: int, cache: str | None,
+             sigma_pool: int = SIGMA_POOL) -> Case:
+    """The fitted campaign (from ``cache`` where it holds it); ``sigma_pool``: the fit's
+    weights pooled over that many samples on each side (gprm.fit.objective.pooled_sigma; 0:
+    stops 1-41's sample-by-sample weights). A cached fit made with other weights is an
+    error, not a silent mix."""
     path = Path(cache) / f"{source}-{seed}-{starts}.pkl" if cache else None
     if path is not None and path.exists():
         with open(path, "rb") as f:
             got = _CaseUnpickler(f).load()
         case = Case(**got) if isinstance(got, dict) else got
+        if case.fit.data.sigma_pool != sigma_pool:
+            raise SystemExit(f"{path}: fitted with sigma pooled over "
+                             f"{case.fit.data.sigma_pool} samples, not {sigma_pool} "
+                             "(--sigma-pool); use another --cache")
         if case.frame_axis != FRAME_AXIS:
             # a cache from before the frame shift was kept, or kept by another definition:
             # the campaign made again (its seed fixes it) for that one number, the fit
@@ -115,7 +124,8 @@ def run_case(source: str, seed: int, starts: int, cache: str | None) -> Case:
         _, truth, ms, shift = _campaign(source, seed, tmp)
     means = ms.to_dataset()
     opts = FitOptions()
-    fit = identify(fit_data_from_means(means, window=opts.window, sigma=opts.sigma),
+    fit = identify(fit_data_from_means(means, window=opts.window, sigma=opts.sigma,
+                                       sigma_pool=sigma_pool),
                    opts.parameters(paper()), MultiStartOptions(n_starts=starts, seed=seed),
                    band_samples=0, uncertainty="sandwich", prior_width=opts.prior_width)
     case = Case(source, seed, {n: float(truth[n]) for n in sources.PHYSICAL}, fit,
@@ -393,11 +403,11 @@ def misses_table(rows: list[dict]) -> str:
 
 def _job(index: int, jobs: list):
     """Job ``index`` of ``jobs`` (source, seed, starts, cache, methods, predictions,
-    alignment noise, residuals' t): its scores and the seconds its fit took. A Dask task of
+    alignment noise, residuals' t, sigma pool): its scores and the seconds its fit took. A Dask task of
     benchmarks/_studies.py's map_seeds, which keys tasks by an integer; the result depends
     only on the job."""
-    source, seed, starts, cache, methods, predictions, align, rdof = jobs[index]
-    case = run_case(source, seed, starts, cache)
+    source, seed, starts, cache, methods, predictions, align, rdof, pool = jobs[index]
+    case = run_case(source, seed, starts, cache, pool)
     return ([score(case, m, predictions, alignment_noise=align, residual_dof=rdof)
              for m in methods], case.seconds)
 
@@ -425,6 +435,10 @@ def main(argv=None) -> int:
                     help="Student's t for the runs' part only, not where the residuals' "
                     "kernel estimate leads (Systematics.residual_dof=False: stop 37-40's "
                     "method, a development check, the rows labelled so)")
+    ap.add_argument("--sigma-pool", type=int, default=SIGMA_POOL,
+                    help="the fits' weights pooled over this many samples on each side "
+                    "(gprm.fit.objective.pooled_sigma; 0: stops 1-41's sample-by-sample "
+                    "weights, a development check; a cache holds one choice)")
     ap.add_argument("--json")
     ap.add_argument("--cache")
     ap.add_argument("--from-json", nargs="+")
@@ -454,7 +468,7 @@ def main(argv=None) -> int:
         ap.error(f"unknown source(s) {unknown}; one of {', '.join(known)}")
     methods = [m for m in a.methods.split(",") if m]
     jobs = [(s, a.seed + i, a.starts, a.cache, methods, a.predictions,
-             a.alignment_noise, not a.no_residual_dof) for s in srcs
+             a.alignment_noise, not a.no_residual_dof, a.sigma_pool) for s in srcs
             for i in range(a.campaigns)]
     t0 = time.perf_counter()
     rows: list[dict] = []

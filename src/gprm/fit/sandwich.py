@@ -75,13 +75,13 @@ from gprm.simulate.core import ROW_LAGS
 #: docs/fitting.md, "Coverage per source")
 COVERAGE_HEADLINE = (
     "Measured per source of data, 20 campaigns each, on the identified parameters: the 95 % "
-    "intervals held the truth in 94.8 % on the exact model with white noise, 97.2 % on an "
-    "independently written simulator with white noise and 91.9 % with all its "
-    "imperfections, 94.7 % on gprm's own generator, "
-    "and 91.9-96.5 % with trigger jitter, drive variation between runs, an unmodelled mode, "
+    "intervals held the truth in 97.8 % on the exact model with white noise, 99.4 % on an "
+    "independently written simulator with white noise and 94.9 % with all its "
+    "imperfections, 94.4 % on gprm's own generator, "
+    "and 93.1-97.9 % with trigger jitter, drive variation between runs, an unmodelled mode, "
     "coloured noise, drift, the nonlinear correction or per-channel gain errors alone; the 68 % "
-    "intervals 59.1-76.2 % against the 60-76 % aimed at (the independent simulator just "
-    "under with all its imperfections, just over with white noise only)")
+    "intervals 62.8-79.9 % against the 60-76 % aimed at (over on six sources, the clean ones "
+    "among them: on data the model describes they are conservative)")
 
 
 @dataclass(frozen=True)

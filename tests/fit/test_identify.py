@@ -217,6 +217,8 @@ def test_fit_files_follow_the_contract(case, tmp_path):
                 "reduced_chi2", "correlation", "starts"):
         assert key in d
     assert d["model"] == "gprm-3d"
+    # the weights as the fit used them (this case's exact-sigma data: as given)
+    assert d["sigma"] == "sem" and d["sigma_pool"] == data.sigma_pool == 0
     assert set(d["starts"]) >= {"requested", "converged", "best_index"}
     v2 = d["parameters"]["v2"]
     assert v2["unit"] == "m" and v2["fitted"] and v2["stderr"] > 0

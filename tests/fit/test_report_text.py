@@ -210,3 +210,13 @@ def test_report_says_the_runs_were_moved_through_the_model():
                  "max_run_change_m": 4e-7}}}
     line = next(ln for ln in fit_report(d).splitlines() if "sub-sample" in ln)
     assert "2.4 us" in line and "92 nm" in line
+
+
+def test_first_line_says_the_weights_and_their_pooling():
+    """fit.json's sigma and sigma_pool on the report's first line; an older file without
+    sigma_pool (sample-by-sample weights) says nothing of pooling."""
+    d = _new_format()
+    d["sigma"], d["sigma_pool"] = "sem", 3
+    assert fit_report(d).splitlines()[0].endswith("sigma=sem pooled over +-3 samples")
+    d.pop("sigma_pool")
+    assert fit_report(d).splitlines()[0].endswith("sigma=sem")

@@ -153,7 +153,8 @@ def summarise(run: str | Path) -> dict:
         s["fit"] = {"chi2": fit.get("chi2"), "dof": fit.get("dof"),
                     "reduced_chi2": fit.get("reduced_chi2"),
                     "starts": st.get("requested"), "converged": st.get("converged"),
-                    "n_at_best": st.get("n_at_best"), "sigma": fit.get("sigma")}
+                    "n_at_best": st.get("n_at_best"), "sigma": fit.get("sigma"),
+                    "sigma_pool": fit.get("sigma_pool")}
         truth = truth_from_means(run)
         if truth:
             s["truth_recovery"] = truth_recovery(fit, truth_for_fit(truth, fit))

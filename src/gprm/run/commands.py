@@ -239,7 +239,8 @@ def print_summary(console, res, titles: dict[str, str], name: str = "gprm run") 
     if "fit" in s:
         f = s["fit"]
         k.add_row("best χ² (polished fit)", f"{_f(f['chi2'])} for {f['dof']} degrees of freedom")
-        k.add_row("reduced χ²", f"{_f(f['reduced_chi2'])} (weights: {f.get('sigma')})")
+        pool = (f", pooled ±{f['sigma_pool']} samples" if f.get("sigma_pool") else "")
+        k.add_row("reduced χ²", f"{_f(f['reduced_chi2'])} (weights: {f.get('sigma')}{pool})")
         k.add_row("starts at the best (Δχ² ≤ 1)", f"{f.get('n_at_best')} of {f.get('starts')}"
                   f" ({f.get('converged')} converged)")
     if "fit" in s and any(NO_UNCERTAINTY in n for r in res.records

@@ -45,6 +45,7 @@ from bench_linearisation import truth_point  # noqa: E402
 
 from gprm.fit.methods import state_of  # noqa: E402
 from gprm.fit.objective import SIGMA_POOL, pooled_sigma  # noqa: E402
+from gprm.fit.sandwich import _estimator, run_deviations  # noqa: E402
 
 PARAMS = ("k_Bx", "d2", "c_Bx", "d1", "k_Ax", "m3", "m4", "k_lr", "m1")
 
@@ -58,17 +59,15 @@ def campaign(case, pool: int) -> dict:
     obs = obj.model(xt[None], jacobian=True)
     y, dy = obs.y[0], obs.dy[0]                                     # (S, T), (S, T, P)
     R = d.runs.shape[1]
-    dev = d.runs - d.runs.mean(axis=1, keepdims=True)
     err = d.runs.mean(axis=1) - y
     sem = d.runs.std(axis=1, ddof=1) / np.sqrt(R)
     out = {}
     for label, k in (("each sample", 0), (f"pooled +-{pool}", pool)):
-        w = 1.0 / pooled_sigma(sem, k)
-        Ju = (dy * w[:, :, None]).reshape(d.n_obs, -1) * prior.dx_du(xt)[None, :]
-        H = Ju.T @ Ju + np.diag(float(prior.weight) ** 2 / prior.sd ** 2)
-        B = np.linalg.solve(H, Ju.T)
-        e = B @ (err * w).reshape(-1)
-        G = (dev * w[:, None, :]).transpose(1, 0, 2).reshape(R, -1) @ B.T     # (R, P)
+        sigma = pooled_sigma(sem, k)
+        Ju, Hinv = _estimator(xt, (dy / sigma[:, :, None]).reshape(d.n_obs, -1), prior)
+        B = Hinv @ Ju.T
+        e = B @ (err / sigma).reshape(-1)
+        G = run_deviations(d.runs, sigma).transpose(1, 0, 2).reshape(R, -1) @ B.T   # (R, P)
         sd_runs = np.sqrt((G ** 2).sum(axis=0) / (R - 1) / R)
         out[label] = {n: float(e[names.index(n)] / sd_runs[names.index(n)])
                       for n in PARAMS if n in names}
@@ -115,9 +114,8 @@ def widths_table(srcs, a) -> None:
                 for r in widths(bs.run_case(src, a.seed + k, a.starts, a.cache, a.fit_pool))]
         z = np.array([r["z"] for r in rows])
         lead = np.array([r["runs_lead"] for r in rows])
-        keys = rows[0]["share"].keys()
-        sh = ", ".join(f"{k} {np.mean([r['share'][k] for r in rows]):.3f}" for k in keys
-                       if np.mean([r["share"][k] for r in rows]) > 0)
+        mean_share = {k: np.mean([r["share"][k] for r in rows]) for k in rows[0]["share"]}
+        sh = ", ".join(f"{k} {v:.3f}" for k, v in mean_share.items() if v > 0)
 
         def rms(v):
             """rms and the share within one sd (0.68 for a correct sd, robust to the few

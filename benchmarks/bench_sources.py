@@ -403,9 +403,9 @@ def misses_table(rows: list[dict]) -> str:
 
 def _job(index: int, jobs: list):
     """Job ``index`` of ``jobs`` (source, seed, starts, cache, methods, predictions,
-    alignment noise, residuals' t, sigma pool): its scores and the seconds its fit took. A Dask task of
-    benchmarks/_studies.py's map_seeds, which keys tasks by an integer; the result depends
-    only on the job."""
+    alignment noise, residuals' t, sigma pool): its scores and the seconds its fit took. A
+    Dask task of benchmarks/_studies.py's map_seeds, which keys tasks by an integer; the
+    result depends only on the job."""
     source, seed, starts, cache, methods, predictions, align, rdof, pool = jobs[index]
     case = run_case(source, seed, starts, cache, pool)
     return ([score(case, m, predictions, alignment_noise=align, residual_dof=rdof)

@@ -17,6 +17,7 @@ import xarray as xr
 
 from gprm.errors import GprmInputError
 from gprm.fit.prior import Prior
+from gprm.validate import check_int
 from gprm.params import REGISTRY, ParameterSet, batch_from_vectors
 from gprm.simulate import OUTPUTS, observe
 
@@ -46,7 +47,7 @@ def pooled_sigma(sigma: np.ndarray, half_width: int) -> np.ndarray:
     if k < 0:
         raise ValueError(f"half_width must be >= 0, got {half_width!r}")
     sigma = np.asarray(sigma, float)
-    if k == 0 or sigma.shape[-1] < 2:
+    if k == 0:
         return sigma
     T = sigma.shape[-1]
     c = np.cumsum(np.concatenate([np.zeros(sigma.shape[:-1] + (1,)), sigma ** 2], axis=-1),
@@ -105,9 +106,7 @@ def fit_data_from_means(ds: xr.Dataset, *, window=DEFAULT_WINDOW, sigma: str = "
     this many samples on each side within the window (:func:`pooled_sigma`; 0: sample by
     sample, as stops 1-41 weighed).
     """
-    if isinstance(sigma_pool, bool) or not isinstance(sigma_pool, (int, np.integer)) \
-            or sigma_pool < 0:
-        raise GprmInputError(f"must be an integer >= 0, got {sigma_pool!r}", field="sigma_pool")
+    check_int("sigma_pool", sigma_pool, 0)
     for var in ("mean", sigma):
         if var not in ds.variables:
             raise GprmInputError(f"mean-signals file has no variable '{var}' (sigma '{sigma}' "
@@ -162,8 +161,8 @@ def fit_data_from_means(ds: xr.Dataset, *, window=DEFAULT_WINDOW, sigma: str = "
             raise GprmInputError("sync_remainder must be finite, one value per run and "
                                  "signal, each within one sample", source=source,
                                  field="sync_remainder")
-    return FitData(t[sel], vals, pooled_sigma(sig, int(sigma_pool)), SIGNALS, (lo, hi), sigma,
-                   source, dict(ds.attrs), runs, nstd, ierr, cross, rem, int(sigma_pool))
+    return FitData(t[sel], vals, pooled_sigma(sig, sigma_pool), SIGNALS, (lo, hi), sigma,
+                   source, dict(ds.attrs), runs, nstd, ierr, cross, rem, sigma_pool)
 
 
 @dataclass(frozen=True)

@@ -39,6 +39,12 @@ def _scale(name: str, p: dict) -> tuple[float, str]:
     return 1.0, p.get("unit") or ""
 
 
+def weights_label(sigma, pool, plus_minus: str = "+-") -> str:
+    """The fit's weights in words: ``sigma`` (sem or std) and, where ``pool`` > 0, the
+    samples on each side its square was pooled over (gprm.fit.objective.pooled_sigma)."""
+    return f"{sigma}" + (f" pooled over {plus_minus}{pool} samples" if pool else "")
+
+
 def pretty_unit(unit: str) -> str:
     """A unit as people write it: ``N*s/m`` -> ``N·s/m`` (pint's ``*`` is for parsing)."""
     return unit.replace("*", "·")
@@ -81,8 +87,7 @@ STUDENT_SHOWN = 30.0
 def fit_report(d: dict, *, min_correl: float = DEFAULT_MIN_CORREL) -> str:
     """lmfit-style report of a fit dictionary (the content of fit.json)."""
     lines = [f"[[Fit]] model {d.get('model', '?')}, piezo {d.get('piezo', '?')}, "
-             f"sigma={d.get('sigma', '?')}"
-             + (f" pooled over +-{d['sigma_pool']} samples" if d.get("sigma_pool") else "")]
+             f"sigma={weights_label(d.get('sigma', '?'), d.get('sigma_pool'))}"]
     st = d.get("starts") or {}
     if st:
         lines.append(f"    starts: {st.get('requested', '?')}, converged "

@@ -14,6 +14,7 @@ from gprm.fit import files
 from gprm.fit.files import MODEL_NAME
 from gprm.fit.adequacy import Adequacy
 from gprm.fit.objective import FitData, Objective
+from gprm.fit.report_text import weights_label
 from gprm.fit.prior import Prior
 from gprm.fit.starts import MultiStartOptions, StartsOutcome
 from gprm.fit.uncertainty import Bands, Profile, Uncertainty, identifiable_combinations
@@ -97,9 +98,8 @@ class FitResult:
     # ------------------------------------------------------------------ report
     def summary(self) -> str:
         """A readable fit report (lmfit-like)."""
-        pool = self.data.sigma_pool
-        lines = [f"[[Fit]] model {MODEL_NAME}, piezo {self.piezo}, sigma={self.data.sigma_kind}"
-                 + (f" pooled over +-{pool} samples" if pool else ""),
+        weights = weights_label(self.data.sigma_kind, self.data.sigma_pool)
+        lines = [f"[[Fit]] model {MODEL_NAME}, piezo {self.piezo}, sigma={weights}",
                  f"    starts: {self.starts.chi2.size}, converged "
                  f"{int(self.starts.converged.sum())}, at best (dchi2<=1) "
                  f"{self.starts.n_at_best()}",

@@ -70,10 +70,10 @@ def corrected(data: FitData, corrections: np.ndarray) -> FitData:
     """``data`` with each run moved by ``corrections`` (S, R, T) (:func:`run_corrections`):
     the runs less their corrections, the mean and sigma taken over them again
     (``sigma_kind`` sem: std / sqrt(R); std: std; ddof 1; pooled over ``sigma_pool`` samples
-    on each side as the file's was, gprm.fit.objective.pooled_sigma). They replace the file's mean and
-    sigma, which ``gprm preprocess`` took over runs interpolated by a cubic spline; so the
-    file's interpolation-error estimate goes too. The result carries no remainder (nothing
-    is left to move)."""
+    on each side as the file's was, gprm.fit.objective.pooled_sigma). They replace the file's
+    mean and sigma, which ``gprm preprocess`` took over runs interpolated by a cubic spline;
+    so the file's interpolation-error estimate goes too. The result carries no remainder
+    (nothing is left to move)."""
     runs = data.runs - corrections
     R = runs.shape[1]
     std = runs.std(axis=1, ddof=1)

@@ -33,7 +33,7 @@ from gprm.fit.sandwich import COVERAGE_HEADLINE
 from gprm.flight.files import read_impact, read_impact_curves, read_telemetry
 from gprm.params import REGISTRY, from_si
 from gprm.predict.files import read_prediction, read_whatif
-from gprm.fit.report_text import pretty_unit
+from gprm.fit.report_text import pretty_unit, weights_label
 from gprm.report import figures as F
 from gprm.report.html import (Card, Section, fig_to_img, not_run, num, paragraph, pm, render,
                               table)
@@ -314,9 +314,8 @@ def fit_section(run: Path) -> tuple[Section, dict | None]:
            f"{', '.join(f'{r}:{q}' for r, q in st.get('race') or [])}; the counts are of "
            f"the starts that ran on)" if st.get("raced") else "")
         + f". χ² = {fit['chi2']:.5g} for {fit['dof']} degrees of freedom "
-        f"(reduced χ² = {fit['reduced_chi2']:.4g}; weights: {fit.get('sigma', 'sem')}"
-        + (f", its square pooled over ±{fit['sigma_pool']} samples" if fit.get("sigma_pool")
-           else "") + "). "
+        f"(reduced χ² = {fit['reduced_chi2']:.4g}; weights: "
+        f"{weights_label(fit.get('sigma', 'sem'), fit.get('sigma_pool'), '±')}). "
         f"Covariance (Eq. 7): {fit.get('covariance_message', 'ok')}."))
     unc = fit.get("uncertainty") or {}
     phys = [n for n, p in fit["parameters"].items() if p.get("fitted") and n not in

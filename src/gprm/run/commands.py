@@ -11,6 +11,7 @@ from typing import TYPE_CHECKING, Optional
 import typer
 
 from gprm.console import ProgressLines, cli_options, one_line_errors
+from gprm.fit.report_text import weights_label
 from gprm.options import Int
 
 if TYPE_CHECKING:
@@ -239,8 +240,8 @@ def print_summary(console, res, titles: dict[str, str], name: str = "gprm run") 
     if "fit" in s:
         f = s["fit"]
         k.add_row("best χ² (polished fit)", f"{_f(f['chi2'])} for {f['dof']} degrees of freedom")
-        pool = (f", pooled ±{f['sigma_pool']} samples" if f.get("sigma_pool") else "")
-        k.add_row("reduced χ²", f"{_f(f['reduced_chi2'])} (weights: {f.get('sigma')}{pool})")
+        k.add_row("reduced χ²", f"{_f(f['reduced_chi2'])} (weights: "
+                  f"{weights_label(f.get('sigma'), f.get('sigma_pool'), '±')})")
         k.add_row("starts at the best (Δχ² ≤ 1)", f"{f.get('n_at_best')} of {f.get('starts')}"
                   f" ({f.get('converged')} converged)")
     if "fit" in s and any(NO_UNCERTAINTY in n for r in res.records

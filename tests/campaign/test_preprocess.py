@@ -9,7 +9,7 @@ from scipy.optimize import minimize_scalar
 
 from gprm.campaign.data import MODEL_POSITIONS, POSITIONS
 from gprm.campaign.files import read_tables
-from gprm.campaign.preprocess import first_crossing, noise_std, synchronise
+from gprm.campaign.preprocess import first_crossing, noise_std, sync_timing_sd, synchronise
 from gprm.campaign.files import read_truth, read_truth_alignment
 
 GOOD_SNR = MODEL_POSITIONS + ("x_lr", "y_lr", "z_fl")
@@ -50,6 +50,66 @@ def test_synchronise_band_limited_signal():
     Y = np.stack([f(i - s) for s in true])   # run r delayed by true[r] samples
     shifts, _ = synchronise(Y, 0, np.arange(60, 240), 8)
     assert np.max(np.abs(shifts - true)) < 0.01
+
+
+def test_sync_timing_sd_is_the_time_shift_the_runs_spread_loses():
+    """The mechanism behind ``sync_timing_sd``, by Monte Carlo on a smooth onset with white
+    noise and step 0's baseline line (400 replicates of 10 runs): the synchronised runs'
+    mean differs from the truth at the runs' average shift by a time shift (its projection
+    on the slope) whose spread is the sd ``sync_timing_sd`` reports, while the runs'
+    deviations from their mean have almost none of it (so a covariance from the runs'
+    spread misses it). The sd of 400 draws' sd is 3.5 % of it: 12 % is about three and a
+    half of those; the runs' share is bounded at a tenth of the variance (to first order it
+    is zero)."""
+    from gprm.campaign.preprocess import _detrend
+
+    rng = np.random.default_rng(11)
+    T, R, dt, n_base = 300, 10, 5e-6, 100
+    i = np.arange(T, dtype=float)
+    time = i * dt
+
+    def f(x):
+        return 200.0 * (1.0 + np.tanh((x - 150.0) / 12.0))
+
+    win = np.arange(120, 200)
+    slope = np.gradient(f(i))[win]
+    g = slope / (slope @ slope)
+    mean_proj, run_proj, reported = [], [], []
+    for _ in range(400):
+        Y = _detrend(f(i)[None, :] + rng.standard_normal((R, T)), time, n_base)
+        shifts, splines = synchronise(Y, 0, win, 4)
+        aligned = np.stack([splines[r](win + shifts[r]) for r in range(R)])
+        M = aligned.mean(axis=0)
+        # the truth where the data's axis puts it: at the runs' average shift
+        mean_proj.append(float(g @ (M - f(win + shifts.mean()))))
+        run_proj.append(float(np.mean(((aligned - M) @ g) ** 2)))
+        reported.append(sync_timing_sd(splines, shifts, win, 1.0, time, n_base) / dt)
+    sd_mean = float(np.std(mean_proj))
+    assert abs(sd_mean / float(np.mean(reported)) - 1.0) < 0.12, (sd_mean, np.mean(reported))
+    # what the runs' spread says about the mean's shift: their variance over R
+    runs_var = float(np.mean(run_proj)) * R / (R - 1) / R
+    assert runs_var < 0.1 * sd_mean ** 2, (runs_var, sd_mean ** 2)
+
+
+def test_sync_timing_sd_is_written_and_read(full_means, tmp_path):
+    """The file carries it per signal, in s, positive on a campaign with motion; the fit's
+    data read it, and a negative value is an error naming the field."""
+    from gprm.errors import GprmInputError
+    from gprm.fit.objective import fit_data_from_means
+
+    ds = full_means.to_dataset()
+    v = ds["sync_timing_sd"]
+    assert v.dims == ("signal",) and v.attrs["units"] == "s"
+    model = [list(POSITIONS).index(p) for p in MODEL_POSITIONS]
+    assert np.all(np.isfinite(v.values)) and np.all(v.values[model] > 0)
+    fd = fit_data_from_means(ds)
+    want = [float(v.sel(signal=s)) for s in fd.signals]
+    np.testing.assert_array_equal(fd.sync_timing_sd, want)
+    assert fit_data_from_means(ds.drop_vars("sync_timing_sd")).sync_timing_sd is None
+    bad = ds.copy()
+    bad["sync_timing_sd"] = bad["sync_timing_sd"] * -1.0
+    with pytest.raises(GprmInputError, match="sync_timing_sd"):
+        fit_data_from_means(bad)
 
 
 def test_noise_std_matches_injected(full_campaign, full_means):

@@ -568,7 +568,7 @@ def test_design_counts_the_alignment_noise_the_fit_counted():
     where the fit counted it: its recorded timing sd beyond the stated one (combined in
     quadrature), which since stop 40 is nothing for a signal whose own lag was fitted and
     the alignment sd for one held fixed; older files without the timing sd: the
-    alignment sd."""
+    alignment sd. The synchronisation's timing sd the fit also adds is not counted."""
     from gprm.design.core import _alignment_counted
 
     a, st = 3e-7, 1e-7
@@ -582,3 +582,12 @@ def test_design_counts_the_alignment_noise_the_fit_counted():
     assert _alignment_counted({"alignment_sd_s": a, "timing_sd_s": a}, stated,
                               "y_head") == pytest.approx(a, rel=1e-12)
     assert _alignment_counted({"alignment_sd_s": a}, stated, "x_head") == a
+    # the synchronisation's timing (stop 43, every signal) is not alignment noise
+    sync = 8e-9
+    assert _alignment_counted({"alignment_sd_s": a, "timing_sd_s": float(np.hypot(st, sync)),
+                               "sync_timing_sd_s": sync}, stated,
+                              "x_head") == pytest.approx(0.0, abs=1e-12)   # 1 ps: rounding
+    both = float(np.sqrt(st ** 2 + a ** 2 + sync ** 2))
+    assert _alignment_counted({"alignment_sd_s": a, "timing_sd_s": both,
+                               "sync_timing_sd_s": sync}, stated,
+                              "x_head") == pytest.approx(a, rel=1e-9)

@@ -1,7 +1,8 @@
 """The default uncertainty (gprm.fit.sandwich) and the adequacy checks (gprm.fit.adequacy)
 against independent references: the HAC sum against statsmodels, the Ljung-Box test against
 statsmodels, the coverage of the run-based and residual-based covariances on a linear model
-with correlated errors whose answer is known, the gain-error estimate's mean, the stated
+with correlated errors whose answer is known, the gain-error estimate's mean and its
+noise without gain errors, the stated
 systematics read from a parameter file, and the structure: a default fit loads neither the
 synthetic generator nor the opt-in method that needs it."""
 
@@ -16,9 +17,8 @@ from scipy.stats import binom
 
 from gprm.errors import GprmInputError
 from gprm.fit.adequacy import ljung_box
-from gprm.fit.sandwich import (Systematics, estimate_gain_sd, gain_variance, hac_meat,
-                               stretch_draws,
-                               statistical_covariance)
+from gprm.fit.sandwich import (Systematics, estimate_gain_sd, gain_moments, gain_variance,
+                               hac_meat, statistical_covariance, stretch_draws)
 from gprm.params.files import read_systematics
 
 
@@ -239,6 +239,47 @@ def test_gain_error_estimate_is_unbiased_in_the_variance():
         # the mean of 400 estimates within four of its standard errors of the truth
         se = float(np.std(v)) / np.sqrt(len(v))
         assert abs(float(np.mean(v)) - g_true ** 2) < 4 * se, (np.mean(v), g_true ** 2, se)
+
+
+def test_gain_estimate_null_sd_is_its_spread_without_gain_errors():
+    """gain_moments' null_sd against a Monte Carlo: without gain errors the estimate's
+    spread over 400 replicates is the null sd it reports (from the runs' spread, and from
+    the exact unit weights without runs), so z is about N(0, 1); with gain errors of sd 10 %
+    (a gain projection about 4 times its noise here) z is large. The sd of 400 draws' sd is 3.5 % of it: 15 % is four of those."""
+    rng = np.random.default_rng(6)
+    S, T, n_runs = 5, 50, 10
+    t = np.linspace(0, 1, T)
+    y = np.stack([np.sin(2 * np.pi * (s + 1) * t) * (3 + s) + 10 * t for s in range(S)])
+    Ju = np.zeros((S * T, 2))
+    Ju[:, 0] = 10 * np.tile(t, S)
+    Ju[:, 1] = np.concatenate([np.sin(2 * np.pi * t)] + [np.zeros(T)] * (S - 1))
+    Hinv = np.linalg.inv(Ju.T @ Ju)
+    for with_runs in (True, False):
+        for g_true in (0.0, 0.1):
+            v, null, z = [], [], []
+            for _ in range(400):
+                g = g_true * rng.standard_normal(S)
+                if with_runs:
+                    runs = y[:, None, :] * (1 + g[:, None, None]) + \
+                        np.sqrt(n_runs) * rng.standard_normal((S, n_runs, T))
+                    data, sigma = runs.mean(axis=1), np.ones((S, T))
+                else:
+                    runs, data, sigma = None, y * (1 + g[:, None]) + \
+                        rng.standard_normal((S, T)), np.ones((S, T))
+                r = data.reshape(-1) - y.reshape(-1)
+                r = r - Ju @ (Hinv @ (Ju.T @ r))
+                gm = gain_moments(Ju, Hinv, r.reshape(S, T), y, sigma, runs)
+                assert gm.variance == pytest.approx(
+                    gain_variance(Ju, Hinv, r.reshape(S, T), y, sigma, runs))
+                v.append(gm.variance)
+                null.append(gm.null_sd)
+                z.append(gm.z)
+            if g_true == 0.0:
+                ratio = float(np.std(v)) / float(np.mean(null))
+                assert abs(ratio - 1.0) < 0.15, (with_runs, ratio)
+                assert abs(float(np.mean(z))) < 4 * float(np.std(z)) / 20
+            else:
+                assert float(np.median(z)) > 4.0, (with_runs, np.median(z))
 
 
 def test_systematics_are_read_from_the_parameter_file(tmp_path):
@@ -604,6 +645,57 @@ def test_alignment_noise_joins_only_the_signals_whose_own_lag_is_held_fixed():
     assert V.timing[i0, i0] > 1.5 * V0.timing[i0, i0]
     with pytest.raises(GprmInputError, match="alignment_noise"):
         Systematics(alignment_noise="yes")
+
+
+def test_the_synchronisations_timing_joins_every_signals_timing_error():
+    """FitData.sync_timing_sd (the time shift the synchronisation takes out of the runs'
+    spread but leaves in their mean, gprm.campaign.preprocess.sync_timing_sd) adds to each
+    signal's timing error in quadrature, whether its lag is fitted or not; it widens the
+    lags and leaves the physical parameters' variance as it was; Systematics(sync_timing=
+    False) and files without it leave the timing error the stated one."""
+    from dataclasses import replace
+
+    from gprm.fit.api import FitOptions
+    from gprm.fit.objective import Objective, fit_data_from_means
+    from gprm.fit.prior import default_prior
+    from gprm.fit.sandwich import error_model, propagate
+    from gprm.params import LAG_PARAMETERS, paper
+    from pathlib import Path
+    sys.path.insert(0, str(Path(__file__).parent))
+    from means_factory import make_means
+
+    p = paper()
+    data = fit_data_from_means(make_means(p, seed=3), source="synthetic")
+    data = replace(data, attrs={**data.attrs, "align_time": 1.01e-3})
+    assert data.sync_timing_sd is None
+    sync = np.array([6e-9, 5e-9, 12e-9, 7e-9, 2e-10])
+    stated = 2e-9
+    names = tuple(FitOptions().parameters(p).fitted)
+    obj = Objective.create(replace(data, sync_timing_sd=sync), p, names)
+    x = p.vector(obj.names)
+    y = obj.model(x[None]).y[0]
+    J = -obj.model(x[None], jacobian=True).dy[0].reshape(-1, x.size) / \
+        data.sigma.reshape(-1, 1)
+    r = ((data.values - y) / data.sigma).reshape(-1)
+    prior = default_prior(p, obj.names)
+
+    def err(**kw):
+        return error_model(obj, x, J, r, prior, Systematics(timing_sd=stated,
+                                                            estimate_gain=False, **kw))
+
+    on, off = err(), err(sync_timing=False)
+    np.testing.assert_allclose(on.timing_sd, np.hypot(stated, sync))
+    np.testing.assert_array_equal(off.timing_sd, stated)
+    V_on, V_off = (propagate(obj, x, J, prior, e, y) for e in (on, off))
+    lags = np.array([n in LAG_PARAMETERS for n in obj.names])
+    t_on, t_off = np.diag(V_on.timing), np.diag(V_off.timing)
+    assert np.all(t_on[lags] > 4 * t_off[lags])
+    stat = np.diag(V_on.statistical)
+    assert np.all(t_on[~lags] < 1e-3 * stat[~lags])
+    # a file without it: the stated timing only
+    obj0 = Objective.create(data, p, names)
+    e0 = error_model(obj0, x, J, r, prior, Systematics(timing_sd=stated, estimate_gain=False))
+    np.testing.assert_array_equal(e0.timing_sd, stated)
 
 
 def test_fisher_g_test_is_exact_on_white_noise_and_finds_an_oscillation():

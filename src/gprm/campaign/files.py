@@ -390,6 +390,11 @@ def means_dataset(ms) -> xr.Dataset:
         ds["interpolation_error"] = (("signal", "time"), ms.interpolation_error, {
             "units": "m", "long_name": "the mean's cubic-spline interpolation less a quintic "
             "one of the same runs at the same times (estimated interpolation error)"})
+    if getattr(ms, "sync_timing_sd", None) is not None:
+        ds["sync_timing_sd"] = (("signal",), ms.sync_timing_sd, {
+            "units": "s", "long_name": "standard deviation of the time shift the "
+            "synchronisation takes out of the runs' spread but leaves in their mean (from "
+            "the noise runs and the mean's slope over the synchronisation window)"})
     if getattr(ms, "crossing_time", None) is not None:
         ds["crossing_time"] = (("signal",), ms.crossing_time, {
             "units": "s", "long_name": "where the mean's first sustained crossing of "

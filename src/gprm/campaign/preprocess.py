@@ -134,6 +134,9 @@ class MeanSignals:
     #: it by (within half a sample; 0 for the reference run): run r in ``runs`` matches the
     #: reference run at t - sync_remainder[r]
     sync_remainder: np.ndarray | None = None
+    #: (signal,) s: the standard deviation of the time shift that the synchronisation takes
+    #: out of the runs' spread but leaves in their mean (:func:`sync_timing_sd`)
+    sync_timing_sd: np.ndarray | None = None
 
     def to_dataset(self) -> xr.Dataset:
         """The mean-signals NetCDF layout (:func:`gprm.campaign.files.means_dataset`)."""
@@ -146,6 +149,47 @@ def noise_std(noise: np.ndarray, time: np.ndarray) -> float:
     coef, *_ = np.linalg.lstsq(X, noise.T, rcond=None)
     res = noise.T - X @ coef
     return float(np.sqrt(np.sum(res ** 2) / (noise.shape[0] * (time.size - 2))))
+
+
+def sync_timing_sd(splines, shifts: np.ndarray, win: np.ndarray, noise_sd: float,
+                   time: np.ndarray, n_base: int) -> float:
+    """s: the standard deviation of the time shift that step 1 takes out of the runs' spread
+    but leaves in their mean.
+
+    Step 1 moves run r by the shift that best matches the reference over ``win``; to first
+    order its noise e_r moves it by <g, e_r - e_ref> (g = y' / |y'|^2 over the window, y' the
+    synchronised runs' mean slope per sample). Each synchronised run then lacks its noise's
+    component along y' and carries the reference run's instead, so the runs' deviations from
+    their mean have none along y', while the mean keeps the average noise's,
+    y' <g, mean_r e_r>: a time shift of variance Var<g, e> / R that the runs' spread does not
+    show (the data's time axis is anchored at the synchronisation's average,
+    docs/data-formats.md). A fitted lag absorbs it: the lags' own error, and through them
+    every prediction read on the fit's time axis (measured: docs/fitting.md, "The time
+    shift the synchronisation hides").
+
+    e_r is the run's noise after step 0 (its straight line fitted to the first ``n_base``
+    samples and subtracted), white with sd ``noise_sd`` (the noise runs' pooled sd):
+    Var<g, e> = noise_sd^2 (|g|^2 + c^T (X_b^T X_b)^-1 c), c = X_w^T g, X the line's design
+    over the baseline (b) and the window (w), exactly. (Projecting the noise runs themselves
+    on g was tried: each noise run's own straight line takes out a tenth of the variance
+    along a template that is mostly one-signed, as a slope over a rise is.)
+    ``splines``/``shifts``: step 1's per-run splines over the sample index and shifts
+    (samples); ``win``: its window (sample indices after the baseline); ``time`` (T,) s.
+    0 where the window has no slope."""
+    R = len(splines)
+    slope = np.mean([splines[r].derivative()(win + shifts[r]) for r in range(R)], axis=0)
+    ss = float(slope @ slope)
+    if ss <= 0 or not np.isfinite(noise_sd) or n_base < 2:
+        return 0.0
+    g = slope / ss
+    tb = time[:n_base]
+    tm, ts = tb.mean(), max(np.ptp(tb), 1e-30)
+    Xb = np.stack([np.ones(n_base), (tb - tm) / ts], axis=1)
+    Xw = np.stack([np.ones(win.size), (time[win] - tm) / ts], axis=1)
+    c = Xw.T @ g
+    var = noise_sd ** 2 * (float(g @ g) + float(c @ np.linalg.solve(Xb.T @ Xb, c)))
+    dt = float(time[1] - time[0])
+    return dt * float(np.sqrt(var / R))
 
 
 def _detrend(Y: np.ndarray, time: np.ndarray, n_base: int) -> np.ndarray:
@@ -284,7 +328,8 @@ def _position(Y, N, time, cfg: PreprocessConfig, name: str, src: str,
     med = np.median(Yb, axis=0)
     ref = int(np.argmin(np.mean((Yb[:, win] - med[win]) ** 2, axis=1)))
     shifts, splines = synchronise(Yb, ref, win, cfg.max_lag)
-    return dict(noise_std=sn, ref=ref, shifts=shifts, splines=splines, onset=i_on, runs=Yb)
+    return dict(noise_std=sn, ref=ref, shifts=shifts, splines=splines, onset=i_on, runs=Yb,
+                sync_timing_sd=sync_timing_sd(splines, shifts, win, sn, time, n_base))
 
 
 def preprocess(campaign: xr.Dataset, config: PreprocessConfig | None = None) -> MeanSignals:
@@ -453,5 +498,6 @@ def preprocess(campaign: xr.Dataset, config: PreprocessConfig | None = None) -> 
                        np.full(P, R), sync, ref, table1, dropped, snr, attrs,
                        truth_shift, truth_mean, truth_spread, tuple(no_cross), truth, alignment,
                        runs=runs, interpolation_error=interp_err, sync_remainder=remainder,
+                       sync_timing_sd=np.array([per[n]["sync_timing_sd"] for n in POSITIONS]),
                        crossing_time=cfg.align_time + np.where(
                            [n in no_cross for n in POSITIONS], 0.0, rounding))

@@ -192,7 +192,8 @@ def _subset(data: FitData, keep: list[int]) -> FitData:
                    else data.interpolation_error[keep],
                    None if data.crossing_time is None else data.crossing_time[keep],
                    None if data.sync_remainder is None else data.sync_remainder[keep],
-                   data.sigma_pool)
+                   data.sigma_pool,
+                   None if data.sync_timing_sd is None else data.sync_timing_sd[keep])
 
 
 def leave_one_signal_out_each(obj: Objective, x: np.ndarray, lm: LMOptions = LMOptions(),

@@ -87,6 +87,10 @@ class FitData:
     #: samples on each side over which ``sigma`` was pooled (:func:`pooled_sigma`; 0: as
     #: given); a recomputed sigma (gprm.fit.subsample) is pooled the same way
     sigma_pool: int = 0
+    #: (n_signals,) s: the sd of the time shift the synchronisation took out of the runs'
+    #: spread but left in their mean (gprm.campaign.preprocess.sync_timing_sd; None: not
+    #: known, older files), a timing error of each signal in the default uncertainty
+    sync_timing_sd: np.ndarray | None = None
 
     @property
     def n_obs(self) -> int:
@@ -161,8 +165,14 @@ def fit_data_from_means(ds: xr.Dataset, *, window=DEFAULT_WINDOW, sigma: str = "
             raise GprmInputError("sync_remainder must be finite, one value per run and "
                                  "signal, each within one sample", source=source,
                                  field="sync_remainder")
+    sync_sd = None
+    if "sync_timing_sd" in ds.variables:
+        sync_sd = np.array([float(ds["sync_timing_sd"].sel(signal=s)) for s in SIGNALS])
+        if not np.all(np.isfinite(sync_sd)) or np.any(sync_sd < 0):
+            raise GprmInputError("sync_timing_sd must be finite and >= 0, one value per "
+                                 "signal", source=source, field="sync_timing_sd")
     return FitData(t[sel], vals, pooled_sigma(sig, sigma_pool), SIGNALS, (lo, hi), sigma,
-                   source, dict(ds.attrs), runs, nstd, ierr, cross, rem, sigma_pool)
+                   source, dict(ds.attrs), runs, nstd, ierr, cross, rem, sigma_pool, sync_sd)
 
 
 @dataclass(frozen=True)

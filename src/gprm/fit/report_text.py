@@ -119,15 +119,25 @@ def fit_report(d: dict, *, min_correl: float = DEFAULT_MIN_CORREL) -> str:
         if isinstance(syst, dict) and syst:
             lines.append("    systematics marginalised (1 sd; timing = stated, (+) the alignment's "
                          "noise from the data where the signal's own lag is held fixed (a "
-                         "fitted lag absorbs it); the crossing offset is where the fitted model "
-                         "crosses the alignment threshold against the data):")
+                         "fitted lag absorbs it), (+) the time shift the synchronisation took "
+                         "out of the runs' spread; the crossing offset is where the fitted "
+                         "model crosses the alignment threshold against the data):")
             for sig, v in syst.items():
                 if isinstance(v, dict):
                     lines.append(f"      {sig:>7}: gain {_g(100 * v.get('gain_sd', math.nan), '.3g')}"
                                  f" %, timing {_g(1e9 * v.get('timing_sd_s', math.nan), '.3g')} ns"
                                  f" (alignment {_g(1e9 * v.get('alignment_sd_s', math.nan), '.3g')}"
+                                 f" ns, synchronisation "
+                                 f"{_g(1e9 * v.get('sync_timing_sd_s', 0.0), '.3g')}"
                                  f" ns, crossing offset "
                                  f"{_g(1e9 * v.get('crossing_offset_s', math.nan), '+.3g')} ns)")
+            gz = det.get("gain_estimated_z")
+            if isinstance(det.get("gain_estimated"), (int, float)) and \
+                    isinstance(gz, (int, float)):
+                lines.append(f"    gain error the residuals show: "
+                             f"{_g(100 * det['gain_estimated'], '.3g')} % "
+                             f"({_g(gz, '.1f')} sd of its noise without one"
+                             + ("; indistinguishable from none" if gz < 2 else "") + ")")
             if det.get("statistical_from"):
                 lines.append(f"    statistical part from the {det['statistical_from']}")
         alt = det.get("alternative_minima") if isinstance(det, dict) else None

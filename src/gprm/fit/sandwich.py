@@ -34,7 +34,11 @@ independent ways, each from the data:
     alignment's error, estimated from the data (the mean's noise at the alignment time over
     its slope); where the lag is fitted it absorbs that error exactly, and the lag lives in
     the aligned data's axis, so nothing is added (docs/fitting.md, "The time axis of a
-    campaign's truth").
+    campaign's truth"). Every signal's timing error also carries the time shift the runs'
+    synchronisation took out of their spread but left in their mean (the file's
+    ``sync_timing_sd``, gprm.campaign.preprocess.sync_timing_sd): the runs cannot show it,
+    and the lags (and what is read on the fit's time axis) err by it (docs/fitting.md, "The
+    time shift the synchronisation hides").
     The fitted model's crossing offset (:func:`crossing_offsets`) is reported, not added:
     the lags live in the aligned data's time axis, which the offset does not make uncertain
     (docs/fitting.md, "The time axis of a campaign's truth").
@@ -120,6 +124,10 @@ class Systematics:
     #: with its degrees of freedom (:func:`residual_dof`); False: only the runs' part counts
     #: as estimated (stop 37-40)
     residual_dof: bool = True
+    #: every signal's timing error includes the time shift the synchronisation took out of
+    #: the runs' spread but left in their mean (FitData.sync_timing_sd, where the file has
+    #: it); False: not (stops 1-42, a development check)
+    sync_timing: bool = True
 
     def __post_init__(self):
         if self.alignment_noise not in ALIGNMENT_NOISE:
@@ -148,7 +156,7 @@ class Systematics:
                 "estimate_gain": self.estimate_gain, "shape_check": self.shape_check,
                 "variance_check": self.variance_check,
                 "alignment_noise": self.alignment_noise,
-                "residual_dof": self.residual_dof,
+                "residual_dof": self.residual_dof, "sync_timing": self.sync_timing,
                 "per_signal": {s: {"gain_sd": g, "timing_sd_s": t}
                                for s, g, t in self.per_signal}}
 
@@ -336,14 +344,36 @@ def gain_variance(Ju: np.ndarray, Hinv: np.ndarray, R: np.ndarray, y: np.ndarray
                   sigma: np.ndarray, runs: np.ndarray | None, *,
                   max_lag: int | None = None) -> float:
     """The variance of the per-channel gain errors the residuals show (method of moments,
-    unbiased; may be negative by chance).
+    unbiased; may be negative by chance): :func:`gain_moments`'s estimate."""
+    return gain_moments(Ju, Hinv, R, y, sigma, runs, max_lag=max_lag).variance
+
+
+@dataclass(frozen=True)
+class GainMoments:
+    """The gain errors' variance estimate of :func:`gain_moments` and its standard deviation
+    where there is no gain error (``null_sd``): ``variance / null_sd`` is the estimate in
+    units of its own noise, about N(0, 1) on data without gain errors."""
+
+    variance: float
+    null_sd: float
+
+    @property
+    def z(self) -> float:
+        return self.variance / self.null_sd if self.null_sd > 0 else 0.0
+
+
+def gain_moments(Ju: np.ndarray, Hinv: np.ndarray, R: np.ndarray, y: np.ndarray,
+                 sigma: np.ndarray, runs: np.ndarray | None, *,
+                 max_lag: int | None = None) -> GainMoments:
+    """The variance of the per-channel gain errors the residuals show (method of moments,
+    unbiased; may be negative by chance), and its noise without gain errors.
 
     A gain error g_s of signal s adds g_s G_s to the weighted data (G_s = y_s / sigma_s on
     that signal's rows). The fit absorbs what the parameters can mimic; what is left is
     m_s = (I - J H^-1 J^T) G_s. With independent g_s of variance v, E[(m_s^T r)^2] =
     v sum_k (m_s^T m_k)^2 + m_s^T S m_s (S the covariance of the residuals' other part).
-    Summed over the signals this gives v; the estimate is clipped at 0. It assumes the part
-    of the gain errors the data see has the size of the part they do not.
+    Summed over the signals this gives v. It assumes the part of the gain errors the data
+    see has the size of the part they do not.
 
     m_s^T S m_s is estimated from the data: from the runs' spread where the file has runs
     (else white noise of unit weight), and, with ``max_lag``, also from the residuals left
@@ -351,9 +381,16 @@ def gain_variance(Ju: np.ndarray, Hinv: np.ndarray, R: np.ndarray, y: np.ndarray
     window ``max_lag``), the larger of the two: residual structure that is not a gain error
     (an unmodelled resonance, a nonlinearity common to every run) projects on the gain
     directions too, and without this it would be read as a gain error and counted twice
-    (once here, once in the residuals' own covariance). Ju: (N, P) data Jacobian in u;
-    Hinv: the inverse of the fit's H; R: (S, T) weighted residuals; y: (S, T) model
-    signals; sigma: (S, T) weights; runs: (S, n, T)."""
+    (once here, once in the residuals' own covariance).
+
+    The null standard deviation: without gain errors the projections p = M^T r are
+    Gaussian with covariance C (from the runs, each signal's row and column scaled up where
+    the residuals say more), so sum_s p_s^2 has variance 2 tr(C^2) (the estimate's noise
+    that a clip at 0 turns into a positive bias: docs/fitting.md, "Where the clean sources'
+    width goes").
+
+    Ju: (N, P) data Jacobian in u; Hinv: the inverse of the fit's H; R: (S, T) weighted
+    residuals; y: (S, T) model signals; sigma: (S, T) weights; runs: (S, n, T)."""
     S, T = R.shape
     N = S * T
     G = np.zeros((N, S))
@@ -365,13 +402,14 @@ def gain_variance(Ju: np.ndarray, Hinv: np.ndarray, R: np.ndarray, y: np.ndarray
     MM = M.T @ M
     if runs is not None and runs.shape[1] >= 2:
         n_r = runs.shape[1]
-        noise = np.zeros(S)
+        C = np.zeros((S, S))
         for s in range(S):
             dev = (runs[s] - runs[s].mean(axis=0)) / sigma[s][None, :]
             z = dev @ M[s * T:(s + 1) * T, :]                 # (R, S)
-            noise += np.sum(z * z, axis=0) / (n_r * (n_r - 1))
+            C += z.T @ z / (n_r * (n_r - 1))
     else:
-        noise = np.diag(MM)
+        C = MM.copy()
+    noise = np.diag(C).copy()
     if max_lag is not None:
         g_hat = np.linalg.lstsq(MM, proj, rcond=None)[0]
         e = (r - M @ g_hat).reshape(S, T)
@@ -380,11 +418,15 @@ def gain_variance(Ju: np.ndarray, Hinv: np.ndarray, R: np.ndarray, y: np.ndarray
             Ms = M[s * T:(s + 1) * T, :]
             other += np.diag(hac_meat(prewhitened_scores(Ms.T, e[s], PREWHITEN_ORDER),
                                       max_lag, DEFAULT_KERNEL))
-        noise = np.maximum(noise, other * N / max(N - S, 1))
+        raised = np.maximum(noise, other * N / max(N - S, 1))
+        scale = np.sqrt(raised / np.where(noise > 0, noise, 1.0))
+        C = C * np.outer(scale, scale)
+        noise = raised
     den = float(np.sum(MM * MM))
     if den <= 0:
-        return 0.0
-    return float(np.sum(proj ** 2 - noise)) / den
+        return GainMoments(0.0, 0.0)
+    return GainMoments(float(np.sum(proj ** 2 - noise)) / den,
+                       float(np.sqrt(2.0 * np.sum(C * C))) / den)
 
 
 def run_deviations(runs: np.ndarray, sigma: np.ndarray) -> np.ndarray:
@@ -528,6 +570,8 @@ class ErrorModel:
     crossing_offset: np.ndarray | None = None
     #: each signal's :func:`whitening` of R (AR order PREWHITEN_ORDER), computed once
     whitenings: tuple | None = None
+    #: the gain estimate's variance in units of its own noise (:class:`GainMoments`)
+    gain_z: float = 0.0
 
 
 def _estimator(x: np.ndarray, J: np.ndarray, prior: Prior) -> tuple[np.ndarray, np.ndarray]:
@@ -615,13 +659,21 @@ def error_model(obj: Objective, x: np.ndarray, J: np.ndarray, r: np.ndarray, pri
     # for the time of the runs' average; docs/fitting.md, "The time axis of a campaign's
     # truth".)
     used = alignment_noise_used(obj, systematics.alignment_noise)
-    t_sd = np.array([np.hypot(systematics.for_signal(s)[1], a_sd[i] if used[i] else 0.0)
+    # the time shift the synchronisation took out of the runs' spread but left in their
+    # mean (gprm.campaign.preprocess.sync_timing_sd): an error of every signal's timing that
+    # the runs' part cannot show; a fitted lag takes it (docs/fitting.md, "The time shift
+    # the synchronisation hides")
+    s_sd = (np.zeros(len(d.signals)) if d.sync_timing_sd is None or not systematics.sync_timing
+            else np.asarray(d.sync_timing_sd, float))
+    t_sd = np.array([np.sqrt(systematics.for_signal(s)[1] ** 2
+                             + (a_sd[i] if used[i] else 0.0) ** 2 + s_sd[i] ** 2)
                      for i, s in enumerate(d.signals)])
-    g_est = estimate_gain_sd(Ju, Hinv, R, y, d.sigma, d.runs, max_lag=L)
+    gm = gain_moments(Ju, Hinv, R, y, d.sigma, d.runs, max_lag=L)
+    g_est = float(np.sqrt(max(gm.variance, 0.0)))
     if systematics.estimate_gain:
         g_sd = np.maximum(g_sd, g_est)
     return ErrorModel(R, dev, g_sd, t_sd, a_sd, g_est, p_eff, L, c_off,
-                      tuple(whitening(R[s], PREWHITEN_ORDER) for s in range(S)))
+                      tuple(whitening(R[s], PREWHITEN_ORDER) for s in range(S)), gm.z)
 
 
 def propagate(obj: Objective, x: np.ndarray, J: np.ndarray, prior: Prior,
@@ -1158,6 +1210,9 @@ def uncertainty(method: str, state: FitState) -> Uncertainty:
         "systematics": {s: {"gain_sd": float(parts.gain_sd[i]),
                             "timing_sd_s": float(parts.timing_sd[i]),
                             "alignment_sd_s": float(parts.alignment_sd[i]),
+                            "sync_timing_sd_s": (float(state.obj.data.sync_timing_sd[i])
+                                                 if state.obj.data.sync_timing_sd is not None
+                                                 and syst.sync_timing else 0.0),
                             "crossing_offset_s": (float(err.crossing_offset[i])
                                                   if err.crossing_offset is not None else 0.0)}
                         for i, s in enumerate(state.obj.data.signals)},
@@ -1165,6 +1220,10 @@ def uncertainty(method: str, state: FitState) -> Uncertainty:
         "degrees_of_freedom_from": dof_sources(parts, nu),
         "stated": syst.to_json(),
         "gain_estimated": parts.gain_estimated,
+        # the estimate's variance in units of its noise without gain errors: below ~2 it is
+        # indistinguishable from none (used anyway: docs/fitting.md, "Where the clean
+        # sources' width goes")
+        "gain_estimated_z": float(err.gain_z),
         "max_lag": parts.max_lag, "p_eff": parts.p_eff,
         "shape_factors": {"lower": [float(v) for v in s_lo], "upper": [float(v) for v in s_hi]},
         "variance_factors": {"lower": [float(v) for v in v95[0]],

@@ -275,9 +275,13 @@ def systematics_rows(unc: dict) -> list:
             continue
         rows.append([sig, f"{100 * v.get('gain_sd', float('nan')):.3g} %",
                      f"{100 * stated.get('gain_sd', 0.0):.3g} %" if stated else "–",
-                     f"{100 * est:.3g} %" if isinstance(est, (int, float)) else "–",
+                     (f"{100 * est:.3g} %" + (f" (z {det['gain_estimated_z']:.1f})"
+                                              if isinstance(det.get("gain_estimated_z"),
+                                                            (int, float)) else ""))
+                     if isinstance(est, (int, float)) else "–",
                      f"{1e9 * v.get('timing_sd_s', float('nan')):.3g} ns",
                      f"{1e9 * v.get('alignment_sd_s', float('nan')):.3g} ns",
+                     f"{1e9 * v.get('sync_timing_sd_s', 0.0):.3g} ns",
                      f"{1e9 * v.get('crossing_offset_s', float('nan')):+.3g} ns"])
     return rows
 
@@ -350,15 +354,23 @@ def fit_section(run: Path) -> tuple[Section, dict | None]:
         if srows:
             s.blocks.append(table(["signal", "gain sd used", "gain sd stated",
                                    "gain sd from residuals", "timing sd used",
-                                   "alignment noise", "model crossing offset"], srows,
+                                   "alignment noise", "synchronisation",
+                                   "model crossing offset"], srows,
                                   "Instrument systematics marginalised", "table-systematics",
                                   note="Per-channel gain (calibration) and timing errors the "
                                   "intervals include: the stated prior (parameter file "
                                   "[systematics], --gain-sd, --timing-sd) or, where larger, "
-                                  "the gain errors' size the residuals show; the timing adds "
+                                  "the gain errors' size the residuals show (z: that "
+                                  "estimate's variance in sd of its noise without gain "
+                                  "errors; below about 2 it cannot be told from none, and "
+                                  "is used all the same, on the safe side); the timing adds "
                                   "the alignment's noise, estimated from the data, where the "
                                   "signal's own lag is held fixed (a fitted lag absorbs it "
-                                  "exactly). The model "
+                                  "exactly), and for every signal the time shift the "
+                                  "synchronisation of the runs took out of their spread but "
+                                  "left in their mean (from the noise and the slope; it "
+                                  "widens the lags and what is read on the fit's time axis). "
+                                  "The model "
                                   "crossing offset is where the fitted model crosses the "
                                   "alignment threshold against the data: a diagnostic of "
                                   "what the model lacks at the onset, not an error of the "

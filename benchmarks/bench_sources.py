@@ -118,6 +118,17 @@ def run_case(source: str, seed: int, starts: int, cache: str | None,
                 shift = _campaign(source, seed, tmp)[3]
             case = replace(case, frame_shift=shift, frame_axis=FRAME_AXIS)
             _save(case, path)
+        if case.fit.data.sync_timing_sd is None:
+            # a fit made before preprocessing wrote the synchronisation's timing sd (stop
+            # 43): the campaign made again for those numbers, the fit untouched (the sd
+            # enters the uncertainty only)
+            with tempfile.TemporaryDirectory(prefix="gprm-src-") as tmp:
+                ms = _campaign(source, seed, tmp)[2]
+            sd = dict(zip(ms.signals, ms.sync_timing_sd))
+            data = replace(case.fit.data, sync_timing_sd=np.array(
+                [sd[s] for s in case.fit.data.signals]))
+            case = replace(case, fit=replace(case.fit, data=data))
+            _save(case, path)
         return case
     t = time.perf_counter()
     with tempfile.TemporaryDirectory(prefix="gprm-src-") as tmp:
@@ -184,25 +195,30 @@ def prediction_scores(case: Case, u, samples: int = 200) -> dict:
 
 
 def score(case: Case, method: str, predictions: bool = False, *,
-          alignment_noise: str | None = None, residual_dof: bool | None = None) -> dict:
+          alignment_noise: str | None = None, residual_dof: bool | None = None,
+          sync_timing: bool | None = None) -> dict:
     """The case's coverage with ``method`` (its uncertainty computed once for the parameters,
-    t0 and the predictions); ``alignment_noise``, ``residual_dof``: the sandwich's
-    ``Systematics.alignment_noise`` and ``Systematics.residual_dof`` (None: the default;
-    another: a development check, docs/fitting.md, labelled as such in the tables)."""
+    t0 and the predictions); ``alignment_noise``, ``residual_dof``, ``sync_timing``: the
+    sandwich's ``Systematics`` fields of those names (None: the default; another: a
+    development check, docs/fitting.md, labelled as such in the tables)."""
     from gprm.fit.methods import uncertainty_of
 
     d0 = Systematics()
     align = d0.alignment_noise if alignment_noise is None else alignment_noise
     rdof = d0.residual_dof if residual_dof is None else bool(residual_dof)
-    default = (align, rdof) == (d0.alignment_noise, d0.residual_dof)
+    sync = d0.sync_timing if sync_timing is None else bool(sync_timing)
+    default = (align, rdof, sync) == (d0.alignment_noise, d0.residual_dof, d0.sync_timing)
     unc = uncertainty_of(case.fit, method, systematics=None if default else
-                         Systematics(alignment_noise=align, residual_dof=rdof))
+                         Systematics(alignment_noise=align, residual_dof=rdof,
+                                     sync_timing=sync))
     names, ident, lv, best, share = intervals(case, unc)
     label = method
     if align != d0.alignment_noise:
         label += f", alignment noise {align}"
     if rdof != d0.residual_dof:
         label += ", residuals' t " + ("on" if rdof else "off")
+    if sync != d0.sync_timing:
+        label += ", synchronisation's timing " + ("on" if sync else "off")
     out = {"source": case.source, "seed": case.seed, "method": label,
            "n_identified": 0, "n_all": 0, "best_outside": 0, "n_prior": 0}
     for L in LEVELS:
@@ -403,12 +419,13 @@ def misses_table(rows: list[dict]) -> str:
 
 def _job(index: int, jobs: list):
     """Job ``index`` of ``jobs`` (source, seed, starts, cache, methods, predictions,
-    alignment noise, residuals' t, sigma pool): its scores and the seconds its fit took. A
+    alignment noise, residuals' t, sigma pool, synchronisation's timing): its scores and the seconds its fit took. A
     Dask task of benchmarks/_studies.py's map_seeds, which keys tasks by an integer; the
     result depends only on the job."""
-    source, seed, starts, cache, methods, predictions, align, rdof, pool = jobs[index]
+    source, seed, starts, cache, methods, predictions, align, rdof, pool, sync = jobs[index]
     case = run_case(source, seed, starts, cache, pool)
-    return ([score(case, m, predictions, alignment_noise=align, residual_dof=rdof)
+    return ([score(case, m, predictions, alignment_noise=align, residual_dof=rdof,
+                   sync_timing=sync)
              for m in methods], case.seconds)
 
 
@@ -435,6 +452,10 @@ def main(argv=None) -> int:
                     help="Student's t for the runs' part only, not where the residuals' "
                     "kernel estimate leads (Systematics.residual_dof=False: stop 37-40's "
                     "method, a development check, the rows labelled so)")
+    ap.add_argument("--no-sync-timing", action="store_true",
+                    help="without the time shift the synchronisation takes out of the runs' "
+                    "spread (Systematics.sync_timing=False: stops 1-42, a development "
+                    "check, the rows labelled so)")
     ap.add_argument("--sigma-pool", type=int, default=SIGMA_POOL,
                     help="the fits' weights pooled over this many samples on each side "
                     "(gprm.fit.objective.pooled_sigma; 0: stops 1-41's sample-by-sample "
@@ -468,7 +489,8 @@ def main(argv=None) -> int:
         ap.error(f"unknown source(s) {unknown}; one of {', '.join(known)}")
     methods = [m for m in a.methods.split(",") if m]
     jobs = [(s, a.seed + i, a.starts, a.cache, methods, a.predictions,
-             a.alignment_noise, not a.no_residual_dof, a.sigma_pool) for s in srcs
+             a.alignment_noise, not a.no_residual_dof, a.sigma_pool, not a.no_sync_timing)
+            for s in srcs
             for i in range(a.campaigns)]
     t0 = time.perf_counter()
     rows: list[dict] = []

@@ -118,6 +118,12 @@ def test_gprm_fit_ends_with_the_text_gprm_show_prints(fitted):
     assert all(f"crossing offset {1e9 * v['crossing_offset_s']:+.3g} ns" in flat
                for v in syst.values())
     assert "time origin" not in flat                # the crossing offset is not on t0
+    # this means file predates the synchronisation's timing sd: said, not shown as 0
+    assert all(v["sync_timing_sd_s"] is None for v in syst.values())
+    assert flat.count("synchronisation not in the means file") == len(syst)
+    det = d["uncertainty"]["details"]
+    assert (f"gain error the residuals show: {100 * det['gain_estimated']:.3g} % "
+            f"({det['gain_estimated_z']:.1f} sd of its noise without one") in flat
     adq = d["uncertainty"]["adequacy"]
     assert f"[[Adequacy]] {adq['verdict']}" in flat and adq["text"].split(":")[0] in flat
     assert sum(1 for p in d["parameters"].values() if p["fitted"]) == \
@@ -210,6 +216,17 @@ def test_report_says_the_runs_were_moved_through_the_model():
                  "max_run_change_m": 4e-7}}}
     line = next(ln for ln in fit_report(d).splitlines() if "sub-sample" in ln)
     assert "2.4 us" in line and "92 nm" in line
+
+
+def test_report_shows_the_synchronisations_timing_sd_per_signal():
+    """fit.json's per-signal ``sync_timing_sd_s`` (stop 43) is printed in ns beside the
+    alignment noise."""
+    d = _new_format()
+    d["uncertainty"] = {"method": "sandwich", "details": {"systematics": {
+        "x_base": {"gain_sd": 0.001, "timing_sd_s": 6e-9, "alignment_sd_s": 2e-9,
+                   "sync_timing_sd_s": 5.6e-9, "crossing_offset_s": 1e-7}}}}
+    flat = " ".join(fit_report(d).split())
+    assert "alignment 2 ns, synchronisation 5.6 ns, crossing offset +100 ns" in flat
 
 
 def test_first_line_says_the_weights_and_their_pooling():

@@ -128,8 +128,10 @@ def fit_report(d: dict, *, min_correl: float = DEFAULT_MIN_CORREL) -> str:
                                  f" %, timing {_g(1e9 * v.get('timing_sd_s', math.nan), '.3g')} ns"
                                  f" (alignment {_g(1e9 * v.get('alignment_sd_s', math.nan), '.3g')}"
                                  f" ns, synchronisation "
-                                 f"{_g(1e9 * v.get('sync_timing_sd_s', 0.0), '.3g')}"
-                                 f" ns, crossing offset "
+                                 + (f"{_g(1e9 * v['sync_timing_sd_s'], '.3g')} ns"
+                                    if _finite(v.get('sync_timing_sd_s'))
+                                    else "not in the means file")
+                                 + ", crossing offset "
                                  f"{_g(1e9 * v.get('crossing_offset_s', math.nan), '+.3g')} ns)")
             gz = det.get("gain_estimated_z")
             if isinstance(det.get("gain_estimated"), (int, float)) and \

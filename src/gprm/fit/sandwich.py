@@ -1211,9 +1211,11 @@ def uncertainty(method: str, state: FitState) -> Uncertainty:
         "systematics": {s: {"gain_sd": float(parts.gain_sd[i]),
                             "timing_sd_s": float(parts.timing_sd[i]),
                             "alignment_sd_s": float(parts.alignment_sd[i]),
-                            "sync_timing_sd_s": (float(state.obj.data.sync_timing_sd[i])
-                                                 if state.obj.data.sync_timing_sd is not None
-                                                 and syst.sync_timing else 0.0),
+                            # None: the means file predates it (not counted)
+                            "sync_timing_sd_s": (
+                                None if state.obj.data.sync_timing_sd is None else
+                                float(state.obj.data.sync_timing_sd[i]) if syst.sync_timing
+                                else 0.0),
                             "crossing_offset_s": (float(err.crossing_offset[i])
                                                   if err.crossing_offset is not None else 0.0)}
                         for i, s in enumerate(state.obj.data.signals)},

@@ -281,7 +281,8 @@ def systematics_rows(unc: dict) -> list:
                      if isinstance(est, (int, float)) else "–",
                      f"{1e9 * v.get('timing_sd_s', float('nan')):.3g} ns",
                      f"{1e9 * v.get('alignment_sd_s', float('nan')):.3g} ns",
-                     f"{1e9 * v.get('sync_timing_sd_s', 0.0):.3g} ns",
+                     (f"{1e9 * v['sync_timing_sd_s']:.3g} ns"
+                      if isinstance(v.get("sync_timing_sd_s"), (int, float)) else "–"),
                      f"{1e9 * v.get('crossing_offset_s', float('nan')):+.3g} ns"])
     return rows
 

@@ -75,14 +75,15 @@ def test_nuisances_are_marginalised_exactly(setup, component):
     """Gain, timing and mismatch terms: the Woodbury form equals J^T Sigma^-1 J with the
     dense covariance Sigma = diag(var_w) + var_a y y^T + var_t y' y'^T of each channel; for
     the two parts of the carry-over, Sigma holds only the error that averages down over the
-    block's runs (white noise, amplitude spread, alignment) or only the error that does not
-    (mismatch, gain, stated timing); the own-lag nuisance is in both."""
+    block's runs (white noise, amplitude spread, alignment, synchronisation) or only the
+    error that does not (mismatch, gain, stated timing); the own-lag nuisance is in both."""
     ps, names, prior, x = setup
     runs, floor = component in ("all", "runs"), component in ("all", "floor")
     block = Block((Channel("x_head"), Channel("tip_x", "tip", point="tip_edge", axis="x")),
                   runs=7)
     noise = NoiseModel(4e-10, 0.02, kappa=1.7, mismatch=3.0, base_runs=10,
-                       gain=(("x_head", 0.004),), align=(("x_head", 2e-7),))
+                       gain=(("x_head", 0.004),), align=(("x_head", 2e-7),),
+                       sync=(("x_head", 5e-8), ("x_base", 3e-8)))
     dxdu = np.where(prior.log, x, 1.0)[None]
     F = block_information(ps, names, x[None], dxdu, block, noise, gain_sd=0.003,
                           timing_sd=1e-7, lag_sd=1e-5,
@@ -98,7 +99,12 @@ def test_nuisances_are_marginalised_exactly(setup, component):
         var_a = k * (floor * (0.003 ** 2 + noise.gain_of(ch.name) ** 2)
                      + runs * 0.02 ** 2 / block.runs)
         own = 0.0 if ch.name == "x_head" else 1e-5 ** 2
-        var_t = k * (floor * 1e-7 ** 2 + runs * noise.align_of(ch.name) ** 2 * 10 / block.runs
+        # the synchronisation's timing: the fit's where it had the channel, else the
+        # median of the fit's (tip_x: 4e-8)
+        sync = 5e-8 if ch.name == "x_head" else 4e-8
+        assert noise.sync_of(ch.name) == pytest.approx(sync)
+        var_t = k * (floor * 1e-7 ** 2
+                     + runs * (noise.align_of(ch.name) ** 2 + sync ** 2) * 10 / block.runs
                      + own)
         S = np.diag(var_w) + var_a * np.outer(y, y) + var_t * np.outer(Yd[0, c], Yd[0, c])
         J = D[0, c] * dxdu[0]

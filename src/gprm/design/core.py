@@ -133,7 +133,9 @@ def _fit_window_and_rate(fm: FittedModel) -> tuple[tuple[float, float], float, d
         "gain": tuple((k, float(v.get("gain_sd") or 0.0)) for k, v in syst.items()
                       if isinstance(v, dict)),
         "align": tuple((k, _alignment_counted(v, det.get("stated") or {}, k))
-                       for k, v in syst.items() if isinstance(v, dict))}
+                       for k, v in syst.items() if isinstance(v, dict)),
+        "sync": tuple((k, float(v.get("sync_timing_sd_s") or 0.0))
+                      for k, v in syst.items() if isinstance(v, dict))}
 
 
 def _alignment_counted(entry: dict, stated: dict, signal: str) -> float:
@@ -325,7 +327,8 @@ def run_design(model, config: DesignConfig | None = None, *, candidates_path=Non
     if data is not None:
         n0, v = estimate_noise(data["sigma"], data["model"], cfg.base_runs)
         extra = {"mismatch": max(data["s2"] - 1.0, 0.0), "gain": data["gain"],
-                 "align": data["align"], "resonance": data["resonance"]}
+                 "align": data["align"], "sync": data["sync"],
+                 "resonance": data["resonance"]}
     else:
         n0, v = DEFAULT_NOISE.white, DEFAULT_NOISE.variability
         extra = {}

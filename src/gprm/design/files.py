@@ -90,7 +90,8 @@ def design_document(res: DesignResult) -> dict:
                   "mismatch": res.noise.mismatch,
                   "kappa": res.noise.kappa if len(res.parts) == 1 else None,
                   "base_runs": res.noise.base_runs, "gain_sd": dict(res.noise.gain),
-                  "alignment_sd_s": dict(res.noise.align)},
+                  "alignment_sd_s": dict(res.noise.align),
+                  "sync_timing_sd_s": dict(res.noise.sync)},
         "carry_over": [{"component": p.component, "kappa": float(p.kappa),
                         "scale": {n: float(v) for n, v in zip(res.names, p.scale)}}
                        for p in res.parts],

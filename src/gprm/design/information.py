@@ -48,7 +48,9 @@ class NoiseModel:
     it does not average down over runs, and its information per unit time does not grow with
     the sample rate (the mismatch is smooth); gain: the per-channel gain sd the fit used
     (stated and estimated from the residuals, which more runs do not reduce); align: the
-    alignment's timing sd per channel at base_runs (it falls as 1/sqrt(runs)).
+    alignment's timing sd per channel at base_runs (it falls as 1/sqrt(runs)); sync: the
+    time shift the runs' synchronisation hides from their spread, per channel at base_runs
+    (gprm.campaign.preprocess.sync_timing_sd; it falls as 1/sqrt(runs) too).
     ``kappa`` scales every variance (the calibration to the fit's reported sd).
     """
 
@@ -60,6 +62,7 @@ class NoiseModel:
     base_rate: float = 200e3
     gain: tuple[tuple[str, float], ...] = ()
     align: tuple[tuple[str, float], ...] = ()
+    sync: tuple[tuple[str, float], ...] = ()
     #: (frequency Hz, damping, onset shift s) of the unmodelled resonance the fit
     #: marginalised, or () where it found none
     resonance: tuple = ()
@@ -72,6 +75,14 @@ class NoiseModel:
 
     def align_of(self, channel: str) -> float:
         return dict(self.align).get(channel, 0.0)
+
+    def sync_of(self, channel: str) -> float:
+        """s at base_runs: the fit's value for a channel it had; for another channel the
+        median of the fit's (its slope and noise unknown to the fit), 0 without any."""
+        d = dict(self.sync)
+        if channel in d:
+            return d[channel]
+        return float(np.median(list(d.values()))) if d else 0.0
 
 
 def window_times(block: Block) -> np.ndarray:
@@ -199,7 +210,7 @@ def block_information(params: ParameterSet, names: tuple[str, ...], X: np.ndarra
     ``fitted_lag_channels`` (whose lags are fitted parameters) nor x_base (the reference of
     t0). ``component``: ``all`` the whole noise model; ``runs`` only the error that averages
     down over the block's runs (white noise n0^2/R, the runs' amplitude spread v^2/R, the
-    alignment's timing sd^2 x base_runs/R); ``floor`` only the error that does not (the model
+    alignment's and the synchronisation's timing sd^2 x base_runs/R); ``floor`` only the error that does not (the model
     mismatch, the gain and stated timing errors). The own-lag nuisance is marginalised in
     both."""
     if component not in COMPONENTS:
@@ -229,7 +240,8 @@ def block_information(params: ParameterSet, names: tuple[str, ...], X: np.ndarra
             var_a = k * (floor_part * (g ** 2 + noise.gain_of(ch.name) ** 2)
                          + runs_part * noise.variability ** 2 / R)
             var_t = k * (floor_part * ts ** 2
-                         + runs_part * noise.align_of(ch.name) ** 2 * noise.base_runs / R
+                         + runs_part * (noise.align_of(ch.name) ** 2
+                                        + noise.sync_of(ch.name) ** 2) * noise.base_runs / R
                          + (lag_sd ** 2 if own_lag else 0.0))
             w = 1.0 / np.sqrt(var_w)
             J = Ju[:, ci] * w[..., None]                        # (B, T, P)

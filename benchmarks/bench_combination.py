@@ -23,6 +23,14 @@ bench_sources.py table exactly.
 the share of the velocity curves' points (bench_coverage.curve_cover) inside their 68 %
 band: on the clean sources the curves' misses are t0's.
 
+``--ridge``: instead, what the uncertainty's draws do to the y-plane spring pair's
+combinations that the data determine (K0 = k_Cy + k_Dy, K1 = k_Cy b1 + k_Dy (b1 + b2),
+K2 = k_Cy b1^2 + k_Dy (b1 + b2)^2; docs/fitting.md, "Identifiability"): per source, the
+median over campaigns of the draws' median and 16-84 % half-width relative to the best
+fit's value, against the linearised sd, the truth's distance from the fit; and the velocity
+curves' 68 % coverage with the draws as they are and with the unidentified parameters held
+at the best fit.
+
     .venv/bin/python benchmarks/bench_combination.py --campaigns 20 --cache DIR [--sources ...]
     .venv/bin/python benchmarks/bench_combination.py --curves --sources white --cache DIR
 """
@@ -162,6 +170,63 @@ def curves_table(srcs, a) -> None:
               f"{pct(out_in + in_in, out_n + in_n)} |", flush=True)
 
 
+def _k(M: np.ndarray, idx: dict) -> np.ndarray:
+    """(..., 3): K0, K1, K2 of parameter rows M (SI) with the columns ``idx``."""
+    kc, kd, b1, b2 = (M[..., idx[n]] for n in ("k_Cy", "k_Dy", "b1", "b2"))
+    return np.stack([kc + kd, kc * b1 + kd * (b1 + b2), kc * b1 ** 2 + kd * (b1 + b2) ** 2],
+                    -1)
+
+
+def ridge_table(srcs, a) -> None:
+    from bench_coverage import curve_cover
+    from gprm.fit.files import FittedModel
+
+    print("| source | K0, K1, K2: draws' median / fit | draws' 16-84 half-width / fit | "
+          "linearised sd / fit | truth - fit, / fit | curves 68 %: draws as they are | "
+          "unidentified held at the fit |")
+    print("|---|---|---|---|---|---|---|")
+    for src in srcs:
+        med, half, lin, off = [], [], [], []
+        cov = {"as": [0, 0], "held": [0, 0]}
+        for k in range(a.campaigns):
+            case = bs.run_case(src, a.seed + k, a.starts, a.cache)
+            unc = uncertainty_of(case.fit, "sandwich")
+            names = list(case.fit.names)
+            x = np.asarray(case.fit.x, float)
+            idx = {n: names.index(n) for n in ("k_Cy", "k_Dy", "b1", "b2")}
+            D = np.asarray(unc.draws, float)
+            Kd, K0 = _k(D, idx), _k(x, idx)
+            sel = list(idx.values())
+            G = []
+            for j in sel:
+                xx = x.copy()
+                xx[j] *= 1 + 1e-6
+                G.append((_k(xx, idx) - K0) / (x[j] * 1e-6))
+            G = np.array(G)
+            C = np.asarray(unc.covariance)[np.ix_(sel, sel)]
+            xt = np.array([case.truth.get(n, v) for n, v in zip(names, x)])
+            med.append(np.median(Kd, 0) / K0)
+            half.append((np.percentile(Kd, 84, 0) - np.percentile(Kd, 16, 0)) / 2 / K0)
+            lin.append(np.sqrt(np.diag(G.T @ C @ G)) / K0)
+            off.append(np.abs(_k(xt, idx) - K0) / K0)
+            truth = bs.truth_in_fit_time(case)[1]
+            un = ~np.asarray(unc.identified)
+            held = D.copy()
+            held[:, un] = x[un]
+            for key, dr in (("as", D), ("held", held)):
+                fm = FittedModel(case.fit.params, unc.covariance, piezo=2, draws=dr,
+                                 uncertainty=unc.method)
+                c = curve_cover(fm, truth, 200, case.seed)
+                cov[key][0] += c["in68"]
+                cov[key][1] += c["n"]
+
+        def f3(v):
+            return ", ".join(f"{x:.3g}" for x in np.median(np.array(v), 0))
+        print(f"| {src} | {f3(med)} | {f3(half)} | {f3(lin)} | {f3(off)} | "
+              f"{100 * cov['as'][0] / max(cov['as'][1], 1):.1f} | "
+              f"{100 * cov['held'][0] / max(cov['held'][1], 1):.1f} |", flush=True)
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--sources", default=",".join(sources.SOURCES))
@@ -170,10 +235,11 @@ def main(argv=None) -> int:
     ap.add_argument("--starts", type=int, default=100)
     ap.add_argument("--cache", required=True)
     ap.add_argument("--curves", action="store_true")
+    ap.add_argument("--ridge", action="store_true")
     a = ap.parse_args(argv)
     srcs = [s for s in a.sources.split(",") if s]
     t = time.perf_counter()
-    (curves_table if a.curves else rules_table)(srcs, a)
+    (ridge_table if a.ridge else curves_table if a.curves else rules_table)(srcs, a)
     print(f"\n({time.perf_counter() - t:.0f} s; cache {a.cache})")
     return 0
 

@@ -526,7 +526,10 @@ def test_greedy_selection_keeps_the_budget_and_never_beats_the_exhaustive(paper_
     assert r.selection.startswith("greedy")
     assert 0 < len(r.recommended.additions) <= cfg.cost.max_additions
     assert r.recommended.hours <= cfg.cost.budget
-    assert 1.0 < r.recommended.gain["release"] <= paper_design.recommended.gain["release"] + 1e-12
+    # the two searches reach a subset's gain through sums in different orders: equal to
+    # rounding, 3e-9 relative with the lower-bound NumPy (1e-8 allows three times that)
+    assert 1.0 < r.recommended.gain["release"] <= \
+        paper_design.recommended.gain["release"] * (1 + 1e-8)
 
 
 def test_a_marginalised_resonance_is_projected_off_each_channel(setup):

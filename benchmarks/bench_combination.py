@@ -27,9 +27,13 @@ band: on the clean sources the curves' misses are t0's.
 combinations that the data determine (K0 = k_Cy + k_Dy, K1 = k_Cy b1 + k_Dy (b1 + b2),
 K2 = k_Cy b1^2 + k_Dy (b1 + b2)^2; docs/fitting.md, "Identifiability"): per source, the
 median over campaigns of the draws' median and 16-84 % half-width relative to the best
-fit's value, against the linearised sd, the truth's distance from the fit; and the velocity
+fit's value, against the linearised sd, the truth's distance from the fit; how far the
+draws are from where the linearisation puts them (the median over the draws of
+|r(u_d) - r(u^) - J (u_d - u^)|, the weighted data residuals, over the best fit's |r(u^)|:
+well above 1, one linearised step cannot put a draw back on the data); and the velocity
 curves' 68 % coverage with the draws as they are and with the unidentified parameters held
-at the best fit.
+at the best fit. (Other combinations of the statistical part, scale-free positive parts:
+bench_stat_combination.py.)
 
     .venv/bin/python benchmarks/bench_combination.py --campaigns 20 --cache DIR [--sources ...]
     .venv/bin/python benchmarks/bench_combination.py --curves --sources white --cache DIR
@@ -182,11 +186,11 @@ def ridge_table(srcs, a) -> None:
     from gprm.fit.files import FittedModel
 
     print("| source | K0, K1, K2: draws' median / fit | draws' 16-84 half-width / fit | "
-          "linearised sd / fit | truth - fit, / fit | curves 68 %: draws as they are | "
-          "unidentified held at the fit |")
-    print("|---|---|---|---|---|---|---|")
+          "linearised sd / fit | truth - fit, / fit | draws' misfit to the linearisation "
+          "/ fit's residual | curves 68 %: draws as they are | unidentified held at the fit |")
+    print("|---|---|---|---|---|---|---|---|")
     for src in srcs:
-        med, half, lin, off = [], [], [], []
+        med, half, lin, off, mis = [], [], [], [], []
         cov = {"as": [0, 0], "held": [0, 0]}
         for k in range(a.campaigns):
             case = bs.run_case(src, a.seed + k, a.starts, a.cache)
@@ -209,6 +213,14 @@ def ridge_table(srcs, a) -> None:
             half.append((np.percentile(Kd, 84, 0) - np.percentile(Kd, 16, 0)) / 2 / K0)
             lin.append(np.sqrt(np.diag(G.T @ C @ G)) / K0)
             off.append(np.abs(_k(xt, idx) - K0) / K0)
+            st = state_of(case.fit)
+            obj, prior = st.obj, st.obj.prior
+            n = obj.data.n_obs
+            Ju, _ = _estimator(x, st.J, prior)
+            U = prior.to_u(D) - prior.to_u(x)[None]
+            rd = obj.residuals(obj.to_normalised(D))[:, :n]
+            miss = np.linalg.norm(rd - st.r[None] - U @ Ju.T, axis=1)
+            mis.append(float(np.nanmedian(miss)) / float(np.linalg.norm(st.r)))
             truth = bs.truth_in_fit_time(case)[1]
             un = ~np.asarray(unc.identified)
             held = D.copy()
@@ -223,6 +235,7 @@ def ridge_table(srcs, a) -> None:
         def f3(v):
             return ", ".join(f"{x:.3g}" for x in np.median(np.array(v), 0))
         print(f"| {src} | {f3(med)} | {f3(half)} | {f3(lin)} | {f3(off)} | "
+              f"{np.median(mis):.3g} | "
               f"{100 * cov['as'][0] / max(cov['as'][1], 1):.1f} | "
               f"{100 * cov['held'][0] / max(cov['held'][1], 1):.1f} |", flush=True)
 

@@ -112,6 +112,28 @@ def test_sync_timing_sd_is_written_and_read(full_means, tmp_path):
         fit_data_from_means(bad)
 
 
+def test_fit_data_subset_selects_every_per_signal_field(full_means):
+    """FitData.subset (the adequacy check's leave-one-signal-out) selects every field that
+    is indexed by signal first, and PER_SIGNAL_FIELDS names every such field of a fit's
+    data read from a full means file (a field added later cannot be left unselected)."""
+    from dataclasses import fields
+
+    from gprm.fit.objective import PER_SIGNAL_FIELDS, fit_data_from_means
+
+    fd = fit_data_from_means(full_means.to_dataset())
+    S = len(fd.signals)
+    per_signal = {f.name for f in fields(fd) if isinstance(getattr(fd, f.name), np.ndarray)
+                  and f.name != "time" and getattr(fd, f.name).shape[0] == S}
+    assert per_signal == set(PER_SIGNAL_FIELDS)
+    keep = [4, 1]
+    sub = fd.subset(keep)
+    assert sub.signals == (fd.signals[4], fd.signals[1])
+    for name in PER_SIGNAL_FIELDS:
+        np.testing.assert_array_equal(getattr(sub, name), getattr(fd, name)[keep])
+    np.testing.assert_array_equal(sub.time, fd.time)
+    assert sub.sigma_pool == fd.sigma_pool and sub.window == fd.window
+
+
 def test_noise_std_matches_injected(full_campaign, full_means):
     inj = full_campaign.attrs["noise_std_injected"]
     assert inj == pytest.approx(5e-10, rel=1e-6)

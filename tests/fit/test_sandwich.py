@@ -17,8 +17,8 @@ from scipy.stats import binom
 
 from gprm.errors import GprmInputError
 from gprm.fit.adequacy import ljung_box
-from gprm.fit.sandwich import (Systematics, estimate_gain_sd, gain_moments, gain_variance,
-                               hac_meat, statistical_covariance, stretch_draws)
+from gprm.fit.sandwich import (Systematics, gain_moments, gain_variance, hac_meat,
+                               statistical_covariance, stretch_draws)
 from gprm.params.files import read_systematics
 
 
@@ -234,7 +234,8 @@ def test_gain_error_estimate_is_unbiased_in_the_variance():
             r = data.reshape(-1) - y.reshape(-1)
             r = r - Ju @ (Hinv @ (Ju.T @ r))
             v.append(gain_variance(Ju, Hinv, r.reshape(S, T), y, sigma, None))
-            assert estimate_gain_sd(Ju, Hinv, r.reshape(S, T), y, sigma, None) == \
+            # the sd the sandwich uses: the square root of the estimate clipped at 0
+            assert gain_moments(Ju, Hinv, r.reshape(S, T), y, sigma, None).sd == \
                 pytest.approx(np.sqrt(max(v[-1], 0.0)))
         # the mean of 400 estimates within four of its standard errors of the truth
         se = float(np.std(v)) / np.sqrt(len(v))
@@ -585,6 +586,23 @@ def test_timing_error_moves_only_the_lags_it_is_absorbed_by():
     assert np.all(sd_time[~lags] < 1e-2 * sd_stat[~lags])
 
 
+def _at_paper(data, names):
+    """(obj, x, y, J, r, prior) of the paper set on ``data``: the objective over ``names``,
+    the model there, the weighted residuals' Jacobian and values, the default prior."""
+    from gprm.fit.objective import Objective
+    from gprm.fit.prior import default_prior
+    from gprm.params import paper
+
+    p = paper()
+    obj = Objective.create(data, p, names)
+    x = p.vector(obj.names)
+    y = obj.model(x[None]).y[0]
+    J = -obj.model(x[None], jacobian=True).dy[0].reshape(-1, x.size) / \
+        data.sigma.reshape(-1, 1)
+    r = ((data.values - y) / data.sigma).reshape(-1)
+    return obj, x, y, J, r, default_prior(p, obj.names)
+
+
 def test_alignment_noise_joins_only_the_signals_whose_own_lag_is_held_fixed():
     """A fitted lag absorbs its signal's alignment noise exactly (the data and its place in
     the aligned axis move together), so by default ("fixed-lags") a signal's timing error is
@@ -594,8 +612,7 @@ def test_alignment_noise_joins_only_the_signals_whose_own_lag_is_held_fixed():
     from dataclasses import replace
 
     from gprm.fit.api import FitOptions
-    from gprm.fit.objective import Objective, fit_data_from_means
-    from gprm.fit.prior import default_prior
+    from gprm.fit.objective import fit_data_from_means
     from gprm.fit.sandwich import error_model, own_lag, propagate
     from gprm.params import paper
     from pathlib import Path
@@ -610,13 +627,7 @@ def test_alignment_noise_joins_only_the_signals_whose_own_lag_is_held_fixed():
     stated = 2e-8
 
     def parts(names, mode):
-        obj = Objective.create(data, p, names)
-        x = p.vector(obj.names)
-        y = obj.model(x[None]).y[0]
-        J = -obj.model(x[None], jacobian=True).dy[0].reshape(-1, x.size) / \
-            data.sigma.reshape(-1, 1)
-        r = ((data.values - y) / data.sigma).reshape(-1)
-        prior = default_prior(p, obj.names)
+        obj, x, y, J, r, prior = _at_paper(data, names)
         err = error_model(obj, x, J, r, prior, Systematics(timing_sd=stated,
                                                            estimate_gain=False,
                                                            alignment_noise=mode))
@@ -657,7 +668,6 @@ def test_the_synchronisations_timing_joins_every_signals_timing_error():
 
     from gprm.fit.api import FitOptions
     from gprm.fit.objective import Objective, fit_data_from_means
-    from gprm.fit.prior import default_prior
     from gprm.fit.sandwich import error_model, propagate
     from gprm.params import LAG_PARAMETERS, paper
     from pathlib import Path
@@ -671,13 +681,7 @@ def test_the_synchronisations_timing_joins_every_signals_timing_error():
     sync = np.array([6e-9, 5e-9, 12e-9, 7e-9, 2e-10])
     stated = 2e-9
     names = tuple(FitOptions().parameters(p).fitted)
-    obj = Objective.create(replace(data, sync_timing_sd=sync), p, names)
-    x = p.vector(obj.names)
-    y = obj.model(x[None]).y[0]
-    J = -obj.model(x[None], jacobian=True).dy[0].reshape(-1, x.size) / \
-        data.sigma.reshape(-1, 1)
-    r = ((data.values - y) / data.sigma).reshape(-1)
-    prior = default_prior(p, obj.names)
+    obj, x, y, J, r, prior = _at_paper(replace(data, sync_timing_sd=sync), names)
 
     def err(**kw):
         return error_model(obj, x, J, r, prior, Systematics(timing_sd=stated,

@@ -100,3 +100,15 @@ def test_fit_data_pools_the_file_sigma_and_records_it():
     with pytest.raises(GprmInputError) as exc:
         FitOptions(sigma_pool=-2)
     assert exc.value.field == "sigma_pool"
+
+
+def test_the_command_line_default_is_the_librarys():
+    """`gprm fit --sigma-pool` states its default as a literal (the command module stays
+    import-light); it must be SIGMA_POOL and FitOptions'."""
+    import typer.main
+
+    from gprm.cli import app
+
+    fit = typer.main.get_command(app).commands["fit"]
+    default = next(p.default for p in fit.params if p.name == "sigma_pool")
+    assert default == SIGMA_POOL == FitOptions().sigma_pool

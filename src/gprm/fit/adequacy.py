@@ -33,7 +33,7 @@ from scipy.special import chdtrc, comb
 
 from gprm.fit.engine import polish_best, polish_kwargs
 from gprm.fit.lm import levenberg_marquardt_batch
-from gprm.fit.objective import FitData, Objective
+from gprm.fit.objective import Objective
 from gprm.fit.resonance import fitted_part
 from gprm.fit.prior import Prior
 from gprm.fit.starts import LMOptions
@@ -182,20 +182,6 @@ class Adequacy:
                    d.get("resonance"))
 
 
-def _subset(data: FitData, keep: list[int]) -> FitData:
-    return FitData(data.time, data.values[keep], data.sigma[keep],
-                   tuple(data.signals[i] for i in keep), data.window, data.sigma_kind,
-                   data.source, data.attrs,
-                   None if data.runs is None else data.runs[keep],
-                   None if data.noise_std is None else data.noise_std[keep],
-                   None if data.interpolation_error is None
-                   else data.interpolation_error[keep],
-                   None if data.crossing_time is None else data.crossing_time[keep],
-                   None if data.sync_remainder is None else data.sync_remainder[keep],
-                   data.sigma_pool,
-                   None if data.sync_timing_sd is None else data.sync_timing_sd[keep])
-
-
 def leave_one_signal_out_each(obj: Objective, x: np.ndarray, lm: LMOptions = LMOptions(),
                               max_iter: int = LOSO_MAX_ITER) -> np.ndarray:
     """:func:`leave_one_signal_out` the direct way: one objective without signal s and one
@@ -207,7 +193,7 @@ def leave_one_signal_out_each(obj: Objective, x: np.ndarray, lm: LMOptions = LMO
     out = np.full(S, np.nan)
     for s in range(S):
         keep = [i for i in range(S) if i != s]
-        sub = Objective(_subset(d, keep), obj.base, obj.names, obj.scale, obj.piezo,
+        sub = Objective(d.subset(keep), obj.base, obj.names, obj.scale, obj.piezo,
                         obj.z_bk_absolute, obj.prior)
         xs, _ = polish_best(sub, np.asarray(x, float), lm, max_iter=max_iter, ftol=LOSO_FTOL,
                             trust_region=False)

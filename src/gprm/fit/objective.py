@@ -9,7 +9,8 @@ the order ``SIGNALS`` (the paper's q* of Eq. 5, appended signal after signal).
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
+from typing import Any
 from functools import cached_property
 
 import numpy as np
@@ -57,6 +58,11 @@ def pooled_sigma(sigma: np.ndarray, half_width: int) -> np.ndarray:
     return np.sqrt((c[..., hi] - c[..., lo]) / (hi - lo))
 
 
+#: FitData's fields indexed by signal first (FitData.subset selects along them)
+PER_SIGNAL_FIELDS = ("values", "sigma", "runs", "noise_std", "interpolation_error",
+                     "crossing_time", "sync_remainder", "sync_timing_sd")
+
+
 @dataclass(frozen=True)
 class FitData:
     """The data a fit sees: times (T,), values and sigma (n_signals, T), per signal."""
@@ -95,6 +101,14 @@ class FitData:
     @property
     def n_obs(self) -> int:
         return int(self.values.size)
+
+    def subset(self, keep) -> "FitData":
+        """The same data for the signals ``keep`` (indices), with every per-signal field
+        (:data:`PER_SIGNAL_FIELDS`) selected alike."""
+        keep = list(keep)
+        picked: dict[str, Any] = {f: None if getattr(self, f) is None else getattr(self, f)[keep]
+                                  for f in PER_SIGNAL_FIELDS}
+        return replace(self, signals=tuple(self.signals[i] for i in keep), **picked)
 
 
 def fit_data_from_means(ds: xr.Dataset, *, window=DEFAULT_WINDOW, sigma: str = "sem",

@@ -332,15 +332,6 @@ def crossing_offsets(obj: Objective, y: np.ndarray) -> np.ndarray:
     return out
 
 
-def estimate_gain_sd(Ju: np.ndarray, Hinv: np.ndarray, R: np.ndarray, y: np.ndarray,
-                     sigma: np.ndarray, runs: np.ndarray | None, *,
-                     max_lag: int | None = None) -> float:
-    """The per-channel gain errors' standard deviation the residuals show: the square root of
-    :func:`gain_variance`, clipped at 0."""
-    return float(np.sqrt(max(gain_variance(Ju, Hinv, R, y, sigma, runs, max_lag=max_lag),
-                             0.0)))
-
-
 def gain_variance(Ju: np.ndarray, Hinv: np.ndarray, R: np.ndarray, y: np.ndarray,
                   sigma: np.ndarray, runs: np.ndarray | None, *,
                   max_lag: int | None = None) -> float:
@@ -361,6 +352,11 @@ class GainMoments:
     @property
     def z(self) -> float:
         return self.variance / self.null_sd if self.null_sd > 0 else 0.0
+
+    @property
+    def sd(self) -> float:
+        """The standard deviation: the square root of the variance clipped at 0."""
+        return float(np.sqrt(max(self.variance, 0.0)))
 
 
 def gain_moments(Ju: np.ndarray, Hinv: np.ndarray, R: np.ndarray, y: np.ndarray,
@@ -573,6 +569,9 @@ class ErrorModel:
     whitenings: tuple | None = None
     #: the gain estimate's variance in units of its own noise (:class:`GainMoments`)
     gain_z: float = 0.0
+    #: (S,) s: the synchronisation's timing sd counted in ``timing_sd`` (0 where
+    #: ``Systematics.sync_timing`` is off); None: the means file predates it
+    sync_timing_sd: np.ndarray | None = None
 
 
 def _estimator(x: np.ndarray, J: np.ndarray, prior: Prior) -> tuple[np.ndarray, np.ndarray]:
@@ -664,17 +663,17 @@ def error_model(obj: Objective, x: np.ndarray, J: np.ndarray, r: np.ndarray, pri
     # mean (gprm.campaign.preprocess.sync_timing_sd): an error of every signal's timing that
     # the runs' part cannot show; a fitted lag takes it (docs/fitting.md, "The time shift
     # the synchronisation hides")
-    s_sd = (np.zeros(len(d.signals)) if d.sync_timing_sd is None or not systematics.sync_timing
-            else np.asarray(d.sync_timing_sd, float))
+    s_sd = (None if d.sync_timing_sd is None else
+            np.asarray(d.sync_timing_sd, float) * bool(systematics.sync_timing))
     t_sd = np.array([np.sqrt(systematics.for_signal(s)[1] ** 2
-                             + (a_sd[i] if used[i] else 0.0) ** 2 + s_sd[i] ** 2)
+                             + (a_sd[i] if used[i] else 0.0) ** 2
+                             + (0.0 if s_sd is None else s_sd[i]) ** 2)
                      for i, s in enumerate(d.signals)])
     gm = gain_moments(Ju, Hinv, R, y, d.sigma, d.runs, max_lag=L)
-    g_est = float(np.sqrt(max(gm.variance, 0.0)))
     if systematics.estimate_gain:
-        g_sd = np.maximum(g_sd, g_est)
-    return ErrorModel(R, dev, g_sd, t_sd, a_sd, g_est, p_eff, L, c_off,
-                      tuple(whitening(R[s], PREWHITEN_ORDER) for s in range(S)), gm.z)
+        g_sd = np.maximum(g_sd, gm.sd)
+    return ErrorModel(R, dev, g_sd, t_sd, a_sd, gm.sd, p_eff, L, c_off,
+                      tuple(whitening(R[s], PREWHITEN_ORDER) for s in range(S)), gm.z, s_sd)
 
 
 def propagate(obj: Objective, x: np.ndarray, J: np.ndarray, prior: Prior,
@@ -1212,10 +1211,8 @@ def uncertainty(method: str, state: FitState) -> Uncertainty:
                             "timing_sd_s": float(parts.timing_sd[i]),
                             "alignment_sd_s": float(parts.alignment_sd[i]),
                             # None: the means file predates it (not counted)
-                            "sync_timing_sd_s": (
-                                None if state.obj.data.sync_timing_sd is None else
-                                float(state.obj.data.sync_timing_sd[i]) if syst.sync_timing
-                                else 0.0),
+                            "sync_timing_sd_s": (None if err.sync_timing_sd is None
+                                                 else float(err.sync_timing_sd[i])),
                             "crossing_offset_s": (float(err.crossing_offset[i])
                                                   if err.crossing_offset is not None else 0.0)}
                         for i, s in enumerate(state.obj.data.signals)},

@@ -31,8 +31,9 @@ fit's value, against the linearised sd, the truth's distance from the fit; how f
 draws are from where the linearisation puts them (the median over the draws of
 |r(u_d) - r(u^) - J (u_d - u^)|, the weighted data residuals, over the best fit's |r(u^)|:
 well above 1, one linearised step cannot put a draw back on the data); and the velocity
-curves' 68 % coverage with the draws as they are and with the unidentified parameters held
-at the best fit. (Other combinations of the statistical part, scale-free positive parts:
+curves' 68 % coverage with the draws as drawn, as projected onto the data (the default
+since stop 44, gprm.fit.draws; with the median share of proposals kept) and with the
+unidentified parameters held at the best fit. (Other combinations of the statistical part, scale-free positive parts:
 bench_stat_combination.py.)
 
     .venv/bin/python benchmarks/bench_combination.py --campaigns 20 --cache DIR [--sources ...]
@@ -185,21 +186,31 @@ def ridge_table(srcs, a) -> None:
     from bench_coverage import curve_cover
     from gprm.fit.files import FittedModel
 
-    print("| source | K0, K1, K2: draws' median / fit | draws' 16-84 half-width / fit | "
-          "linearised sd / fit | truth - fit, / fit | draws' misfit to the linearisation "
-          "/ fit's residual | curves 68 %: draws as they are | unidentified held at the fit |")
-    print("|---|---|---|---|---|---|---|---|")
+    print("| source | K0, K1, K2: draws' median / fit, as drawn | projected | draws' 16-84 "
+          "half-width / fit, as drawn | projected | linearised sd / fit | truth - fit, / fit "
+          "| draws' misfit to the linearisation / fit's residual | proposals kept | curves "
+          "68 %: as drawn | projected | unidentified held at the fit |")
+    print("|---|---|---|---|---|---|---|---|---|---|---|---|")
     for src in srcs:
-        med, half, lin, off, mis = [], [], [], [], []
-        cov = {"as": [0, 0], "held": [0, 0]}
+        med, half, lin, off, mis, acc = ({"raw": [], "proj": []}, {"raw": [], "proj": []},
+                                         [], [], [], [])
+        cov = {"raw": [0, 0], "proj": [0, 0], "held": [0, 0]}
         for k in range(a.campaigns):
             case = bs.run_case(src, a.seed + k, a.starts, a.cache)
-            unc = uncertainty_of(case.fit, "sandwich")
+            uncs = {"raw": uncertainty_of(case.fit, "sandwich",
+                                          systematics=Systematics(project_draws=False)),
+                    "proj": uncertainty_of(case.fit, "sandwich")}
+            unc = uncs["raw"]
+            acc.append(uncs["proj"].details["draws"]["acceptance"])
             names = list(case.fit.names)
             x = np.asarray(case.fit.x, float)
             idx = {n: names.index(n) for n in ("k_Cy", "k_Dy", "b1", "b2")}
+            K0 = _k(x, idx)
+            for key, u in uncs.items():
+                Kd = _k(np.asarray(u.draws, float), idx)
+                med[key].append(np.median(Kd, 0) / K0)
+                half[key].append((np.percentile(Kd, 84, 0) - np.percentile(Kd, 16, 0)) / 2 / K0)
             D = np.asarray(unc.draws, float)
-            Kd, K0 = _k(D, idx), _k(x, idx)
             sel = list(idx.values())
             G = []
             for j in sel:
@@ -209,8 +220,6 @@ def ridge_table(srcs, a) -> None:
             G = np.array(G)
             C = np.asarray(unc.covariance)[np.ix_(sel, sel)]
             xt = np.array([case.truth.get(n, v) for n, v in zip(names, x)])
-            med.append(np.median(Kd, 0) / K0)
-            half.append((np.percentile(Kd, 84, 0) - np.percentile(Kd, 16, 0)) / 2 / K0)
             lin.append(np.sqrt(np.diag(G.T @ C @ G)) / K0)
             off.append(np.abs(_k(xt, idx) - K0) / K0)
             st = state_of(case.fit)
@@ -225,7 +234,7 @@ def ridge_table(srcs, a) -> None:
             un = ~np.asarray(unc.identified)
             held = D.copy()
             held[:, un] = x[un]
-            for key, dr in (("as", D), ("held", held)):
+            for key, dr in (("raw", D), ("proj", uncs["proj"].draws), ("held", held)):
                 fm = FittedModel(case.fit.params, unc.covariance, piezo=2, draws=dr,
                                  uncertainty=unc.method)
                 c = curve_cover(fm, truth, 200, case.seed)
@@ -234,10 +243,12 @@ def ridge_table(srcs, a) -> None:
 
         def f3(v):
             return ", ".join(f"{x:.3g}" for x in np.median(np.array(v), 0))
-        print(f"| {src} | {f3(med)} | {f3(half)} | {f3(lin)} | {f3(off)} | "
-              f"{np.median(mis):.3g} | "
-              f"{100 * cov['as'][0] / max(cov['as'][1], 1):.1f} | "
-              f"{100 * cov['held'][0] / max(cov['held'][1], 1):.1f} |", flush=True)
+
+        def pc(key, cov=cov):
+            return f"{100 * cov[key][0] / max(cov[key][1], 1):.1f}"
+        print(f"| {src} | {f3(med['raw'])} | {f3(med['proj'])} | {f3(half['raw'])} | "
+              f"{f3(half['proj'])} | {f3(lin)} | {f3(off)} | {np.median(mis):.3g} | "
+              f"{np.median(acc):.2f} | {pc('raw')} | {pc('proj')} | {pc('held')} |", flush=True)
 
 
 def main(argv=None) -> int:

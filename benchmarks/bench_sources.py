@@ -196,9 +196,10 @@ def prediction_scores(case: Case, u, samples: int = 200) -> dict:
 
 def score(case: Case, method: str, predictions: bool = False, *,
           alignment_noise: str | None = None, residual_dof: bool | None = None,
-          sync_timing: bool | None = None) -> dict:
+          sync_timing: bool | None = None, project_draws: bool | None = None) -> dict:
     """The case's coverage with ``method`` (its uncertainty computed once for the parameters,
-    t0 and the predictions); ``alignment_noise``, ``residual_dof``, ``sync_timing``: the
+    t0 and the predictions); ``alignment_noise``, ``residual_dof``, ``sync_timing``,
+    ``project_draws``: the
     sandwich's ``Systematics`` fields of those names (None: the default; another: a
     development check, docs/fitting.md, labelled as such in the tables)."""
     from gprm.fit.methods import uncertainty_of
@@ -207,10 +208,12 @@ def score(case: Case, method: str, predictions: bool = False, *,
     align = d0.alignment_noise if alignment_noise is None else alignment_noise
     rdof = d0.residual_dof if residual_dof is None else bool(residual_dof)
     sync = d0.sync_timing if sync_timing is None else bool(sync_timing)
-    default = (align, rdof, sync) == (d0.alignment_noise, d0.residual_dof, d0.sync_timing)
+    proj = d0.project_draws if project_draws is None else bool(project_draws)
+    default = (align, rdof, sync, proj) == (d0.alignment_noise, d0.residual_dof,
+                                            d0.sync_timing, d0.project_draws)
     unc = uncertainty_of(case.fit, method, systematics=None if default else
                          Systematics(alignment_noise=align, residual_dof=rdof,
-                                     sync_timing=sync))
+                                     sync_timing=sync, project_draws=proj))
     names, ident, lv, best, share = intervals(case, unc)
     label = method
     if align != d0.alignment_noise:
@@ -219,6 +222,8 @@ def score(case: Case, method: str, predictions: bool = False, *,
         label += ", residuals' t " + ("on" if rdof else "off")
     if sync != d0.sync_timing:
         label += ", synchronisation's timing " + ("on" if sync else "off")
+    if proj != d0.project_draws:
+        label += ", draws " + ("projected" if proj else "as drawn")
     out = {"source": case.source, "seed": case.seed, "method": label,
            "n_identified": 0, "n_all": 0, "best_outside": 0, "n_prior": 0}
     for L in LEVELS:
@@ -419,13 +424,15 @@ def misses_table(rows: list[dict]) -> str:
 
 def _job(index: int, jobs: list):
     """Job ``index`` of ``jobs`` (source, seed, starts, cache, methods, predictions,
-    alignment noise, residuals' t, sigma pool, synchronisation's timing): its scores and the seconds its fit took. A
+    alignment noise, residuals' t, sigma pool, synchronisation's timing, projected draws):
+    its scores and the seconds its fit took. A
     Dask task of benchmarks/_studies.py's map_seeds, which keys tasks by an integer; the
     result depends only on the job."""
-    source, seed, starts, cache, methods, predictions, align, rdof, pool, sync = jobs[index]
+    source, seed, starts, cache, methods, predictions, align, rdof, pool, sync, proj = \
+        jobs[index]
     case = run_case(source, seed, starts, cache, pool)
     return ([score(case, m, predictions, alignment_noise=align, residual_dof=rdof,
-                   sync_timing=sync)
+                   sync_timing=sync, project_draws=proj)
              for m in methods], case.seconds)
 
 
@@ -456,6 +463,10 @@ def main(argv=None) -> int:
                     help="without the time shift the synchronisation takes out of the runs' "
                     "spread (Systematics.sync_timing=False: stops 1-42, a development "
                     "check, the rows labelled so)")
+    ap.add_argument("--raw-draws", action="store_true",
+                    help="the predictions from the Gaussian's draws as drawn, not projected "
+                    "onto the data (Systematics.project_draws=False: stops 1-43, a "
+                    "development check, the rows labelled so)")
     ap.add_argument("--sigma-pool", type=int, default=SIGMA_POOL,
                     help="the fits' weights pooled over this many samples on each side "
                     "(gprm.fit.objective.pooled_sigma; 0: stops 1-41's sample-by-sample "
@@ -489,7 +500,8 @@ def main(argv=None) -> int:
         ap.error(f"unknown source(s) {unknown}; one of {', '.join(known)}")
     methods = [m for m in a.methods.split(",") if m]
     jobs = [(s, a.seed + i, a.starts, a.cache, methods, a.predictions,
-             a.alignment_noise, not a.no_residual_dof, a.sigma_pool, not a.no_sync_timing)
+             a.alignment_noise, not a.no_residual_dof, a.sigma_pool, not a.no_sync_timing,
+             not a.raw_draws)
             for s in srcs
             for i in range(a.campaigns)]
     t0 = time.perf_counter()

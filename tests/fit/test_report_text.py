@@ -124,6 +124,10 @@ def test_gprm_fit_ends_with_the_text_gprm_show_prints(fitted):
     det = d["uncertainty"]["details"]
     assert (f"gain error the residuals show: {100 * det['gain_estimated']:.3g} % "
             f"({det['gain_estimated_z']:.1f} sd of its noise without one") in flat
+    # the prediction draws were projected onto the data (gprm.fit.draws): counts as held
+    dr = det["draws"]
+    assert 0 < dr["kept"] <= 400 and dr["proposed"] >= dr["kept"]
+    assert f"prediction draws: {dr['kept']} kept of {dr['proposed']} proposals" in flat
     adq = d["uncertainty"]["adequacy"]
     assert f"[[Adequacy]] {adq['verdict']}" in flat and adq["text"].split(":")[0] in flat
     assert sum(1 for p in d["parameters"].values() if p["fitted"]) == \
@@ -227,6 +231,18 @@ def test_report_shows_the_synchronisations_timing_sd_per_signal():
                    "sync_timing_sd_s": 5.6e-9, "crossing_offset_s": 1e-7}}}}
     flat = " ".join(fit_report(d).split())
     assert "alignment 2 ns, synchronisation 5.6 ns, crossing offset +100 ns" in flat
+
+
+def test_report_says_how_the_draws_were_put_back_on_the_data():
+    """fit.json's ``details.draws`` (stop 44) in words; a file without it says nothing."""
+    d = _new_format()
+    d["uncertainty"] = {"method": "sandwich", "details": {
+        "draws": {"kept": 400, "proposed": 588, "acceptance": 0.73, "threshold": 330.0,
+                  "scale": 7.2, "misfit_median": 5.3}}}
+    flat = " ".join(fit_report(d).split())
+    assert "prediction draws: 400 kept of 588 proposals (73 % reproduce" in flat
+    d["uncertainty"]["details"].pop("draws")
+    assert "prediction draws" not in fit_report(d)
 
 
 def test_first_line_says_the_weights_and_their_pooling():

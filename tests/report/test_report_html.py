@@ -201,3 +201,23 @@ def test_identification_extras_render():
     rows = combination_rows(fit)
     assert rows[0][0] == "k_Cy · k_Dy^0.94" and rows[0][2].startswith("[")
     assert strong_correlations(fit) == [["k_Cy", "k_Dy", "-0.99500"]]
+
+
+def test_report_says_how_the_prediction_draws_were_put_back_on_the_data(partial_run, tmp_path):
+    """fit.json's ``uncertainty.details.draws`` (gprm.fit.draws) in the identification's
+    paragraph, the counts as held; a fit without it says nothing of it."""
+    import json
+    import shutil
+
+    src, _ = partial_run
+    run = tmp_path / "run"
+    shutil.copytree(src, run)
+    fit = json.loads((run / "fit.json").read_text())
+    fit["uncertainty"]["details"] = {"draws": {"kept": 400, "proposed": 612,
+                                               "acceptance": 0.7, "threshold": 45.6}}
+    (run / "fit.json").write_text(json.dumps(fit))
+    write_report(run, tmp_path / "r.html")
+    text = " ".join((tmp_path / "r.html").read_text().split())
+    assert "prediction draws: 400 kept of 612 proposals (70 % reproduce" in text
+    write_report(src, tmp_path / "plain.html")
+    assert "prediction draws" not in (tmp_path / "plain.html").read_text()

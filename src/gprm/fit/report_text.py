@@ -45,6 +45,21 @@ def weights_label(sigma, pool, plus_minus: str = "+-") -> str:
     return f"{sigma}" + (f" pooled over {plus_minus}{pool} samples" if pool else "")
 
 
+def draws_label(details) -> str | None:
+    """The prediction draws' projection onto the data in words (gprm.fit.draws), from the
+    uncertainty's ``details``; None where the draws were not projected (another method, a
+    fit file from before stop 44, or no draws)."""
+    dr = details.get("draws") if isinstance(details, dict) else None
+    if not isinstance(dr, dict) or not _finite(dr.get("kept")):
+        return None
+    acc = dr.get("acceptance")
+    return (f"prediction draws: {int(dr['kept'])} kept of {int(dr.get('proposed', 0))} "
+            f"proposals" + (f" ({100 * acc:.0f} % reproduce their linearised signals)"
+                            if _finite(acc) else "")
+            + ", each moved onto the parameter sets that fit as the linearisation says; "
+            "the others asked for signals no nearby parameter set gives, and were dropped")
+
+
 def pretty_unit(unit: str) -> str:
     """A unit as people write it: ``N*s/m`` -> ``N·s/m`` (pint's ``*`` is for parsing)."""
     return unit.replace("*", "·")
@@ -142,6 +157,9 @@ def fit_report(d: dict, *, min_correl: float = DEFAULT_MIN_CORREL) -> str:
                              + ("; indistinguishable from none" if gz < 2 else "") + ")")
             if det.get("statistical_from"):
                 lines.append(f"    statistical part from the {det['statistical_from']}")
+        dl = draws_label(det)
+        if dl:
+            lines.append(f"    {dl}")
         alt = det.get("alternative_minima") if isinstance(det, dict) else None
         if isinstance(alt, dict) and alt.get("within_95"):
             names = _fitted_names(d)

@@ -63,6 +63,7 @@ from scipy.special import ndtri
 
 from gprm.campaign.preprocess import alignment_shift
 from gprm.errors import GprmInputError
+from gprm.fit.draws import inflation, project_draws
 from gprm.fit.engine import polish_kwargs
 from gprm.fit.lm import levenberg_marquardt_batch
 from gprm.fit.methods import FitState
@@ -129,6 +130,10 @@ class Systematics:
     #: the runs' spread but left in their mean (FitData.sync_timing_sd, where the file has
     #: it); False: not (stops 1-42, a development check)
     sync_timing: bool = True
+    #: put the posterior draws back on the data (gprm.fit.draws): each projected onto the
+    #: parameter sets whose residuals are the linearisation's at the draw, those that cannot
+    #: be dropped; False: the Gaussian's draws as they are (stops 1-43, a development check)
+    project_draws: bool = True
 
     def __post_init__(self):
         if self.alignment_noise not in ALIGNMENT_NOISE:
@@ -158,6 +163,7 @@ class Systematics:
                 "variance_check": self.variance_check,
                 "alignment_noise": self.alignment_noise,
                 "residual_dof": self.residual_dof, "sync_timing": self.sync_timing,
+                "project_draws": self.project_draws,
                 "per_signal": {s: {"gain_sd": g, "timing_sd_s": t}
                                for s, g, t in self.per_signal}}
 
@@ -1190,11 +1196,27 @@ def uncertainty(method: str, state: FitState) -> Uncertainty:
     Cu_rep = Cu * np.outer(F, F)
     D = prior.dx_du(x)
     cov_x = Cu_rep * np.outer(D, D)
-    rng = np.random.default_rng([state.seed, 21])
     w, V = np.linalg.eigh(Cu)
-    Z = rng.standard_normal((int(state.n_draws), x.size)) @ (V * np.sqrt(np.clip(w, 0, None))).T
-    Z = stretch_draws(Z, sd_u, (f68_lo, f68_hi), (f_lo, f_hi), (z68, z95))
-    draws = prior.from_u(u[None] + Z) if state.n_draws > 0 else None
+    L = V * np.sqrt(np.clip(w, 0, None))
+
+    def propose(k: int, rnd: int = 0) -> np.ndarray:
+        """k draws (offsets in u) of the Gaussian stretched to the intervals; proposal round
+        ``rnd`` (0: the stream of stops 1-43)."""
+        rng = np.random.default_rng([state.seed, 21] if rnd == 0 else [state.seed, 21, rnd])
+        Z = rng.standard_normal((int(k), x.size)) @ L.T
+        return stretch_draws(Z, sd_u, (f68_lo, f68_hi), (f_lo, f_hi), (z68, z95))
+
+    projected = None
+    if state.n_draws <= 0:
+        draws = None
+    elif syst.project_draws:
+        Ju_e, Hinv_e = _estimator(x, state.J, prior)
+        kappa = inflation(Ju_e, Hinv_e, Cu, float(prior.weight) ** 2)
+        projected = project_draws(state.obj, x, propose, int(state.n_draws), state.lm,
+                                  scale=kappa)
+        draws = projected.x
+    else:
+        draws = prior.from_u(u[None] + propose(int(state.n_draws)))
     r = state.r
     # the variance scale the fit weighed its prior with (FitResult.objective rebuilds it)
     s2 = float(prior.weight) ** 2
@@ -1225,6 +1247,8 @@ def uncertainty(method: str, state: FitState) -> Uncertainty:
         # sources' width goes")
         "gain_estimated_z": float(err.gain_z),
         "max_lag": parts.max_lag, "p_eff": parts.p_eff,
+        # the draws' projection onto the data (gprm.fit.draws; None: not projected)
+        "draws": projected.to_json() if projected is not None else None,
         "shape_factors": {"lower": [float(v) for v in s_lo], "upper": [float(v) for v in s_hi]},
         "variance_factors": {"lower": [float(v) for v in v95[0]],
                              "upper": [float(v) for v in v95[1]]},

@@ -33,7 +33,7 @@ from gprm.fit.sandwich import COVERAGE_HEADLINE
 from gprm.flight.files import read_impact, read_impact_curves, read_telemetry
 from gprm.params import REGISTRY, from_si
 from gprm.predict.files import read_prediction, read_whatif
-from gprm.fit.report_text import pretty_unit, weights_label
+from gprm.fit.report_text import draws_label, pretty_unit, weights_label
 from gprm.report import figures as F
 from gprm.report.html import (Card, Section, fig_to_img, not_run, num, paragraph, pm, render,
                               table)
@@ -336,7 +336,10 @@ def fit_section(run: Path) -> tuple[Section, dict | None]:
             f"{len(ident)} of the {len(phys)} physical parameters ({', '.join(ident)}); the "
             "others are reported as not determined, with the interval the posterior gives "
             "(close to the weak prior's), never with a small error. " + headline
-            + _calibration_sentence(unc)))
+            + _calibration_sentence(unc)
+            + (f" Bands and predictions, {draws_label(unc.get('details'))} "
+               "(docs/fitting.md, 'The draws put back on the data')."
+               if draws_label(unc.get("details")) else "")))
         adq = unc.get("adequacy") or {}
         if adq.get("text"):
             s.blocks.append(paragraph(f"Model adequacy: {adq['text']}"))

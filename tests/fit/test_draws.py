@@ -220,3 +220,51 @@ def test_the_threshold_is_scipy_stats_chi_square_quantile():
     obj, x = _sine_problem()
     out = project_draws(obj, x, lambda k, r: np.zeros((k, 1)), 2, level=0.99)
     assert out.threshold == pytest.approx(chi2.ppf(0.99, 1), rel=1e-12)
+
+
+def test_a_proposal_that_is_not_a_finite_point_is_dropped_not_projected():
+    obj, x = _ridge_problem()
+    U = np.zeros((4, 3))
+    U[1, 0] = np.nan
+    U[2, 1] = 1e6                         # exp overflows: an infinite stiffness
+    X, misfit = project(obj, x, U)
+    assert np.isinf(misfit[1]) and np.isinf(misfit[2])
+    assert np.all(np.isfinite(misfit[[0, 3]])) and np.allclose(X[[0, 3]], x[None])
+
+
+def test_when_the_projection_fails_the_draws_are_kept_as_drawn_and_the_file_says_why(
+        monkeypatch):
+    """The intervals never depend on the projection: if it raises, the default uncertainty
+    keeps the Gaussian's draws, its intervals are the same, and fit.json's details say why
+    (which gprm show prints)."""
+    from means_factory import make_means
+
+    import gprm.fit.sandwich as sandwich
+    from gprm.fit.methods import FitState, compute
+    from gprm.fit.objective import Objective, fit_data_from_means
+    from gprm.fit.prior import default_prior
+    from gprm.fit.report_text import draws_label
+    from gprm.params import paper
+
+    p = paper()
+    data = fit_data_from_means(make_means(p, seed=6), source="synthetic")
+    names = tuple(p.fitted)
+    obj = Objective.create(data, p, names, prior=default_prior(p, names).with_weight(1.0))
+    x = p.vector(obj.names)
+    r, J = obj(obj.to_normalised(x)[None])
+    n = data.n_obs
+    state = FitState(obj, x, J[0, :n] / obj.scale, r[0, :n], obj.prior, seed=1, n_draws=30)
+    good = compute("sandwich", state)
+    assert good.details["draws"]["kept"] == good.draws.shape[0] > 0
+
+    def boom(*a, **k):
+        raise np.linalg.LinAlgError("Eigenvalues did not converge")
+
+    monkeypatch.setattr(sandwich, "project_draws", boom)
+    bad = compute("sandwich", state)
+    assert bad.draws.shape == (30, x.size) and np.all(np.isfinite(bad.draws))
+    for side in ("lower95", "upper95", "lower68", "upper68"):
+        np.testing.assert_array_equal(getattr(bad, side), getattr(good, side))
+    reason = bad.details["draws"]["not_projected"]
+    assert reason == "LinAlgError: Eigenvalues did not converge"
+    assert "not put back on the data (LinAlgError" in draws_label(bad.details)

@@ -123,11 +123,19 @@ def project(obj: Objective, x: np.ndarray, U: np.ndarray, lm: LMOptions = LMOpti
     s2 = max(float(prior.weight) ** 2, 1e-300)
     kw = polish_kwargs(lm, max_iter, ftol, trust_region=False)
     kw["chi2_tol"] = reached * s2
-    with np.errstate(all="ignore"):
-        res = levenberg_marquardt_batch(both, X0, residuals=values, lower=lo, upper=hi,
-                                        indexed=True, **kw)
-    misfit = np.where(np.isfinite(res.chi2), res.chi2 / s2, np.inf)
-    return obj.to_physical(res.x), misfit
+    # a proposal that is not a finite point (an overflowing draw) is not projected: dropped
+    fin = np.flatnonzero(np.all(np.isfinite(X0), axis=1) & np.all(np.isfinite(target), axis=1))
+    X = np.full(X0.shape, np.nan)
+    misfit = np.full(X0.shape[0], np.inf)
+    if fin.size:
+        with np.errstate(all="ignore"):
+            res = levenberg_marquardt_batch(
+                lambda Xr, rows: both(Xr, fin[rows]), X0[fin],
+                residuals=lambda Xr, rows: values(Xr, fin[rows]),
+                lower=lo, upper=hi, indexed=True, **kw)
+        X[fin] = obj.to_physical(res.x)
+        misfit[fin] = np.where(np.isfinite(res.chi2), res.chi2 / s2, np.inf)
+    return X, misfit
 
 
 def inflation(Ju: np.ndarray, Hinv: np.ndarray, Cu: np.ndarray, s2: float) -> float:

@@ -50,6 +50,9 @@ def draws_label(details) -> str | None:
     uncertainty's ``details``; None where the draws were not projected (another method, a
     fit file from before stop 44, or no draws)."""
     dr = details.get("draws") if isinstance(details, dict) else None
+    if isinstance(dr, dict) and dr.get("not_projected"):
+        return (f"prediction draws as drawn, not put back on the data "
+                f"({dr['not_projected']})")
     if not isinstance(dr, dict) or not _finite(dr.get("kept")):
         return None
     acc = dr.get("acceptance")

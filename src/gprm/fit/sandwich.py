@@ -1212,9 +1212,14 @@ def uncertainty(method: str, state: FitState) -> Uncertainty:
     elif syst.project_draws:
         Ju_e, Hinv_e = _estimator(x, state.J, prior)
         kappa = inflation(Ju_e, Hinv_e, Cu, float(prior.weight) ** 2)
-        projected = project_draws(state.obj, x, propose, int(state.n_draws), state.lm,
-                                  scale=kappa)
-        draws = projected.x
+        try:
+            projected = project_draws(state.obj, x, propose, int(state.n_draws), state.lm,
+                                      scale=kappa)
+            draws = projected.x
+        except (np.linalg.LinAlgError, FloatingPointError, ValueError) as exc:
+            # the intervals do not depend on it: the draws as drawn, and the file says why
+            projected = exc
+            draws = prior.from_u(u[None] + propose(int(state.n_draws)))
     else:
         draws = prior.from_u(u[None] + propose(int(state.n_draws)))
     r = state.r
@@ -1248,7 +1253,9 @@ def uncertainty(method: str, state: FitState) -> Uncertainty:
         "gain_estimated_z": float(err.gain_z),
         "max_lag": parts.max_lag, "p_eff": parts.p_eff,
         # the draws' projection onto the data (gprm.fit.draws; None: not projected)
-        "draws": projected.to_json() if projected is not None else None,
+        "draws": (None if projected is None else
+                  {"not_projected": f"{type(projected).__name__}: {projected}"}
+                  if isinstance(projected, Exception) else projected.to_json()),
         "shape_factors": {"lower": [float(v) for v in s_lo], "upper": [float(v) for v in s_hi]},
         "variance_factors": {"lower": [float(v) for v in v95[0]],
                              "upper": [float(v) for v in v95[1]]},

@@ -226,9 +226,10 @@ def test_a_proposal_that_is_not_a_finite_point_is_dropped_not_projected():
     obj, x = _ridge_problem()
     U = np.zeros((4, 3))
     U[1, 0] = np.nan
-    U[2, 1] = 1e6                         # exp overflows: an infinite stiffness
+    U[2, 1] = 1e6                         # absurdly far: exp(u) overflows
     X, misfit = project(obj, x, U)
-    assert np.isinf(misfit[1]) and np.isinf(misfit[2])
+    assert np.isinf(misfit[1]) and np.all(np.isnan(X[1]))
+    assert misfit[2] > 1e6                # projected from its linear image, and ruled out
     assert np.all(np.isfinite(misfit[[0, 3]])) and np.allclose(X[[0, 3]], x[None])
 
 

@@ -110,8 +110,15 @@ def project(obj: Objective, x: np.ndarray, U: np.ndarray, lm: LMOptions = LMOpti
     target = r0[0][None, :] + U @ Ju.T                    # (m, N + P) the linearisation's
     u0 = prior.to_u(x[None])[0]
     lo, hi = obj.bounds_normalised()
+    # the start: the draw's linear image in x where that lies inside the bounds (the
+    # y-plane ridge is straight in x: 20 % less time than from exp(u_d), the same end
+    # points), else the draw itself; the target, not the start, decides where a row ends
     with np.errstate(all="ignore"):
-        X0 = _inside(obj.to_normalised(prior.from_u(u0[None] + U)), lo, hi)
+        X_exp = prior.from_u(u0[None] + U)
+        X_lin = x[None] + U * prior.dx_du(x)[None]
+        lo_x, hi_x = obj.to_physical(lo), obj.to_physical(hi)
+        X0 = _inside(obj.to_normalised(np.where((X_lin > lo_x) & (X_lin < hi_x), X_lin, X_exp)),
+                     lo, hi)
 
     def both(X, rows):
         r, J = obj(X)

@@ -63,7 +63,7 @@ from scipy.special import ndtri
 
 from gprm.campaign.preprocess import alignment_shift
 from gprm.errors import GprmInputError
-from gprm.fit.draws import inflation, project_draws
+from gprm.fit.draws import ProjectedDraws, inflation, project_draws
 from gprm.fit.engine import polish_kwargs
 from gprm.fit.lm import levenberg_marquardt_batch
 from gprm.fit.methods import FitState
@@ -1206,7 +1206,7 @@ def uncertainty(method: str, state: FitState) -> Uncertainty:
         Z = rng.standard_normal((int(k), x.size)) @ L.T
         return stretch_draws(Z, sd_u, (f68_lo, f68_hi), (f_lo, f_hi), (z68, z95))
 
-    projected = None
+    projected: ProjectedDraws | Exception | None = None
     if state.n_draws <= 0:
         draws = None
     elif syst.project_draws:

@@ -40,7 +40,7 @@ import numpy as np
 from scipy.special import chdtri
 
 from gprm.fit.engine import polish_kwargs
-from gprm.fit.lm import levenberg_marquardt_batch
+from gprm.fit.lm import Box, levenberg_marquardt_batch
 from gprm.fit.objective import Objective
 from gprm.fit.starts import LMOptions
 
@@ -87,13 +87,6 @@ class ProjectedDraws:
                 "misfit_median": float(np.median(finite)) if finite.size else None}
 
 
-def _inside(Xn: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
-    """Rows of Xn moved strictly inside finite bounds (the optimiser's trial points must be)."""
-    lo_in = np.where(np.isfinite(lo), lo + 1e-9 * np.abs(lo) + 1e-300, -np.inf)
-    hi_in = np.where(np.isfinite(hi), hi - 1e-9 * np.abs(hi) - 1e-300, np.inf)
-    return np.clip(Xn, lo_in, hi_in)
-
-
 def project(obj: Objective, x: np.ndarray, U: np.ndarray, lm: LMOptions = LMOptions(), *,
             max_iter: int = PROJECT_ITER, ftol: float = PROJECT_FTOL,
             reached: float = PROJECT_REACHED) -> tuple[np.ndarray, np.ndarray]:
@@ -118,8 +111,9 @@ def project(obj: Objective, x: np.ndarray, U: np.ndarray, lm: LMOptions = LMOpti
         X_exp = prior.from_u(u0[None] + U)
         X_lin = x[None] + U * prior.dx_du(x)[None]
         lo_x, hi_x = obj.to_physical(lo), obj.to_physical(hi)
-        X0 = _inside(obj.to_normalised(np.where((X_lin > lo_x) & (X_lin < hi_x), X_lin, X_exp)),
-                     lo, hi)
+        box = Box.of(lo, hi, x.size)             # the optimiser's box strictly inside the bounds
+        X0 = np.clip(obj.to_normalised(np.where((X_lin > lo_x) & (X_lin < hi_x), X_lin, X_exp)),
+                     box.lo_in, box.hi_in)
 
     def both(X, rows):
         r, J = obj(X)

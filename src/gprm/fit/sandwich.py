@@ -63,7 +63,7 @@ from scipy.special import ndtri
 
 from gprm.campaign.preprocess import alignment_shift
 from gprm.errors import GprmInputError
-from gprm.fit.draws import ProjectedDraws, inflation, project_draws
+from gprm.fit.draws import inflation, project_draws
 from gprm.fit.engine import polish_kwargs
 from gprm.fit.lm import levenberg_marquardt_batch
 from gprm.fit.methods import FitState
@@ -1157,7 +1157,7 @@ def uncertainty(method: str, state: FitState) -> Uncertainty:
     parts = propagate(state.obj, x, state.J, prior, err)
     u = prior.to_u(x)
     Cu = parts.total
-    Ju = state.J * prior.dx_du(x)[None, :]
+    Ju, Hinv = _estimator(x, state.J, prior)
     ones = np.ones(x.size)
     s_lo, s_hi = shape_factors(state.obj, x, Cu, Ju, prior) if syst.shape_check else \
         (ones, ones)
@@ -1179,8 +1179,7 @@ def uncertainty(method: str, state: FitState) -> Uncertainty:
     # instead of the normal quantile
     nu_res = None
     if syst.residual_dof:
-        Ju_r, Hinv_r = _estimator(x, state.J, prior)
-        nu_res = residual_dof(Ju_r, Hinv_r, err.R, err.max_lag, err.p_eff,
+        nu_res = residual_dof(Ju, Hinv, err.R, err.max_lag, err.p_eff,
                               whitenings=err.whitenings,
                               projection=getattr(state.obj, "projection", None))
     nu = statistical_dof(parts, nu_res)
@@ -1206,21 +1205,16 @@ def uncertainty(method: str, state: FitState) -> Uncertainty:
         Z = rng.standard_normal((int(k), x.size)) @ L.T
         return stretch_draws(Z, sd_u, (f68_lo, f68_hi), (f_lo, f_hi), (z68, z95))
 
-    projected: ProjectedDraws | Exception | None = None
-    if state.n_draws <= 0:
-        draws = None
-    elif syst.project_draws:
-        Ju_e, Hinv_e = _estimator(x, state.J, prior)
-        kappa = inflation(Ju_e, Hinv_e, Cu, float(prior.weight) ** 2)
+    draws, draws_json = None, None           # draws_json: fit.json's account of them
+    if state.n_draws > 0 and syst.project_draws:
         try:
             projected = project_draws(state.obj, x, propose, int(state.n_draws), state.lm,
-                                      scale=kappa)
-            draws = projected.x
+                                      scale=inflation(Ju, Hinv, Cu, float(prior.weight) ** 2))
+            draws, draws_json = projected.x, projected.to_json()
         except (np.linalg.LinAlgError, FloatingPointError, ValueError) as exc:
             # the intervals do not depend on it: the draws as drawn, and the file says why
-            projected = exc
-            draws = prior.from_u(u[None] + propose(int(state.n_draws)))
-    else:
+            draws_json = {"not_projected": f"{type(exc).__name__}: {exc}"}
+    if state.n_draws > 0 and draws is None:
         draws = prior.from_u(u[None] + propose(int(state.n_draws)))
     r = state.r
     # the variance scale the fit weighed its prior with (FitResult.objective rebuilds it)
@@ -1253,9 +1247,7 @@ def uncertainty(method: str, state: FitState) -> Uncertainty:
         "gain_estimated_z": float(err.gain_z),
         "max_lag": parts.max_lag, "p_eff": parts.p_eff,
         # the draws' projection onto the data (gprm.fit.draws; None: not projected)
-        "draws": (None if projected is None else
-                  {"not_projected": f"{type(projected).__name__}: {projected}"}
-                  if isinstance(projected, Exception) else projected.to_json()),
+        "draws": draws_json,
         "shape_factors": {"lower": [float(v) for v in s_lo], "upper": [float(v) for v in s_hi]},
         "variance_factors": {"lower": [float(v) for v in v95[0]],
                              "upper": [float(v) for v in v95[1]]},

@@ -337,9 +337,8 @@ def fit_section(run: Path) -> tuple[Section, dict | None]:
             "others are reported as not determined, with the interval the posterior gives "
             "(close to the weak prior's), never with a small error. " + headline
             + _calibration_sentence(unc)
-            + (f" Bands and predictions, {draws_label(unc.get('details'))} "
-               "(docs/fitting.md, 'The draws put back on the data')."
-               if draws_label(unc.get("details")) else "")))
+            + (f" Bands and predictions, {drawn} (docs/fitting.md, 'The draws put back on "
+               "the data')." if (drawn := draws_label(unc.get("details"))) else "")))
         adq = unc.get("adequacy") or {}
         if adq.get("text"):
             s.blocks.append(paragraph(f"Model adequacy: {adq['text']}"))

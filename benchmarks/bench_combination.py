@@ -52,7 +52,6 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 import bench_sources as bs  # noqa: E402
-import sources  # noqa: E402
 
 from gprm.fit.methods import state_of, uncertainty_of  # noqa: E402
 from gprm.fit.sandwich import (Systematics, _estimator, _linearised, error_model,  # noqa: E402
@@ -253,11 +252,7 @@ def ridge_table(srcs, a) -> None:
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--sources", default=",".join(sources.SOURCES))
-    ap.add_argument("--campaigns", type=int, default=20)
-    ap.add_argument("--seed", type=int, default=5000)
-    ap.add_argument("--starts", type=int, default=100)
-    ap.add_argument("--cache", required=True)
+    bs.cached_study_arguments(ap)
     ap.add_argument("--curves", action="store_true")
     ap.add_argument("--ridge", action="store_true")
     a = ap.parse_args(argv)

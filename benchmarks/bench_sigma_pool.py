@@ -128,11 +128,7 @@ def widths_table(srcs, a) -> None:
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--sources", default="white,sim2-white,drive-2")
-    ap.add_argument("--campaigns", type=int, default=20)
-    ap.add_argument("--seed", type=int, default=5000)
-    ap.add_argument("--starts", type=int, default=100)
-    ap.add_argument("--cache", required=True)
+    bs.cached_study_arguments(ap, "white,sim2-white,drive-2")
     ap.add_argument("--fit-pool", type=int, default=SIGMA_POOL)
     ap.add_argument("--pool", type=int, default=SIGMA_POOL)
     ap.add_argument("--widths", action="store_true")

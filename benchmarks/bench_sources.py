@@ -95,6 +95,17 @@ def _save(case: Case, path: Path) -> None:
     tmpf.replace(path)
 
 
+def cached_study_arguments(ap, sources_default: str = ",".join(sources.SOURCES)) -> None:
+    """The arguments of a study that re-scores this benchmark's cached fits (``--cache``):
+    ``--sources``, ``--campaigns`` (20), ``--seed`` (5000), ``--starts`` (100, the key the
+    fits were cached under), ``--cache``."""
+    ap.add_argument("--sources", default=sources_default)
+    ap.add_argument("--campaigns", type=int, default=20)
+    ap.add_argument("--seed", type=int, default=5000)
+    ap.add_argument("--starts", type=int, default=100)
+    ap.add_argument("--cache", required=True, help="bench_sources.py's cache of fits")
+
+
 def run_case(source: str, seed: int, starts: int, cache: str | None,
              sigma_pool: int = SIGMA_POOL) -> Case:
     """The fitted campaign (from ``cache`` where it holds it); ``sigma_pool``: the fit's

@@ -32,7 +32,6 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).parent))
 
 import bench_sources as bs  # noqa: E402
-import sources  # noqa: E402
 
 from gprm.fit.methods import state_of  # noqa: E402
 from gprm.fit.sandwich import _psd_part, error_model, propagate  # noqa: E402
@@ -83,11 +82,7 @@ def z_scores(case) -> dict:
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--sources", default=",".join(sources.SOURCES))
-    ap.add_argument("--campaigns", type=int, default=20)
-    ap.add_argument("--seed", type=int, default=5000)
-    ap.add_argument("--starts", type=int, default=100)
-    ap.add_argument("--cache", required=True, help="bench_sources.py's cache of fits")
+    bs.cached_study_arguments(ap)
     a = ap.parse_args(argv)
     print("| source | combination | identified physical: \\|z\\| < 1.96 | \\|z\\| < 1 | "
           "t0: \\|z\\| < 1.96 | \\|z\\| < 1 |")

@@ -10,6 +10,14 @@ the threshold, the proposals needed for the 400 draws, and the uncertainty's wal
 and without the projection (this process, one thread of work).
 
     .venv/bin/python benchmarks/bench_draws.py --cache DIR [--sources white,sim2] [--campaigns 10]
+    .venv/bin/python benchmarks/bench_draws.py --curves --cache DIR [--sources ...] [--campaigns 8]
+
+``--curves``: instead, the velocity curves' coverage (bench_coverage.curve_cover, 200
+samples) with the default's draws and with the same draws projected from the unstretched
+Gaussian N(u^, Cu) (sandwich.stretch_draws replaced by the identity: a development check,
+not an option of the method), and how the six axes of one campaign move together: the
+median over campaigns of the truth's offset from the band's median in 68 % half-widths, and
+of its spread (max - min) over the axes within a campaign.
 """
 
 from __future__ import annotations
@@ -55,18 +63,60 @@ def misfits_of(case):
     return seen["p"], with_s, time.perf_counter() - t
 
 
+def curves_table(a) -> None:
+    from bench_coverage import curve_cover
+
+    from gprm.fit.files import FittedModel
+
+    real = sandwich.stretch_draws
+    print("| source | curves 95 / 68 %: stretched (default) | unstretched | truth's offset / "
+          "68 % half-width, median | its spread over the six axes in a campaign, median |")
+    print("|---|---|---|---|---|")
+    for src in [s for s in a.sources.split(",") if s]:
+        cov = {"stretched": [0, 0, 0], "unstretched": [0, 0, 0]}
+        offs, spreads = [], []
+        for k in range(a.campaigns):
+            case = bs.run_case(src, a.seed + k, a.starts, a.cache)
+            truth = bs.truth_in_fit_time(case)[1]
+            for key in cov:
+                sandwich.stretch_draws = real if key == "stretched" else \
+                    (lambda Z, sd, f68, f95, z: Z)
+                try:
+                    u = uncertainty_of(case.fit, "sandwich")
+                finally:
+                    sandwich.stretch_draws = real
+                fm = FittedModel(case.fit.params, u.covariance, piezo=2, draws=u.draws,
+                                 uncertainty=u.method)
+                c = curve_cover(fm, truth, 200, case.seed)
+                cov[key] = [cov[key][0] + c["in95"], cov[key][1] + c["in68"],
+                            cov[key][2] + c["n"]]
+                if key == "stretched" and c["axis_offset"]:
+                    v = np.array(list(c["axis_offset"].values()))
+                    offs.append(float(np.median(v)))
+                    spreads.append(float(v.max() - v.min()))
+
+        def pc(key, cov=cov):
+            i95, i68, n = cov[key]
+            return f"{100 * i95 / max(n, 1):.1f} / {100 * i68 / max(n, 1):.1f}"
+        print(f"| {src} | {pc('stretched')} | {pc('unstretched')} | {np.median(offs):.2f} | "
+              f"{np.median(spreads):.3f} |", flush=True)
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--sources", default=DEFAULT_SOURCES)
-    ap.add_argument("--campaigns", type=int, default=10)
-    ap.add_argument("--seed", type=int, default=5000)
-    ap.add_argument("--starts", type=int, default=100)
-    ap.add_argument("--cache", required=True)
+    bs.cached_study_arguments(ap, DEFAULT_SOURCES)
+    ap.set_defaults(campaigns=10)
+    ap.add_argument("--curves", action="store_true")
     a = ap.parse_args(argv)
     from _machine import machine
     print(machine())
     print(f"command: `.venv/bin/python benchmarks/bench_draws.py --cache DIR --sources "
-          f"{a.sources} --campaigns {a.campaigns}`\n")
+          f"{a.sources} --campaigns {a.campaigns}" + (" --curves" if a.curves else "") + "`\n")
+    if a.curves:
+        t0 = time.perf_counter()
+        curves_table(a)
+        print(f"\n({time.perf_counter() - t0:.0f} s; cache {a.cache})")
+        return 0
     print("| source | misfit, variance scales: " + ", ".join(f"{p} %" for p in PCT)
           + " | misfit / threshold: 50 %, 75 %, 90 % | share within 0.1-10 x the threshold | "
           "share kept | inflation (median) | "

@@ -104,9 +104,10 @@ def project(obj: Objective, x: np.ndarray, U: np.ndarray, lm: LMOptions = LMOpti
     target = r0[0][None, :] + U @ Ju.T                    # (m, N + P) the linearisation's
     u0 = prior.to_u(x[None])[0]
     lo, hi = obj.bounds_normalised()
-    # the start: the draw's linear image in x where that lies inside the bounds (the
-    # y-plane ridge is straight in x: 20 % less time than from exp(u_d), the same end
-    # points), else the draw itself; the target, not the start, decides where a row ends
+    # the start: the draw's linear image in x where that lies inside the bounds (nearer the
+    # y-plane ridge, which is straight in x: less time than from exp(u_d), BENCHMARKS.md
+    # "The draws put back on the data"), else the draw itself; the target, not the start,
+    # decides where a row ends
     with np.errstate(all="ignore"):
         X_exp = prior.from_u(u0[None] + U)
         X_lin = x[None] + U * prior.dx_du(x)[None]

@@ -19,6 +19,11 @@
         same design agree, the floor of any such comparison. ``--from-log F`` prints the
         tables of an earlier (or interrupted) run's JSON lines.
 
+    .venv/bin/python benchmarks/bench_design.py --run-structure DIR
+        How the runs of a kept validation's campaigns (``--keep DIR``) differ: each run's
+        deviation from the mean regressed on the fitted model's sensitivities to the drive's
+        amplitude, the trigger time, the retraction time and one stiffness per plane.
+
     ``--keep DIR`` (with --validate or --validate-drive): the campaigns, fits and truths are
     written under DIR and kept; a fit already there is used instead of being made again (the
     same seeds make the same campaigns), so running the command again with the same DIR
@@ -94,15 +99,20 @@ def timing(starts: int) -> None:
     print(f"| paper | default | {t_paper:.1f} | |")
 
 
-def _compare(res, pred_sd, pred_ident, fit: dict, truth) -> dict:
+def _compare(res, pred_sd, pred_ident, fit: dict, truth, base_fit: dict | None = None) -> dict:
     """Achieved (fit.json) against predicted sd in u; the 95 % coverage of the truth over the
-    identified physical parameters (fit.json intervals are SI)."""
+    identified physical parameters (fit.json intervals are SI); with ``base_fit``, also the
+    achieved sd over the base fit's (``over_base``, the parameters both identify)."""
     from bench_coverage import PHYSICAL
 
-    ratios, cover, n_cov = {}, 0, 0
+    ratios, cover, n_cov, over = {}, 0, 0, {}
     for i, n in enumerate(res.names):
         e = fit["parameters"][n]
         sd_ach = e["contraction"] * res.prior_sd[i]
+        if base_fit is not None:
+            b = base_fit["parameters"][n]
+            if e.get("identified") and b.get("identified"):
+                over[n] = float(e["contraction"] / b["contraction"])
         if e["identified"] and pred_ident[i]:
             ratios[n] = float(sd_ach / pred_sd[i])
         if n in PHYSICAL and e["identified"]:
@@ -110,6 +120,7 @@ def _compare(res, pred_sd, pred_ident, fit: dict, truth) -> dict:
             cover += int(lo <= truth[n] <= hi)
             n_cov += 1
     return {"ratios": ratios, "cover": cover, "n_cover": n_cov,
+            **({"over_base": over} if base_fit is not None else {}),
             "ident_pred": int(np.sum(pred_ident)),
             "ident_ach": sum(bool(fit["parameters"][n]["identified"]) for n in res.names)}
 
@@ -176,7 +187,7 @@ def validate(n_truths: int, starts: int, seed0: int, log: Path,
             fh.flush()
 
         for seed, truth, tdir in _truth_folders(d, seed0, n_truths):
-            campaign(tdir, "base", seed, 10, 5, 1.5e-3, (0.97e-3, 1.2e-3))
+            base_fit = campaign(tdir, "base", seed, 10, 5, 1.5e-3, (0.97e-3, 1.2e-3))
             gprm("design", tdir / "base_fit.json", "--candidates", d / "cands.toml",
                  "--out", tdir / "design.json")
             design = json.loads((tdir / "design.json").read_text())
@@ -185,7 +196,8 @@ def validate(n_truths: int, starts: int, seed0: int, log: Path,
             rep = campaign(tdir, "replicate", seed + 7000, 10, 5, 1.5e-3, (0.97e-3, 1.2e-3))
             emit({"seed": seed, "rank": 0, "name": "base again (control)", "runs": 10,
                   "window": [0.97e-3, 1.2e-3],
-                  **_compare(res0, res0.base.sd_u, res0.base.identified, rep, truth)})
+                  **_compare(res0, res0.base.sd_u, res0.base.identified, rep, truth,
+                             base_fit)})
             for rank, name in enumerate(design["ranking"], 1):
                 # the prediction for exactly that campaign: a design of this one addition
                 cfg = replace(cfg_all, candidates=tuple(c for c in cfg_all.candidates
@@ -198,7 +210,8 @@ def validate(n_truths: int, starts: int, seed0: int, log: Path,
                                syn["t_end"], syn["window"])
                 emit({"seed": seed, "rank": rank, "name": name, "runs": syn["runs"],
                       "window": list(syn["window"]),
-                      **_compare(res, pred["sd_u"], pred["identified"], fit, truth)})
+                      **_compare(res, pred["sd_u"], pred["identified"], fit, truth,
+                                 base_fit)})
     return rows
 
 
@@ -251,8 +264,9 @@ def tables(rows: list[dict]) -> None:
               f"{r['ident_ach']} | {len(v)} | {np.median(v):.2f} | "
               f"{int(np.sum(np.abs(v - 1) <= 0.25))}/{len(v)} | {r['cover']}/{r['n_cover']} |")
     print("\n| campaigns | comparisons | achieved / predicted sd: median (16-84 %) | within "
-          "+-25 % | 95 % coverage, identified physical |")
-    print("|---|---|---|---|---|")
+          "+-25 % | 95 % coverage, identified physical | achieved sd / the base fit's, "
+          "median |")
+    print("|---|---|---|---|---|---|")
     names = sorted({r["name"] for r in rows if r["rank"] > 0})
     groups = [("control: the base design again", lambda r: r["rank"] == 0),
               ("top three recommendations", lambda r: r["rank"] > 0),
@@ -265,9 +279,11 @@ def tables(rows: list[dict]) -> None:
         v = np.concatenate([list(r["ratios"].values()) for r in rs])
         c = sum(r["cover"] for r in rs) / max(sum(r["n_cover"] for r in rs), 1)
         q = np.percentile(v, [16, 84])
+        ob = [x for r in rs for x in (r.get("over_base") or {}).values()]
         print(f"| {label} ({len(rs)}) | {len(v)} | {np.median(v):.2f} ({q[0]:.2f}-{q[1]:.2f})"
               f" | {np.mean(np.abs(v - 1) <= 0.25):.0%} | {c:.1%} "
-              f"({sum(r['cover'] for r in rs)}/{sum(r['n_cover'] for r in rs)}) |")
+              f"({sum(r['cover'] for r in rs)}/{sum(r['n_cover'] for r in rs)}) | "
+              f"{f'{np.median(ob):.2f}' if ob else '-'} |")
     per: dict[str, list] = {}
     for r in rows:
         if r["rank"] > 0:
@@ -277,6 +293,72 @@ def tables(rows: list[dict]) -> None:
     print("|---|---|---|")
     for n, x in per.items():
         print(f"| {n} | {len(x)} | {np.median(x):.2f} ({min(x):.2f} .. {max(x):.2f}) |")
+
+
+#: the model's sensitivities the runs' deviations are regressed on (--run-structure), added
+#: one at a time: the drive's amplitude, the trigger time, the drive's retraction time, and a
+#: stiffness of each plane
+RUN_COLUMNS = ("V0", "t0", "tau_v", "k_Ax", "k_lr", "k_Cy")
+
+
+def run_structure(keep: Path) -> None:
+    """How the runs of the validation's kept campaigns differ (``--run-structure DIR``): per
+    campaign and model position, each run's deviation from the mean over the fit window,
+    regressed (least squares, one coefficient per run) on the fitted model's sensitivities to
+    :data:`RUN_COLUMNS`, added one at a time; the share of the runs' spread above the white
+    noise each set explains, and what is left in units of the white noise's variance."""
+    import xarray as xr
+
+    from gprm.fit.files import load_model
+    from gprm.params import batch_from_vectors
+    from gprm.simulate import observe
+
+    print("| campaign | position | spread / white noise (variance) | explained by: "
+          + " | ".join("+" + c for c in RUN_COLUMNS) + " | left / white noise |")
+    print("|---|---|---|" + "---|" * len(RUN_COLUMNS) + "---|")
+    for tdir in sorted(p for p in keep.glob("t*") if p.is_dir()):
+        for name in ("base", "long-window"):
+            fit_path, means_path = tdir / f"{name}_fit.json", tdir / f"{name}_means.nc"
+            if not (fit_path.exists() and means_path.exists()):
+                continue
+            fm = load_model(fit_path)
+            doc = json.loads(fit_path.read_text())
+            w0, w1 = doc["window"]
+            with xr.open_dataset(means_path) as ds:
+                t = ds.time.values
+                k = (t >= w0 - 1e-12) & (t <= w1 + 1e-12)
+                sigs = [str(v) for v in doc["signals"]]
+                runs = {sg: ds["runs"].sel(signal=sg).values[:, k] for sg in sigs}
+                mean = {sg: ds["mean"].sel(signal=sg).values[k] for sg in sigs}
+                white = {sg: float(ds["noise_std"].sel(signal=sg)) for sg in sigs}
+            x = fm.params.vector(fm.names)
+            # the sensitivities by central differences (relative step 1e-4; 1 ns for t0)
+            pb = batch_from_vectors(fm.params, fm.names, np.repeat(x[None], 2 * len(RUN_COLUMNS), 0))
+            steps = []
+            for j, c in enumerate(RUN_COLUMNS):
+                h = 1e-9 if c == "t0" else 1e-4 * abs(float(pb[c][0]))
+                pb[c] = np.asarray(pb[c], float).copy()
+                pb[c][2 * j] += h
+                pb[c][2 * j + 1] -= h
+                steps.append(h)
+            y = observe(pb, t[k], tuple(sigs), piezo=fm.piezo,
+                        z_bk_absolute=fm.z_bk_absolute).y          # (2 C, S, T)
+            sens = np.stack([(y[2 * j] - y[2 * j + 1]) / (2 * h)
+                             for j, h in enumerate(steps)], -1)     # (S, T, C)
+            for i, sg in enumerate(sigs):
+                dev = runs[sg] - mean[sg][None]
+                n0 = white[sg]
+                above = float(np.sum(dev ** 2) - dev.size * n0 ** 2)
+                shares, left = [], float("nan")
+                for j in range(1, len(RUN_COLUMNS) + 1):
+                    A = sens[i, :, :j]
+                    coef, *_ = np.linalg.lstsq(A, dev.T, rcond=None)
+                    res = dev.T - A @ coef
+                    shares.append(1.0 - (float(np.sum(res ** 2)) - res.size * n0 ** 2) / above)
+                    left = float(np.mean(res ** 2)) / n0 ** 2
+                print(f"| {tdir.name} {name} | {sg} | {np.mean(dev ** 2) / n0 ** 2:.1f} | "
+                      + " | ".join(f"{v:.3f}" for v in shares) + f" | {left:.1f} |",
+                      flush=True)
 
 
 def main(argv=None) -> None:
@@ -292,6 +374,8 @@ def main(argv=None) -> None:
                     help="JSON lines, one per campaign, appended as the validation goes")
     ap.add_argument("--from-log", type=Path, default=None,
                     help="only print the tables of a log written earlier")
+    ap.add_argument("--run-structure", type=Path, default=None, metavar="DIR",
+                    help="how the runs of a kept validation's campaigns differ")
     ap.add_argument("--keep", type=Path, default=None,
                     help="keep the campaigns and fits under this folder; fits found there "
                          "are reused (re-scores the design on the same campaigns)")
@@ -300,6 +384,8 @@ def main(argv=None) -> None:
     print(f"\ncommand: `.venv/bin/python benchmarks/bench_design.py {' '.join(sys.argv[1:])}`\n")
     if a.timing:
         timing(a.starts)
+    if a.run_structure is not None:
+        run_structure(a.run_structure)
     if a.from_log is not None:
         tables([json.loads(x) for x in a.from_log.read_text().splitlines() if x.strip()])
     elif a.validate_drive:

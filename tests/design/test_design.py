@@ -367,6 +367,47 @@ def test_more_runs_shrink_only_the_part_that_averages_down(synthetic_fit):
     assert at_floor[ident].sum() >= 0.75 * ident.sum()
 
 
+def test_run_to_run_variation_averages_over_runs_not_over_the_window(synthetic_fit):
+    """The runs' part beyond what the noise model explains (the mechanism and its drive
+    varying from run to run) shrinks with the runs of the same measurement as 1/runs and
+    not with a longer window; where the noise model explains all of a parameter's runs'
+    part, the part scales with the information as before. Checked on the parts themselves
+    (each design's variance is the sum of its parts' contributions)."""
+    from gprm.design.core import same_measurement
+
+    cfg = replace(read_design_config(None), candidates=())
+    res = run_design(synthetic_fit, cfg)
+    runs = res.parts[0]
+    assert runs.component == "runs" and runs.kappa == 1.0 and runs.runs == 10
+    V = runs.per_run_variance(10)
+    np.testing.assert_allclose(runs.per_run_variance(40), V / 4, rtol=1e-12)
+    np.testing.assert_allclose(V, V.T, rtol=0, atol=1e-15 * np.abs(V).max())
+    assert np.linalg.eigvalsh(V).min() >= -1e-9 * np.abs(V).max()    # a covariance
+    with pytest.raises(ValueError):
+        runs.per_run_variance(0)
+    # a synthetic campaign has run-to-run variation (the generator varies its drive and
+    # mechanism between runs), so the excess is not empty
+    ident = res.base.identified
+    assert np.all(np.diag(V) >= 0) and np.median(np.diag(V)[ident]) > 0
+    base = res.base_block
+    longer = replace(base, window=(base.window[0], 1.6e-3), record=2e-3)
+    more = replace(base, runs=40)
+    other = replace(base, drives=(1,))
+    assert same_measurement(longer, base) and same_measurement(more, base)
+    assert not same_measurement(other, base)
+    out = run_design(synthetic_fit, cfg, alone=(base, longer, more, other))
+    same, long_, many, piezo1 = (a["sd_u"] ** 2 for a in out.alone)
+    d = np.diag(V)
+    below = out.fit_sd_u < out.prior_sd
+    # a longer window cannot take the variance below the run-to-run part of the same runs
+    assert np.all(long_[below] >= d[below] * (1 - 1e-9))
+    # four times the runs: the run-to-run part a quarter (the rest also shrinks)
+    assert np.all(many[below] <= same[below] * (1 + 1e-9))
+    assert np.all(many[below] >= d[below] / 4 * (1 - 1e-9))
+    # another drive is not a repeat: its runs do not average the base's variation
+    assert np.all(piezo1[below] >= np.minimum(d[below], out.prior_sd[below] ** 2) * (1 - 1e-9))
+
+
 def test_a_fit_without_the_split_is_carried_over_in_one_part(tmp_path, synthetic_fit):
     """A fit whose uncertainty does not record how its variance splits (another method, an
     older file): one part, which still reproduces the fit's sd at the base design."""
@@ -394,7 +435,14 @@ def test_cli_on_a_fit_of_a_synthetic_campaign(tmp_path, synthetic_fit):
     assert r.exit_code == 0, r.output
     doc = json.loads(out.read_text())
     assert [p["component"] for p in doc["carry_over"]] == ["runs", "floor"]
-    assert all(p["kappa"] > 0 and p["kappa"] != 1.0 for p in doc["carry_over"])
+    runs, floor = doc["carry_over"]
+    # the floor is calibrated; the runs' part takes the noise model at face value and
+    # carries the excess as run-to-run variation, recorded per parameter
+    assert floor["kappa"] > 0 and floor["kappa"] != 1.0 and "run_to_run_sd_u" not in floor
+    assert runs["kappa"] == 1.0 and runs["base_runs"] == 10
+    assert set(runs["run_to_run_sd_u"]) == set(doc["base"]["parameters"])
+    assert max(runs["run_to_run_sd_u"].values()) > 0
+    assert all(0.0 <= v <= 1.0 for v in runs["scale"].values())
     assert doc["noise"]["white_m"] > 0
     assert doc["base"]["fit_sd_u"] is not None
     # the carry-over: the base design reproduces the fit's own sd (or the prior's, where

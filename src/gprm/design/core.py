@@ -25,7 +25,10 @@ alignment) and the part that does not (the residuals' excess over the runs' spre
 mismatch; the gain and stated timing errors; in older fits the time origin of t0). Each part
 has its own information (``block_information(component=...)``), calibration kappa and
 per-parameter carry-over, and a design's variance is their sum: more runs shrink only the
-first.
+first. The first is split once more (:func:`_carry`): what the noise model explains at the
+base (kappa 1), which shrinks with a design's information, and the excess, the mechanism
+and its drive varying from run to run, which only more runs of the same measurement average
+(:func:`same_measurement`; docs/design.md, "The runs' part: run-to-run variation").
 """
 
 from __future__ import annotations
@@ -282,22 +285,73 @@ def variance_parts(doc: dict, names: tuple[str, ...], fit_var: np.ndarray, x: np
 @dataclass(frozen=True)
 class _Part:
     """One part of the carry-over: its base information, calibration and per-parameter
-    scale (the fit's part sd over the calibrated model's)."""
+    scale (the fit's part sd over the calibrated model's); for the runs' part, the
+    run-to-run variation (``per_run``, (P, P) covariance in u of the base campaign's mean
+    of ``runs`` runs; None for the other parts): see :func:`_carry`."""
 
     component: str
     kappa: float
     scale: np.ndarray
+    per_run: np.ndarray | None = None
+    runs: int = 0
+
+    def per_run_variance(self, runs: int) -> np.ndarray:
+        """(P, P): the run-to-run part of a campaign that averages ``runs`` (> 0) runs of
+        the base's measurement; zero for a part without one."""
+        if self.per_run is None:
+            return np.zeros((self.scale.size, self.scale.size))
+        if runs <= 0:
+            raise ValueError(f"a campaign averages at least one run, got {runs}")
+        return self.per_run * (self.runs / runs)
 
 
 def _carry(P0: np.ndarray, F_base: np.ndarray, part_sd: np.ndarray, ident: np.ndarray,
-           component: str) -> _Part:
-    """kappa for the part (median match over the identified parameters where the part is
-    not negligible) and the per-parameter scale that makes the base reproduce it."""
+           component: str, *, runs: int = 0) -> _Part:
+    """The part's carry-over from the base campaign.
+
+    The part that does not average down (``floor``, or ``all`` for an unsplit fit): kappa
+    (median match over the identified parameters where the part is not negligible) and the
+    per-parameter scale that makes the base reproduce it.
+
+    The runs' part (``runs``, with the base's ``runs``): the fit's runs-part variance A is
+    split into what the noise model's own information explains at the base, V = the
+    posterior variance with kappa = 1 (white noise, the runs' amplitude spread and the
+    alignment, as measured: they average down over runs *and* over samples), and the
+    excess A - V where positive: the mechanism and its drive varying from run to run (each
+    run a slightly different stiffness, drive amplitude, retraction time, trigger), which a
+    campaign averages over its runs but not over a longer record or window
+    (docs/design.md, "The runs' part: run-to-run variation"). The first keeps the
+    per-parameter scale min(sqrt(A / V), 1); the second is kept as a covariance in u with
+    the base posterior's correlations and variances A - V, and a design divides it by its
+    number of runs of the same measurement."""
     mask = ident & (part_sd > 0)
+    if component == "runs" and runs > 0:
+        C = _posterior(P0, F_base, 1.0)
+        raw = _mean_sd(C)
+        excess = np.clip(part_sd ** 2 - raw ** 2, 0.0, None)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            r = np.where(raw > 0, np.minimum(part_sd / raw, 1.0), 0.0)
+            Cm = C.mean(0)
+            Cm = 0.5 * (Cm + Cm.T)
+            d = np.sqrt(np.clip(np.diag(Cm), 0.0, None))
+            corr = np.where(np.outer(d, d) > 0, Cm / np.outer(d, d), 0.0)
+        np.fill_diagonal(corr, 1.0)
+        e = np.sqrt(excess)
+        return _Part(component, 1.0, np.where(np.isfinite(r), r, 0.0),
+                     corr * np.outer(e, e), int(runs))
     kappa = _calibrate(P0, F_base, part_sd, mask) if mask.any() else 1.0
     raw = _mean_sd(_posterior(P0, F_base, kappa))
     r = part_sd / raw
     return _Part(component, kappa, np.where(np.isfinite(r) & (r >= 0), r, 0.0))
+
+
+def same_measurement(block: Block, base: Block) -> bool:
+    """Whether ``block`` repeats the base campaign's measurement of the mechanism (every
+    model position, the base's drives), so that its runs average the same run-to-run
+    variation: more runs, or a longer record or window. Other positions, drives or voltage
+    profiles are not counted (their runs' variation is not measured by the fit)."""
+    return (set(MODEL_CHANNELS) <= set(block.channel_names) and block.drives == base.drives
+            and block.voltage == base.voltage and block.retraction == base.retraction)
 
 
 # ----------------------------------------------------------------------------- entry point
@@ -365,7 +419,8 @@ def run_design(model, config: DesignConfig | None = None, *, candidates_path=Non
     # the calibration and the per-parameter carry-over: what the noise model misses of the
     # fit's sd, carried over to every design (docs/design.md)
     if split is not None:
-        parts = tuple(_carry(P0, F_base[k], np.sqrt(v), ident, k) for k, v in zip(comps, split))
+        parts = tuple(_carry(P0, F_base[k], np.sqrt(v), ident, k, runs=base.runs)
+                      for k, v in zip(comps, split))
     else:
         kappa = 1.0
         scale = np.ones(len(names))
@@ -384,6 +439,9 @@ def run_design(model, config: DesignConfig | None = None, *, candidates_path=Non
     hours_of = {c.name: block_hours(c.block, cfg, base, c.name) for c in cfg.candidates}
     runs_of = {c.name: c.block.runs * len(c.block.channels) * len(c.block.drives)
                for c in cfg.candidates}
+    # the runs that average the base's run-to-run variation, per candidate
+    repeats = {c.name: c.block.runs if same_measurement(c.block, base) else 0
+               for c in cfg.candidates}
 
     def evaluate(adds: tuple[str, ...], ref: DesignEvaluation | None) -> DesignEvaluation:
         var = np.zeros(len(names))
@@ -394,6 +452,9 @@ def run_design(model, config: DesignConfig | None = None, *, candidates_path=Non
             C = _posterior(P0, F, part.kappa)
             var = var + _mean_sd(C) ** 2 * part.scale ** 2
             Cm = Cm + C.mean(0) * np.outer(part.scale, part.scale)
+            if part.per_run is not None:
+                V = part.per_run_variance(base.runs + sum(repeats[a] for a in adds))
+                var, Cm = var + np.diag(V), Cm + V
         sd = np.minimum(np.sqrt(var), sd0)
         psd = np.sqrt(np.clip(np.einsum("kp,pq,kq->k", preds.gradient, Cm, preds.gradient),
                               1e-300, None))
@@ -441,9 +502,9 @@ def run_design(model, config: DesignConfig | None = None, *, candidates_path=Non
     synth = synth_configuration(best.additions, cfg, base)
     if synth["block"] is not None:
         synth["predicted"] = evaluate_block(fm, synth["block"], cfg, noise, P0, X, dx_du,
-                                            prior, ub, sd0, lag_sd, fitted_lags, parts)
+                                            prior, ub, sd0, lag_sd, fitted_lags, parts, base)
     alone_ev = tuple(evaluate_block(fm, b, cfg, noise, P0, X, dx_du, prior, ub, sd0, lag_sd,
-                                    fitted_lags, parts) for b in alone)
+                                    fitted_lags, parts, base) for b in alone)
     y = y_spring_statement(names, base_ev, cands, cfg)
     timings = {"information": round(t_info, 3), "predictions": round(t_pred, 3),
                "total": round(time.perf_counter() - t_start, 3)}
@@ -467,7 +528,7 @@ def _better(a: DesignEvaluation, b: DesignEvaluation) -> bool:
 
 def evaluate_block(fm: FittedModel, block: Block, cfg: DesignConfig, noise: NoiseModel,
                    P0, X, dx_du, prior: Prior, ub, sd0, lag_sd, fitted_lags,
-                   parts: tuple[_Part, ...]) -> dict:
+                   parts: tuple[_Part, ...], base: Block) -> dict:
     """Predicted sd and 95 % intervals of a campaign made of ``block`` alone (what a fit of
     that campaign should report): the validation's prediction."""
     var = np.zeros(len(fm.names))
@@ -478,6 +539,11 @@ def evaluate_block(fm: FittedModel, block: Block, cfg: DesignConfig, noise: Nois
                               fitted_lag_channels=fitted_lags, z_bk_absolute=fm.z_bk_absolute,
                               component=part.component)
         var = var + _mean_sd(_posterior(P0, F, part.kappa)) ** 2 * part.scale ** 2
+        if part.per_run is not None:
+            # a campaign of its own: its runs average the variation if it repeats the
+            # base's measurement; else it is taken as the base's (not measured otherwise)
+            runs = block.runs if same_measurement(block, base) else part.runs
+            var = var + np.diag(part.per_run_variance(runs))
     sd = np.minimum(np.sqrt(var), sd0)
     return {"sd_u": sd, "identified": sd / sd0 < cfg.identified_threshold,
             "lower": prior.from_u(ub - Z95 * sd), "upper": prior.from_u(ub + Z95 * sd)}

@@ -93,7 +93,12 @@ def design_document(res: DesignResult) -> dict:
                   "alignment_sd_s": dict(res.noise.align),
                   "sync_timing_sd_s": dict(res.noise.sync)},
         "carry_over": [{"component": p.component, "kappa": float(p.kappa),
-                        "scale": {n: float(v) for n, v in zip(res.names, p.scale)}}
+                        "scale": {n: float(v) for n, v in zip(res.names, p.scale)},
+                        # the runs' part: the run-to-run variation's sd in u at the base's
+                        # runs (docs/design.md), which only more runs average down
+                        **({"run_to_run_sd_u": {n: float(v) for n, v in zip(
+                            res.names, np.sqrt(np.clip(np.diag(p.per_run), 0.0, None)))},
+                            "base_runs": p.runs} if p.per_run is not None else {})}
                        for p in res.parts],
         "draws": res.config.n_draws, "seed": res.config.seed,
         "identified_threshold": res.config.identified_threshold,

@@ -12,7 +12,9 @@ the coverage the intervals would have had under other rules for two of its parts
   [V_res - V_runs]_+, positive on average where both estimate the same matrix) kept only
   for the parameters whose V_res/V_runs exceeds the F(nu_res, nu_runs) quantile q (the two
   parts' Satterthwaite degrees of freedom, gprm.fit.sandwich.residual_dof/satterthwaite);
-- the excess dropped altogether.
+- the excess dropped altogether;
+- the excess taken beyond the synchronisation's part of the timing (V_runs + [V_res - V_runs
+  - S]_+, S that part's covariance; stop 45).
 
 The other rules are scored by a proxy: each reported interval's sides scaled by
 sqrt(V_rule / V_default) of its parameter, every interval factor (Student's t, shape and
@@ -21,7 +23,15 @@ bench_sources.py table exactly.
 
 ``--curves``: instead, per campaign, whether t0's 68 % interval holds the truth's lag and
 the share of the velocity curves' points (bench_coverage.curve_cover) inside their 68 %
-band: on the clean sources the curves' misses are t0's.
+band: on the clean sources the curves' misses are t0's. With it, linearised at the best
+fit (the sandwich's covariance in u before the intervals' factors): t0's share of the curves'
+variance, the truth's |z| for t0 and for the curves (median over the points), and the
+correlation of the two over the campaigns (stop 45: the curves' common factor is t0).
+
+``--t0``: instead, the lag t0's error (in the fit's aligned axis) over its sd under each
+part of the sandwich's covariance alone and combined, as an rms z over the campaigns (1:
+calibrated), with the parts' shares of the default's variance (stop 45: on the clean
+sources the curves' common factor is t0, ``--curves``).
 
 ``--ridge``: instead, what the uncertainty's draws do to the y-plane spring pair's
 combinations that the data determine (K0 = k_Cy + k_Dy, K1 = k_Cy b1 + k_Dy (b1 + b2),
@@ -54,8 +64,9 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 import bench_sources as bs  # noqa: E402
 
 from gprm.fit.methods import state_of, uncertainty_of  # noqa: E402
-from gprm.fit.sandwich import (Systematics, _estimator, _linearised, error_model,  # noqa: E402
-                               gain_moments, propagate, residual_dof, satterthwaite)
+from gprm.fit.sandwich import (Systematics, _estimator, _linearised, _psd_part,  # noqa: E402
+                               error_model, gain_moments, propagate, residual_dof,
+                               satterthwaite)
 
 GAIN_Z = 1.645
 QUANTILES = (0.5, 0.9)
@@ -70,6 +81,12 @@ def campaign(case) -> dict:
     unc = uncertainty_of(f, "sandwich")
     err = error_model(st.obj, x, st.J, st.r, prior, Systematics())
     parts = propagate(st.obj, x, st.J, prior, err)
+    # the synchronisation's part of the timing (the sandwich with it off, subtracted) and
+    # the statistical part with the excess taken beyond it
+    sync = parts.timing - propagate(st.obj, x, st.J, prior, error_model(
+        st.obj, x, st.J, st.r, prior, Systematics(sync_timing=False))).timing
+    beyond = parts.total - parts.statistical + parts.runs + _psd_part(
+        parts.residuals - parts.runs - sync)
     Ju, Hinv = _estimator(x, st.J, prior)
     nu_res = residual_dof(Ju, Hinv, err.R, err.max_lag, err.p_eff, whitenings=err.whitenings,
                           projection=getattr(st.obj, "projection", None))
@@ -87,13 +104,14 @@ def campaign(case) -> dict:
         rows.append({"e": ut[i] - u[i], "runs": parts.runs[i, i], "res": parts.residuals[i, i],
                      "excess": parts.statistical[i, i] - parts.runs[i, i],
                      "gain": parts.gain[i, i], "total": parts.total[i, i],
+                     "beyond_sync": beyond[i, i],
                      "nu_res": nu_res[i], "nu_runs": nu_runs[i],
                      "sides": {L: (u[i] - lv[L][0][i], lv[L][1][i] - u[i]) for L in lv}})
     return {"gain_z": gm.z, "rows": rows}
 
 
 def coverage(camps: list[dict], gain_z: float | None = None, q: float | None = None,
-             no_excess: bool = False) -> tuple[float, float]:
+             no_excess: bool = False, beyond_sync: bool = False) -> tuple[float, float]:
     """(95 %, 68 %) coverage of the identified parameters under a rule (module docstring)."""
     from scipy.stats import f as fdist
 
@@ -103,7 +121,9 @@ def coverage(camps: list[dict], gain_z: float | None = None, q: float | None = N
         drop_gain = gain_z is not None and c["gain_z"] <= gain_z
         for r in c["rows"]:
             v = r["total"] - (r["gain"] if drop_gain else 0.0)
-            if no_excess:
+            if beyond_sync:
+                v = r["beyond_sync"]
+            elif no_excess:
                 v -= r["excess"]
             elif q is not None:
                 crit = fdist.ppf(q, r["nu_res"], r["nu_runs"]) if np.isfinite(r["nu_res"]) \
@@ -122,7 +142,8 @@ def rules_table(srcs, a) -> None:
     rules = [("default", {}), (f"gain only where z > {GAIN_Z}", {"gain_z": GAIN_Z})]
     rules += [(f"excess only where V_res/V_runs > F_{q:g}", {"q": q}) for q in QUANTILES]
     rules += [(f"both (F_{QUANTILES[-1]:g})", {"gain_z": GAIN_Z, "q": QUANTILES[-1]}),
-              ("no excess", {"no_excess": True})]
+              ("no excess", {"no_excess": True}),
+              ("excess beyond the synchronisation's part", {"beyond_sync": True})]
     print("| source | gain z: median, share > 1.645 | "
           + " | ".join(f"{name}: 95 / 68 %" for name, _ in rules) + " |")
     print("|---|---|" + "---|" * len(rules))
@@ -141,16 +162,51 @@ def rules_table(srcs, a) -> None:
     print("| sources inside 90-98 / 60-76 % | | " + " | ".join(map(str, inside)) + " |")
 
 
+def curves_gradient(case, parts, prior, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(G (n, P), d (n,)): the velocity curves' points of bench_coverage.curve_cover (six
+    axes, 21 times from the truth's t_c, the fit's aligned axis) differentiated in the prior's
+    coordinates u at the best fit (central differences, steps of 0.05 of each coordinate's
+    sd in ``parts.total``), and the truth's curves minus the best fit's; points where either
+    is undefined dropped."""
+    from gprm.flight.predicted import tm_velocity_vs_time
+    from gprm.flight.telemetry import AXES
+    from gprm.params import batch
+    from gprm.params.core import batch_from_vectors
+    from gprm.simulate.kinematics import body_motion
+
+    truth = bs.truth_in_fit_time(case)[1]
+    names = list(case.fit.names)
+    t = truth["t_c"] + np.linspace(0.0, 0.2e-3, 21)
+    u0 = prior.to_u(x)
+
+    def curves(pb):
+        v = tm_velocity_vs_time(body_motion(pb, t, piezo=2))
+        return np.concatenate([v[ax] for ax in AXES], axis=1)
+
+    P = x.size
+    h = 0.05 * np.maximum(np.sqrt(np.clip(np.diag(parts.total), 0.0, None)), 1e-12)
+    U = np.concatenate([np.zeros((1, P)), np.diag(h), -np.diag(h)])
+    C = curves(batch_from_vectors(case.fit.params, names, prior.from_u(u0[None] + U)))
+    G = ((C[1:P + 1] - C[P + 1:]) / (2 * h)[:, None]).T
+    d = curves(batch([truth]))[0] - C[0]
+    ok = np.isfinite(d) & np.all(np.isfinite(G), axis=1)
+    return G[ok], d[ok]
+
+
 def curves_table(srcs, a) -> None:
     from bench_coverage import curve_cover
+
     from gprm.fit.files import FittedModel
 
     print("| source | campaigns | t0 outside its 68 % | curves' points inside 68 %: "
-          "those campaigns | the others | all |")
-    print("|---|---|---|---|---|---|")
+          "those campaigns | the others | all | linearised: t0's share of the curves' "
+          "variance, median | \\|z\\| of t0, of the curves: medians | their correlation "
+          "over the campaigns |")
+    print("|---|---|---|---|---|---|---|---|---|")
     for src in srcs:
         out_in = out_n = in_in = in_n = 0
         n_out = 0
+        share, z_t0, z_cv = [], [], []
         for k in range(a.campaigns):
             case = bs.run_case(src, a.seed + k, a.starts, a.cache)
             unc = uncertainty_of(case.fit, "sandwich")
@@ -166,12 +222,69 @@ def curves_table(srcs, a) -> None:
             else:
                 n_out += 1
                 out_in, out_n = out_in + c["in68"], out_n + c["n"]
+            # the linearised picture: how much of the curves' variance (the sandwich's
+            # covariance in u, before the intervals' factors) is t0's own, and whether the
+            # truth's offset from the curves follows t0's
+            st = state_of(case.fit)
+            x = np.asarray(st.x, float)
+            prior = st.obj.prior
+            parts = propagate(st.obj, x, st.J, prior,
+                              error_model(st.obj, x, st.J, st.r, prior, Systematics()))
+            G, d = curves_gradient(case, parts, prior, x)
+            if d.size:
+                v = np.einsum("ij,jk,ik->i", G, parts.total, G)
+                share.append(float(np.median(G[:, i] ** 2 * parts.total[i, i] / v)))
+                z_cv.append(float(np.median(np.abs(d) / np.sqrt(v))))
+                u_true = prior.to_u(np.array([bs.truth_in_fit_time(case)[1][n]
+                                              for n in names]))[i]
+                z_t0.append(abs(u_true - prior.to_u(x)[i]) / np.sqrt(parts.total[i, i]))
 
         def pct(p, q):
             """share inside, with the points counted"""
             return f"{100 * p / q:.1f} ({q})" if q else "-"
+        corr = float(np.corrcoef(z_t0, z_cv)[0, 1]) if len(z_cv) > 2 else float("nan")
         print(f"| {src} | {a.campaigns} | {n_out} | {pct(out_in, out_n)} | {pct(in_in, in_n)} | "
-              f"{pct(out_in + in_in, out_n + in_n)} |", flush=True)
+              f"{pct(out_in + in_in, out_n + in_n)} | {np.median(share):.2f} | "
+              f"{np.median(z_t0):.2f}, {np.median(z_cv):.2f} | {corr:.2f} |", flush=True)
+
+
+def t0_table(srcs, a) -> None:
+    """``--t0``: t0's error against its sd under the sandwich's parts (module docstring)."""
+    print("| source | t0's rms z with: the default's covariance | runs' part only | residuals' "
+          "only | statistical part (runs + excess) | runs + timing (no excess) | the noise's "
+          "Gauss-Newton covariance | the excess beyond the synchronisation's part | shares "
+          "of the default: statistical, timing (of which the synchronisation's) |")
+    print("|---|---|---|---|---|---|---|---|---|")
+    for src in srcs:
+        rows = []
+        for k in range(a.campaigns):
+            case = bs.run_case(src, a.seed + k, a.starts, a.cache)
+            st = state_of(case.fit)
+            x, prior = np.asarray(st.x, float), st.obj.prior
+            err = error_model(st.obj, x, st.J, st.r, prior, Systematics())
+            P = propagate(st.obj, x, st.J, prior, err)
+            no_sync = propagate(st.obj, x, st.J, prior, error_model(
+                st.obj, x, st.J, st.r, prior, Systematics(sync_timing=False)))
+            names = list(case.fit.names)
+            i = names.index("t0")
+            truth = bs.truth_in_fit_time(case)[1]
+            e = prior.to_u(x)[i] - prior.to_u(np.array([truth[n] for n in names]))[i]
+            _, Hinv = _estimator(x, st.J, prior)
+            s2 = float(st.r @ st.r) / max(st.obj.dof, 1)
+            sync = P.timing - no_sync.timing
+            beyond = P.total - P.statistical + P.runs + _psd_part(P.residuals - P.runs - sync)
+            rows.append([e ** 2, P.total[i, i], P.runs[i, i], P.residuals[i, i],
+                         P.statistical[i, i], P.runs[i, i] + P.timing[i, i], s2 * Hinv[i, i],
+                         beyond[i, i],
+                         P.statistical[i, i] / P.total[i, i], P.timing[i, i] / P.total[i, i],
+                         sync[i, i] / P.total[i, i]])
+        R = np.array(rows)
+
+        def rms(j, R=R):
+            return f"{np.sqrt(np.mean(R[:, 0] / R[:, j])):.2f}"
+        print(f"| {src} | " + " | ".join(rms(j) for j in range(1, 8))
+              + f" | {np.median(R[:, 8]):.2f}, {np.median(R[:, 9]):.2f} "
+              f"({np.median(R[:, 10]):.2f}) |", flush=True)
 
 
 def _k(M: np.ndarray, idx: dict) -> np.ndarray:
@@ -255,10 +368,12 @@ def main(argv=None) -> int:
     bs.cached_study_arguments(ap)
     ap.add_argument("--curves", action="store_true")
     ap.add_argument("--ridge", action="store_true")
+    ap.add_argument("--t0", action="store_true")
     a = ap.parse_args(argv)
     srcs = [s for s in a.sources.split(",") if s]
     t = time.perf_counter()
-    (ridge_table if a.ridge else curves_table if a.curves else rules_table)(srcs, a)
+    (ridge_table if a.ridge else curves_table if a.curves else t0_table if a.t0
+     else rules_table)(srcs, a)
     print(f"\n({time.perf_counter() - t:.0f} s; cache {a.cache})")
     return 0
 

@@ -29,9 +29,10 @@ variance, the truth's |z| for t0 and for the curves (median over the points), an
 correlation of the two over the campaigns (stop 45: the curves' common factor is t0).
 
 ``--t0``: instead, the lag t0's error (in the fit's aligned axis) over its sd under each
-part of the sandwich's covariance alone and combined, as an rms z over the campaigns (1:
-calibrated), with the parts' shares of the default's variance (stop 45: on the clean
-sources the curves' common factor is t0, ``--curves``).
+part of the sandwich's covariance alone and combined, and under stop 44's default (no drive
+shift, the excess on the lags), as an rms z over the campaigns (1: calibrated), with the
+parts' shares of the default's variance (stop 45: on the clean sources the curves' common
+factor is t0, ``--curves``).
 
 ``--ridge``: instead, what the uncertainty's draws do to the y-plane spring pair's
 combinations that the data determine (K0 = k_Cy + k_Dy, K1 = k_Cy b1 + k_Dy (b1 + b2),
@@ -53,6 +54,7 @@ bench_stat_combination.py.)
 from __future__ import annotations
 
 import argparse
+from dataclasses import replace
 import sys
 import time
 from pathlib import Path
@@ -250,11 +252,13 @@ def curves_table(srcs, a) -> None:
 
 def t0_table(srcs, a) -> None:
     """``--t0``: t0's error against its sd under the sandwich's parts (module docstring)."""
-    print("| source | t0's rms z with: the default's covariance | runs' part only | residuals' "
-          "only | statistical part (runs + excess) | runs + timing (no excess) | the noise's "
-          "Gauss-Newton covariance | the excess beyond the synchronisation's part | shares "
-          "of the default: statistical, timing (of which the synchronisation's) |")
-    print("|---|---|---|---|---|---|---|---|---|")
+    print("| source | t0's rms z with: the default | stop 44's default (no drive shift, the "
+          "excess on the lags) | runs' part only | residuals' only | runs + timing, stop 44 "
+          "| the noise's Gauss-Newton covariance | the excess beyond the synchronisation's "
+          "part, stop 44 | the drive's shift on x_base, median ns | shares of the default: "
+          "statistical, timing (of which the synchronisation's and the drive's) |")
+    print("|---|---|---|---|---|---|---|---|---|---|")
+    old = Systematics(drive_timing=False, excess_on_lags=True)
     for src in srcs:
         rows = []
         for k in range(a.campaigns):
@@ -263,28 +267,36 @@ def t0_table(srcs, a) -> None:
             x, prior = np.asarray(st.x, float), st.obj.prior
             err = error_model(st.obj, x, st.J, st.r, prior, Systematics())
             P = propagate(st.obj, x, st.J, prior, err)
+            e44 = error_model(st.obj, x, st.J, st.r, prior, old)
+            P44 = propagate(st.obj, x, st.J, prior, e44)
             no_sync = propagate(st.obj, x, st.J, prior, error_model(
-                st.obj, x, st.J, st.r, prior, Systematics(sync_timing=False)))
+                st.obj, x, st.J, st.r, prior, replace(old, sync_timing=False)))
+            no_drive = propagate(st.obj, x, st.J, prior, error_model(
+                st.obj, x, st.J, st.r, prior, Systematics(sync_timing=False,
+                                                          drive_timing=False)))
             names = list(case.fit.names)
             i = names.index("t0")
             truth = bs.truth_in_fit_time(case)[1]
             e = prior.to_u(x)[i] - prior.to_u(np.array([truth[n] for n in names]))[i]
             _, Hinv = _estimator(x, st.J, prior)
             s2 = float(st.r @ st.r) / max(st.obj.dof, 1)
-            sync = P.timing - no_sync.timing
-            beyond = P.total - P.statistical + P.runs + _psd_part(P.residuals - P.runs - sync)
-            rows.append([e ** 2, P.total[i, i], P.runs[i, i], P.residuals[i, i],
-                         P.statistical[i, i], P.runs[i, i] + P.timing[i, i], s2 * Hinv[i, i],
-                         beyond[i, i],
+            sync = P44.timing - no_sync.timing
+            beyond = P44.total - P44.statistical + P44.runs + _psd_part(
+                P44.residuals - P44.runs - sync)
+            k0 = list(st.obj.data.signals).index("x_base")
+            drive = 0.0 if err.drive_timing_sd is None else float(err.drive_timing_sd[k0])
+            rows.append([e ** 2, P.total[i, i], P44.total[i, i], P.runs[i, i],
+                         P.residuals[i, i], P44.runs[i, i] + P44.timing[i, i],
+                         s2 * Hinv[i, i], beyond[i, i], drive * 1e9,
                          P.statistical[i, i] / P.total[i, i], P.timing[i, i] / P.total[i, i],
-                         sync[i, i] / P.total[i, i]])
+                         (P.timing[i, i] - no_drive.timing[i, i]) / P.total[i, i]])
         R = np.array(rows)
 
         def rms(j, R=R):
             return f"{np.sqrt(np.mean(R[:, 0] / R[:, j])):.2f}"
         print(f"| {src} | " + " | ".join(rms(j) for j in range(1, 8))
-              + f" | {np.median(R[:, 8]):.2f}, {np.median(R[:, 9]):.2f} "
-              f"({np.median(R[:, 10]):.2f}) |", flush=True)
+              + f" | {np.median(R[:, 8]):.1f} | {np.median(R[:, 9]):.2f}, "
+              f"{np.median(R[:, 10]):.2f} ({np.median(R[:, 11]):.2f}) |", flush=True)
 
 
 def _k(M: np.ndarray, idx: dict) -> np.ndarray:

@@ -902,3 +902,158 @@ def test_residual_dof_matches_the_kernel_estimates_moments(prewhiten, projected)
     # has relative sd sqrt(2 / n); 4.5 of them for 18 comparisons (3 cases x 6 parameters)
     np.testing.assert_allclose(target, est.var(0), rtol=4.5 * np.sqrt(2 / est.shape[0]))
     assert np.all(nu > 1.0) and np.all(nu < 5 * N)
+
+
+def _paper_data_with_runs(runs_fn, noise_std=0.0, seed=3):
+    """(obj, x, y, J, r, prior, data) at the paper set on make_means' signals, with runs
+    ``runs_fn(y, dy)`` (S, R, T) and each signal's noise_std."""
+    from dataclasses import replace
+
+    from gprm.fit.api import FitOptions
+    from gprm.fit.objective import fit_data_from_means
+    from gprm.fit.sandwich import time_derivative
+    from gprm.params import paper
+    from pathlib import Path
+    sys.path.insert(0, str(Path(__file__).parent))
+    from means_factory import make_means
+
+    p = paper()
+    data = fit_data_from_means(make_means(p, seed=seed), source="synthetic")
+    data = replace(data, attrs={**data.attrs, "align_time": 1.01e-3})
+    names = tuple(FitOptions().parameters(p).fitted)
+    obj, x, y, J, r, prior = _at_paper(data, names)
+    dy = time_derivative(obj, x, J, y)
+    data = replace(data, runs=runs_fn(y, dy),
+                   noise_std=np.full(len(data.signals), float(noise_std)))
+    obj, x, y, J, r, prior = _at_paper(data, names)
+    return obj, x, y, J, r, prior, data, dy
+
+
+def _drive_sensitivities(data, x, names):
+    """(S_V0, S_tau) (S, T): the paper model's signals' derivatives in the drive's V0 and
+    tau_v, by central differences on gprm.simulate.observe (relative step 1e-5)."""
+    from gprm.params import batch_from_vectors, paper
+    from gprm.simulate import observe
+
+    out = []
+    for c in ("V0", "tau_v"):
+        pb = batch_from_vectors(paper(), names, np.repeat(x[None], 2, 0))
+        v = float(pb[c][0])
+        pb[c] = np.array([v * (1 + 1e-5), v * (1 - 1e-5)])
+        y = observe(pb, data.time, data.signals, piezo=2).y
+        out.append((y[0] - y[1]) / (2e-5 * v))
+    return out
+
+
+def test_the_drives_hidden_time_shift_is_read_from_the_runs_shapes():
+    """Runs whose drive differs (V0 by 2 %, tau_v by 3 % per run) and whose synchronisation
+    moved them by arbitrary shifts: drive_shift_sd recovers the time shift the
+    synchronisation takes for each run's shape, <g, S d_r> with g = y' / |y'|^2, exactly
+    (noise-free; computed here without the regression), and its sd over the runs over
+    sqrt(R). On runs that differ by white noise alone its noise correction leaves about
+    nothing: it is 0 on most seeds and a fraction of what the noise would give uncorrected.
+    The timing error it joins widens the lags and not the physical parameters; no runs, or
+    Systematics(drive_timing=False): nothing is added."""
+    from dataclasses import replace
+
+    from gprm.fit.objective import Objective
+    from gprm.fit.sandwich import drive_shift_sd, error_model, propagate
+    from gprm.params import LAG_PARAMETERS, paper
+
+    rng = np.random.default_rng(11)
+    R = 10
+    a, b, c = rng.normal(0, 0.02, R), rng.normal(0, 0.03, R), rng.normal(0, 3e-8, R)
+
+    def runs_fn(y, dy):
+        return None
+
+    obj, x, y, J, r, prior, data, dy = _paper_data_with_runs(runs_fn)
+    SV, ST = _drive_sensitivities(data, x, obj.names)
+    V0, tau = float(paper().values["V0"]), float(paper().values["tau_v"])
+    shape = (a[None, :, None] * V0 * SV[:, None, :] + b[None, :, None] * tau * ST[:, None, :])
+    runs = y[:, None, :] + shape + c[None, :, None] * dy[:, None, :]
+    obj = Objective.create(replace(data, runs=runs), paper(), obj.names)
+    got = drive_shift_sd(obj, x, dy)
+    g = dy / np.sum(dy ** 2, axis=1, keepdims=True)
+    h = np.einsum("srt,st->sr", shape, g)
+    want = np.sqrt(np.var(h, axis=1, ddof=1) / R)
+    np.testing.assert_allclose(got, want, rtol=1e-3)
+    assert np.all(want > 0)
+    # white noise only: the correction takes out what the noise gives
+    n0 = 2e-10
+    est, raw = [], []
+    for seed in range(30):
+        noise = np.random.default_rng(seed).normal(0, n0, (len(data.signals), R, y.shape[1]))
+        dn = replace(data, runs=y[:, None, :] + noise,
+                     noise_std=np.full(len(data.signals), n0))
+        on = Objective.create(dn, paper(), obj.names)
+        est.append(drive_shift_sd(on, x, dy))
+        raw.append(drive_shift_sd(Objective.create(replace(dn, noise_std=np.zeros(
+            len(data.signals))), paper(), obj.names), x, dy))
+    est, raw = np.array(est), np.array(raw)
+    assert np.mean(est == 0) > 0.3
+    assert np.all(np.mean(est, axis=0) < 0.5 * np.mean(raw, axis=0))
+    # in the error model: joins every signal's timing in quadrature; widens only the lags
+    e_on = error_model(obj, x, J, r, prior, Systematics(estimate_gain=False))
+    e_off = error_model(obj, x, J, r, prior, Systematics(estimate_gain=False,
+                                                          drive_timing=False))
+    np.testing.assert_allclose(e_on.drive_timing_sd, got, rtol=1e-9)
+    assert e_off.drive_timing_sd is None
+    np.testing.assert_allclose(e_on.timing_sd ** 2 - e_off.timing_sd ** 2, got ** 2,
+                               rtol=1e-6, atol=1e-30)
+    V_on, V_off = (propagate(obj, x, J, prior, e, y) for e in (e_on, e_off))
+    lags = np.array([n in LAG_PARAMETERS for n in obj.names])
+    t_on, t_off = np.diag(V_on.timing), np.diag(V_off.timing)
+    assert np.all(t_on[lags] > t_off[lags])
+    stat = np.diag(V_on.statistical)
+    assert np.all(t_on[~lags] - t_off[~lags] < 1e-3 * stat[~lags])
+    # a file without runs: nothing to read it from
+    no_runs = Objective.create(replace(data, runs=None), paper(), obj.names)
+    assert drive_shift_sd(no_runs, x, dy) is None
+
+
+def test_the_residuals_excess_stays_off_the_lags():
+    """Where the residuals show more than the runs' spread (a mismatch added to the means),
+    the statistical part's excess over the runs' covariance reaches the lags' rows and
+    columns only with Systematics(excess_on_lags=True) (stops 1-44); by default those are
+    the runs' part's, and every other entry is the same as with it."""
+    from dataclasses import replace
+
+    from gprm.fit.objective import Objective
+    from gprm.fit.sandwich import error_model, propagate
+    from gprm.params import LAG_PARAMETERS, paper
+
+    rng = np.random.default_rng(5)
+    R = 10
+
+    def runs_fn(y, dy):
+        return None
+
+    obj, x, y, J, r, prior, data, dy = _paper_data_with_runs(runs_fn)
+    t = data.time
+    bump = 0.05 * np.max(np.abs(y), axis=1, keepdims=True) * np.sin(2 * np.pi * 23e3 * t)
+    values = data.values + bump * (t > 1.0e-3)
+    runs = values[:, None, :] + data.sigma[:, None, :] * np.sqrt(R) * \
+        rng.standard_normal((len(data.signals), R, t.size))
+    runs = runs - runs.mean(axis=1, keepdims=True) + values[:, None, :]
+    d2 = replace(data, values=values, runs=runs)
+    obj = Objective.create(d2, paper(), obj.names)
+    yy = obj.model(x[None]).y[0]
+    J2 = -obj.model(x[None], jacobian=True).dy[0].reshape(-1, x.size) / d2.sigma.reshape(-1, 1)
+    r2 = ((d2.values - yy) / d2.sigma).reshape(-1)
+
+    def parts(on):
+        e = error_model(obj, x, J2, r2, prior, Systematics(excess_on_lags=on,
+                                                           drive_timing=False))
+        return propagate(obj, x, J2, prior, e, yy)
+
+    off, on = parts(False), parts(True)
+    lags = np.array([n in LAG_PARAMETERS for n in obj.names])
+    E_off, E_on = off.statistical - off.runs, on.statistical - on.runs
+    assert np.abs(E_on[np.ix_(lags, lags)]).max() > 0           # the leak reaches them
+    np.testing.assert_array_equal(E_off[lags, :], 0.0)
+    np.testing.assert_array_equal(E_off[:, lags], 0.0)
+    keep = ~lags
+    np.testing.assert_allclose(off.statistical[np.ix_(keep, keep)],
+                               on.statistical[np.ix_(keep, keep)], rtol=1e-12)
+    assert np.linalg.eigvalsh(off.statistical).min() >= -1e-12 * np.abs(off.statistical).max()

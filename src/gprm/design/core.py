@@ -137,15 +137,19 @@ def _fit_window_and_rate(fm: FittedModel) -> tuple[tuple[float, float], float, d
                       if isinstance(v, dict)),
         "align": tuple((k, _alignment_counted(v, det.get("stated") or {}, k))
                        for k, v in syst.items() if isinstance(v, dict)),
-        "sync": tuple((k, float(v.get("sync_timing_sd_s") or 0.0))
+        # the synchronisation's hidden shifts, of the runs' noise and of their drive
+        # (both average down over runs)
+        "sync": tuple((k, float(np.hypot(float(v.get("sync_timing_sd_s") or 0.0),
+                                         float(v.get("drive_timing_sd_s") or 0.0))))
                       for k, v in syst.items() if isinstance(v, dict))}
 
 
 def _alignment_counted(entry: dict, stated: dict, signal: str) -> float:
     """s: the alignment noise the fit counted in ``signal``'s timing error: its timing sd
-    beyond the stated one and the synchronisation's (the sandwich combines them in
-    quadrature, and since stop 40 adds the alignment's only where the signal's own lag is
-    held fixed: gprm.fit.sandwich); a file without the timing sd: its alignment sd."""
+    beyond the stated one and the synchronisation's, of the runs' noise and (since stop 45)
+    of their drive (the sandwich combines them in quadrature, and since stop 40 adds the
+    alignment's only where the signal's own lag is held fixed: gprm.fit.sandwich); a file
+    without the timing sd: its alignment sd."""
     a_sd = float(entry.get("alignment_sd_s") or 0.0)
     used = entry.get("timing_sd_s")
     if not isinstance(used, (int, float)):
@@ -153,7 +157,9 @@ def _alignment_counted(entry: dict, stated: dict, signal: str) -> float:
     per = (stated.get("per_signal") or {}).get(signal) or {}
     st = float(per.get("timing_sd_s", stated.get("timing_sd_s")) or 0.0)
     sync = float(entry.get("sync_timing_sd_s") or 0.0)
-    return float(min(a_sd, np.sqrt(max(float(used) ** 2 - st ** 2 - sync ** 2, 0.0))))
+    drive = float(entry.get("drive_timing_sd_s") or 0.0)
+    return float(min(a_sd, np.sqrt(max(float(used) ** 2 - st ** 2 - sync ** 2 - drive ** 2,
+                                       0.0))))
 
 
 def prior_of(fm: FittedModel, width: float | None = None) -> Prior:

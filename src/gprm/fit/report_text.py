@@ -138,7 +138,8 @@ def fit_report(d: dict, *, min_correl: float = DEFAULT_MIN_CORREL) -> str:
             lines.append("    systematics marginalised (1 sd; timing = stated, (+) the alignment's "
                          "noise from the data where the signal's own lag is held fixed (a "
                          "fitted lag absorbs it), (+) the time shift the synchronisation took "
-                         "out of the runs' spread; the crossing offset is where the fitted "
+                         "out of the runs' spread, from their noise and from their drive "
+                         "varying; the crossing offset is where the fitted "
                          "model crosses the alignment threshold against the data):")
             for sig, v in syst.items():
                 if isinstance(v, dict):
@@ -149,6 +150,8 @@ def fit_report(d: dict, *, min_correl: float = DEFAULT_MIN_CORREL) -> str:
                                  + (f"{_g(1e9 * v['sync_timing_sd_s'], '.3g')} ns"
                                     if _finite(v.get('sync_timing_sd_s'))
                                     else "not in the means file")
+                                 + (f", the drive's {_g(1e9 * v['drive_timing_sd_s'], '.3g')} ns"
+                                    if _finite(v.get('drive_timing_sd_s')) else "")
                                  + ", crossing offset "
                                  f"{_g(1e9 * v.get('crossing_offset_s', math.nan), '+.3g')} ns)")
             gz = det.get("gain_estimated_z")

@@ -38,7 +38,8 @@ independent ways, each from the data:
     synchronisation took out of their spread but left in their mean (the file's
     ``sync_timing_sd``, gprm.campaign.preprocess.sync_timing_sd): the runs cannot show it,
     and the lags (and what is read on the fit's time axis) err by it (docs/fitting.md, "The
-    time shift the synchronisation hides").
+    time shift the synchronisation hides"); so does the shift it takes for the drive varying
+    between runs, read from the runs' shapes (:func:`drive_shift_sd`).
     The fitted model's crossing offset (:func:`crossing_offsets`) is reported, not added:
     the lags live in the aligned data's time axis, which the offset does not make uncertain
     (docs/fitting.md, "The time axis of a campaign's truth").
@@ -46,9 +47,12 @@ independent ways, each from the data:
 The statistical part is the larger of the first two in the matrix sense (``V_runs +
 [V_res - V_runs]_+``): with a model that describes the data both estimate the same thing and
 agree; where the model does not, the residuals are larger than the runs' spread and their
-estimate takes over. Systematics and the prior's share add to it. The intervals are centred
-on the best fit: nothing is re-centred, so the best fit lies inside every interval; each
-side is stretched where the objective is flatter than its quadratic model
+estimate takes over. On the lags' rows and columns it is the runs' part alone: a lag
+absorbs a time shift, which the residuals therefore cannot show, and the timing parts carry
+(docs/fitting.md, "The lags' excess, and the drive's hidden time shift (stop 45)").
+Systematics and the prior's share add to it. The intervals are centred on the best fit:
+nothing is re-centred, so the best fit lies inside every interval; each side is stretched
+where the objective is flatter than its quadratic model
 (:func:`shape_factors`) or where the estimator's spread grows toward that side
 (:func:`variance_factors`). Nothing here depends on how a campaign was made (no generator,
 no constant measured on synthetic data).
@@ -71,7 +75,7 @@ from gprm.fit.objective import Objective
 from gprm.fit.prior import Prior
 from gprm.fit.starts import LMOptions
 from gprm.fit.uncertainty import CONTRACTION, Uncertainty
-from gprm.params import batch_from_vectors
+from gprm.params import LAG_PARAMETERS, batch_from_vectors
 from gprm.simulate import observe
 from gprm.simulate.core import ROW_LAGS
 
@@ -134,6 +138,14 @@ class Systematics:
     #: parameter sets whose residuals are the linearisation's at the draw, those that cannot
     #: be dropped; False: the Gaussian's draws as they are (stops 1-43, a development check)
     project_draws: bool = True
+    #: every signal's timing error includes the time shift the synchronisation takes out of
+    #: the runs' spread when the drive varies between runs (:func:`drive_shift_sd`, from the
+    #: runs' own shape deviations); False: not (stops 1-44, a development check)
+    drive_timing: bool = True
+    #: the residuals' excess over the runs' covariance also on the lags (stops 1-44); the
+    #: default keeps it off them, whose error is a time shift the timing parts carry
+    #: (docs/fitting.md, "The lags' excess, and the drive's hidden time shift")
+    excess_on_lags: bool = False
 
     def __post_init__(self):
         if self.alignment_noise not in ALIGNMENT_NOISE:
@@ -164,6 +176,7 @@ class Systematics:
                 "alignment_noise": self.alignment_noise,
                 "residual_dof": self.residual_dof, "sync_timing": self.sync_timing,
                 "project_draws": self.project_draws,
+                "drive_timing": self.drive_timing, "excess_on_lags": self.excess_on_lags,
                 "per_signal": {s: {"gain_sd": g, "timing_sd_s": t}
                                for s, g, t in self.per_signal}}
 
@@ -578,6 +591,11 @@ class ErrorModel:
     #: (S,) s: the synchronisation's timing sd counted in ``timing_sd`` (0 where
     #: ``Systematics.sync_timing`` is off); None: the means file predates it
     sync_timing_sd: np.ndarray | None = None
+    #: (S,) s: the drive's hidden time shift counted in ``timing_sd`` (:func:`drive_shift_sd`;
+    #: 0 where ``Systematics.drive_timing`` is off); None: no runs to estimate it from
+    drive_timing_sd: np.ndarray | None = None
+    #: whether the residuals' excess over the runs' covariance reaches the lags
+    excess_on_lags: bool = True
 
 
 def _estimator(x: np.ndarray, J: np.ndarray, prior: Prior) -> tuple[np.ndarray, np.ndarray]:
@@ -633,6 +651,66 @@ def time_derivative(obj: Objective, x: np.ndarray, J: np.ndarray, y: np.ndarray)
     return np.gradient(y, d.time, axis=1)
 
 
+#: the drive's parameters whose run-to-run variation :func:`drive_shift_sd` reads from the
+#: runs' shapes: its amplitude and its retraction time constant
+DRIVE_PARAMETERS = ("V0", "tau_v")
+
+
+def drive_shift_sd(obj: Objective, x: np.ndarray, dy: np.ndarray) -> np.ndarray | None:
+    """(S,) s: the time shift the runs' synchronisation takes out of their spread but leaves
+    in their mean when the drive varies from run to run (None without runs).
+
+    Synchronisation moves each run to match the reference's onset. A run whose drive differs
+    (amplitude V0, retraction time tau_v) has a different shape, and the synchronisation
+    takes that shape's component along the slope y' for a time shift: the run is moved by
+    h_r = <g, S d_r>, with S the model's sensitivities to the drive's parameters, d_r the
+    run's deviation of them and g = y' / |y'|^2 over the window. The synchronised runs then
+    lack that component, so their spread cannot show it, while their mean keeps the runs'
+    average of it: a time shift of variance Var(h) / R, every lag's error (docs/fitting.md,
+    "The lags' excess, and the drive's hidden time shift (stop 45)"). ``sync_timing_sd``
+    counts the same mechanism for the runs' noise; this counts it for the drive.
+
+    Estimated from the runs themselves: each synchronised run's deviation from their mean is
+    regressed (least squares) on [y', S_V0, S_tau_v] at the best fit (the sensitivities by
+    central differences, the mechanism model without any projected nuisance); the drive
+    part's projection on g is that run's h_r; its variance over the runs, less what the
+    signal's white noise (``noise_std``) alone would give it, over R. ``dy`` (S, T) is the
+    model signals' time derivative at ``x``."""
+    d = obj.data
+    if d.runs is None or not hasattr(obj, "base"):
+        return None
+    names = list(getattr(obj, "names", ()))
+    k = len(DRIVE_PARAMETERS)
+    pb = batch_from_vectors(obj.base, names, np.repeat(np.asarray(x, float)[None], 2 * k, 0))
+    steps = []
+    for j, c in enumerate(DRIVE_PARAMETERS):
+        h = 1e-4 * abs(float(np.asarray(pb[c]).ravel()[0]))
+        pb[c] = np.asarray(pb[c], float).copy()
+        pb[c][2 * j] += h
+        pb[c][2 * j + 1] -= h
+        steps.append(h)
+    obs = observe(pb, d.time, d.signals, piezo=obj.piezo, z_bk_absolute=obj.z_bk_absolute)
+    if not np.all(obs.ok):
+        return None
+    sens = [(obs.y[2 * j] - obs.y[2 * j + 1]) / (2 * h) for j, h in enumerate(steps)]
+    out = np.zeros(len(d.signals))
+    for i in range(len(d.signals)):
+        slope = np.asarray(dy[i], float)
+        ss = float(slope @ slope)
+        if not ss > 0:
+            continue
+        A = np.stack([slope] + [sv[i] for sv in sens], axis=1)      # (T, 1 + k)
+        g = slope / ss
+        # h_r = w . (run_r - mean): the drive part of the regression, projected on g
+        w = np.linalg.pinv(A)[1:].T @ (A[:, 1:].T @ g)
+        runs = d.runs[i]
+        h_r = (runs - runs.mean(axis=0)) @ w
+        n0 = float(d.noise_std[i]) if d.noise_std is not None else 0.0
+        noise = n0 ** 2 * float(w @ w) if np.isfinite(n0) else 0.0
+        out[i] = np.sqrt(max(float(np.var(h_r, ddof=1)) - noise, 0.0) / runs.shape[0])
+    return out
+
+
 def error_model(obj: Objective, x: np.ndarray, J: np.ndarray, r: np.ndarray, prior: Prior,
                 systematics: Systematics = Systematics(), *,
                 max_lag: int | None = None) -> ErrorModel:
@@ -671,15 +749,19 @@ def error_model(obj: Objective, x: np.ndarray, J: np.ndarray, r: np.ndarray, pri
     # the synchronisation hides")
     s_sd = (None if d.sync_timing_sd is None else
             np.asarray(d.sync_timing_sd, float) * bool(systematics.sync_timing))
+    # the same for the drive varying between runs, read from the runs' shapes
+    v_sd = drive_shift_sd(obj, x, dy) if systematics.drive_timing else None
     t_sd = np.array([np.sqrt(systematics.for_signal(s)[1] ** 2
                              + (a_sd[i] if used[i] else 0.0) ** 2
-                             + (0.0 if s_sd is None else s_sd[i]) ** 2)
+                             + (0.0 if s_sd is None else s_sd[i]) ** 2
+                             + (0.0 if v_sd is None else v_sd[i]) ** 2)
                      for i, s in enumerate(d.signals)])
     gm = gain_moments(Ju, Hinv, R, y, d.sigma, d.runs, max_lag=L)
     if systematics.estimate_gain:
         g_sd = np.maximum(g_sd, gm.sd)
     return ErrorModel(R, dev, g_sd, t_sd, a_sd, gm.sd, p_eff, L, c_off,
-                      tuple(whitening(R[s], PREWHITEN_ORDER) for s in range(S)), gm.z, s_sd)
+                      tuple(whitening(R[s], PREWHITEN_ORDER) for s in range(S)), gm.z, s_sd,
+                      v_sd, bool(systematics.excess_on_lags))
 
 
 def propagate(obj: Objective, x: np.ndarray, J: np.ndarray, prior: Prior,
@@ -694,6 +776,18 @@ def propagate(obj: Objective, x: np.ndarray, J: np.ndarray, prior: Prior,
     Ju, Hinv, Bs, y, dy = _linearised(obj, x, J, prior, y)
     V_runs, V_res, V_stat = statistical_covariance(Bs, err.R, err.dev, err.max_lag, err.p_eff,
                                                    whitenings=err.whitenings)
+    if V_runs is not None and not err.excess_on_lags:
+        # the lags' error is a time shift, which the lags absorb from the residuals: the
+        # excess reaches them only through the positive part's leak from other directions,
+        # counting the shift the timing parts carry a second time (docs/fitting.md, "The
+        # lags' excess, and the drive's hidden time shift"); the excess stays on every
+        # other parameter
+        lag = np.array([n in LAG_PARAMETERS for n in getattr(obj, "names", ())], bool)
+        if lag.size == P and lag.any():
+            E = V_stat - V_runs
+            E[lag, :] = 0.0
+            E[:, lag] = 0.0
+            V_stat = V_runs + E
     by_signal = None
     if err.dev is not None and err.dev.shape[1] >= 2:
         n_r = err.dev.shape[1]
@@ -1234,6 +1328,9 @@ def uncertainty(method: str, state: FitState) -> Uncertainty:
                             # None: the means file predates it (not counted)
                             "sync_timing_sd_s": (None if err.sync_timing_sd is None
                                                  else float(err.sync_timing_sd[i])),
+                            # None: no runs to read the drive's variation from
+                            "drive_timing_sd_s": (None if err.drive_timing_sd is None
+                                                  else float(err.drive_timing_sd[i])),
                             "crossing_offset_s": (float(err.crossing_offset[i])
                                                   if err.crossing_offset is not None else 0.0)}
                         for i, s in enumerate(state.obj.data.signals)},

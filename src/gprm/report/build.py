@@ -283,6 +283,8 @@ def systematics_rows(unc: dict) -> list:
                      f"{1e9 * v.get('alignment_sd_s', float('nan')):.3g} ns",
                      (f"{1e9 * v['sync_timing_sd_s']:.3g} ns"
                       if isinstance(v.get("sync_timing_sd_s"), (int, float)) else "–"),
+                     (f"{1e9 * v['drive_timing_sd_s']:.3g} ns"
+                      if isinstance(v.get("drive_timing_sd_s"), (int, float)) else "–"),
                      f"{1e9 * v.get('crossing_offset_s', float('nan')):+.3g} ns"])
     return rows
 
@@ -358,7 +360,7 @@ def fit_section(run: Path) -> tuple[Section, dict | None]:
             s.blocks.append(table(["signal", "gain sd used", "gain sd stated",
                                    "gain sd from residuals", "timing sd used",
                                    "alignment noise", "synchronisation",
-                                   "model crossing offset"], srows,
+                                   "the drive's shift", "model crossing offset"], srows,
                                   "Instrument systematics marginalised", "table-systematics",
                                   note="Per-channel gain (calibration) and timing errors the "
                                   "intervals include: the stated prior (parameter file "
@@ -372,7 +374,11 @@ def fit_section(run: Path) -> tuple[Section, dict | None]:
                                   "exactly), and for every signal the time shift the "
                                   "synchronisation of the runs took out of their spread but "
                                   "left in their mean (from the noise and the slope; it "
-                                  "widens the lags and what is read on the fit's time axis). "
+                                  "widens the lags and what is read on the fit's time axis), "
+                                  "and the same shift from the drive varying between runs "
+                                  "(read from the runs' shapes through the model's "
+                                  "sensitivities to the drive's amplitude and retraction "
+                                  "time). "
                                   "The model "
                                   "crossing offset is where the fitted model crosses the "
                                   "alignment threshold against the data: a diagnostic of "

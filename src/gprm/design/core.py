@@ -353,9 +353,10 @@ def _carry(P0: np.ndarray, F_base: np.ndarray, part_sd: np.ndarray, ident: np.nd
 
 def same_measurement(block: Block, base: Block) -> bool:
     """Whether ``block`` repeats the base campaign's measurement of the mechanism (every
-    model position, the base's drives), so that its runs average the same run-to-run
-    variation: more runs, or a longer record or window. Other positions, drives or voltage
-    profiles are not counted (their runs' variation is not measured by the fit)."""
+    model position, the base's drives and voltage profile), so that its runs average the
+    same run-to-run variation: more runs, or a longer record or window. Other positions,
+    drives or voltage profiles are not counted (their runs' variation is not measured by the
+    fit)."""
     return (set(MODEL_CHANNELS) <= set(block.channel_names) and block.drives == base.drives
             and block.voltage == base.voltage and block.retraction == base.retraction)
 

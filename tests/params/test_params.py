@@ -92,6 +92,7 @@ def test_units(text, name, si):
     ('m2 = { fit = true }', "m2"),
     ('m2 = { value = "12 g", fit = "yes" }', "m2"),
     ('m2 = "twelve grams"', "m2"),
+    ('tau_v = { value = "10 us", fit = true }', "tau_v"),   # no exact sensitivity
 ])
 def test_bad_values_name_file_and_field(tmp_path, body, field):
     p = tmp_path / "bad.toml"

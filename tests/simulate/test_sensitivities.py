@@ -89,3 +89,16 @@ def test_only_lagged_or_only_unlagged_rows():
                                    atol=1e-14 * np.abs(full.y[0, k]).max())
         np.testing.assert_allclose(part.dy[0, 0], full.dy[0, k], rtol=1e-12,
                                    atol=1e-15 * np.abs(full.dy).max())
+
+
+def test_the_profiles_time_constant_has_no_exact_sensitivity_and_says_so():
+    """tau_v acts on the input profile, not on the equations of motion: the EOM path would
+    return zeros for it while the outputs move (central differences below), so asking for
+    it is an error that says what to do instead."""
+    pb = batch([paper()])
+    with pytest.raises(KeyError, match="tau_v acts on the input profile"):
+        observe(pb, TIMES, OUTPUTS, sensitivities=("tau_v",))
+    v = paper().values["tau_v"]
+    up, dn = (observe(batch([paper().with_values(tau_v=v * f)]), TIMES, OUTPUTS).y
+              for f in (1 + 1e-5, 1 - 1e-5))
+    assert np.abs(up - dn).max() > 1e-6 * np.abs(up).max()      # it does move the outputs

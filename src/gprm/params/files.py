@@ -15,7 +15,7 @@ from typing import TYPE_CHECKING, Any
 from gprm._io import check_input_file, write_text_atomic
 from gprm.errors import GprmInputError
 from gprm.params.core import ParameterSet, paper, validate_values
-from gprm.params.registry import REGISTRY
+from gprm.params.registry import NO_EXACT_SENSITIVITY, REGISTRY
 from gprm.units import KNOWN, si_unit, ureg  # ureg re-exported: gprm.params.files.ureg
 
 if TYPE_CHECKING:
@@ -108,6 +108,11 @@ def load_params(path: str | os.PathLike | None = None, *, base: ParameterSet | N
             if "fit" in entry:
                 if not isinstance(entry["fit"], bool):
                     raise GprmInputError("'fit' must be true or false", source=src, field=name)
+                if entry["fit"] and name in NO_EXACT_SENSITIVITY:
+                    raise GprmInputError("cannot be fitted: the model has no exact sensitivity "
+                                         "to it (it shapes the drive's input profile); give "
+                                         "its value, or a measured voltage trace", source=src,
+                                         field=name)
                 if entry["fit"] and name not in fitted:
                     fitted.append(name)
                 if not entry["fit"] and name in fitted:

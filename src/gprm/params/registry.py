@@ -171,6 +171,11 @@ and the per-signal alignment offsets. Preprocessing a campaign moves them all
 (gprm.fit.bootstrap.time_base_shift); the parametric bootstrap widens them by the refits'
 spread (gprm.fit.uncertainty.from_bootstrap)."""
 
+NO_EXACT_SENSITIVITY: tuple[str, ...] = ("tau_v",)
+"""Parameters that move the model's outputs but have no exact sensitivity in the simulator
+(the default profile's time constant acts on the input, not on the equations of motion):
+gprm.simulate refuses to differentiate them and a parameter file may not fit them."""
+
 # Quantities that must be strictly positive for the model to make sense (an input error if not).
 STRICTLY_POSITIVE = frozenset({"m1", "m2", "m3", "m4", "J2", "C_a", "R", "tau_v", "m_tm", "s_tm",
                                "k_lr", "k_Az", "k3", "k4"})

@@ -29,6 +29,7 @@ from dataclasses import dataclass, fields
 import numpy as np
 
 from gprm.model.linear import NSTATE, StateSpace, coordinate_derivatives, state_space
+from gprm.params.registry import NO_EXACT_SENSITIVITY
 
 GAP_TOL = 1e-7
 COND_TOL = 1e10
@@ -534,9 +535,11 @@ def solve(pb: dict, times: np.ndarray, H: np.ndarray, lags, *, piezo: int,
         dy = dyT.transpose(0, 2, 1, 3)                              # (B, o, T, P) view
         lag_names = set(LAG_PARAMS).union(*map(set, lags))
         eom = [n for n in names if n not in _SPECIAL and n not in lag_names and n not in dH]
-        unknown = [n for n in eom if n not in pb]
+        unknown = [n for n in eom if n not in pb or n in NO_EXACT_SENSITIVITY]
         if unknown:
-            raise KeyError(f"no sensitivity for {unknown}")
+            raise KeyError(f"no sensitivity for {unknown}" + (
+                " (tau_v acts on the input profile: difference the outputs instead)"
+                if "tau_v" in unknown else ""))
         if eom:
             _eom_sensitivities(pb, piezo, eom, ss, lam, V, W, HV, S, wS, betaS, conv_res,
                                groups, dyT, np.array([names.index(e) for e in eom]))

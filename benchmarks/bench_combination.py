@@ -176,9 +176,11 @@ def curves_gradient(case, parts, prior, x: np.ndarray) -> tuple[np.ndarray, np.n
     from gprm.params.core import batch_from_vectors
     from gprm.simulate.kinematics import body_motion
 
+    from bench_coverage import curve_times
+
     truth = bs.truth_in_fit_time(case)[1]
     names = list(case.fit.names)
-    t = truth["t_c"] + np.linspace(0.0, 0.2e-3, 21)
+    t = curve_times(truth)
     u0 = prior.to_u(x)
 
     def curves(pb):

@@ -174,6 +174,12 @@ def energy_cover(fm: FittedModel, truth, n: int, seed: int, n_points: int = 6001
             "band_n": int(used.sum())}
 
 
+def curve_times(truth) -> np.ndarray:
+    """The 21 impact times the velocity curves are scored at: t_c .. t_c + 0.2 ms of the
+    truth (in the fit's aligned axis)."""
+    return truth["t_c"] + np.linspace(0.0, 0.2e-3, 21)
+
+
 def curve_cover(fm: FittedModel, truth, n: int, seed: int) -> dict:
     """Coverage of the truth's velocity-vs-impact-time curves (the post-impact test-mass
     velocity on the six axes if the impact happened at t, nominal geometry, Fig. 11) by the
@@ -184,7 +190,7 @@ def curve_cover(fm: FittedModel, truth, n: int, seed: int) -> dict:
     from gprm.flight.telemetry import AXES
     from gprm.simulate.kinematics import body_motion
 
-    t = truth["t_c"] + np.linspace(0.0, 0.2e-3, 21)
+    t = curve_times(truth)
     v_t = tm_velocity_vs_time(body_motion(batch([truth]), t, piezo=2))
     m = body_motion(fm.sample(n, seed), t, piezo=2)
     v_d = tm_velocity_vs_time(m)

@@ -904,9 +904,9 @@ def test_residual_dof_matches_the_kernel_estimates_moments(prewhiten, projected)
     assert np.all(nu > 1.0) and np.all(nu < 5 * N)
 
 
-def _paper_data_with_runs(runs_fn, noise_std=0.0, seed=3):
-    """(obj, x, y, J, r, prior, data) at the paper set on make_means' signals, with runs
-    ``runs_fn(y, dy)`` (S, R, T) and each signal's noise_std."""
+def _paper_setup(seed=3):
+    """(obj, x, y, J, r, prior, data, dy) at the paper set on make_means' signals (no runs;
+    each signal's noise_std 0), dy the model signals' time derivative there."""
     from dataclasses import replace
 
     from gprm.fit.api import FitOptions
@@ -919,14 +919,10 @@ def _paper_data_with_runs(runs_fn, noise_std=0.0, seed=3):
 
     p = paper()
     data = fit_data_from_means(make_means(p, seed=seed), source="synthetic")
-    data = replace(data, attrs={**data.attrs, "align_time": 1.01e-3})
-    names = tuple(FitOptions().parameters(p).fitted)
-    obj, x, y, J, r, prior = _at_paper(data, names)
-    dy = time_derivative(obj, x, J, y)
-    data = replace(data, runs=runs_fn(y, dy),
-                   noise_std=np.full(len(data.signals), float(noise_std)))
-    obj, x, y, J, r, prior = _at_paper(data, names)
-    return obj, x, y, J, r, prior, data, dy
+    data = replace(data, attrs={**data.attrs, "align_time": 1.01e-3},
+                   noise_std=np.zeros(len(data.signals)))
+    obj, x, y, J, r, prior = _at_paper(data, tuple(FitOptions().parameters(p).fitted))
+    return obj, x, y, J, r, prior, data, time_derivative(obj, x, J, y)
 
 
 def _drive_sensitivities(data, x, names):
@@ -963,11 +959,7 @@ def test_the_drives_hidden_time_shift_is_read_from_the_runs_shapes():
     rng = np.random.default_rng(11)
     R = 10
     a, b, c = rng.normal(0, 0.02, R), rng.normal(0, 0.03, R), rng.normal(0, 3e-8, R)
-
-    def runs_fn(y, dy):
-        return None
-
-    obj, x, y, J, r, prior, data, dy = _paper_data_with_runs(runs_fn)
+    obj, x, y, J, r, prior, data, dy = _paper_setup()
     SV, ST = _drive_sensitivities(data, x, obj.names)
     V0, tau = float(paper().values["V0"]), float(paper().values["tau_v"])
     shape = (a[None, :, None] * V0 * SV[:, None, :] + b[None, :, None] * tau * ST[:, None, :])
@@ -1025,11 +1017,7 @@ def test_the_residuals_excess_stays_off_the_lags():
 
     rng = np.random.default_rng(5)
     R = 10
-
-    def runs_fn(y, dy):
-        return None
-
-    obj, x, y, J, r, prior, data, dy = _paper_data_with_runs(runs_fn)
+    obj, x, y, J, r, prior, data, _ = _paper_setup()
     t = data.time
     bump = 0.05 * np.max(np.abs(y), axis=1, keepdims=True) * np.sin(2 * np.pi * 23e3 * t)
     values = data.values + bump * (t > 1.0e-3)

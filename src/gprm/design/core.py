@@ -303,9 +303,9 @@ class _Part:
 
     def per_run_variance(self, runs: int) -> np.ndarray:
         """(P, P): the run-to-run part of a campaign that averages ``runs`` (> 0) runs of
-        the base's measurement; zero for a part without one."""
+        the base's measurement (the runs' part only)."""
         if self.per_run is None:
-            return np.zeros((self.scale.size, self.scale.size))
+            raise ValueError(f"the {self.component} part has no run-to-run variation")
         if runs <= 0:
             raise ValueError(f"a campaign averages at least one run, got {runs}")
         return self.per_run * (self.runs / runs)
@@ -330,7 +330,6 @@ def _carry(P0: np.ndarray, F_base: np.ndarray, part_sd: np.ndarray, ident: np.nd
     per-parameter scale min(sqrt(A / V), 1); the second is kept as a covariance in u with
     the base posterior's correlations and variances A - V, and a design divides it by its
     number of runs of the same measurement."""
-    mask = ident & (part_sd > 0)
     if component == "runs" and runs > 0:
         C = _posterior(P0, F_base, 1.0)
         raw = _mean_sd(C)
@@ -345,6 +344,7 @@ def _carry(P0: np.ndarray, F_base: np.ndarray, part_sd: np.ndarray, ident: np.nd
         e = np.sqrt(excess)
         return _Part(component, 1.0, np.where(np.isfinite(r), r, 0.0),
                      corr * np.outer(e, e), int(runs))
+    mask = ident & (part_sd > 0)
     kappa = _calibrate(P0, F_base, part_sd, mask) if mask.any() else 1.0
     raw = _mean_sd(_posterior(P0, F_base, kappa))
     r = part_sd / raw

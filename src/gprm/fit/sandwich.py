@@ -595,7 +595,8 @@ class ErrorModel:
     #: 0 where ``Systematics.drive_timing`` is off); None: no runs to estimate it from
     drive_timing_sd: np.ndarray | None = None
     #: whether the residuals' excess over the runs' covariance reaches the lags
-    excess_on_lags: bool = True
+    #: (``Systematics.excess_on_lags``)
+    excess_on_lags: bool = Systematics.excess_on_lags
 
 
 def _estimator(x: np.ndarray, J: np.ndarray, prior: Prior) -> tuple[np.ndarray, np.ndarray]:

@@ -12,6 +12,16 @@ and without the projection (this process, one thread of work).
     .venv/bin/python benchmarks/bench_draws.py --cache DIR [--sources white,sim2] [--campaigns 10]
     .venv/bin/python benchmarks/bench_draws.py --curves --cache DIR [--sources ...] [--campaigns 8]
 
+``--convergence``: instead, whether the projection's iteration budget matters: the first
+proposal round of each campaign projected with the default budget
+(:data:`gprm.fit.draws.PROJECT_ITER` iterations, relative tolerance ``PROJECT_FTOL``), with a
+long one (:data:`LONG_ITER`, :data:`LONG_FTOL`) and with a short one (:data:`SHORT_ITER`),
+the draws each keeps, and the prediction bands they give (overshoots of the standard
+scenarios and the velocity curves, 3000 resamples of the kept draws): the median and 90th
+percentile over bands of |ln(width / the long budget's width)| at 68 % and 95 %, beside the
+same statistic for a bootstrap resample of the long budget's own draws (their Monte Carlo
+noise), and the range over parameters of the kept draws' sd in u over the long budget's.
+
 ``--curves``: instead, the velocity curves' coverage (bench_coverage.curve_cover, 200
 samples) with the default's draws and with the same draws projected from the unstretched
 Gaussian N(u^, Cu) (sandwich.stretch_draws replaced by the identity: a development check,
@@ -25,6 +35,7 @@ from __future__ import annotations
 import argparse
 import sys
 import time
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -38,6 +49,9 @@ from gprm.fit.methods import uncertainty_of  # noqa: E402
 from gprm.fit.sandwich import Systematics  # noqa: E402
 
 DEFAULT_SOURCES = "white,jitter-2,drive-2,generator,sim2-white,sim2"
+#: --convergence: the long and the short projection budgets compared with the default
+LONG_ITER, LONG_FTOL = 60, 1e-3
+SHORT_ITER = 8
 PCT = (25, 50, 75, 90, 99)
 
 
@@ -102,16 +116,130 @@ def curves_table(a) -> None:
               f"{np.median(spreads):.3f} |", flush=True)
 
 
+def _bands(fit, cov, X, n: int = 3000, seed: int = 5) -> np.ndarray:
+    """(5, K) the 2.5, 16, 50, 84, 97.5 % points of the overshoots (standard scenarios, every
+    point-axis) and the velocity curves (six axes, 21 times from the fit's t_c) of ``n``
+    resamples of the parameter sets ``X``."""
+    from bench_coverage import overshoots
+
+    from gprm.fit.files import FittedModel
+    from gprm.flight.predicted import tm_velocity_vs_time
+    from gprm.flight.telemetry import AXES
+    from gprm.predict.scenarios import apply_scenario, standard_scenarios
+    from gprm.predict.trajectories import default_times
+    from gprm.simulate.kinematics import body_motion
+
+    fm = FittedModel(fit.params, cov, piezo=2, draws=X, uncertainty="sandwich")
+    cols = []
+    for sc in standard_scenarios():
+        os_, ok = overshoots(apply_scenario(fm, sc).sample(n, seed), sc, default_times())
+        cols.append(np.percentile(os_[ok], [2.5, 16, 50, 84, 97.5], axis=0))
+    t = fit.params["t_c"] + np.linspace(0.0, 0.2e-3, 21)
+    m = body_motion(fm.sample(n, seed), t, piezo=2)
+    v = tm_velocity_vs_time(m)
+    with warnings.catch_warnings():         # an axis whose curve does not exist at a time
+        warnings.simplefilter("ignore", RuntimeWarning)
+        cols += [np.nanpercentile(v[a][m.ok], [2.5, 16, 50, 84, 97.5], axis=0) for a in AXES]
+    return np.concatenate(cols, axis=1)
+
+
+def _log_width_ratio(A: np.ndarray, B: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """|ln(width_A / width_B)| of the 68 % and the 95 % bands, where both are positive."""
+    w68 = (A[3] - A[1], B[3] - B[1])
+    w95 = (A[4] - A[0], B[4] - B[0])
+    ok = (w68[0] > 0) & (w68[1] > 0) & (w95[0] > 0) & (w95[1] > 0)
+    return np.abs(np.log(w68[0][ok] / w68[1][ok])), np.abs(np.log(w95[0][ok] / w95[1][ok]))
+
+
+def convergence_table(a) -> None:
+    from scipy.special import chdtri
+
+    import gprm.fit.draws as gdraws
+
+    print("| source | kept: default / short / long (sum) | same keep decision as the long "
+          "budget: default, short | kept draws' sd in u / the long budget's, range over "
+          "parameters: default | short | prediction bands' \\|ln width ratio\\| to the long "
+          "budget, median / 90 %, 68 % and 95 %: default | short | a resample of the long "
+          "budget's own draws |")
+    print("|---|---|---|---|---|---|---|---|")
+    real = sandwich.project_draws
+    for src in [s for s in a.sources.split(",") if s]:
+        kept = {"default": 0, "short": 0, "long": 0}
+        agree = {"default": [], "short": []}
+        sdr = {"default": [], "short": []}
+        lw = {"default": ([], []), "short": ([], []), "resample": ([], [])}
+        for k in range(a.campaigns):
+            case = bs.run_case(src, a.seed + k, a.starts, a.cache)
+            seen = {}
+
+            def spy(obj, x, propose, n, lm, **kw):
+                seen.update(obj=obj, x=x, propose=propose, n=n, lm=lm, kw=kw)
+                return real(obj, x, propose, n, lm, **kw)
+
+            sandwich.project_draws = spy
+            try:
+                u = uncertainty_of(case.fit, "sandwich")
+            finally:
+                sandwich.project_draws = real
+            obj, x, lm = seen["obj"], seen["x"], seen["lm"]
+            P = np.asarray(x).size
+            thr = float(chdtri(P, 1.0 - gdraws.ACCEPT_LEVEL)) * max(
+                float(seen["kw"].get("scale", 1.0)), 1.0)
+            U = np.asarray(seen["propose"](int(seen["n"]), 0), float)
+            runs = {"default": {}, "short": {"max_iter": SHORT_ITER},
+                    "long": {"max_iter": LONG_ITER, "ftol": LONG_FTOL}}
+            X, ok = {}, {}
+            for key, kw in runs.items():
+                Xk, mk = gdraws.project(obj, x, U, lm, **kw)
+                X[key], ok[key] = Xk[mk <= thr], mk <= thr
+                kept[key] += int(ok[key].sum())
+            to_u = obj.prior.to_u
+            sd_long = np.std(to_u(X["long"]), axis=0)
+            rng = np.random.default_rng([a.seed + k, 46])
+            X["resample"] = X["long"][rng.integers(0, len(X["long"]), len(X["long"]))]
+            B = {key: _bands(case.fit, u.covariance, X[key]) for key in X}
+            for key in ("default", "short"):
+                agree[key].append(float(np.mean(ok[key] == ok["long"])))
+                with np.errstate(all="ignore"):
+                    sdr[key].append(np.std(to_u(X[key]), axis=0) / sd_long)
+            for key in ("default", "short", "resample"):
+                r68, r95 = _log_width_ratio(B[key], B["long"])
+                lw[key][0].append(r68)
+                lw[key][1].append(r95)
+
+        def q(key):
+            r68, r95 = (np.concatenate(v) for v in lw[key])
+            return (f"{np.median(r68):.3f} / {np.percentile(r68, 90):.3f}, "
+                    f"{np.median(r95):.3f} / {np.percentile(r95, 90):.3f}")
+
+        def rng_(key):
+            v = np.concatenate(sdr[key])
+            v = v[np.isfinite(v)]
+            return f"{v.min():.2f}-{v.max():.2f}"
+        print(f"| {src} | {kept['default']} / {kept['short']} / {kept['long']} | "
+              f"{np.mean(agree['default']):.3f}, {np.mean(agree['short']):.3f} | "
+              f"{rng_('default')} | {rng_('short')} | {q('default')} | {q('short')} | "
+              f"{q('resample')} |", flush=True)
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     bs.cached_study_arguments(ap, DEFAULT_SOURCES)
     ap.set_defaults(campaigns=10)
     ap.add_argument("--curves", action="store_true")
+    ap.add_argument("--convergence", action="store_true",
+                    help="whether the projection's iteration budget moves the predictions")
     a = ap.parse_args(argv)
     from _machine import machine
     print(machine())
     print(f"command: `.venv/bin/python benchmarks/bench_draws.py --cache DIR --sources "
-          f"{a.sources} --campaigns {a.campaigns}" + (" --curves" if a.curves else "") + "`\n")
+          f"{a.sources} --campaigns {a.campaigns}" + (" --curves" if a.curves else "")
+          + (" --convergence" if a.convergence else "") + "`\n")
+    if a.convergence:
+        t0 = time.perf_counter()
+        convergence_table(a)
+        print(f"\n({time.perf_counter() - t0:.0f} s; cache {a.cache})")
+        return 0
     if a.curves:
         t0 = time.perf_counter()
         curves_table(a)

@@ -214,3 +214,21 @@ def test_likelihood_study_scores_each_release_under_its_own_scenario(monkeypatch
     assert current == list(COMPARED)
     assert seen and all(truth == used for truth, used in seen)
     assert all(r["n"] == 2 * len(COMPARED) for r in res.values())
+
+
+def test_band_width_ratio_of_the_projection_study():
+    """bench_draws.py --convergence compares prediction bands by |ln(width ratio)| at 68 % and
+    95 %; a band twice as wide reads ln 2, the same band 0, a band of zero width is left out
+    (its ratio is undefined)."""
+    from bench_draws import _log_width_ratio
+
+    rng = np.random.default_rng(3)
+    B = np.sort(rng.normal(size=(5, 12)), axis=0)          # 2.5, 16, 50, 84, 97.5 % points
+    A = B[2] + 2.0 * (B - B[2])                            # every band twice as wide
+    r68, r95 = _log_width_ratio(A, B)
+    assert np.allclose(r68, np.log(2.0)) and np.allclose(r95, np.log(2.0))
+    r68, r95 = _log_width_ratio(B, B)
+    assert r68.size == 12 and np.all(r68 == 0.0) and np.all(r95 == 0.0)
+    C = B.copy()
+    C[:, 4] = 1.0                                          # one band of zero width
+    assert _log_width_ratio(C, B)[0].size == 11

@@ -172,7 +172,7 @@ def convergence_table(a) -> None:
             case = bs.run_case(src, a.seed + k, a.starts, a.cache)
             seen = {}
 
-            def spy(obj, x, propose, n, lm, **kw):
+            def spy(obj, x, propose, n, lm, seen=seen, **kw):
                 seen.update(obj=obj, x=x, propose=propose, n=n, lm=lm, kw=kw)
                 return real(obj, x, propose, n, lm, **kw)
 
@@ -207,12 +207,12 @@ def convergence_table(a) -> None:
                 lw[key][0].append(r68)
                 lw[key][1].append(r95)
 
-        def q(key):
+        def q(key, lw=lw):
             r68, r95 = (np.concatenate(v) for v in lw[key])
             return (f"{np.median(r68):.3f} / {np.percentile(r68, 90):.3f}, "
                     f"{np.median(r95):.3f} / {np.percentile(r95, 90):.3f}")
 
-        def rng_(key):
+        def rng_(key, sdr=sdr):
             v = np.concatenate(sdr[key])
             v = v[np.isfinite(v)]
             return f"{v.min():.2f}-{v.max():.2f}"

@@ -232,3 +232,23 @@ def test_band_width_ratio_of_the_projection_study():
     C = B.copy()
     C[:, 4] = 1.0                                          # one band of zero width
     assert _log_width_ratio(C, B)[0].size == 11
+
+
+def test_t0_shape_tells_a_heavy_tail_from_a_wrong_width():
+    """bench_sources.py's pooled t0 line: errors over their 68 % half-widths read a normal's
+    quantiles when the intervals are right; a unit-rms Student t with 4 degrees of freedom
+    (a sound variance, heavy tails) has its 68 % point well under 1 and its 95 % point at a
+    normal's; an interval 1.3 times too wide moves every quantile down by 1.3."""
+    from scipy.stats import norm
+
+    from bench_sources import shape_of
+
+    rng = np.random.default_rng(11)
+    h = norm.ppf(0.84)                                     # a normal's 68 % half-width
+    q_norm, rms = shape_of(rng.standard_normal(40000) / h)
+    assert np.allclose(q_norm, norm.ppf([0.75, 0.84, 0.95, 0.975]) / h, rtol=0.03)
+    assert abs(rms - 1 / h) < 0.02
+    q_t, _ = shape_of(rng.standard_t(4, 40000) / np.sqrt(2) / h)
+    assert q_t[1] < 0.85 and abs(q_t[3] - q_norm[3]) < 0.08
+    q_wide, _ = shape_of(rng.standard_normal(40000) / (1.3 * h))
+    assert np.allclose(q_wide * 1.3, q_norm, rtol=0.03)

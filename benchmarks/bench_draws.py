@@ -55,26 +55,34 @@ SHORT_ITER = 8
 PCT = (25, 50, 75, 90, 99)
 
 
-def misfits_of(case):
-    """(ProjectedDraws, seconds with, seconds without) of the case's default uncertainty."""
+def projection_call(case, systematics=None):
+    """(uncertainty, the arguments of its :func:`gprm.fit.draws.project_draws` call as a
+    dict, the ProjectedDraws it returned, seconds): the case's default uncertainty with the
+    projection watched."""
     seen = {}
     real = sandwich.project_draws
 
-    def spy(*a, **k):
-        out = real(*a, **k)
-        seen["p"] = out
+    def spy(obj, x, propose, n, lm, **kw):
+        out = real(obj, x, propose, n, lm, **kw)
+        seen.update(obj=obj, x=x, propose=propose, n=n, lm=lm, kw=kw, out=out)
         return out
 
     sandwich.project_draws = spy
     try:
         t = time.perf_counter()
-        uncertainty_of(case.fit, "sandwich")
-        with_s = time.perf_counter() - t
+        u = uncertainty_of(case.fit, "sandwich", systematics=systematics)
+        secs = time.perf_counter() - t
     finally:
         sandwich.project_draws = real
+    return u, seen, seen.get("out"), secs
+
+
+def misfits_of(case):
+    """(ProjectedDraws, seconds with, seconds without) of the case's default uncertainty."""
+    _, _, p, with_s = projection_call(case)
     t = time.perf_counter()
     uncertainty_of(case.fit, "sandwich", systematics=Systematics(project_draws=False))
-    return seen["p"], with_s, time.perf_counter() - t
+    return p, with_s, time.perf_counter() - t
 
 
 def curves_table(a) -> None:
@@ -120,7 +128,7 @@ def _bands(fit, cov, X, n: int = 3000, seed: int = 5) -> np.ndarray:
     """(5, K) the 2.5, 16, 50, 84, 97.5 % points of the overshoots (standard scenarios, every
     point-axis) and the velocity curves (six axes, 21 times from the fit's t_c) of ``n``
     resamples of the parameter sets ``X``."""
-    from bench_coverage import overshoots
+    from bench_coverage import curve_times, overshoots
 
     from gprm.fit.files import FittedModel
     from gprm.flight.predicted import tm_velocity_vs_time
@@ -134,8 +142,7 @@ def _bands(fit, cov, X, n: int = 3000, seed: int = 5) -> np.ndarray:
     for sc in standard_scenarios():
         os_, ok = overshoots(apply_scenario(fm, sc).sample(n, seed), sc, default_times())
         cols.append(np.percentile(os_[ok], [2.5, 16, 50, 84, 97.5], axis=0))
-    t = fit.params["t_c"] + np.linspace(0.0, 0.2e-3, 21)
-    m = body_motion(fm.sample(n, seed), t, piezo=2)
+    m = body_motion(fm.sample(n, seed), curve_times(fit.params), piezo=2)
     v = tm_velocity_vs_time(m)
     with warnings.catch_warnings():         # an axis whose curve does not exist at a time
         warnings.simplefilter("ignore", RuntimeWarning)
@@ -152,8 +159,6 @@ def _log_width_ratio(A: np.ndarray, B: np.ndarray) -> tuple[np.ndarray, np.ndarr
 
 
 def convergence_table(a) -> None:
-    from scipy.special import chdtri
-
     import gprm.fit.draws as gdraws
 
     print("| source | kept: default / short / long (sum) | same keep decision as the long "
@@ -162,7 +167,6 @@ def convergence_table(a) -> None:
           "budget, median / 90 %, 68 % and 95 %: default | short | a resample of the long "
           "budget's own draws |")
     print("|---|---|---|---|---|---|---|---|")
-    real = sandwich.project_draws
     for src in [s for s in a.sources.split(",") if s]:
         kept = {"default": 0, "short": 0, "long": 0}
         agree = {"default": [], "short": []}
@@ -170,21 +174,9 @@ def convergence_table(a) -> None:
         lw = {"default": ([], []), "short": ([], []), "resample": ([], [])}
         for k in range(a.campaigns):
             case = bs.run_case(src, a.seed + k, a.starts, a.cache)
-            seen = {}
-
-            def spy(obj, x, propose, n, lm, seen=seen, **kw):
-                seen.update(obj=obj, x=x, propose=propose, n=n, lm=lm, kw=kw)
-                return real(obj, x, propose, n, lm, **kw)
-
-            sandwich.project_draws = spy
-            try:
-                u = uncertainty_of(case.fit, "sandwich")
-            finally:
-                sandwich.project_draws = real
+            u, seen, _, _ = projection_call(case)
             obj, x, lm = seen["obj"], seen["x"], seen["lm"]
-            P = np.asarray(x).size
-            thr = float(chdtri(P, 1.0 - gdraws.ACCEPT_LEVEL)) * max(
-                float(seen["kw"].get("scale", 1.0)), 1.0)
+            thr = gdraws.acceptance_threshold(np.asarray(x).size, seen["kw"].get("scale", 1.0))
             U = np.asarray(seen["propose"](int(seen["n"]), 0), float)
             runs = {"default": {}, "short": {"max_iter": SHORT_ITER},
                     "long": {"max_iter": LONG_ITER, "ftol": LONG_FTOL}}

@@ -29,7 +29,9 @@ shared, so a number is comparable only at a similar load; the 1000-start rows al
 CPU seconds of the process and its (finished) Dask workers, which the load does not change
 much. ``--race ITER:KEEP,...|off`` runs every fit with that racing schedule
 (``gprm fit --race``; default: the library's, off). ``--profile`` adds the 25 functions
-with the most own time in one 10-start fit (cProfile).
+with the most own time in one 10-start fit and the 40 of gprm's with the most cumulative time
+(cProfile; where the fit's phases spend it: the draws' projection, the polishes, the
+resonance search, the adequacy).
 
 ``--campaigns K``: the fits of campaigns seeds 0..K-1 (``synth_campaign(seed=k)``, the
 defaults otherwise) with ``--starts`` starts in this process, one JSON line each (best chi2,
@@ -128,9 +130,13 @@ def speed(args) -> None:
     with tempfile.TemporaryDirectory() as tmp:
         path = means_file(Path(tmp))
         fit(path, 10)                                             # warm-up
-        results: list = []
-        walls, loads, res = timed(lambda: results.append(fit(path, 10)) or results[-1],
-                                  args.repeat)
+        results: list = []                                        # every timed run's result
+
+        def fit10():
+            results.append(fit(path, 10))
+            return results[-1]
+
+        walls, loads, res = timed(fit10, args.repeat)
         print(f"10-start fit, identify in this process: {spread(walls)}; load {loads[0]:.2f}"
               f"/{loads[1]:.2f}; best chi2 {res.chi2:.4f}; identified {len(res.identified)}; "
               f"timings_s of the last {res.timings}")
@@ -145,11 +151,14 @@ def speed(args) -> None:
             pr.enable()
             fit(path, 10)
             pr.disable()
-            s = io.StringIO()
-            pstats.Stats(pr, stream=s).sort_stats("tottime").print_stats(25)
-            print("\nprofile (own time) of one 10-start fit:\n```\n" +
-                  "\n".join(ln for ln in s.getvalue().splitlines() if ln.strip())[-4000:]
-                  + "\n```")
+            for order, what, n, only in (("tottime", "own time", 25, ()),
+                                         ("cumtime", "cumulative time, gprm's functions", 40,
+                                          ("gprm/",))):
+                s = io.StringIO()
+                pstats.Stats(pr, stream=s).sort_stats(order).print_stats(*only, n)
+                print(f"\nprofile ({what}) of one 10-start fit:\n```\n" +
+                      "\n".join(ln for ln in s.getvalue().splitlines() if ln.strip())[-6000:]
+                      + "\n```")
         if not args.no_cli:
             out = Path(tmp) / "f.json"
 

@@ -289,7 +289,11 @@ def t0_scores(case: Case, names, lv: dict, best) -> dict:
             "t0_offset_s": None if off is None else float(off)}
 
 
-def shape_of(ratio: np.ndarray, qs=(50, 68, 90, 95)) -> tuple[np.ndarray, float]:
+#: the percentiles t0_shape reports
+SHAPE_QS = (50, 68, 90, 95)
+
+
+def shape_of(ratio: np.ndarray, qs=SHAPE_QS) -> tuple[np.ndarray, float]:
     """(the ``qs`` percentiles of |ratio|, its rms): errors over their 68 % half-widths."""
     v = np.abs(np.asarray(ratio, float))
     return np.percentile(v, qs), float(np.sqrt(np.mean(v ** 2)))
@@ -303,7 +307,7 @@ def t0_shape(rows: list[dict]) -> str:
     variance: the 68 % interval too wide, the 95 % one right."""
     from scipy.stats import norm
 
-    qs = (50, 68, 90, 95)
+    qs = SHAPE_QS
     z68 = norm.ppf(0.84)
     ref = ", ".join(f"{norm.ppf(0.5 + q / 200) / z68:.2f}" for q in qs)
     out = ["| method | campaigns (sources) | \\|error\\| / 68 % half-width at "
@@ -525,9 +529,7 @@ def main(argv=None) -> int:
             print(prediction_summary(rows))
             print()
         if any("t0_in95" in r for r in rows):
-            print(t0_table(rows))
-            print()
-            print(t0_shape(rows))
+            print(t0_table(rows) + "\n\n" + t0_shape(rows))
             print()
         print(misses_table(rows))
         print()
@@ -571,9 +573,7 @@ def main(argv=None) -> int:
     if a.predictions:
         print(prediction_summary(rows))
         print()
-    print(t0_table(rows))
-    print()
-    print(t0_shape(rows))
+    print(t0_table(rows) + "\n\n" + t0_shape(rows))
     print()
     print(misses_table(rows))
     print()

@@ -152,6 +152,15 @@ def inflation(Ju: np.ndarray, Hinv: np.ndarray, Cu: np.ndarray, s2: float) -> fl
     return num / den if den > 0 and np.isfinite(num) else 1.0
 
 
+def acceptance_threshold(n_params: int, scale: float = 1.0,
+                         level: float = ACCEPT_LEVEL) -> float:
+    """The misfit (in the fit's variance scale) up to which a projected draw is kept: the
+    chi-square quantile ``level`` with ``n_params`` degrees of freedom times
+    max(``scale``, 1), ``scale`` the covariance's :func:`inflation`."""
+    # from scipy.special (scipy.stats costs the fit 0.6 s of import)
+    return float(chdtri(int(n_params), 1.0 - level)) * max(float(scale), 1.0)
+
+
 def project_draws(obj: Objective, x: np.ndarray, propose: Callable[[int, int], np.ndarray],
                   n: int, lm: LMOptions = LMOptions(), *, scale: float = 1.0,
                   level: float = ACCEPT_LEVEL, max_rounds: int = MAX_ROUNDS) -> ProjectedDraws:
@@ -161,8 +170,7 @@ def project_draws(obj: Objective, x: np.ndarray, propose: Callable[[int, int], n
     ``scale``: the covariance's :func:`inflation` (the threshold is the chi-square quantile
     times max(scale, 1)). The kept draws are the first ``n`` kept in proposal order."""
     P = np.asarray(x).size
-    # the chi-square quantile from scipy.special (scipy.stats costs the fit 0.6 s of import)
-    threshold = float(chdtri(P, 1.0 - level)) * max(float(scale), 1.0)
+    threshold = acceptance_threshold(P, scale, level)
     Xs, misfits = [], []
     kept_total = 0
     want = int(n)

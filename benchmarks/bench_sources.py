@@ -207,10 +207,11 @@ def prediction_scores(case: Case, u, samples: int = 200) -> dict:
 
 def score(case: Case, method: str, predictions: bool = False, *,
           alignment_noise: str | None = None, residual_dof: bool | None = None,
-          sync_timing: bool | None = None, project_draws: bool | None = None) -> dict:
+          sync_timing: bool | None = None, project_draws: bool | None = None,
+          hac_lag: int | None = None) -> dict:
     """The case's coverage with ``method`` (its uncertainty computed once for the parameters,
     t0 and the predictions); ``alignment_noise``, ``residual_dof``, ``sync_timing``,
-    ``project_draws``: the
+    ``project_draws``, ``hac_lag``: the
     sandwich's ``Systematics`` fields of those names (None: the default; another: a
     development check, docs/fitting.md, labelled as such in the tables)."""
     from gprm.fit.methods import uncertainty_of
@@ -220,11 +221,12 @@ def score(case: Case, method: str, predictions: bool = False, *,
     rdof = d0.residual_dof if residual_dof is None else bool(residual_dof)
     sync = d0.sync_timing if sync_timing is None else bool(sync_timing)
     proj = d0.project_draws if project_draws is None else bool(project_draws)
-    default = (align, rdof, sync, proj) == (d0.alignment_noise, d0.residual_dof,
-                                            d0.sync_timing, d0.project_draws)
+    default = (align, rdof, sync, proj, hac_lag) == (d0.alignment_noise, d0.residual_dof,
+                                                     d0.sync_timing, d0.project_draws,
+                                                     d0.hac_lag)
     unc = uncertainty_of(case.fit, method, systematics=None if default else
                          Systematics(alignment_noise=align, residual_dof=rdof,
-                                     sync_timing=sync, project_draws=proj))
+                                     sync_timing=sync, project_draws=proj, hac_lag=hac_lag))
     names, ident, lv, best, share = intervals(case, unc)
     label = method
     if align != d0.alignment_noise:
@@ -235,6 +237,8 @@ def score(case: Case, method: str, predictions: bool = False, *,
         label += ", synchronisation's timing " + ("on" if sync else "off")
     if proj != d0.project_draws:
         label += ", draws " + ("projected" if proj else "as drawn")
+    if hac_lag != d0.hac_lag:
+        label += f", residuals' lag window {hac_lag}"
     out = {"source": case.source, "seed": case.seed, "method": label,
            "n_identified": 0, "n_all": 0, "best_outside": 0, "n_prior": 0}
     for L in LEVELS:
@@ -468,15 +472,16 @@ def misses_table(rows: list[dict]) -> str:
 
 def _job(index: int, jobs: list):
     """Job ``index`` of ``jobs`` (source, seed, starts, cache, methods, predictions,
-    alignment noise, residuals' t, sigma pool, synchronisation's timing, projected draws):
+    alignment noise, residuals' t, sigma pool, synchronisation's timing, projected draws,
+    the residuals' lag window):
     its scores and the seconds its fit took. A
     Dask task of benchmarks/_studies.py's map_seeds, which keys tasks by an integer; the
     result depends only on the job."""
-    source, seed, starts, cache, methods, predictions, align, rdof, pool, sync, proj = \
+    source, seed, starts, cache, methods, predictions, align, rdof, pool, sync, proj, lag = \
         jobs[index]
     case = run_case(source, seed, starts, cache, pool)
     return ([score(case, m, predictions, alignment_noise=align, residual_dof=rdof,
-                   sync_timing=sync, project_draws=proj)
+                   sync_timing=sync, project_draws=proj, hac_lag=lag)
              for m in methods], case.seconds)
 
 
@@ -511,6 +516,10 @@ def main(argv=None) -> int:
                     help="the predictions from the Gaussian's draws as drawn, not projected "
                     "onto the data (Systematics.project_draws=False: stops 1-43, a "
                     "development check, the rows labelled so)")
+    ap.add_argument("--hac-lag", type=lambda v: v if v == "auto" else int(v), default=None,
+                    help="the residuals' kernel estimate's lag window in samples "
+                    "(Systematics.hac_lag; default: a quarter of the window's samples; "
+                    "auto: Andrews' plug-in; another: a development check, the rows labelled so)")
     ap.add_argument("--sigma-pool", type=int, default=SIGMA_POOL,
                     help="the fits' weights pooled over this many samples on each side "
                     "(gprm.fit.objective.pooled_sigma; 0: stops 1-41's sample-by-sample "
@@ -545,7 +554,7 @@ def main(argv=None) -> int:
     methods = [m for m in a.methods.split(",") if m]
     jobs = [(s, a.seed + i, a.starts, a.cache, methods, a.predictions,
              a.alignment_noise, not a.no_residual_dof, a.sigma_pool, not a.no_sync_timing,
-             not a.raw_draws)
+             not a.raw_draws, a.hac_lag)
             for s in srcs
             for i in range(a.campaigns)]
     t0 = time.perf_counter()

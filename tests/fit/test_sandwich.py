@@ -1045,3 +1045,65 @@ def test_the_residuals_excess_stays_off_the_lags():
     np.testing.assert_allclose(off.statistical[np.ix_(keep, keep)],
                                on.statistical[np.ix_(keep, keep)], rtol=1e-12)
     assert np.linalg.eigvalsh(off.statistical).min() >= -1e-12 * np.abs(off.statistical).max()
+
+
+def test_the_residuals_lag_window_is_a_stated_systematics_field():
+    """``Systematics.hac_lag`` sets the residuals' kernel estimate's lag window (None: a
+    quarter of the window's samples, :func:`default_max_lag`): the error model carries it,
+    and the residual part is the Parzen sum over the prewhitened scores with that window,
+    computed here from the module's pieces; a window that is not a count is refused."""
+    from gprm.fit.sandwich import (DEFAULT_KERNEL, _linearised, default_max_lag, error_model,
+                                   prewhitened_scores, propagate)
+
+    obj, x, y, J, r, prior, data, _ = _paper_setup()
+    S, T = data.values.shape
+    assert error_model(obj, x, J, r, prior, Systematics()).max_lag == default_max_lag(T)
+    res = {}
+    for L in (0, 3):
+        e = error_model(obj, x, J, r, prior, Systematics(hac_lag=L, estimate_gain=False))
+        assert e.max_lag == L
+        res[L] = propagate(obj, x, J, prior, e, y).residuals
+        Ju, Hinv, B, _, _ = _linearised(obj, x, J, prior)
+        Bs = B.reshape(x.size, S, T)
+        want = sum(hac_meat(prewhitened_scores(Bs[:, s, :], e.R[s], 2, e.whitenings[s]), L,
+                            DEFAULT_KERNEL) for s in range(S))
+        want *= S * T / max(S * T - e.p_eff, 1.0)
+        np.testing.assert_allclose(res[L], want, rtol=1e-9, atol=1e-12 * np.abs(want).max())
+    assert not np.allclose(res[0], res[3])
+    for bad in (-1, 2.5, True, "3", "Auto"):
+        with pytest.raises(GprmInputError) as exc:
+            Systematics(hac_lag=bad)
+        assert exc.value.field == "systematics.hac_lag"
+
+
+def test_plugin_lag_is_andrews_parzen_bandwidth():
+    """:func:`plugin_lag` is Andrews' (1991) plug-in for Parzen's kernel from AR(1) fits to
+    each series (written out here for two series), round(S_T) - 1 clipped to [0, a quarter
+    of the samples]: uncorrelated series give a short window, strongly correlated ones the
+    cap, and an "auto" window in the error model is the plug-in on the signals'
+    prewhitened residuals."""
+    from gprm.fit.sandwich import default_max_lag, error_model, plugin_lag
+
+    rng = np.random.default_rng(8)
+    T = 47
+    a = _ar2(rng, T, 0.5, 0.0)
+    b = 3.0 * _ar2(rng, T, -0.2, 0.0)
+    num = den = 0.0
+    for u in (a, b):
+        rho = np.sum(u[1:] * u[:-1]) / np.sum(u[:-1] ** 2)
+        s4 = np.mean((u[1:] - rho * u[:-1]) ** 2) ** 2
+        num += 4 * rho ** 2 * s4 / (1 - rho) ** 8
+        den += s4 / (1 - rho) ** 4
+    S_T = 2.6614 * (num / den * T) ** 0.2
+    assert plugin_lag([a, b]) == min(max(round(S_T) - 1, 0), default_max_lag(T))
+    white = [rng.standard_normal(T) for _ in range(5)]
+    slow = [_ar2(rng, T, 0.95, 0.0) for _ in range(5)]
+    assert plugin_lag(white) <= 3
+    assert plugin_lag(slow) == default_max_lag(T)
+    assert plugin_lag([]) == 0
+    obj, x, y, J, r, prior, data, _ = _paper_setup()
+    e = error_model(obj, x, J, r, prior, Systematics(hac_lag="auto"))
+    S, Tn = data.values.shape
+    assert e.max_lag == plugin_lag([e.R[s] if w is None else w.u
+                                    for s, w in enumerate(e.whitenings)])
+    assert 0 <= e.max_lag <= default_max_lag(Tn)

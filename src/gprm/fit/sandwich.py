@@ -146,6 +146,11 @@ class Systematics:
     #: default keeps it off them, whose error is a time shift the timing parts carry
     #: (docs/fitting.md, "The lags' excess, and the drive's hidden time shift")
     excess_on_lags: bool = False
+    #: the residuals' kernel (HAC) estimate's lag window in samples; None: a quarter of the
+    #: fit window's samples (:func:`default_max_lag`, stops 1-46); "auto": Andrews' (1991)
+    #: plug-in from the prewhitened residuals (:func:`plugin_lag`). A development check of
+    #: how the estimate's noise (its degrees of freedom, :func:`residual_dof`) depends on it
+    hac_lag: int | str | None = None
 
     def __post_init__(self):
         if self.alignment_noise not in ALIGNMENT_NOISE:
@@ -162,6 +167,11 @@ class Systematics:
                 raise GprmInputError(f"per-signal entry {entry!r} must be (signal, gain_sd, "
                                      "timing_sd) with finite values >= 0",
                                      field="systematics.per_signal")
+        if self.hac_lag is not None and self.hac_lag != "auto" and (
+                isinstance(self.hac_lag, bool) or not isinstance(self.hac_lag, int)
+                or self.hac_lag < 0):
+            raise GprmInputError(f"must be an integer >= 0, 'auto' or None, got "
+                                 f"{self.hac_lag!r}", field="systematics.hac_lag")
 
     def for_signal(self, signal: str) -> tuple[float, float]:
         for s, g, t in self.per_signal:
@@ -177,6 +187,7 @@ class Systematics:
                 "residual_dof": self.residual_dof, "sync_timing": self.sync_timing,
                 "project_draws": self.project_draws,
                 "drive_timing": self.drive_timing, "excess_on_lags": self.excess_on_lags,
+                "hac_lag": self.hac_lag,
                 "per_signal": {s: {"gain_sd": g, "timing_sd_s": t}
                                for s, g, t in self.per_signal}}
 
@@ -259,6 +270,44 @@ def default_max_lag(T: int) -> int:
     """Bartlett window of the residual HAC: a quarter of the window's samples (the signals'
     mismatch is correlated over tens of microseconds, the window holds ~47 samples)."""
     return max(1, T // 4)
+
+
+#: Andrews' (1991) constant of the Parzen kernel's optimal bandwidth, S_T = 2.6614 (a T)^(1/5)
+PARZEN_BANDWIDTH = 2.6614
+#: the AR(1) coefficient the plug-in reads from a series is clipped to +-this (Andrews and
+#: Monahan's bound on the prewhitening filter's roots)
+PLUGIN_MAX_RHO = 0.97
+
+
+def plugin_lag(series) -> int:
+    """The Parzen window's lag for the HAC over these series (each (T,), the signals'
+    prewhitened residuals, their innovations): Andrews' (1991, Econometrica 59, 817) plug-in
+    for the Parzen kernel, S_T = 2.6614 (alpha(2) T)^(1/5), with alpha(2) from an AR(1)
+    fitted to each series a (coefficient rho_a, innovation variance s_a^2),
+    sum_a 4 rho_a^2 s_a^4 / (1 - rho_a)^8 / sum_a s_a^4 / (1 - rho_a)^4. Parzen's weight of
+    lag l is k(l / S_T), so the window's ``max_lag`` (weights k(l / (max_lag + 1))) is
+    round(S_T) - 1, at least 0 and at most :func:`default_max_lag` (a quarter of the
+    samples: what stops 1-46 used everywhere). Series without correlation give 0 (lag 0
+    alone: the prewhitened White estimate)."""
+    num = den = 0.0
+    T = 0
+    for u in series:
+        u = np.asarray(u, float)
+        if u.size < 4:
+            continue
+        T = max(T, u.size)
+        a, b = u[1:], u[:-1]
+        bb = float(b @ b)
+        if bb <= 0:
+            continue
+        rho = float(np.clip((a @ b) / bb, -PLUGIN_MAX_RHO, PLUGIN_MAX_RHO))
+        s2 = float(np.mean((a - rho * b) ** 2))
+        num += 4.0 * rho ** 2 * s2 ** 2 / (1.0 - rho) ** 8
+        den += s2 ** 2 / (1.0 - rho) ** 4
+    if T == 0 or den <= 0:
+        return 0
+    S_T = PARZEN_BANDWIDTH * (num / den * T) ** 0.2
+    return int(min(max(round(S_T) - 1, 0), default_max_lag(T)))
 
 
 def alignment_sd(obj: Objective, y: np.ndarray, dy: np.ndarray) -> np.ndarray:
@@ -714,9 +763,10 @@ def drive_shift_sd(obj: Objective, x: np.ndarray, dy: np.ndarray) -> np.ndarray 
 
 def error_model(obj: Objective, x: np.ndarray, J: np.ndarray, r: np.ndarray, prior: Prior,
                 systematics: Systematics = Systematics(), *,
-                max_lag: int | None = None) -> ErrorModel:
+                max_lag: int | str | None = None) -> ErrorModel:
     """Estimate the data's error at the best fit ``x`` (J, r: the weighted data residuals'
-    Jacobian (N, P) and values (N,) there, prior rows excluded)."""
+    Jacobian (N, P) and values (N,) there, prior rows excluded). ``max_lag``: the residuals'
+    kernel window (None: ``systematics.hac_lag``)."""
     d = obj.data
     S, T = d.values.shape
     x = np.asarray(x, float)
@@ -724,8 +774,13 @@ def error_model(obj: Objective, x: np.ndarray, J: np.ndarray, r: np.ndarray, pri
     # the residuals' lost degrees of freedom: the parameters' and the nuisances' the
     # objective projects off (an unmodelled resonance, gprm.fit.resonance)
     p_eff = float(np.trace(Ju @ B.reshape(x.size, -1))) + getattr(obj, "n_nuisance", 0)
-    L = default_max_lag(T) if max_lag is None else int(max_lag)
     R = r.reshape(S, T)
+    whitenings = tuple(whitening(R[s], PREWHITEN_ORDER) for s in range(S))
+    if max_lag is None:
+        max_lag = systematics.hac_lag
+    if max_lag == "auto":
+        max_lag = plugin_lag([R[s] if w is None else w.u for s, w in enumerate(whitenings)])
+    L = default_max_lag(T) if max_lag is None else int(max_lag)
     dev = run_deviations(d.runs, d.sigma) if d.runs is not None else None
     a_sd = alignment_sd(obj, y, dy)
     # the mechanism model's own crossing against the data's, also where a resonance is
@@ -760,8 +815,7 @@ def error_model(obj: Objective, x: np.ndarray, J: np.ndarray, r: np.ndarray, pri
     gm = gain_moments(Ju, Hinv, R, y, d.sigma, d.runs, max_lag=L)
     if systematics.estimate_gain:
         g_sd = np.maximum(g_sd, gm.sd)
-    return ErrorModel(R, dev, g_sd, t_sd, a_sd, gm.sd, p_eff, L, c_off,
-                      tuple(whitening(R[s], PREWHITEN_ORDER) for s in range(S)), gm.z, s_sd,
+    return ErrorModel(R, dev, g_sd, t_sd, a_sd, gm.sd, p_eff, L, c_off, whitenings, gm.z, s_sd,
                       v_sd, bool(systematics.excess_on_lags))
 
 

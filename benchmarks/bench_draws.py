@@ -52,6 +52,9 @@ DEFAULT_SOURCES = "white,jitter-2,drive-2,generator,sim2-white,sim2"
 #: --convergence: the long and the short projection budgets compared with the default
 LONG_ITER, LONG_FTOL = 60, 1e-3
 SHORT_ITER = 8
+#: the budgets' keyword arguments of gprm.fit.draws.project
+BUDGETS = {"default": {}, "short": {"max_iter": SHORT_ITER},
+           "long": {"max_iter": LONG_ITER, "ftol": LONG_FTOL}}
 PCT = (25, 50, 75, 90, 99)
 
 
@@ -178,10 +181,8 @@ def convergence_table(a) -> None:
             obj, x, lm = seen["obj"], seen["x"], seen["lm"]
             thr = gdraws.acceptance_threshold(np.asarray(x).size, seen["kw"].get("scale", 1.0))
             U = np.asarray(seen["propose"](int(seen["n"]), 0), float)
-            runs = {"default": {}, "short": {"max_iter": SHORT_ITER},
-                    "long": {"max_iter": LONG_ITER, "ftol": LONG_FTOL}}
             X, ok = {}, {}
-            for key, kw in runs.items():
+            for key, kw in BUDGETS.items():
                 Xk, mk = gdraws.project(obj, x, U, lm, **kw)
                 X[key], ok[key] = Xk[mk <= thr], mk <= thr
                 kept[key] += int(ok[key].sum())

@@ -78,8 +78,10 @@ def main(argv=None) -> int:
     ap.add_argument("--hac-lag", default="default",
                     help="comma-separated lag windows: default, auto or a number of samples")
     a = ap.parse_args(argv)
-    lags = [None if v == "default" else v if v == "auto" else int(v)
-            for v in a.hac_lag.split(",") if v]
+    try:
+        lags = [bs.hac_lag_arg(v) for v in a.hac_lag.split(",") if v]
+    except argparse.ArgumentTypeError as exc:
+        ap.error(f"--hac-lag {exc}")
     print("| source | lag window (median) | identified parameters | residuals lead | "
           "median nu there (10-90 %) | median nu, all (10-90 %) "
           "| median mean / target (10-90 %) | median res / runs |")

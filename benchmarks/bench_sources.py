@@ -36,6 +36,7 @@ import sources  # noqa: E402
 
 from gprm.campaign.files import read_campaign_dir  # noqa: E402
 from gprm.campaign.preprocess import PreprocessConfig, preprocess  # noqa: E402
+from gprm.errors import GprmInputError  # noqa: E402
 from gprm.fit.api import FitOptions  # noqa: E402
 from gprm.fit.identify import identify  # noqa: E402
 from gprm.fit.objective import SIGMA_POOL, fit_data_from_means  # noqa: E402
@@ -208,7 +209,7 @@ def prediction_scores(case: Case, u, samples: int = 200) -> dict:
 def score(case: Case, method: str, predictions: bool = False, *,
           alignment_noise: str | None = None, residual_dof: bool | None = None,
           sync_timing: bool | None = None, project_draws: bool | None = None,
-          hac_lag: int | None = None) -> dict:
+          hac_lag: int | str | None = None) -> dict:
     """The case's coverage with ``method`` (its uncertainty computed once for the parameters,
     t0 and the predictions); ``alignment_noise``, ``residual_dof``, ``sync_timing``,
     ``project_draws``, ``hac_lag``: the
@@ -470,6 +471,18 @@ def misses_table(rows: list[dict]) -> str:
     return _name_counts(rows, "misses95")
 
 
+def hac_lag_arg(text: str) -> int | str | None:
+    """A ``--hac-lag`` value: ``default`` (None, a quarter of the window's samples), ``auto``
+    (Andrews' plug-in) or a number of samples, checked as ``Systematics.hac_lag`` checks it."""
+    value = None if text == "default" else text if text == "auto" else \
+        int(text) if text.lstrip("-").isdigit() else text
+    try:
+        Systematics(hac_lag=value)
+    except GprmInputError as exc:
+        raise argparse.ArgumentTypeError(f"{text!r}: {exc}") from None
+    return value
+
+
 def _job(index: int, jobs: list):
     """Job ``index`` of ``jobs`` (source, seed, starts, cache, methods, predictions,
     alignment noise, residuals' t, sigma pool, synchronisation's timing, projected draws,
@@ -516,7 +529,7 @@ def main(argv=None) -> int:
                     help="the predictions from the Gaussian's draws as drawn, not projected "
                     "onto the data (Systematics.project_draws=False: stops 1-43, a "
                     "development check, the rows labelled so)")
-    ap.add_argument("--hac-lag", type=lambda v: v if v == "auto" else int(v), default=None,
+    ap.add_argument("--hac-lag", type=hac_lag_arg, default=None,
                     help="the residuals' kernel estimate's lag window in samples "
                     "(Systematics.hac_lag; default: a quarter of the window's samples; "
                     "auto: Andrews' plug-in; another: a development check, the rows labelled so)")

@@ -9,6 +9,7 @@ import sys
 from pathlib import Path
 
 import numpy as np
+import pytest
 from scipy.stats import binom
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
@@ -252,3 +253,19 @@ def test_t0_shape_tells_a_heavy_tail_from_a_wrong_width():
     assert q_t[1] < 0.85 and abs(q_t[3] - q_norm[3]) < 0.08
     q_wide, _ = shape_of(rng.standard_normal(40000) / (1.3 * h))
     assert np.allclose(q_wide * 1.3, q_norm, rtol=0.03)
+
+
+def test_hac_lag_argument_reads_the_systematics_values_and_refuses_others():
+    """bench_sources.py / bench_residual_dof.py --hac-lag: ``default`` is None (a quarter of
+    the window's samples), ``auto`` the plug-in, a count of samples an int; what
+    ``Systematics.hac_lag`` refuses is refused at the command line."""
+    import argparse
+
+    from bench_sources import hac_lag_arg
+
+    assert hac_lag_arg("default") is None
+    assert hac_lag_arg("auto") == "auto"
+    assert hac_lag_arg("5") == 5 and hac_lag_arg("0") == 0
+    for bad in ("-1", "x", "2.5"):
+        with pytest.raises(argparse.ArgumentTypeError):
+            hac_lag_arg(bad)

@@ -274,16 +274,14 @@ def default_max_lag(T: int) -> int:
 
 #: Andrews' (1991) constant of the Parzen kernel's optimal bandwidth, S_T = 2.6614 (a T)^(1/5)
 PARZEN_BANDWIDTH = 2.6614
-#: the AR(1) coefficient the plug-in reads from a series is clipped to +-this (Andrews and
-#: Monahan's bound on the prewhitening filter's roots)
-PLUGIN_MAX_RHO = 0.97
 
 
 def plugin_lag(series) -> int:
     """The Parzen window's lag for the HAC over these series (each (T,), the signals'
     prewhitened residuals, their innovations): Andrews' (1991, Econometrica 59, 817) plug-in
     for the Parzen kernel, S_T = 2.6614 (alpha(2) T)^(1/5), with alpha(2) from an AR(1)
-    fitted to each series a (coefficient rho_a, innovation variance s_a^2),
+    fitted to each series a (coefficient rho_a, clipped to +-:data:`MAX_ROOT` as the
+    prewhitening filter's roots are, innovation variance s_a^2),
     sum_a 4 rho_a^2 s_a^4 / (1 - rho_a)^8 / sum_a s_a^4 / (1 - rho_a)^4. Parzen's weight of
     lag l is k(l / S_T), so the window's ``max_lag`` (weights k(l / (max_lag + 1))) is
     round(S_T) - 1, at least 0 and at most :func:`default_max_lag` (a quarter of the
@@ -300,7 +298,7 @@ def plugin_lag(series) -> int:
         bb = float(b @ b)
         if bb <= 0:
             continue
-        rho = float(np.clip((a @ b) / bb, -PLUGIN_MAX_RHO, PLUGIN_MAX_RHO))
+        rho = float(np.clip((a @ b) / bb, -MAX_ROOT, MAX_ROOT))
         s2 = float(np.mean((a - rho * b) ** 2))
         num += 4.0 * rho ** 2 * s2 ** 2 / (1.0 - rho) ** 8
         den += s2 ** 2 / (1.0 - rho) ** 4

@@ -269,3 +269,21 @@ def test_hac_lag_argument_reads_the_systematics_values_and_refuses_others():
     for bad in ("-1", "x", "2.5"):
         with pytest.raises(argparse.ArgumentTypeError):
             hac_lag_arg(bad)
+
+
+def test_prior_share_table_counts_narrow_and_leaning_parameters():
+    """bench_prior_share's table: narrow = contraction below CONTRACTION; leaning = narrow and
+    the prior's share at least PRIOR_SHARE (gprm.fit.uncertainty.determined); the leaning ones'
+    coverage counted over themselves only."""
+    from bench_prior_share import table
+
+    def r(name, c, s, in95=True, in68=True):
+        return {"name": name, "contraction": c, "share": s, "in95": in95, "in68": in68}
+    rows = [r("b1", 0.05, 0.8), r("b1", 0.05, 0.5, in68=False), r("b1", 0.05, 0.49),
+            r("b1", 0.5, 0.9, in95=False), r("m2", 0.01, 0.0), r("k_Cy", 0.9, 0.99)]
+    lines = {ln.split("|")[1].strip(): [c.strip() for c in ln.split("|")[1:-1]]
+             for ln in table(rows).splitlines()[2:]}
+    assert set(lines) == {"b1", "m2"}                       # k_Cy never narrow
+    assert lines["b1"][1:3] == ["3", "2"]
+    assert lines["b1"][4] == "2 / 2, 1 / 2"
+    assert lines["m2"][1:3] == ["1", "0"] and lines["m2"][4] == "-"

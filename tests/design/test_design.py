@@ -648,3 +648,26 @@ def test_design_counts_the_alignment_noise_the_fit_counted():
     assert _alignment_counted({"alignment_sd_s": a, "timing_sd_s": both,
                                "sync_timing_sd_s": sync}, stated,
                               "x_head") == pytest.approx(a, rel=1e-9)
+
+
+def test_a_design_counts_identified_as_a_fit_does():
+    """The design's identified mask is the fit's rule (gprm.fit.uncertainty.determined): narrow
+    and less than half of the variance the prior's. The prior's part diag(C P0 C) and the
+    data's diag(C F C) / kappa add up to the posterior variance, draw by draw."""
+    from gprm.design.core import _identified, _prior_variance
+    from gprm.fit.uncertainty import determined
+
+    rng = np.random.default_rng(5)
+    A = rng.normal(size=(3, 5, 5)) * np.array([100.0, 30.0, 10.0, 1.0, 0.01])[:, None]
+    F = np.einsum("bij,bkj->bik", A, A)
+    P0 = np.diag(1 / np.array([1.0, 2.0, 0.5, 1.0, 1.5]) ** 2)
+    kappa = 2.0
+    C = _posterior(P0, F, kappa)
+    data = np.mean(np.einsum("dip,dpq,dqi->di", C, F / kappa, C), 0)
+    var = np.mean(np.diagonal(C, axis1=1, axis2=2), 0)
+    prior_var = _prior_variance(C, P0)
+    np.testing.assert_allclose(prior_var + data, var, rtol=1e-9)
+    sd0 = 1 / np.sqrt(np.diag(P0))
+    ident = _identified(np.sqrt(var), sd0, prior_var, var, 0.3)
+    expect, _ = determined(np.sqrt(var) / sd0, prior_var / var)
+    assert ident.tolist() == expect.tolist() and 0 < ident.sum() < 5

@@ -52,12 +52,22 @@ def test_gprm_fit_writes_json_and_sidecar(means_file, tmp_path):
     assert set(syst) == set(d["signals"])
     assert all(v["gain_sd"] == pytest.approx(Systematics().gain_sd) for v in syst.values())
     assert d["uncertainty"]["adequacy"]["verdict"] in ("adequate", "not described")
-    assert set(d["identified"]) | set(d["not_determined"]) == set(fm.names)
+    # every fitted parameter is in exactly one of the three lists
+    lists = (d["identified"], d["leans_on_prior"], d["not_determined"])
+    assert sorted(sum(lists, [])) == sorted(fm.names)
+    # identified: narrow and mostly the data's variance; leaning: narrow, mostly the prior's
+    share = {n: v["prior"] for n, v in d["uncertainty"]["details"]["variance_shares"].items()}
+    for name in fm.names:
+        narrow = d["parameters"][name]["contraction"] < d["uncertainty"]["identified_threshold"]
+        mostly_prior = share[name] >= d["uncertainty"]["prior_share_threshold"]
+        assert (name in d["identified"]) == (narrow and not mostly_prior), name
+        assert (name in d["leans_on_prior"]) == (narrow and mostly_prior), name
     for name in fm.names:
         e = d["parameters"][name]
         # centred on the best fit: the best fit lies inside every interval
         assert e["interval"]["lower"] < e["value"] < e["interval"]["upper"], name
         assert e["identified"] == (name in d["identified"])
+        assert e.get("leans_on_prior", False) == (name in d["leans_on_prior"])
     # issue 22: without a terminal (here) the progress is plain lines on stderr, and the line
     # after them tells the starts' best from the polished chi-square the report shows
     err = r.stderr if hasattr(r, "stderr") else r.output

@@ -145,3 +145,54 @@ def test_mismatch_calibration_widens_named_parameters_and_can_undo_identified():
     physical = set(FITTED_DEFAULT) - set(LAG_PARAMETERS)
     assert MISMATCH_CALIBRATION and all(n in physical and f > 1.0
                                         for n, f in MISMATCH_CALIBRATION.items())
+
+
+def test_prior_share_is_the_variance_the_prior_centre_moves_the_posterior_mean_by():
+    """prior_share_of against an independent Monte Carlo: in a linear-Gaussian model the
+    posterior mean is C (A^T y + Pr m); moving the prior's centre m over N(truth, Pr^-1) moves
+    it by C Pr C, moving the data's noise by C A^T A C: their sum is C, and the prior's share
+    of each diagonal is the share of the posterior-mean spread the prior alone causes."""
+    from gprm.fit.uncertainty import prior_share_of
+
+    rng = np.random.default_rng(3)
+    A = rng.standard_normal((12, 3)) * np.array([3.0, 0.3, 0.05])   # well, weakly, hardly seen
+    sd = np.array([1.0, 2.0, 0.5])
+    Pr = np.diag(1 / sd ** 2)
+    C = np.linalg.inv(A.T @ A + Pr)
+    truth = np.array([0.3, -1.0, 0.2])
+    n = 200_000
+    M = truth + rng.standard_normal((n, 3)) * sd                   # prior centres
+    means = (M @ Pr + (A @ truth) @ A) @ C                          # data without noise
+    share_mc = np.var(means, 0) / np.diag(C)
+    np.testing.assert_allclose(prior_share_of(C, sd), share_mc, rtol=0.02)
+    assert prior_share_of(C, sd)[0] < 0.2 < 0.8 < prior_share_of(C, sd)[2]
+
+
+def test_a_narrow_interval_tied_to_an_unseen_parameter_leans_on_the_prior():
+    """b1's case (docs/fitting.md, "Parameters that lean on the prior"): the data fix
+    u0 - 0.05 u1 very precisely and do not see u1, so u0's posterior is 20 times narrower
+    than its prior and yet almost all of it is u1's prior; u2, seen directly, is identified."""
+    from gprm.fit.prior import Prior
+    from gprm.fit.uncertainty import determined, estimate
+
+    names = ("m2", "m3", "m4")
+    prior = Prior(names, np.array([0.012, 0.004, 0.0005]), np.full(3, 1.25),
+                  np.ones(3, bool))
+    x = prior.centre.copy()
+    D = prior.dx_du(x)
+    Ju = np.zeros((40, 3))
+    Ju[:20, 0], Ju[:20, 1] = 300.0, -15.0            # u0 - 0.05 u1, precise
+    Ju[20:, 2] = 300.0                                # u2 alone
+    J = Ju / D[None, :]
+    r = np.random.default_rng(0).standard_normal(40)
+    u = estimate("laplace-prior", x, J, r, 37, 2, prior, names, n_draws=0)
+    # u0 and u2 narrow, u1 (unseen) the prior's
+    assert u.contraction[0] < 0.1 and u.contraction[2] < 0.01 and u.contraction[1] > 0.95
+    assert u.leans_on_prior.tolist() == [True, False, False]
+    assert u.identified.tolist() == [False, False, True]
+    # the rule itself, on its edges
+    ident, leans = determined(np.array([0.1, 0.1, 0.5, 0.1]), np.array([0.49, 0.5, 0.9, 0.0]))
+    assert ident.tolist() == [True, False, False, True]
+    assert leans.tolist() == [False, True, False, False]
+    ident, leans = determined(np.array([0.1, 0.5]), None)
+    assert ident.tolist() == [True, False] and not leans.any()

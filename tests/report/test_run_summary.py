@@ -62,3 +62,23 @@ def test_undetermined_parameters_get_no_z_and_intervals_are_counted():
     line = truth_recovery_text(tr)
     assert "2/2 identified" in line and "1/2 inside 68 %" in line
     assert "2 not determined" in line and "1 with the truth inside" in line
+
+
+def test_parameters_leaning_on_the_prior_are_counted_apart_from_the_undetermined():
+    """A narrow interval that is mostly the prior's (fit.json ``leans_on_prior``) is neither
+    identified (no z, not in the identified coverage) nor 'not determined': its own count."""
+    def p(value, lo95, hi95, identified, leans=False):
+        d = {"value": value, "stderr": 0.1 * value, "fitted": True, "identified": identified,
+             "interval": {"lower": lo95, "upper": hi95},
+             "interval68": {"lower": lo95, "upper": hi95}}
+        return {**d, "leans_on_prior": True} if leans else d
+    fit = {"parameters": {
+        "m2": p(12.0e-3, 11e-3, 13e-3, True),
+        "b1": p(42e-3, 41e-3, 43e-3, False, leans=True),      # truth outside
+        "k_Cy": p(7e6, 1e6, 5e7, False)}}
+    tr = truth_recovery(fit, {"m2": 12.4e-3, "b1": 45e-3, "k_Cy": 8e6})
+    assert set(tr["z"]) == {"m2"} and tr["n_interval"] == 1
+    assert (tr["leans_on_prior"], tr["leans_in95"]) == (1, 0)
+    assert (tr["undetermined"], tr["undetermined_in95"]) == (1, 1)
+    line = truth_recovery_text(tr)
+    assert "1 not determined" in line and "1 leaning on the prior (0 with the truth" in line

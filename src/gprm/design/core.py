@@ -46,6 +46,7 @@ from gprm.design.predictions import ReleasePredictions, release_predictions
 from gprm.fit.files import FittedModel, load_model, read_fit_document, read_fit_sidecar
 from gprm.fit.objective import DEFAULT_WINDOW
 from gprm.fit.prior import DEFAULT_WIDTH, Prior, default_prior
+from gprm.fit.uncertainty import PRIOR_SHARE
 from gprm.params import ALIGNMENT_OFFSETS
 
 #: the generator's noise when there is no fit to estimate it from (SynthConfig: white and
@@ -452,12 +453,14 @@ def run_design(model, config: DesignConfig | None = None, *, candidates_path=Non
 
     def evaluate(adds: tuple[str, ...], ref: DesignEvaluation | None) -> DesignEvaluation:
         var = np.zeros(len(names))
+        prior_var = np.zeros(len(names))
         Cm = np.zeros((len(names), len(names)))
         for part in parts:
             k = part.component
             F = F_base[k] + sum((F_cand[a][k] for a in adds), np.zeros_like(F_base[k]))
             C = _posterior(P0, F, part.kappa)
             var = var + _mean_sd(C) ** 2 * part.scale ** 2
+            prior_var = prior_var + _prior_variance(C, P0) * part.scale ** 2
             Cm = Cm + C.mean(0) * np.outer(part.scale, part.scale)
             if part.per_run is not None:
                 V = part.per_run_variance(base.runs + sum(repeats[a] for a in adds))
@@ -468,7 +471,8 @@ def run_design(model, config: DesignConfig | None = None, *, candidates_path=Non
         lo = prior.from_u(ub - Z95 * sd)
         hi = prior.from_u(ub + Z95 * sd)
         gain = {} if ref is None else _gain(ref.pred_sd, psd, groups)
-        return DesignEvaluation(adds, sd, sd / sd0 < cfg.identified_threshold, lo, hi, psd,
+        return DesignEvaluation(adds, sd, _identified(sd, sd0, prior_var, var,
+                                                      cfg.identified_threshold), lo, hi, psd,
                                 float(sum(hours_of[a] for a in adds)),
                                 int(sum(runs_of[a] for a in adds)), gain)
 
@@ -520,6 +524,21 @@ def run_design(model, config: DesignConfig | None = None, *, candidates_path=Non
                         alone_ev)
 
 
+def _prior_variance(C: np.ndarray, P0: np.ndarray) -> np.ndarray:
+    """(P,) the prior's part of each parameter's variance, averaged over the draws: the mean
+    of diag(C P0 C) for posterior covariances C (D, P, P) = (P0 + F / kappa)^-1 (the data's
+    part is diag(C F C) / kappa; the two sum to diag C)."""
+    return np.mean(np.einsum("dip,pq,dqi->di", C, P0, C), 0)
+
+
+def _identified(sd: np.ndarray, sd0: np.ndarray, prior_var: np.ndarray, var: np.ndarray,
+                threshold: float) -> np.ndarray:
+    """Identified as a fit says it (gprm.fit.uncertainty.determined): sd below ``threshold``
+    of the prior's and less than PRIOR_SHARE of the variance the prior's."""
+    share = prior_var / np.clip(var, 1e-300, None)
+    return (sd / sd0 < threshold) & (share < PRIOR_SHARE)
+
+
 def _mean_sd(C: np.ndarray) -> np.ndarray:
     """(P,) the sd in u from a stack of posterior covariances (D, P, P): each parameter's
     variance averaged over the draws D, then its square root."""
@@ -539,20 +558,24 @@ def evaluate_block(fm: FittedModel, block: Block, cfg: DesignConfig, noise: Nois
     """Predicted sd and 95 % intervals of a campaign made of ``block`` alone (what a fit of
     that campaign should report): the validation's prediction."""
     var = np.zeros(len(fm.names))
+    prior_var = np.zeros(len(fm.names))
     for part in parts:
         F = block_information(fm.params, fm.names, X, dx_du, block,
                               replace(noise, kappa=1.0), gain_sd=cfg.gain_sd,
                               timing_sd=cfg.timing_sd, lag_sd=lag_sd,
                               fitted_lag_channels=fitted_lags, z_bk_absolute=fm.z_bk_absolute,
                               component=part.component)
-        var = var + _mean_sd(_posterior(P0, F, part.kappa)) ** 2 * part.scale ** 2
+        C = _posterior(P0, F, part.kappa)
+        var = var + _mean_sd(C) ** 2 * part.scale ** 2
+        prior_var = prior_var + _prior_variance(C, P0) * part.scale ** 2
         if part.per_run is not None:
             # a campaign of its own: its runs average the variation if it repeats the
             # base's measurement; else it is taken as the base's (not measured otherwise)
             runs = block.runs if same_measurement(block, base) else part.runs
             var = var + np.diag(part.per_run_variance(runs))
     sd = np.minimum(np.sqrt(var), sd0)
-    return {"sd_u": sd, "identified": sd / sd0 < cfg.identified_threshold,
+    return {"sd_u": sd, "identified": _identified(sd, sd0, prior_var, var,
+                                                  cfg.identified_threshold),
             "lower": prior.from_u(ub - Z95 * sd), "upper": prior.from_u(ub + Z95 * sd)}
 
 

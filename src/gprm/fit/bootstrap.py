@@ -220,7 +220,8 @@ def from_bootstrap(method: str, x: np.ndarray, refits: np.ndarray, laplace: Unce
 
     Correlations are the posterior's. Identified as in the Laplace posterior, with the
     widened interval: ``contraction`` is the reported sd over the prior's, and a parameter
-    counts as identified where it is below :data:`CONTRACTION`.
+    counts as identified where it is below :data:`CONTRACTION` (and the Laplace posterior
+    counts it identified, not leaning on the prior).
     """
     refits = np.asarray(refits, float)
     ok = np.all(np.isfinite(refits), axis=1)
@@ -245,6 +246,8 @@ def from_bootstrap(method: str, x: np.ndarray, refits: np.ndarray, laplace: Unce
         applied = tuple((n, float(v)) for n, v in zip(names, f) if v > 1.0)
     contraction = laplace.contraction * s
     identified = np.asarray(laplace.identified) & (contraction < CONTRACTION)
+    leans = None if laplace.leans_on_prior is None else \
+        np.asarray(laplace.leans_on_prior) & (contraction < CONTRACTION)
     centre = u - bias
     Cu = cov_u * np.outer(s, s)
     sd = np.sqrt(np.diag(Cu))
@@ -259,7 +262,7 @@ def from_bootstrap(method: str, x: np.ndarray, refits: np.ndarray, laplace: Unce
                        prior.from_u(centre - z68 * sd), prior.from_u(centre + z68 * sd),
                        identified, contraction,
                        prior.from_u(centre[None] + Z) if n_draws > 0 else None,
-                       laplace.s2, laplace.tau, calibration=applied)
+                       laplace.s2, laplace.tau, calibration=applied, leans_on_prior=leans)
 
 
 def uncertainty(method: str, state: FitState) -> Uncertainty:

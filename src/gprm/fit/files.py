@@ -446,6 +446,9 @@ def fit_document(res: FitResult) -> dict:
                                   else "upper") if name in res.at_bounds else None)
             if u is not None:
                 entry["identified"] = bool(u.identified[k])
+                if name in res.leans_on_prior:
+                    # narrow, but mostly the prior's variance (docs/fitting.md)
+                    entry["leans_on_prior"] = True
                 entry["interval"] = {"level": 0.95, "lower": _num(u.lower95[k]),
                                      "upper": _num(u.upper95[k]), "method": u.method}
                 entry["interval68"] = {"level": 0.68, "lower": _num(u.lower68[k]),
@@ -471,7 +474,9 @@ def fit_document(res: FitResult) -> dict:
         "covariance_message": res.covariance_message,
         "uncertainty": _uncertainty_document(res),
         "identified": list(res.identified),
-        "not_determined": [n for n in res.names if n not in res.identified],
+        "leans_on_prior": list(res.leans_on_prior),
+        "not_determined": [n for n in res.names if n not in res.identified
+                           and n not in res.leans_on_prior],
         "identifiable_combinations": res.combinations(),
         "parameters_at_bounds": list(res.at_bounds),
         "correlation": {"names": list(res.names),
@@ -510,18 +515,20 @@ def fit_document(res: FitResult) -> dict:
 
 
 def _uncertainty_document(res: FitResult) -> dict:
-    from gprm.fit.uncertainty import CONTRACTION   # scipy: only when writing
+    from gprm.fit.uncertainty import CONTRACTION, PRIOR_SHARE   # scipy: only when writing
 
     u = res.uncertainty
     if u is None:
         return {"method": "eq7", "note": res.covariance_message}
     notes = {"laplace-prior": "posterior of the prior-regularised fit (Laplace); identified "
-                              f"= posterior sd below {CONTRACTION} of the prior's",
+                              f"= posterior sd below {CONTRACTION} of the prior's and less "
+                              f"than {PRIOR_SHARE:g} of its variance the prior's",
              "sandwich": "the campaign's own error (runs' spread or residuals' covariance, "
                          "the larger) through the linearised fit, with the instrument's "
                          "gain and timing errors and the interpolation error marginalised; "
                          "centred on the best fit; identified = interval sd below "
-                         f"{CONTRACTION} of the prior's (docs/fitting.md)",
+                         f"{CONTRACTION} of the prior's and less than {PRIOR_SHARE:g} of its "
+                         "variance the prior's (docs/fitting.md)",
              "generator-bootstrap": "Laplace posterior re-centred by refits of campaigns "
                                     "gprm's synthetic generator makes from the best fit, lags "
                                     "widened by the refits' spread, mismatch calibration "
@@ -530,6 +537,7 @@ def _uncertainty_document(res: FitResult) -> dict:
     d = {"method": u.method, "note": u.message if u.message != "ok" else
          notes.get(u.method, "linearised covariance"),
          "s2": _num(u.s2), "tau": _num(u.tau), "identified_threshold": CONTRACTION,
+         "prior_share_threshold": PRIOR_SHARE,
          "draws": 0 if u.draws is None else int(len(u.draws))}
     if res.prior is not None:
         d["prior"] = {"width": float(res.prior.sd[res.prior.log][0])

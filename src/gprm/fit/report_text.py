@@ -210,7 +210,7 @@ def fit_report(d: dict, *, min_correl: float = DEFAULT_MIN_CORREL) -> str:
         if adq.get("text"):
             lines.append("    " + str(adq["text"]))
     lines.append("[[Parameters]]  (value +/- stderr (relative), initial; "
-                 "* at a bound; ? not identified)")
+                 "* at a bound; ? not identified or leaning on the prior)")
     params = d.get("parameters") or {}
     legacy_bounds = set(d.get("parameters_at_bounds") or [])
     level = None
@@ -234,7 +234,9 @@ def fit_report(d: dict, *, min_correl: float = DEFAULT_MIN_CORREL) -> str:
                                                        else None)
         if at:
             row += f"  * at {at} bound" if at in ("lower", "upper") else "  * at a bound"
-        if p.get("identified") is False:
+        if p.get("leans_on_prior"):
+            row += "  ? leans on the prior"
+        elif p.get("identified") is False:
             row += "  ? not identified"
         iv = p.get("interval")
         if isinstance(iv, dict) and ("lower" in iv or "upper" in iv):

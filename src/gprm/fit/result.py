@@ -75,6 +75,15 @@ class FitResult:
         return tuple(n for n, k in zip(self.names, self.uncertainty.identified) if k)
 
     @property
+    def leans_on_prior(self) -> tuple[str, ...]:
+        """Names whose interval is narrow but mostly the prior's variance: not identified
+        (gprm.fit.uncertainty.determined)."""
+        leans = None if self.uncertainty is None else self.uncertainty.leans_on_prior
+        if leans is None:
+            return ()
+        return tuple(n for n, k in zip(self.names, leans) if k)
+
+    @property
     def x(self) -> np.ndarray:
         return self.params.vector(self.names)
 
@@ -114,7 +123,9 @@ class FitResult:
             if u is not None and np.isfinite(u.lower95[k]):
                 line += (f"   95%: [{from_si(u.lower95[k], name):.4g}, "
                          f"{from_si(u.upper95[k], name):.4g}]")
-                line += "" if u.identified[k] else "   (not determined)"
+                line += "" if u.identified[k] else (
+                    "   (leans on the prior)" if name in self.leans_on_prior
+                    else "   (not determined)")
             lines.append(line)
         if u is not None and u.calibration:
             lines.append("    intervals widened by the mismatch calibration (gprm.fit.calibration): "

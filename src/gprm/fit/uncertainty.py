@@ -25,9 +25,17 @@ with J the Jacobian of the weighted data residuals r (N rows, P parameters):
     See :func:`from_bootstrap` (gprm.fit.bootstrap) and :func:`from_mcmc`.
 
 Identified: a parameter whose posterior standard deviation in u is below ``CONTRACTION`` (0.3)
-of the prior's, i.e. the data shrank the prior's variance at least ~11-fold. Every other
-parameter is reported as not determined, with the interval the posterior gives (close to the
-prior's), never a small standard error.
+of the prior's, i.e. the data shrank the prior's variance at least ~11-fold, **and** whose
+variance is not mostly the prior's (the prior's share below ``PRIOR_SHARE``, 1/2; methods
+that split the variance: ``laplace-prior``, ``mcmc`` and the default ``sandwich``). A narrow
+interval can still be the prior's: a parameter the data tie to another one they do not see
+(b1, the y-plane springs' lever arm, tied through their moments to the split of k_Cy and
+k_Dy that only the prior fixes) is narrow because the prior holds the other one, and where it
+lies depends on where the prior is centred. Such a parameter *leans on the prior*
+(``Uncertainty.leans_on_prior``): reported with its interval and that label, not counted
+identified (docs/fitting.md, "Parameters that lean on the prior"). Every other parameter is
+reported as not determined, with the interval the posterior gives (close to the prior's),
+never a small standard error.
 
 Also here, on the best fit: uncertainty bands on the fitted signals (:func:`compute_bands`)
 and profile likelihoods of a parameter (:func:`profile_likelihood`) or of a predicted quantity
@@ -51,6 +59,33 @@ from gprm.fit.methods import DEFAULT_METHOD, METHODS, FitState
 __all__ = ["METHODS", "DEFAULT_METHOD", "Uncertainty", "estimate", "uncertainty"]
 #: posterior sd / prior sd below which a parameter counts as identified
 CONTRACTION = 0.3
+#: the prior's share of a parameter's variance at or above which it is not counted identified
+#: however narrow its interval (it leans on the prior: the module docstring)
+PRIOR_SHARE = 0.5
+
+
+def determined(contraction: np.ndarray, prior_share: np.ndarray | None
+               ) -> tuple[np.ndarray, np.ndarray]:
+    """(identified, leans_on_prior), (P,) bool each, from each parameter's posterior sd over
+    the prior's (``contraction``) and the prior's share of its variance (``prior_share``;
+    None: not split, the contraction alone decides). Narrow (contraction below
+    :data:`CONTRACTION`) and mostly the data's: identified; narrow and at least
+    :data:`PRIOR_SHARE` the prior's: leans on the prior; the rest: not determined."""
+    c = np.asarray(contraction, float)
+    narrow = c < CONTRACTION
+    if prior_share is None:
+        return narrow, np.zeros(c.shape, bool)
+    leans = narrow & (np.asarray(prior_share, float) >= PRIOR_SHARE)
+    return narrow & ~leans, leans
+
+
+def prior_share_of(Cu: np.ndarray, prior_sd: np.ndarray) -> np.ndarray:
+    """(P,) the prior's share of each parameter's variance in a Gaussian posterior of
+    covariance ``Cu`` = (Hdata + Pr)^-1 in u, Pr = diag(1 / prior_sd^2): diag(Cu Pr Cu) /
+    diag(Cu) (the data's share is diag(Cu Hdata Cu) / diag(Cu); the two sum to 1)."""
+    Cu = np.asarray(Cu, float)
+    part = np.einsum("ip,p,pi->i", Cu, 1.0 / np.asarray(prior_sd, float) ** 2, Cu)
+    return part / np.clip(np.diag(Cu), 1e-300, None)
 
 
 def time_correlation_factor(r: np.ndarray, n_signals: int, *, max_lag: int | None = None
@@ -102,6 +137,9 @@ class Uncertainty:
     calibration: tuple[tuple[str, float], ...] = ()
     #: what the method built the intervals from (the sandwich's sources and systematics)
     details: dict = field(default_factory=dict)
+    #: (P,) bool: narrow but mostly the prior's variance, so not identified (:func:`determined`;
+    #: None: the method does not split its variance)
+    leans_on_prior: np.ndarray | None = None
 
     @property
     def stderr(self) -> np.ndarray:
@@ -171,14 +209,14 @@ def estimate(method: str, x: np.ndarray, J: np.ndarray, r: np.ndarray, dof: int,
     lo95, hi95 = prior.from_u(u - z95 * sd_u), prior.from_u(u + z95 * sd_u)
     lo68, hi68 = prior.from_u(u - z68 * sd_u), prior.from_u(u + z68 * sd_u)
     contraction = sd_u / prior.sd
-    identified = contraction < CONTRACTION
+    identified, leans = determined(contraction, prior_share_of(Cu, prior.sd))
     cov_x = Cu * np.outer(D, D)
     rng = np.random.default_rng([seed, 12])
     L = V * np.sqrt(1.0 / w)
     Z = rng.standard_normal((int(n_draws), len(names))) @ L.T * Sd[None, :]
     draws = prior.from_u(u[None] + Z) if n_draws > 0 else None
     return Uncertainty(method, names, 0.5 * (cov_x + cov_x.T), lo95, hi95, lo68, hi68,
-                       identified, contraction, draws, s2, tau)
+                       identified, contraction, draws, s2, tau, leans_on_prior=leans)
 
 
 def replace_method(u: Uncertainty, method: str, message: str) -> Uncertainty:
@@ -254,7 +292,8 @@ def from_mcmc(obj, x: np.ndarray, laplace: Uncertainty, prior: Prior, *, n_steps
     cov = np.cov(X.T)
     return Uncertainty("mcmc", laplace.names, cov, q[0], q[1], q[2], q[3], laplace.identified,
                        laplace.contraction, draws, s2, laplace.tau,
-                       f"ok ({len(chain)} samples after {burn} burn-in steps)")
+                       f"ok ({len(chain)} samples after {burn} burn-in steps)",
+                       leans_on_prior=laplace.leans_on_prior)
 
 
 def identifiable_combinations(unc: Uncertainty, prior: Prior, x: np.ndarray, *,
@@ -268,10 +307,13 @@ def identifiable_combinations(unc: Uncertainty, prior: Prior, x: np.ndarray, *,
     :data:`CONTRACTION` are determined. Each is reported as the product prod x_k^{v_k}
     (largest |v_k| = 1, terms below ``min_weight`` dropped) with its best value and 95 %
     interval (the posterior's, along v). Empty where all parameters are identified or the
-    method has no covariance."""
+    method has no covariance. Parameters that lean on the prior (narrow already, but the
+    prior's) are not searched: each alone would be such a direction."""
     if unc.covariance is None:
         return []
-    idx = np.nonzero(~np.asarray(unc.identified))[0]
+    leans = np.zeros(len(unc.names), bool) if unc.leans_on_prior is None else \
+        np.asarray(unc.leans_on_prior, bool)
+    idx = np.nonzero(~np.asarray(unc.identified) & ~leans)[0]
     if idx.size == 0:
         return []
     x = np.asarray(x, float)

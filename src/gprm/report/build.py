@@ -208,7 +208,8 @@ def table3_rows(fit: dict, truth: dict | None) -> list:
         row = [name, pretty_unit(unit), num(p["value"] * unit_scale),
                "—" if lo is None or hi is None else
                f"[{num(lo * unit_scale)}, {num(hi * unit_scale)}]",
-               "—" if ident is None else ("yes" if ident else "not determined")]
+               "—" if ident is None else ("yes" if ident else "leans on the prior"
+                                          if p.get("leans_on_prior") else "not determined")]
         if truth is not None:
             t = truth.get(name)
             row.append("—" if t is None else num(t * unit_scale))
@@ -328,6 +329,7 @@ def fit_section(run: Path) -> tuple[Section, dict | None]:
     phys = [n for n, p in fit["parameters"].items() if p.get("fitted") and n not in
             ("t0", "t1") and not n.startswith("dt_")]
     ident = [n for n in phys if fit["parameters"][n].get("identified")]
+    leans = [n for n in phys if fit["parameters"][n].get("leans_on_prior")]
     if unc:
         headline = (f"{COVERAGE_HEADLINE} (docs/fitting.md, benchmarks/bench_sources.py)."
                     if unc.get("method") == "sandwich" else
@@ -335,9 +337,13 @@ def fit_section(run: Path) -> tuple[Section, dict | None]:
                     "docs/fitting.md.")
         s.blocks.append(paragraph(
             f"Uncertainty: {unc.get('method')} — {unc.get('note', '')}. The data determine "
-            f"{len(ident)} of the {len(phys)} physical parameters ({', '.join(ident)}); the "
-            "others are reported as not determined, with the interval the posterior gives "
-            "(close to the weak prior's), never with a small error. " + headline
+            f"{len(ident)} of the {len(phys)} physical parameters ({', '.join(ident)}); "
+            + (f"{', '.join(leans)} {'has' if len(leans) == 1 else 'have'} a narrow interval "
+               "that is mostly the weak prior's (the data tie "
+               f"{'it' if len(leans) == 1 else 'them'} to parameters they do not see): "
+               "leaning on the prior, not identified; " if leans else "")
+            + "the others are reported as not determined, with the interval the posterior "
+            "gives (close to the weak prior's), never with a small error. " + headline
             + _calibration_sentence(unc)
             + (f" Bands and predictions, {drawn} (docs/fitting.md, 'The draws put back on "
                "the data')." if (drawn := draws_label(unc.get("details"))) else "")))
@@ -414,8 +420,9 @@ def fit_section(run: Path) -> tuple[Section, dict | None]:
     s.blocks.append(table(head, table3_rows(fit, truth), "Table 3: best-fit parameters",
                           "table-3", note="Intervals come from the fit's uncertainty method "
                           f"({unc.get('method', 'Eq. 7')}); 'not determined' means the data "
-                          "shrink the weak prior by less than the identification threshold "
-                          "(docs/fitting.md). The paper column is the published Table 3; the "
+                          "shrink the weak prior by less than the identification threshold; "
+                          "'leans on the prior' that the interval is narrow but at least half "
+                          "of its variance is the prior's (docs/fitting.md). The paper column is the published Table 3; the "
                           "initial values are the centre of the random starts and of the "
                           "prior. Lags (t0, t1, the alignment offsets dt_*) in µs."
                           + ("" if truth is None else
@@ -745,6 +752,9 @@ def summary_cards(run: Path, fit: dict | None, prov: dict) -> list[Card]:
             und = ("" if not tr.get("undetermined") else
                    f"{tr['undetermined']} not determined "
                    f"({tr['undetermined_in95']} inside their wide interval); ")
+            if tr.get("leans_on_prior"):
+                und += (f"{tr['leans_on_prior']} leaning on the prior "
+                        f"({tr['leans_in95']} inside their 95 % interval); ")
             cards.append(Card("truth recovered",
                               f"{tr['in95']} / {tr['n_interval']} in their 95 % interval",
                               f"identified parameters ({tr['in68']} / {tr['n_interval']} in "

@@ -526,13 +526,15 @@ def fig_profiles(fit: dict):
         for lev, ls in ((1.0, ":"), (3.84, "--")):
             ax.axhline(lev, color="k", lw=0.6, ls=ls)
         ax.set_ylim(0, 8)
-        ax.set_title(f"{name} [{REGISTRY[name].unit}]" + ("" if ident else " (n.d.)"),
+        lean = fit["parameters"].get(name, {}).get("leans_on_prior")
+        ax.set_title(f"{name} [{REGISTRY[name].unit}]"
+                     + ("" if ident else " (prior)" if lean else " (n.d.)"),
                      fontsize=7)
         ax.tick_params(labelsize=6)
     for ax in list(axes.flat)[n:]:
         ax.axis("off")
     fig.suptitle("Profile likelihoods: D = (Φ − Φ_min)/s² (dotted 68 %, dashed 95 %); grey: "
-                 "not determined", fontsize=8)
+                 "not determined (n.d.) or leaning on the prior (prior)", fontsize=8)
     fig.tight_layout()
     return fig
 

@@ -98,9 +98,11 @@ def truth_recovery(fit: dict, truth: dict) -> dict:
     many of the truths lie inside their 68 % and 95 % intervals (``in68``, ``in95`` of
     ``n_interval``). Parameters the data do not determine get no z (their standard error
     says nothing about them): ``undetermined`` counts them and ``undetermined_in95`` those
-    whose truth lies inside their (wide) 95 % interval. ``relative_error`` for all."""
+    whose truth lies inside their (wide) 95 % interval; parameters that lean on the prior
+    (narrow, but mostly the prior's variance: docs/fitting.md) are counted apart, as
+    ``leans_on_prior`` and ``leans_in95``. ``relative_error`` for all."""
     z, rel = {}, {}
-    n_int = in68 = in95 = und = und95 = 0
+    n_int = in68 = in95 = und = und95 = lean = lean95 = 0
 
     def inside(iv, value) -> bool | None:
         if not isinstance(iv, dict):
@@ -117,6 +119,10 @@ def truth_recovery(fit: dict, truth: dict) -> dict:
         if tv:
             rel[name] = (p["value"] - tv) / abs(tv)
         i95 = inside(p.get("interval"), tv)
+        if p.get("leans_on_prior"):
+            lean += 1
+            lean95 += bool(i95)
+            continue
         if not p.get("identified", True):
             und += 1
             und95 += bool(i95)
@@ -129,7 +135,8 @@ def truth_recovery(fit: dict, truth: dict) -> dict:
             in68 += bool(inside(p.get("interval68"), tv))
     n = len(z)
     out = {"n": n, "z": z, "relative_error": rel, "n_interval": n_int, "in68": in68,
-           "in95": in95, "undetermined": und, "undetermined_in95": und95}
+           "in95": in95, "undetermined": und, "undetermined_in95": und95,
+           "leans_on_prior": lean, "leans_in95": lean95}
     masses = [abs(rel[m]) for m in ("m1", "m2", "m3", "m4") if m in rel]
     out["mass_max_relative_error"] = max(masses) if masses else None
     for k in (1, 2, 3):
@@ -222,6 +229,9 @@ def truth_recovery_text(tr: dict) -> str:
     if tr.get("undetermined"):
         txt += (f"; {tr['undetermined']} not determined by the data "
                 f"({tr['undetermined_in95']} with the truth inside their wide interval)")
+    if tr.get("leans_on_prior"):
+        txt += (f"; {tr['leans_on_prior']} leaning on the prior "
+                f"({tr['leans_in95']} with the truth inside their 95 % interval)")
     if tr.get("mass_max_relative_error") is not None:
         txt += f"; masses within {100 * tr['mass_max_relative_error']:.1f} %"
     return txt

@@ -83,18 +83,21 @@ SCENARIO_SEED_STRIDE = 10000
 """--recovery: campaign seed s draws scenario i of COMPARED with seed s + 10000 i."""
 
 
-def scenario_campaigns(fm, seeds, releases: int, **synth):
+def scenario_campaigns(fm, seeds, releases: int, mixed: bool = False, **synth):
     """(seed, scenario, truth dataset, telemetry, y, sigma) for each seed and each scenario of
     COMPARED: each scenario its own truths (with one seed for all three, the unknowns and the
     parameter sets drawn would repeat across the scenarios: one draw counted 3 times).
+    ``mixed``: instead one file per seed whose releases each draw their scenario from
+    COMPARED (``SynthOptions.scenario = "mixed"``; seed + 3 strides, a stream of its own).
     ``synth``: further SynthOptions (tm_offset, ...)."""
     from gprm.flight.files import telemetry_from_dataset
     from gprm.flight.inference import measured_components
     from gprm.flight.scenario import COMPARED
     from gprm.flight.synth import SynthOptions, synth_telemetry
 
+    kinds = ((len(COMPARED), "mixed"),) if mixed else tuple(enumerate(COMPARED))
     for s in seeds:
-        for i_kind, kind in enumerate(COMPARED):
+        for i_kind, kind in kinds:
             ds = synth_telemetry(fm, SynthOptions(n_releases=releases,
                                                   seed=s + SCENARIO_SEED_STRIDE * i_kind,
                                                   scenario=kind, **synth))
@@ -104,10 +107,15 @@ def scenario_campaigns(fm, seeds, releases: int, **synth):
 
 
 def recovery(fm, seeds, releases: int, draws: int, rel_floor: float | None = None,
-             refine: int = 0) -> dict:
+             refine: int = 0, mixed: bool = False) -> dict:
+    """The scenario posterior's recovery on the files of :func:`scenario_campaigns`: the
+    scenario chosen per release on its own evidence, per release given the file
+    (``pooled``: gprm.flight.inference.pooled_probabilities) and jointly (one for the file;
+    on ``mixed`` files not scored, the file having no one scenario), and each unknown's
+    coverage under the release's true scenario."""
     from gprm.flight.inference import (InferenceOptions, infer_scenarios, model_frame,
-                                       posterior_weights, prior_predictives,
-                                       refined_predictive)
+                                       posterior_weights, pooled_probabilities,
+                                       prior_predictives, refined_predictive)
     from gprm.flight.scenario import COMPARED, PARAMS, SCENARIOS, ScenarioPrior
     from gprm.params import batch
 
@@ -115,7 +123,9 @@ def recovery(fm, seeds, releases: int, draws: int, rel_floor: float | None = Non
            "covered": {k: 0 for k in PARAMS + ("t",)}, "ess_median": [], "confusion": {},
            "width": {k: [] for k in PARAMS}, "covered50": {k: 0 for k in PARAMS},
            "below": {k: 0 for k in PARAMS + ("t",)}, "above": {k: 0 for k in PARAMS + ("t",)},
-           "joint": {k: [0, 0] for k in COMPARED}, "joint_confusion": {}}
+           "joint": {k: [0, 0] for k in COMPARED}, "joint_confusion": {},
+           "pooled": 0, "pooled_by_truth": {k: [0, 0] for k in COMPARED},
+           "pooled_confusion": {}}
     bounds = ScenarioPrior().bounds()
     opts = InferenceOptions(n_draws=draws, n_refine=refine,
                             **({} if rel_floor is None else {"rel_floor": rel_floor}))
@@ -124,15 +134,25 @@ def recovery(fm, seeds, releases: int, draws: int, rel_floor: float | None = Non
     out["pp_cpu_s"] = time.process_time() - t0
     pb0 = batch([fm.params])
     frame = model_frame(fm, opts, pb0)
-    for _s, kind, ds, tel, y, sig in scenario_campaigns(fm, seeds, releases):
+    for _s, file_kind, ds, tel, y, sig in scenario_campaigns(fm, seeds, releases, mixed):
         truth = ds  # truth variables
         res = infer_scenarios(fm, [r.id for r in tel.releases], y, sig, opts,
                               predictive=pps)
-        # the scenario chosen jointly over the file's releases (one scenario for all)
-        out["joint"][kind][0] += res.joint["chosen"] == kind
-        out["joint"][kind][1] += 1
-        count(out["joint_confusion"], kind, res.joint["chosen"])
+        if not mixed:
+            # the scenario chosen jointly over the file's releases (one scenario for all)
+            out["joint"][file_kind][0] += res.joint["chosen"] == file_kind
+            out["joint"][file_kind][1] += 1
+            count(out["joint_confusion"], file_kind, res.joint["chosen"])
+        pooled = pooled_probabilities(res.log_evidence())
         for i in range(len(tel.releases)):
+            kind = str(truth["truth_scenario"].values[i]) if mixed else file_kind
+            pc = (res.options["scenarios"][int(np.argmax(pooled[i]))]
+                  if np.all(np.isfinite(pooled[i])) else None)
+            okp = pc == kind
+            out["pooled"] += okp
+            out["pooled_by_truth"][kind][0] += okp
+            out["pooled_by_truth"][kind][1] += 1
+            count(out["pooled_confusion"], kind, pc)
             out["n"] += 1
             ok = res.chosen[i] == kind
             out["right"] += ok
@@ -658,6 +678,9 @@ def main() -> None:
     ap.add_argument("--refine", type=int, default=0,
                     help="--recovery: draws of the second importance stage per release and "
                          "scenario (InferenceOptions.n_refine; 0: none)")
+    ap.add_argument("--mixed", action="store_true",
+                    help="--recovery: files whose releases each draw their scenario (one file "
+                         "per seed) instead of one file per scenario")
     ap.add_argument("--impact-times", action="store_true")
     ap.add_argument("--scenario", default="two")
     ap.add_argument("--refine-study", action="store_true",
@@ -702,6 +725,7 @@ def main() -> None:
           f"{'--mixture-choice --sets ' + str(a.sets) + ' ' if a.mixture_choice else ''}"
           f"{'--pooled-choice --sets ' + str(a.sets) + ' ' if a.pooled_choice else ''}"
           f"{'--scenario ' + a.scenario + ' ' if a.scenario != 'two' else ''}"
+          f"{'--mixed ' if a.mixed else ''}"
           f"--seeds {a.seeds} --seed0 {a.seed0} --releases {a.releases} --draws {a.draws}"
           + ("" if a.rel_floor is None else f" --rel-floor {a.rel_floor}")
           + ("" if not a.refine else f" --refine {a.refine}")
@@ -845,11 +869,14 @@ def main() -> None:
         print()
     if a.recovery:
         t0 = time.perf_counter()
-        out = recovery(fm, seeds, a.releases, a.draws, a.rel_floor, a.refine)
+        out = recovery(fm, seeds, a.releases, a.draws, a.rel_floor, a.refine, a.mixed)
         n = out["n"]
-        print(f"### Scenario posterior: recovery ({a.seeds} campaigns × {a.releases} releases "
-              f"of each of xz, yz, two, seeds {a.seed0}–{a.seed0 + a.seeds - 1} (+10000 per "
-              f"scenario); {a.draws} prior draws per scenario"
+        what = (f"{a.releases} releases each drawing its scenario from xz, yz, two, seeds "
+                f"{a.seed0}–{a.seed0 + a.seeds - 1} (+30000)" if a.mixed else
+                f"{a.releases} releases of each of xz, yz, two, seeds "
+                f"{a.seed0}–{a.seed0 + a.seeds - 1} (+10000 per scenario)")
+        print(f"### Scenario posterior: recovery ({a.seeds} campaigns × {what}; "
+              f"{a.draws} prior draws per scenario"
               + (f", {a.refine} second-stage draws per release and scenario" if a.refine
                  else "") + f"; {time.perf_counter() - t0:.0f} s; prior predictives "
               f"{out['pp_cpu_s']:.1f} s CPU)\n")
@@ -857,6 +884,10 @@ def main() -> None:
               f"({100 * out['right'] / n:.1f} %); by truth: "
               + ", ".join(f"{k} {v[0]}/{v[1]}" for k, v in out["by_truth"].items()))
         print(f"- confusion (truth->chosen): {out['confusion']}")
+        print(f"- right scenario chosen per release given the file (pooled): {out['pooled']}/{n}"
+              f" ({100 * out['pooled'] / n:.1f} %); by truth: "
+              + ", ".join(f"{k} {v[0]}/{v[1]}" for k, v in out["pooled_by_truth"].items())
+              + f"; confusion {out['pooled_confusion']}")
         jr = sum(v[0] for v in out["joint"].values())
         jn = sum(v[1] for v in out["joint"].values())
         print(f"- right scenario chosen jointly over a file's {a.releases} releases: {jr}/{jn}"

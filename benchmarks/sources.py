@@ -24,6 +24,11 @@ and moved to four before any of its results was scored, on a misreading: the pre
 failure then seen was probe-runs-3's, and ten-times campaigns do align), ``probe-runs-3``
 (gprm's generator as it is but 3 actuated runs per position instead of 10: a thin runs'
 spread), ``probe-sim2-2x`` (sim2 with every imperfection at twice its default strength).
+``probe-wide-white`` and ``probe-wide-generator`` (stop 48, defined before any of their
+results was scored): ``white`` and ``generator`` with the truths drawn within +-30 % of Table
+3 (:data:`WIDE_SPREAD`) instead of +-10 %: whether the identified parameters' intervals hold
+wherever the truth lies from the prior's centre (docs/fitting.md, "Parameters that lean on
+the prior (stop 48)").
 
 ``make(source, seed)`` returns (campaign Dataset or CSV folder path, truth ParameterSet).
 """
@@ -45,8 +50,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 # the coverage study's truths: the 21 physical parameters, each x U(0.9, 1.1) of Table 3
 from bench_coverage import PHYSICAL, draw_truth  # noqa: E402
 
-__all__ = ["NOISE_SCAN", "PHYSICAL", "PROBES", "SIM2_ALONE", "SOURCES", "draw_truth",
-           "frame_shift", "make", "sim2_imperfections"]
+__all__ = ["NOISE_SCAN", "PHYSICAL", "PROBES", "SIM2_ALONE", "SOURCES", "WIDE_SPREAD",
+           "draw_truth", "frame_shift", "make", "sim2_imperfections"]
 
 
 _OFF = dict(nonlinear=False, mode_rel=0.0, trigger_max=0.0, v0_rel=0.0, tau_rel=0.0,
@@ -75,7 +80,10 @@ _NL_SCALE = {1: 1.0, 2: 3.0}
 SOURCES = (("white",) + tuple(f"{k}-{s}" for k in _ALONE for s in (1, 2))
            + ("generator", "sim2-white", "sim2"))
 #: sources defined after the method was fixed (module docstring)
-PROBES = ("probe-mode-12k", "probe-noise-4x", "probe-runs-3", "probe-sim2-2x")
+PROBES = ("probe-mode-12k", "probe-noise-4x", "probe-runs-3", "probe-sim2-2x",
+          "probe-wide-white", "probe-wide-generator")
+#: the wide probes' truths: each physical parameter x U(1 - WIDE_SPREAD, 1 + WIDE_SPREAD)
+WIDE_SPREAD = 0.3
 #: the exact model with white noise at 2x and 3x ``white``'s: where between 1x and the 4x
 #: probe the x-plane B support's intervals stop holding (docs/fitting.md)
 NOISE_SCAN = ("noise-2x", "noise-3x")
@@ -118,7 +126,15 @@ def make(source: str, seed: int, workdir: str | None = None):
         values = truth["parameters"]
         return out, paper().with_values(**{k: float(v) for k, v in values.items()
                                             if k in paper().values})
-    truth = draw_truth(seed)
+    if source.startswith("probe-wide-"):
+        # the same campaign as the source named after it, the truth drawn wider
+        return _from_truth(source.removeprefix("probe-wide-"), seed,
+                           draw_truth(seed, WIDE_SPREAD))
+    return _from_truth(source, seed, draw_truth(seed))
+
+
+def _from_truth(source: str, seed: int, truth):
+    """(campaign Dataset, truth) of one of gprm's generator's sources for this truth."""
     if source in _PROBE_CONFIG:
         return synth_campaign(truth, seed=seed,
                               config=replace(SynthConfig(), **_PROBE_CONFIG[source])), truth

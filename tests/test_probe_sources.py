@@ -29,3 +29,20 @@ def test_probe_campaigns_are_what_they_say_and_preprocess(source, seed):
         assert camp.attrs["generator_mode_freq"] == pytest.approx(12e3)
     means = preprocess(camp)
     assert np.all(np.isfinite(means.shift))
+
+
+def test_wide_probes_draw_the_truth_wider_and_keep_their_sources_campaign():
+    """probe-wide-<source>: the same generator settings as <source>, the truths' physical
+    parameters within +-WIDE_SPREAD of Table 3 (the other sources' +-10 %), the same draw
+    stretched."""
+    from gprm.params import paper
+
+    base = paper()
+    camp_w, truth_w = sources.make("probe-wide-white", 5001)
+    camp, truth = sources.make("white", 5001)
+    f_w = np.array([truth_w[n] / base[n] - 1 for n in sources.PHYSICAL])
+    f = np.array([truth[n] / base[n] - 1 for n in sources.PHYSICAL])
+    np.testing.assert_allclose(f_w, f * sources.WIDE_SPREAD / 0.1, rtol=1e-9, atol=1e-12)
+    assert np.max(np.abs(f_w)) > 0.1 and np.max(np.abs(f_w)) <= sources.WIDE_SPREAD
+    assert camp_w.attrs["noise_std_injected"] == camp.attrs["noise_std_injected"]
+    assert camp_w.sizes == camp.sizes

@@ -70,6 +70,14 @@ def test_scenarios_and_unknowns_recovered(recovered):
             v = tr.t[i] if p == "t" else tr.params[p][i]
             inside += lo <= v <= hi
         assert inside >= 7, (p, inside)
+    # the evidences as one array, in the options' scenario order: the probabilities' source
+    L = res.log_evidence()
+    sc = res.options["scenarios"]
+    assert L.shape == (len(kinds), len(sc))
+    for i in range(len(kinds)):
+        a = L[i] - np.max(L[i])
+        np.testing.assert_allclose(np.exp(a) / np.exp(a).sum(),
+                                   [res.probability[i][s] for s in sc], rtol=1e-9)
 
 
 def test_paper_observations_from_components():
@@ -257,3 +265,53 @@ def test_infer_scenarios_with_a_second_stage_on_the_model():
         assert fb.ess > fa.ess, (k, fa.ess, fb.ess)
         assert abs(fb.log_evidence - fa.log_evidence) < 1.0, (k, fa.log_evidence,
                                                               fb.log_evidence)
+
+
+def _pooled_by_enumeration(L, alpha):
+    """Every assignment of scenarios to the releases, weighted by its evidences and the
+    Dirichlet-multinomial probability of its counts: the marginals, written out."""
+    import itertools
+    from scipy.special import gammaln
+
+    R, K = L.shape
+    assign = list(itertools.product(range(K), repeat=R))
+    lw = np.array([sum(L[r, a[r]] for r in range(R))
+                   + np.sum(gammaln(alpha + np.bincount(a, minlength=K))) for a in assign])
+    w = np.exp(lw - lw.max())
+    out = np.zeros((R, K))
+    for a, wa in zip(assign, w):
+        out[np.arange(R), a] += wa
+    return out / out.sum(1, keepdims=True)
+
+
+@pytest.mark.parametrize("K, alpha", [(3, 1.0), (3, 0.3), (2, 2.0), (4, 1.0)])
+def test_pooled_probabilities_are_the_exact_hierarchical_marginals(K, alpha):
+    """pooled_probabilities against the enumeration of every assignment (K^6 of them), on
+    evidences spread over tens of log units; a release with no finite evidence takes no part."""
+    from gprm.flight.inference import pooled_probabilities
+
+    rng = np.random.default_rng(K)
+    L = rng.normal(0, 3, (6, K)) - 500.0
+    L[2, 0] = -np.inf                                      # one scenario impossible there
+    got = pooled_probabilities(L, alpha)
+    np.testing.assert_allclose(got, _pooled_by_enumeration(L, alpha), rtol=1e-10, atol=1e-14)
+    L7 = np.vstack([L, np.full(K, -np.inf)])
+    got7 = pooled_probabilities(L7, alpha)
+    assert np.all(np.isnan(got7[6]))
+    np.testing.assert_allclose(got7[:6], got, rtol=1e-12)
+
+
+def test_pooled_probabilities_limits():
+    """One release: its own probabilities; releases that all favour one scenario pull a
+    doubtful release towards it, and releases that disagree leave it nearly alone."""
+    from gprm.flight.inference import _probs, pooled_probabilities
+
+    one = np.array([[0.0, np.log(3.0), -1.0]])
+    own = np.array(list(_probs({"a": 0.0, "b": np.log(3.0), "c": -1.0}).values()))
+    np.testing.assert_allclose(pooled_probabilities(one)[0], own, rtol=1e-12)
+    doubtful = [0.0, 0.2, -5.0]                            # alone: b, barely
+    same = np.array([[3.0, 0.0, 0.0]] * 10 + [doubtful])
+    assert np.argmax(pooled_probabilities(same)[-1]) == 0
+    spread = np.array([[3.0, 0.0, 0.0], [0.0, 3.0, 0.0], [0.0, 0.0, 3.0]] * 3 + [doubtful])
+    p = pooled_probabilities(spread)[-1]
+    assert np.argmax(p) == 1 and abs(p[1] - p[0]) < 0.2

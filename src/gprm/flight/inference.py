@@ -24,7 +24,11 @@ Gaussian approximation):
   impact has L_k = 0;
 * posterior weights w_k ∝ L_k (the draws are from the prior); evidence Z = mean_k L_k (the
   prior-sampling estimate of the marginal likelihood); scenario probabilities Z_s / Σ Z
-  (equal prior odds), jointly over releases with Σ_r log Z_{s,r};
+  (equal prior odds), jointly over releases with Σ_r log Z_{s,r} (one scenario for all);
+  :func:`pooled_probabilities` gives each release's scenario given the whole file (the
+  releases' scenarios drawn from frequencies the file shares), a development measurement
+  (docs/flight.md §11: it helps on files of one scenario and costs on mixed ones), not a
+  reported choice;
 * intervals: weighted 2.5 / 97.5 % points of the φ_k; for the impact time, the mixture over
   k of the Gaussian conditionals t | y (linear-Gaussian in the θ_m), sampled.
 * optionally (``InferenceOptions.n_refine``), a second importance stage per release and
@@ -366,6 +370,15 @@ class ScenarioInference:
     components: tuple[str, ...]
     options: dict
 
+    def log_evidence(self) -> np.ndarray:
+        """(R, K) each release's natural-log evidence of each compared scenario, in
+        ``options["scenarios"]`` order (-inf where a scenario has none)."""
+        sc = self.options["scenarios"]
+        return np.array([[(-np.inf if f[s].log_evidence is None
+                           or not np.isfinite(f[s].log_evidence) else f[s].log_evidence)
+                          for s in sc] for f in self.fits], float).reshape(len(self.fits),
+                                                                           len(sc))
+
     def to_json(self) -> dict:
         return {"method": "importance sampling from the prior; model parameters marginalised "
                           "in a Gaussian approximation (docs/flight.md §11)",
@@ -376,6 +389,73 @@ class ScenarioInference:
                              for i, c, p, fits in zip(self.ids, self.chosen,
                                                       self.probability, self.fits)],
                 "joint": self.joint}
+
+
+#: the concentration of the Dirichlet prior on a file's scenario frequencies (1: uniform over
+#: the frequencies; :func:`pooled_probabilities`, a development measurement)
+POOL_ALPHA = 1.0
+
+
+def pooled_probabilities(logz, alpha: float = POOL_ALPHA) -> np.ndarray:
+    """(R, K) each release's scenario probabilities given every release of its file: the
+    releases exchangeable, each one's scenario drawn from the file's frequencies pi over the K
+    scenarios, pi ~ Dirichlet(alpha), so that
+
+        P(s_r = k | y) ∝ Z_rk sum over the others' scenarios of prod_r' Z_r's_r'
+                         DirMult(counts with s_r = k; alpha),
+
+    DirMult the Dirichlet-multinomial probability of an assignment, prod_j Gamma(alpha + n_j)
+    up to factors common to every assignment. Exact: the others' assignments enter only
+    through their counts, summed by a recursion over the releases on the count lattice
+    (n_1 .. n_K-1; n_K the rest), (R + 1)^(K - 1) states. ``logz`` (R, K) natural-log
+    evidences Z_rk; a release with no finite evidence takes no part and gets NaN. With one
+    release, or alpha -> infinity, the release's own probabilities (equal prior odds);
+    with many releases of one scenario, that scenario's prior weight for each of them grows
+    to (alpha + R - 1) / (K alpha + R - 1)."""
+    from scipy.special import gammaln
+
+    L = np.asarray(logz, float)
+    R, K = L.shape
+    out = np.full((R, K), np.nan)
+    ok = np.flatnonzero(np.any(np.isfinite(L), axis=1))
+    if ok.size == 0:
+        return out
+    with np.errstate(invalid="ignore"):
+        P = np.exp(L[ok] - np.nanmax(np.where(np.isfinite(L[ok]), L[ok], -np.inf), axis=1,
+                                     keepdims=True))
+    P = np.nan_to_num(P, nan=0.0)
+    n = ok.size
+    if K == 1:
+        out[ok] = 1.0
+        return out
+    shape = (n,) * (K - 1)       # counts n_1 .. n_{K-1} of the n - 1 others (< n each)
+    grids = np.meshgrid(*[np.arange(n)] * (K - 1), indexing="ij")
+    for i in range(n):
+        W = np.zeros(shape)
+        W[(0,) * (K - 1)] = 1.0
+        for j in range(n):
+            if j == i:
+                continue
+            new = W * P[j, K - 1]               # scenario K: the counts stay
+            for k in range(K - 1):              # scenario k: n_k + 1
+                sh = [slice(None)] * (K - 1)
+                src = [slice(None)] * (K - 1)
+                sh[k], src[k] = slice(1, None), slice(None, -1)
+                new[tuple(sh)] += W[tuple(src)] * P[j, k]
+            W = new
+        rest = (n - 1) - sum(grids)
+        valid = rest >= 0
+        counts = list(grids) + [np.maximum(rest, 0)]    # the invalid states masked below
+        base = sum(gammaln(alpha + c) for c in counts)
+        logg = np.array([base + np.log(alpha + counts[k]) for k in range(K)])
+        with np.errstate(divide="ignore", invalid="ignore"):
+            lw = np.where(valid & (W > 0), np.log(np.where(W > 0, W, 1.0)), -np.inf)
+        t = lw[None] + np.where(valid[None], logg, -np.inf)
+        m = np.max(t)
+        S = np.exp(t - m).reshape(K, -1).sum(1)
+        q = P[i] * S
+        out[ok[i]] = q / q.sum() if q.sum() > 0 else np.nan
+    return out
 
 
 def _probs(logz: dict) -> dict:

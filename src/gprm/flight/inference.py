@@ -443,8 +443,8 @@ def pooled_probabilities(logz, alpha: float = POOL_ALPHA) -> np.ndarray:
                 sh[k], src[k] = slice(1, None), slice(None, -1)
                 new[tuple(sh)] += W[tuple(src)] * P[j, k]
             W = new
-        rest = (n - 1) - sum(grids)
-        valid = rest >= 0
+        rest = (n - 1) - np.sum(grids, axis=0)
+        valid = np.asarray(rest >= 0)
         counts = list(grids) + [np.maximum(rest, 0)]    # the invalid states masked below
         base = sum(gammaln(alpha + c) for c in counts)
         logg = np.array([base + np.log(alpha + counts[k]) for k in range(K)])

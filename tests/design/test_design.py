@@ -450,6 +450,11 @@ def test_cli_on_a_fit_of_a_synthetic_campaign(tmp_path, synthetic_fit):
     for n, e in doc["base"]["parameters"].items():
         prior_sd = e["sd_u"] / e["contraction"]
         assert e["sd_u"] == pytest.approx(min(doc["base"]["fit_sd_u"][n], prior_sd), rel=1e-9)
+    # narrow and mostly the prior's: leaning, never identified (the fit's rule)
+    for n, e in doc["base"]["parameters"].items():
+        narrow = e["contraction"] < doc["identified_threshold"]
+        assert e["identified"] == (narrow and e["prior_share"] < 0.5), n
+        assert e["leans_on_prior"] == (narrow and e["prior_share"] >= 0.5), n
     # and every candidate only adds information
     for c in doc["candidates"]:
         assert all(v <= 1 + 1e-9 for v in c["width_ratio"].values()), c["name"]

@@ -71,6 +71,9 @@ class DesignEvaluation:
     hours: float
     runs: int
     gain: dict = field(default_factory=dict)
+    #: (P,) the prior's share of each parameter's expected variance (the fit's rule for
+    #: identified: narrow and below PRIOR_SHARE; narrow and not below it leans on the prior)
+    prior_share: np.ndarray | None = None
 
 
 @dataclass(frozen=True)
@@ -474,7 +477,8 @@ def run_design(model, config: DesignConfig | None = None, *, candidates_path=Non
         return DesignEvaluation(adds, sd, _identified(sd, sd0, prior_var, var,
                                                       cfg.identified_threshold), lo, hi, psd,
                                 float(sum(hours_of[a] for a in adds)),
-                                int(sum(runs_of[a] for a in adds)), gain)
+                                int(sum(runs_of[a] for a in adds)), gain,
+                                prior_var / np.clip(var, 1e-300, None))
 
     base_ev = evaluate((), None)
     cands = tuple(evaluate((c.name,), base_ev) for c in cfg.candidates)

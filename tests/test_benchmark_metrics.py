@@ -287,3 +287,32 @@ def test_prior_share_table_counts_narrow_and_leaning_parameters():
     assert lines["b1"][1:3] == ["3", "2"]
     assert lines["b1"][4] == "2 / 2, 1 / 2"
     assert lines["m2"][1:3] == ["1", "0"] and lines["m2"][4] == "-"
+
+
+def test_truth_polish_finds_the_fits_own_minimum_and_scores_errors_in_half_widths():
+    """bench_truth_polish.from_truth on a real small fit: with the truth at the fit's own
+    point the polish stays (no lower minimum, zero errors); with k_Bx's truth 5 % above it,
+    the polish comes back to the same minimum and k_Bx's error is ln(1/1.05) over its 68 %
+    half-width in u."""
+    from types import SimpleNamespace
+
+    from bench_truth_polish import from_truth
+    from gprm.campaign.preprocess import PreprocessConfig, preprocess
+    from gprm.campaign.synth import SynthConfig, synth_campaign
+    from gprm.fit.api import FitOptions, run_fit
+    from sources import PHYSICAL
+
+    camp = synth_campaign(seed=4, config=SynthConfig(nonlinear=False))
+    fit = run_fit(preprocess(camp, PreprocessConfig()).to_dataset(),
+                  FitOptions(starts=8, seed=1))
+    u = fit.uncertainty
+    at_fit = {n: float(v) for n, v in zip(fit.names, fit.x) if n in PHYSICAL}
+    r = from_truth(SimpleNamespace(fit=fit, truth=at_fit), ["k_Bx", "m2"])
+    assert r["truth"] == pytest.approx(r["fit"], rel=1e-6)
+    assert all(abs(v[0]) < 1e-12 for v in r["z"].values()) and "m2" in r["z"]
+    moved = {**at_fit, "k_Bx": at_fit["k_Bx"] * 1.05}
+    r = from_truth(SimpleNamespace(fit=fit, truth=moved), ["k_Bx"])
+    k = fit.names.index("k_Bx")
+    half = np.log(u.upper68[k] / u.lower68[k]) / 2
+    assert r["z"]["k_Bx"][0] == pytest.approx(np.log(1 / 1.05) / half, rel=1e-9)
+    assert r["truth"] == pytest.approx(r["fit"], rel=1e-4)

@@ -163,9 +163,7 @@ def intervals(case: Case, unc):
     uncertainty ``unc`` of this case's fit (gprm.fit.uncertainty.determined: narrow, but
     at least half the prior's variance; all False where the method does not split)."""
     lv = {L: unc.interval(L) for L in LEVELS}
-    leans = getattr(unc, "leans_on_prior", None)
-    return (unc.names, np.asarray(unc.identified), lv, case.fit.x,
-            np.zeros(len(unc.names), bool) if leans is None else np.asarray(leans, bool))
+    return unc.names, np.asarray(unc.identified), lv, case.fit.x, unc.leaning
 
 
 def truth_in_fit_time(case: Case):
@@ -395,7 +393,7 @@ def summary(rows: list[dict]) -> str:
     return "\n".join(out)
 
 
-def prior_share_table(rows: list[dict]) -> str:
+def leaning_table(rows: list[dict]) -> str:
     """Coverage of the identified parameters beside that of the parameters that lean on the
     prior (narrow intervals whose variance is at least half the weak prior's,
     gprm.fit.uncertainty.determined; counted identified until stop 48): where the prior
@@ -541,7 +539,7 @@ def main(argv=None) -> int:
         rows = [r for f in a.from_json for r in json.loads(Path(f).read_text())["rows"]]
         print(summary(rows))
         print()
-        print(prior_share_table(rows))
+        print(leaning_table(rows))
         print()
         if any("pred" in r for r in rows):
             print(prediction_summary(rows))
@@ -586,7 +584,7 @@ def main(argv=None) -> int:
           f"{meta['median_case_s']:.1f} s per campaign; {meta['machine']})\n")
     print(summary(rows))
     print()
-    print(prior_share_table(rows))
+    print(leaning_table(rows))
     print()
     if a.predictions:
         print(prediction_summary(rows))

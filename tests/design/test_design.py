@@ -660,7 +660,6 @@ def test_a_design_counts_identified_as_a_fit_does():
     and less than half of the variance the prior's. The prior's part diag(C P0 C) and the
     data's diag(C F C) / kappa add up to the posterior variance, draw by draw."""
     from gprm.design.core import _identified, _prior_variance
-    from gprm.fit.uncertainty import determined
 
     rng = np.random.default_rng(5)
     A = rng.normal(size=(3, 5, 5)) * np.array([100.0, 30.0, 10.0, 1.0, 0.01])[:, None]
@@ -673,6 +672,7 @@ def test_a_design_counts_identified_as_a_fit_does():
     prior_var = _prior_variance(C, P0)
     np.testing.assert_allclose(prior_var + data, var, rtol=1e-9)
     sd0 = 1 / np.sqrt(np.diag(P0))
-    ident = _identified(np.sqrt(var), sd0, prior_var, var, 0.3)
-    expect, _ = determined(np.sqrt(var) / sd0, prior_var / var)
+    ident = _identified(np.sqrt(var), sd0, prior_var / var, 0.3)
+    # the rule written out: narrow, and less than half of the variance the prior's
+    expect = (np.sqrt(var) / sd0 < 0.3) & (prior_var / var < 0.5)
     assert ident.tolist() == expect.tolist() and 0 < ident.sum() < 5

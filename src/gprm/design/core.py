@@ -46,7 +46,7 @@ from gprm.design.predictions import ReleasePredictions, release_predictions
 from gprm.fit.files import FittedModel, load_model, read_fit_document, read_fit_sidecar
 from gprm.fit.objective import DEFAULT_WINDOW
 from gprm.fit.prior import DEFAULT_WIDTH, Prior, default_prior
-from gprm.fit.uncertainty import PRIOR_SHARE
+from gprm.fit.uncertainty import determined
 from gprm.params import ALIGNMENT_OFFSETS
 
 #: the generator's noise when there is no fit to estimate it from (SynthConfig: white and
@@ -71,8 +71,8 @@ class DesignEvaluation:
     hours: float
     runs: int
     gain: dict = field(default_factory=dict)
-    #: (P,) the prior's share of each parameter's expected variance (the fit's rule for
-    #: identified: narrow and below PRIOR_SHARE; narrow and not below it leans on the prior)
+    #: (P,) the prior's share of each parameter's expected variance (with ``sd_u``, what
+    #: gprm.fit.uncertainty.determined counts identified or leaning on the prior by)
     prior_share: np.ndarray | None = None
 
 
@@ -474,11 +474,10 @@ def run_design(model, config: DesignConfig | None = None, *, candidates_path=Non
         lo = prior.from_u(ub - Z95 * sd)
         hi = prior.from_u(ub + Z95 * sd)
         gain = {} if ref is None else _gain(ref.pred_sd, psd, groups)
-        return DesignEvaluation(adds, sd, _identified(sd, sd0, prior_var, var,
-                                                      cfg.identified_threshold), lo, hi, psd,
-                                float(sum(hours_of[a] for a in adds)),
-                                int(sum(runs_of[a] for a in adds)), gain,
-                                prior_var / np.clip(var, 1e-300, None))
+        share = prior_var / np.clip(var, 1e-300, None)
+        return DesignEvaluation(adds, sd, _identified(sd, sd0, share, cfg.identified_threshold),
+                                lo, hi, psd, float(sum(hours_of[a] for a in adds)),
+                                int(sum(runs_of[a] for a in adds)), gain, share)
 
     base_ev = evaluate((), None)
     cands = tuple(evaluate((c.name,), base_ev) for c in cfg.candidates)
@@ -535,12 +534,11 @@ def _prior_variance(C: np.ndarray, P0: np.ndarray) -> np.ndarray:
     return np.mean(np.einsum("dip,pq,dqi->di", C, P0, C), 0)
 
 
-def _identified(sd: np.ndarray, sd0: np.ndarray, prior_var: np.ndarray, var: np.ndarray,
+def _identified(sd: np.ndarray, sd0: np.ndarray, share: np.ndarray,
                 threshold: float) -> np.ndarray:
-    """Identified as a fit says it (gprm.fit.uncertainty.determined): sd below ``threshold``
-    of the prior's and less than PRIOR_SHARE of the variance the prior's."""
-    share = prior_var / np.clip(var, 1e-300, None)
-    return (sd / sd0 < threshold) & (share < PRIOR_SHARE)
+    """Identified as a fit says it (gprm.fit.uncertainty.determined), the prior's ``share``
+    of the variance from :func:`_prior_variance`."""
+    return determined(sd / sd0, share, threshold)[0]
 
 
 def _mean_sd(C: np.ndarray) -> np.ndarray:
@@ -578,8 +576,8 @@ def evaluate_block(fm: FittedModel, block: Block, cfg: DesignConfig, noise: Nois
             runs = block.runs if same_measurement(block, base) else part.runs
             var = var + np.diag(part.per_run_variance(runs))
     sd = np.minimum(np.sqrt(var), sd0)
-    return {"sd_u": sd, "identified": _identified(sd, sd0, prior_var, var,
-                                                  cfg.identified_threshold),
+    share = prior_var / np.clip(var, 1e-300, None)
+    return {"sd_u": sd, "identified": _identified(sd, sd0, share, cfg.identified_threshold),
             "lower": prior.from_u(ub - Z95 * sd), "upper": prior.from_u(ub + Z95 * sd)}
 
 

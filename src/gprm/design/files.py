@@ -14,7 +14,7 @@ from gprm._io import read_json, write_json_atomic
 from gprm.design.config import Block
 from gprm.design.core import DesignEvaluation, DesignResult
 from gprm.errors import GprmInputError
-from gprm.fit.uncertainty import PRIOR_SHARE
+from gprm.fit.uncertainty import determined
 from gprm.params import REGISTRY, from_si
 
 FORMAT = "gprm-design"
@@ -34,18 +34,18 @@ def _block_json(b: Block) -> dict:
 
 def _params_json(res: DesignResult, ev: DesignEvaluation, ref: DesignEvaluation | None) -> dict:
     out = {}
+    leans = None if ev.prior_share is None else \
+        determined(ev.sd_u / res.prior_sd, ev.prior_share, res.config.identified_threshold)[1]
     for i, n in enumerate(res.names):
         unit = REGISTRY[n].unit
         lo, hi = from_si(float(ev.lower[i]), n), from_si(float(ev.upper[i]), n)
         e = {"sd_u": float(ev.sd_u[i]), "contraction": float(ev.sd_u[i] / res.prior_sd[i]),
              "identified": bool(ev.identified[i]), "interval95": [lo, hi],
              "width95": hi - lo, "unit": unit}
-        if ev.prior_share is not None:
-            share = float(ev.prior_share[i])
-            e["prior_share"] = share
+        if leans is not None:
             # narrow but mostly the prior's: the fit's "leans on the prior"
-            e["leans_on_prior"] = bool(e["contraction"] < res.config.identified_threshold
-                                       and share >= PRIOR_SHARE)
+            e["prior_share"] = float(ev.prior_share[i])
+            e["leans_on_prior"] = bool(leans[i])
         if ref is not None:
             rlo, rhi = from_si(float(ref.lower[i]), n), from_si(float(ref.upper[i]), n)
             e["width95_before"] = rhi - rlo

@@ -246,8 +246,7 @@ def from_bootstrap(method: str, x: np.ndarray, refits: np.ndarray, laplace: Unce
         applied = tuple((n, float(v)) for n, v in zip(names, f) if v > 1.0)
     contraction = laplace.contraction * s
     identified = np.asarray(laplace.identified) & (contraction < CONTRACTION)
-    leans = None if laplace.leans_on_prior is None else \
-        np.asarray(laplace.leans_on_prior) & (contraction < CONTRACTION)
+    leans = laplace.leaning & (contraction < CONTRACTION)
     centre = u - bias
     Cu = cov_u * np.outer(s, s)
     sd = np.sqrt(np.diag(Cu))

@@ -78,10 +78,9 @@ class FitResult:
     def leans_on_prior(self) -> tuple[str, ...]:
         """Names whose interval is narrow but mostly the prior's variance: not identified
         (gprm.fit.uncertainty.determined)."""
-        leans = None if self.uncertainty is None else self.uncertainty.leans_on_prior
-        if leans is None:
+        if self.uncertainty is None:
             return ()
-        return tuple(n for n, k in zip(self.names, leans) if k)
+        return tuple(n for n, k in zip(self.names, self.uncertainty.leaning) if k)
 
     @property
     def x(self) -> np.ndarray:

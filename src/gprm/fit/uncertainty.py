@@ -64,15 +64,16 @@ CONTRACTION = 0.3
 PRIOR_SHARE = 0.5
 
 
-def determined(contraction: np.ndarray, prior_share: np.ndarray | None
-               ) -> tuple[np.ndarray, np.ndarray]:
+def determined(contraction: np.ndarray, prior_share: np.ndarray | None,
+               threshold: float = CONTRACTION) -> tuple[np.ndarray, np.ndarray]:
     """(identified, leans_on_prior), (P,) bool each, from each parameter's posterior sd over
     the prior's (``contraction``) and the prior's share of its variance (``prior_share``;
     None: not split, the contraction alone decides). Narrow (contraction below
-    :data:`CONTRACTION`) and mostly the data's: identified; narrow and at least
-    :data:`PRIOR_SHARE` the prior's: leans on the prior; the rest: not determined."""
+    ``threshold``, :data:`CONTRACTION` for a fit) and mostly the data's: identified; narrow
+    and at least :data:`PRIOR_SHARE` the prior's: leans on the prior; the rest: not
+    determined. gprm.design counts a design's parameters with it too."""
     c = np.asarray(contraction, float)
-    narrow = c < CONTRACTION
+    narrow = c < threshold
     if prior_share is None:
         return narrow, np.zeros(c.shape, bool)
     leans = narrow & (np.asarray(prior_share, float) >= PRIOR_SHARE)
@@ -140,6 +141,12 @@ class Uncertainty:
     #: (P,) bool: narrow but mostly the prior's variance, so not identified (:func:`determined`;
     #: None: the method does not split its variance)
     leans_on_prior: np.ndarray | None = None
+
+    @property
+    def leaning(self) -> np.ndarray:
+        """(P,) bool :attr:`leans_on_prior`, all False where the method does not split."""
+        return (np.zeros(len(self.names), bool) if self.leans_on_prior is None
+                else np.asarray(self.leans_on_prior, bool))
 
     @property
     def stderr(self) -> np.ndarray:
@@ -311,9 +318,7 @@ def identifiable_combinations(unc: Uncertainty, prior: Prior, x: np.ndarray, *,
     prior's) are not searched: each alone would be such a direction."""
     if unc.covariance is None:
         return []
-    leans = np.zeros(len(unc.names), bool) if unc.leans_on_prior is None else \
-        np.asarray(unc.leans_on_prior, bool)
-    idx = np.nonzero(~np.asarray(unc.identified) & ~leans)[0]
+    idx = np.nonzero(~np.asarray(unc.identified) & ~unc.leaning)[0]
     if idx.size == 0:
         return []
     x = np.asarray(x, float)

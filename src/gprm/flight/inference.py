@@ -374,10 +374,9 @@ class ScenarioInference:
         """(R, K) each release's natural-log evidence of each compared scenario, in
         ``options["scenarios"]`` order (-inf where a scenario has none)."""
         sc = self.options["scenarios"]
-        return np.array([[(-np.inf if f[s].log_evidence is None
-                           or not np.isfinite(f[s].log_evidence) else f[s].log_evidence)
-                          for s in sc] for f in self.fits], float).reshape(len(self.fits),
-                                                                           len(sc))
+        L = np.array([[f[s].log_evidence for s in sc] for f in self.fits],
+                     float).reshape(len(self.fits), len(sc))
+        return np.where(np.isfinite(L), L, -np.inf)
 
     def to_json(self) -> dict:
         return {"method": "importance sampling from the prior; model parameters marginalised "
@@ -420,10 +419,8 @@ def pooled_probabilities(logz, alpha: float = POOL_ALPHA) -> np.ndarray:
     ok = np.flatnonzero(np.any(np.isfinite(L), axis=1))
     if ok.size == 0:
         return out
-    with np.errstate(invalid="ignore"):
-        P = np.exp(L[ok] - np.nanmax(np.where(np.isfinite(L[ok]), L[ok], -np.inf), axis=1,
-                                     keepdims=True))
-    P = np.nan_to_num(P, nan=0.0)
+    Lok = np.where(np.isfinite(L[ok]), L[ok], -np.inf)
+    P = np.exp(Lok - Lok.max(axis=1, keepdims=True))       # each row's largest 1, none 0
     n = ok.size
     if K == 1:
         out[ok] = 1.0

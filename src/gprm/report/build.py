@@ -422,7 +422,8 @@ def fit_section(run: Path) -> tuple[Section, dict | None]:
                           f"({unc.get('method', 'Eq. 7')}); 'not determined' means the data "
                           "shrink the weak prior by less than the identification threshold; "
                           "'leans on the prior' that the interval is narrow but at least half "
-                          "of its variance is the prior's (docs/fitting.md). The paper column is the published Table 3; the "
+                          "of its variance is the prior's (docs/fitting.md). The paper column "
+                          "is the published Table 3; the "
                           "initial values are the centre of the random starts and of the "
                           "prior. Lags (t0, t1, the alignment offsets dt_*) in µs."
                           + ("" if truth is None else

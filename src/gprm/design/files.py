@@ -34,17 +34,18 @@ def _block_json(b: Block) -> dict:
 
 def _params_json(res: DesignResult, ev: DesignEvaluation, ref: DesignEvaluation | None) -> dict:
     out = {}
-    leans = None if ev.prior_share is None else \
-        determined(ev.sd_u / res.prior_sd, ev.prior_share, res.config.identified_threshold)[1]
+    share = ev.prior_share
+    leans = None if share is None else \
+        determined(ev.sd_u / res.prior_sd, share, res.config.identified_threshold)[1]
     for i, n in enumerate(res.names):
         unit = REGISTRY[n].unit
         lo, hi = from_si(float(ev.lower[i]), n), from_si(float(ev.upper[i]), n)
         e = {"sd_u": float(ev.sd_u[i]), "contraction": float(ev.sd_u[i] / res.prior_sd[i]),
              "identified": bool(ev.identified[i]), "interval95": [lo, hi],
              "width95": hi - lo, "unit": unit}
-        if leans is not None:
+        if share is not None and leans is not None:
             # narrow but mostly the prior's: the fit's "leans on the prior"
-            e["prior_share"] = float(ev.prior_share[i])
+            e["prior_share"] = float(share[i])
             e["leans_on_prior"] = bool(leans[i])
         if ref is not None:
             rlo, rhi = from_si(float(ref.lower[i]), n), from_si(float(ref.upper[i]), n)

@@ -3,6 +3,8 @@
 
     .venv/bin/python benchmarks/bench_xplane.py [--sources white,probe-noise-4x]
         [--campaigns 20] [--starts 100] [--cache DIR] [--direct 6] [--names k_Bx,c_Bx,d2,m3]
+    .venv/bin/python benchmarks/bench_xplane.py --same-truth 5011 --sources drive-v0-2 \
+        --campaigns 8 [--starts 100] [--names ...]
 
 For each campaign of each source (the fits of benchmarks/bench_sources.py, read from
 ``--cache`` where present) it measures, for k_Bx, c_Bx, d2 and for comparison m3 (or the
@@ -82,6 +84,53 @@ def campaign(case, direct: int, names_of_interest=NAMES) -> dict:
     return out
 
 
+def same_truth(source: str, truth_seed: int, n: int, starts: int, names) -> None:
+    """``--same-truth``: ``n`` campaigns of one of gprm's generator's sources, all with the
+    truth of seed ``truth_seed`` (``bench_coverage.draw_truth``), made with campaign seeds
+    1..n and fitted with the CLI's defaults (``starts`` starts): per campaign each parameter's
+    best fit over the truth less 1 and its 68 % interval relative to the best fit; then the
+    fits' spread (sd of ln(best fit)) against the median of the stated 68 % half-widths in
+    ln. The estimator's own spread for one mechanism, which each campaign's interval claims
+    to describe."""
+    import sources
+    from bench_coverage import draw_truth
+    from gprm.campaign.preprocess import PreprocessConfig, preprocess
+    from gprm.fit.api import FitOptions
+    from gprm.fit.identify import identify
+    from gprm.fit.objective import fit_data_from_means
+    from gprm.fit.starts import MultiStartOptions
+    from gprm.params import paper
+
+    truth = draw_truth(truth_seed)
+    print(f"{source}, truth of seed {truth_seed}, campaigns 1..{n}, {starts} starts\n")
+    print("| campaign | reduced chi2 | " + " | ".join(
+        f"{k}: fit / truth - 1 [68 % interval / fit - 1]" for k in names) + " |")
+    print("|---|---|" + "---|" * len(names))
+    logs = {k: [] for k in names}
+    halves = {k: [] for k in names}
+    for s in range(1, n + 1):
+        camp, _ = sources._from_truth(source, s, truth)
+        means = preprocess(camp, PreprocessConfig()).to_dataset()
+        o = FitOptions()
+        fit = identify(fit_data_from_means(means, window=o.window, sigma=o.sigma),
+                       o.parameters(paper()), MultiStartOptions(n_starts=starts, seed=s),
+                       band_samples=0, uncertainty="sandwich", prior_width=o.prior_width)
+        u = fit.uncertainty
+        lo, hi = u.interval(0.68)
+        cells = []
+        for k in names:
+            j, b = u.names.index(k), fit.x[list(fit.names).index(k)]
+            logs[k].append(np.log(b))
+            halves[k].append(0.5 * (np.log(hi[j]) - np.log(lo[j])))
+            cells.append(f"{b / truth[k] - 1:+.3f} [{lo[j] / b - 1:+.3f}, {hi[j] / b - 1:+.3f}]")
+        print(f"| {s} | {fit.reduced_chi2:.2f} | " + " | ".join(cells) + " |", flush=True)
+    print("\n| parameter | sd of ln(best fit) over the campaigns | median stated 68 % "
+          "half-width in ln | ratio |\n|---|---|---|---|")
+    for k in names:
+        sd, h = float(np.std(logs[k], ddof=1)), float(np.median(halves[k]))
+        print(f"| {k} | {sd:.3f} | {h:.3f} | {sd / h:.2f} |")
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--sources", default="white,probe-noise-4x")
@@ -93,8 +142,15 @@ def main(argv=None) -> int:
                     help="data sets made directly from the truth per campaign (0: none)")
     ap.add_argument("--names", default=",".join(NAMES),
                     help="fitted parameters to score (comma-separated)")
+    ap.add_argument("--same-truth", type=int, default=None, metavar="SEED",
+                    help="the first source's campaigns 1..--campaigns all with the truth of "
+                    "this seed, fitted afresh (no cache): the estimator's spread for one "
+                    "mechanism against the intervals' stated widths")
     a = ap.parse_args(argv)
     names = tuple(n for n in a.names.split(",") if n)
+    if a.same_truth is not None:
+        same_truth(a.sources.split(",")[0], a.same_truth, a.campaigns, a.starts, names)
+        return 0
     print("| source | parameter | rms z | abs z < 1 | mean z (se) | median sd ratio "
           "(truth / fit) | direct data: rms z |")
     print("|---|---|---|---|---|---|---|")

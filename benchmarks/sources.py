@@ -30,6 +30,10 @@ results was scored): ``white`` and ``generator`` with the truths drawn within +-
 wherever the truth lies from the prior's centre (docs/fitting.md, "Parameters that lean on
 the prior (stop 48)").
 
+``drive-v0-2``, ``drive-tau-2``, ``drive-param-2`` (:data:`DRIVE_PARTS`, stop 49): ``drive-2``'s
+ingredients one at a time (run-to-run V0, tau_v, stiffness and damping), to find which of them
+the x-plane B support's intervals fall short on.
+
 ``make(source, seed)`` returns (campaign Dataset or CSV folder path, truth ParameterSet).
 """
 
@@ -50,7 +54,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 # the coverage study's truths: the 21 physical parameters, each x U(0.9, 1.1) of Table 3
 from bench_coverage import PHYSICAL, draw_truth  # noqa: E402
 
-__all__ = ["NOISE_SCAN", "PHYSICAL", "PROBES", "SIM2_ALONE", "SOURCES", "WIDE_SPREAD",
+__all__ = ["DRIVE_PARTS", "NOISE_SCAN", "PHYSICAL", "PROBES", "SIM2_ALONE", "SOURCES", "WIDE_SPREAD",
            "draw_truth", "frame_shift", "make", "sim2_imperfections"]
 
 
@@ -90,7 +94,14 @@ NOISE_SCAN = ("noise-2x", "noise-3x")
 #: sim2 with one of its own imperfections at its default size and the others off (its white
 #: floor stays): which of them a shortfall on ``sim2`` comes from (docs/fitting.md)
 SIM2_ALONE = ("sim2-jitter", "sim2-drive", "sim2-gain", "sim2-resonance", "sim2-noise")
+#: ``drive-2``'s three ingredients one at a time (stop 49: which of them takes the x-plane B
+#: support's intervals short; docs/fitting.md, "The x-plane support's profile (stop 49)"):
+#: run-to-run drive amplitude V0, retraction time tau_v, stiffness and damping
+DRIVE_PARTS = ("drive-v0-2", "drive-tau-2", "drive-param-2")
 _PROBE_CONFIG = {"probe-mode-12k": {**_OFF, "mode_rel": 0.015, "mode_freq": 12e3},
+                 "drive-v0-2": {**_OFF, "v0_rel": 2 * _D.v0_rel},
+                 "drive-tau-2": {**_OFF, "tau_rel": 2 * _D.tau_rel},
+                 "drive-param-2": {**_OFF, "param_rel": 2 * _D.param_rel},
                  "probe-noise-4x": {**_OFF, "noise_white": 2e-9},
                  "probe-runs-3": {"n_runs": 3},
                  "noise-2x": {**_OFF, "noise_white": 1e-9},

@@ -271,6 +271,23 @@ def test_hac_lag_argument_reads_the_systematics_values_and_refuses_others():
             hac_lag_arg(bad)
 
 
+def test_support_table_pools_the_x_plane_support_per_source_and_method():
+    """bench_sources.py's x-plane B support table: per source and method, the identified
+    cases of k_Bx, c_Bx and d2 pooled (a campaign that did not identify one contributes no
+    case for it), other parameters ignored; a source with none says so."""
+    from bench_sources import support_table
+
+    rows = [{"source": "a", "method": "m", "inside": {"k_Bx": [1, 0], "d2": [1, 1],
+                                                        "m3": [0, 0]}},
+            {"source": "a", "method": "m", "inside": {"c_Bx": [0, 0]}},
+            {"source": "a", "method": "n", "inside": {"k_Bx": [1, 1]}},
+            {"source": "b", "method": "m", "inside": {"m1": [1, 1]}}]
+    lines = [[c.strip() for c in ln.split("|")[1:-1]]
+             for ln in support_table(rows).splitlines()[2:]]
+    assert lines == [["a", "m", "3", "66.7", "33.3"], ["a", "n", "1", "100.0", "100.0"],
+                     ["b", "m", "0", "-", "-"]]
+
+
 def test_prior_share_table_counts_narrow_and_leaning_parameters():
     """bench_prior_share's table: narrow = contraction below CONTRACTION; leaning = narrow and
     the prior's share at least PRIOR_SHARE (gprm.fit.uncertainty.determined); the leaning ones'

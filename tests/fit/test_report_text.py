@@ -194,6 +194,22 @@ def test_report_names_other_minima_and_the_parameters_they_widen_most():
     assert "other minima" not in fit_report(d)
 
 
+def test_report_names_the_sides_the_profile_lengthened():
+    """The uncertainty block names each parameter whose 95 % side the profile check stretched
+    by more than half, with the side and the factor (indexed like the correlation's names);
+    none such, no line."""
+    d = _new_format()
+    d["uncertainty"] = {"method": "sandwich", "details": {
+        "statistical_from": "runs and residuals",
+        "profile_factors": {"lower": [1.0, 4.08, 1.2], "upper": [1.0, 1.0, 2.5],
+                            "lower_68": [1.0, 5.0, 1.0], "upper_68": [1.0, 1.0, 2.0]}}}
+    line = next(ln for ln in fit_report(d).splitlines() if "profile longer" in ln)
+    assert "g2 lower x4.08" in line and "kz upper x2.5" in line and "v2" not in line
+    d["uncertainty"]["details"]["profile_factors"] = {"lower": [1.0, 1.4, 1.0],
+                                                      "upper": [1.0, 1.0, 1.1]}
+    assert "profile longer" not in fit_report(d)
+
+
 def test_report_lists_the_parameters_whose_variance_has_few_degrees_of_freedom():
     """Student's t: the uncertainty block lists, fewest first, each parameter whose variance
     has fewer than STUDENT_SHOWN degrees of freedom with the part they came from (indexed

@@ -1107,3 +1107,100 @@ def test_plugin_lag_is_andrews_parzen_bandwidth():
     assert e.max_lag == plugin_lag([e.R[s] if w is None else w.u
                                     for s, w in enumerate(e.whitenings)])
     assert 0 <= e.max_lag <= default_max_lag(Tn)
+
+
+class _Valley:
+    """A stand-in objective (physical = normalised coordinates) with a valley: residuals
+    G(x0 / s) and (x1 - x0) / eps, so that x1 follows x0 and the objective re-minimised over
+    x1 at fixed x0 (the profile of x0) is G(x0 / s)^2. G'(0) = 1, so the Gauss-Newton
+    variance of x0 at the minimum (0, 0) is s^2 and the profile statistic in it is G(o)^2 at
+    o standard deviations."""
+
+    def __init__(self, G, s=0.1, eps=0.01, lower=-np.inf):
+        self.G, self.s, self.eps, self.lower = G, s, eps, lower
+
+    def bounds(self):
+        return np.array([self.lower, -np.inf]), np.array([np.inf, np.inf])
+
+    def bounds_normalised(self):
+        return self.bounds()
+
+    def to_normalised(self, X):
+        return np.asarray(X, float)
+
+    def to_physical(self, X):
+        return np.asarray(X, float)
+
+    def residuals(self, X):
+        X = np.atleast_2d(X)
+        return np.stack([self.G(X[:, 0] / self.s), (X[:, 1] - X[:, 0]) / self.eps], axis=1)
+
+    def __call__(self, X):
+        X = np.atleast_2d(X)
+        h = 1e-7
+        dG = (self.G(X[:, 0] / self.s + h) - self.G(X[:, 0] / self.s - h)) / (2 * h * self.s)
+        J = np.zeros((X.shape[0], 2, 2))
+        J[:, 0, 0] = dG
+        J[:, 1, 0], J[:, 1, 1] = -1.0 / self.eps, 1.0 / self.eps
+        return self.residuals(X), J
+
+    def chi2(self, X):
+        r = self.residuals(X)
+        return np.sum(r * r, axis=1)
+
+    def hinv(self):
+        J = self(np.zeros((1, 2)))[1][0]
+        return np.linalg.inv(J.T @ J)
+
+
+def test_profile_crossing_interpolates_the_root_of_the_statistic():
+    from gprm.fit.sandwich import profile_crossing
+
+    offs = np.array([1.0, 2.0, 4.0, 8.0])
+    # quadratic: D = o^2, so sqrt(D) reaches z at o = z wherever the points are
+    for z in (1.0, 1.96, 3.0):
+        assert profile_crossing(offs, offs ** 2, z) == pytest.approx(z)
+    # never reaching z: the side ends at its last point; a point not evaluated (beyond a
+    # bound) ends it at the point before
+    assert profile_crossing(offs, np.full(4, 0.25), 1.0) == 8.0
+    assert profile_crossing(offs, np.array([0.25, 0.5, np.inf, 100.0]), 1.96) == 2.0
+    assert profile_crossing(offs, np.array([np.nan, 1.0, 4.0, 9.0]), 1.0) == 0.0
+    # a point below the best fit's objective counts as D = 0
+    assert profile_crossing(offs, np.array([-0.5, 9.0, 9.0, 9.0]), 1.0) == pytest.approx(
+        1.0 + 1.0 / 3.0)
+
+
+def test_profile_factors_follow_the_valley_that_a_straight_line_leaves():
+    """On the valley G(o) = 2 o / (2 + o) (flatter than quadratic above the minimum, steeper
+    below) the profile of x0 reaches sqrt(D) = 1 at o = 2 exactly and never reaches 1.96 (it
+    saturates at 2) within the points, so the upper side's factors are 2 at z = 1 and 8 / 1.96
+    at 1.96; the lower side is never narrowed. A quadratic valley (G(o) = o) keeps the
+    sandwich's interval. The x1 column follows x0 along the valley: without re-minimising
+    it the objective would rise at once (a straight line in x0 alone)."""
+    from gprm.fit.prior import Prior
+    from gprm.fit.sandwich import profile_factors
+    from gprm.fit.starts import LMOptions
+
+    prior = Prior(("p", "q"), np.zeros(2), np.array([1e3, 1e3]), np.array([False, False]), 0.0)
+    x = np.zeros(2)
+    quad = _Valley(lambda o: o)
+    Hinv = quad.hinv()
+    assert Hinv[0, 0] == pytest.approx(0.1 ** 2, rel=1e-6)
+    (lo95, hi95), (lo68, hi68) = profile_factors(quad, x, Hinv, Hinv, prior, LMOptions(),
+                                                 (1.96, 1.0))
+    np.testing.assert_allclose([lo95[0], hi95[0], lo68[0], hi68[0]], 1.0, atol=1e-4)
+    valley = _Valley(lambda o: 2 * o / (2 + o), lower=-0.19)
+    Hinv = valley.hinv()
+    (lo95, hi95), (lo68, hi68) = profile_factors(valley, x, Hinv, Hinv, prior, LMOptions(),
+                                                 (1.96, 1.0))
+    assert hi68[0] == pytest.approx(2.0, rel=1e-3)
+    assert hi95[0] == pytest.approx(8.0 / 1.96, rel=1e-9)
+    assert lo68[0] == 1.0 and lo95[0] == 1.0
+    # in the sandwich's variance: with a covariance twice the noise's the points lie at
+    # o sqrt(2) noise sds and the statistic is G^2 / 2; sqrt(D) reaches 1 between o = 2 and 4
+    (_, hi95b), (_, hi68b) = profile_factors(valley, x, 2 * Hinv, Hinv, prior, LMOptions(),
+                                             (1.96, 1.0))
+    o_s = np.sqrt(2) * np.array([2.0, 4.0])
+    root = 2 * o_s / (2 + o_s) / np.sqrt(2)
+    assert hi68b[0] == pytest.approx(2 + (1 - root[0]) * 2 / (root[1] - root[0]), rel=1e-3)
+    assert hi95b[0] == pytest.approx(8.0 / 1.96, rel=1e-9)

@@ -178,6 +178,17 @@ def fit_report(d: dict, *, min_correl: float = DEFAULT_MIN_CORREL) -> str:
                          f"{alt.get('distinct', '?')} other minima near it (starts' end points, "
                          "polished); the intervals include them"
                          + (f" (widened most: {', '.join(wide)})" if wide else ""))
+        prof = det.get("profile_factors") if isinstance(det, dict) else None
+        if isinstance(prof, dict):
+            names = _fitted_names(d)
+            side = [(names[i], a, b) for i, (a, b) in enumerate(zip(prof.get("lower") or [],
+                                                                   prof.get("upper") or []))
+                    if i < len(names) and _finite(a) and _finite(b) and max(a, b) > 1.5]
+            if side:
+                lines.append("    profile longer than the linearisation (objective re-minimised "
+                             "over the others; 95 % side x factor): " + ", ".join(
+                                 f"{n} " + ("lower" if a >= b else "upper")
+                                 + f" x{_g(max(a, b), '.3g')}" for n, a, b in side))
         dof = det.get("degrees_of_freedom") if isinstance(det, dict) else None
         if isinstance(dof, list) and dof:
             names = _fitted_names(d)

@@ -152,6 +152,11 @@ class Systematics:
     #: plug-in from the prewhitened residuals (:func:`plugin_lag`). A development check of
     #: how the estimate's noise (its degrees of freedom, :func:`residual_dof`) depends on it
     hac_lag: int | str | None = None
+    #: stretch each side of an interval to where the objective *re-minimised over the other
+    #: parameters* (the profile) has risen as far as the interval's own z says, in the
+    #: sandwich's variance of that parameter (:func:`profile_factors`); False: not (stops
+    #: 1-48, a development check)
+    profile_check: bool = True
 
     def __post_init__(self):
         if self.alignment_noise not in ALIGNMENT_NOISE:
@@ -188,7 +193,7 @@ class Systematics:
                 "residual_dof": self.residual_dof, "sync_timing": self.sync_timing,
                 "project_draws": self.project_draws,
                 "drive_timing": self.drive_timing, "excess_on_lags": self.excess_on_lags,
-                "hac_lag": self.hac_lag,
+                "hac_lag": self.hac_lag, "profile_check": self.profile_check,
                 "per_signal": {s: {"gain_sd": g, "timing_sd_s": t}
                                for s, g, t in self.per_signal}}
 
@@ -1023,6 +1028,117 @@ def variance_factors(obj: Objective, x: np.ndarray, Cu: np.ndarray, prior: Prior
     return f[0], f[1]
 
 
+#: the profile's points on each side of a parameter, in the sandwich's standard deviations
+#: of it (:func:`profile_factors`); its outermost point bounds the stretch (8 sd: 4.1 z at
+#: 95 %, as :data:`MAX_STRETCH`)
+PROFILE_OFFSETS = (1.0, 2.0, 4.0, 8.0)
+#: a profile point's polish: iterations and relative tolerance (the statistic needs the
+#: objective to a small part of one variance scale)
+PROFILE_ITER = 60
+PROFILE_FTOL = 1e-9
+
+
+class _FixedPerRow:
+    """The objective with one parameter held fixed per row (``k[row]``): its Jacobian column
+    zeroed, so the damped step never moves it (:func:`gprm.fit.lm.scaled_svd`). For the
+    lock-step optimizer's ``indexed`` calls (each call names the rows it evaluates)."""
+
+    def __init__(self, obj: Objective, k: np.ndarray):
+        self.obj, self.k = obj, np.asarray(k, int)
+
+    def __call__(self, X, rows):
+        r, J = self.obj(X)                  # a new array each call: zeroed in place
+        J[np.arange(X.shape[0]), :, self.k[rows]] = 0.0
+        return r, J
+
+    def residuals(self, X, rows):
+        return self.obj.residuals(X)
+
+
+def profile_crossing(offsets: np.ndarray, D: np.ndarray, z: float) -> float:
+    """Where sqrt(D) first reaches ``z`` along one side: ``offsets`` (ascending, > 0, in sd)
+    and the profile statistic ``D`` there (NaN or inf: not evaluated, beyond a bound). sqrt(D)
+    is interpolated linearly from (0, 0), exact where the objective is quadratic. A side that
+    never reaches ``z`` ends at its last evaluated point; one whose first point is not
+    evaluated at 0 (never narrowed by the caller)."""
+    o_prev, s_prev = 0.0, 0.0
+    for o, d in zip(offsets, D):
+        if not np.isfinite(d):
+            return o_prev
+        s = float(np.sqrt(max(d, 0.0)))
+        if s >= z:
+            return o_prev + (z - s_prev) * (o - o_prev) / (s - s_prev) if s > s_prev else o
+        o_prev, s_prev = float(o), s
+    return o_prev
+
+
+def profile_factors(obj: Objective, x: np.ndarray, Cu: np.ndarray, Hinv: np.ndarray,
+                    prior: Prior, lm: LMOptions, zs: tuple[float, ...]
+                    ) -> tuple[tuple[np.ndarray, np.ndarray], ...]:
+    """Per level z in ``zs``, (lower, upper) (P,) >= 1: each side of parameter k's
+    z-interval stretched to where its **profile** (the objective re-minimised over the
+    other parameters, k held at each value) has risen to z^2 in the sandwich's variance of k.
+
+    The profile statistic at u_k is D = (Phi(u_k) - Phi^) Hinv_kk / Cu_kk: the objective's
+    rise over the best fit's, in units of its quadratic rise per unit of the Gauss-Newton
+    variance Hinv_kk, rescaled to the sandwich's variance Cu_kk (the campaign's own error,
+    of which Hinv_kk s2 is the noise's share). Where the objective is quadratic D = (u_k -
+    u^_k)^2 / Cu_kk and the interval is the sandwich's. Where the data's minimum lies on a
+    curved valley (the x-plane B support, k_Bx / c_Bx / d2, with run-to-run drive amplitude:
+    docs/fitting.md "The x-plane support's profile (stop 49)") a straight line from the best
+    fit (:func:`shape_factors`, :func:`variance_factors`) climbs the valley's wall at once,
+    while the profile follows its floor, which can stay low for many standard deviations on
+    one side. Points at :data:`PROFILE_OFFSETS` sd on each side of each parameter the
+    linearisation identifies, all polished in one lock-step batch from the best fit with
+    that parameter held; a point beyond the physical bounds or that cannot be simulated ends
+    its side. Never narrows."""
+    x = np.asarray(x, float)
+    P = x.size
+    u = prior.to_u(x)
+    sd = np.sqrt(np.clip(np.diag(Cu), 1e-300, None))
+    hk = np.clip(np.diag(Hinv), 1e-300, None)
+    out = tuple((np.ones(P), np.ones(P)) for _ in zs)
+    checked = np.nonzero(sd / prior.sd < CONTRACTION)[0]
+    if checked.size == 0:
+        return out
+    offs = np.asarray(PROFILE_OFFSETS, float)
+    K, M = checked.size, offs.size
+    sides = np.array([-1.0, 1.0])
+    # rows (side, parameter, offset): parameter k moved, the others at the best fit
+    grid = np.repeat(u[None], 2 * K * M, axis=0).reshape(2, K, M, P)
+    for i, k in enumerate(checked):
+        grid[:, i, :, k] = u[k] + sides[:, None] * offs[None, :] * sd[k]
+    U = grid.reshape(-1, P)
+    kk = np.tile(np.repeat(checked, M), 2)
+    lo_b, hi_b = obj.bounds()
+    with np.errstate(all="ignore"):
+        X = prior.from_u(U)
+    ok = np.all((X > lo_b) & (X < hi_b) & np.isfinite(X), axis=1)
+    phi = np.full(X.shape[0], np.inf)
+    phi0 = float(_objective(obj, x[None])[0])
+    if ok.any() and np.isfinite(phi0):
+        rows = np.flatnonzero(ok)
+        f = _FixedPerRow(obj, kk[rows])
+        lo_n, hi_n = obj.bounds_normalised()
+        kw = polish_kwargs(lm, PROFILE_ITER, PROFILE_FTOL)
+        try:
+            with np.errstate(all="ignore"):
+                res = levenberg_marquardt_batch(f, obj.to_normalised(X[rows]),
+                                                residuals=f.residuals, lower=lo_n,
+                                                upper=hi_n, indexed=True, **kw)
+            phi[rows] = np.where(np.isfinite(res.chi2), res.chi2, np.inf)
+        except (np.linalg.LinAlgError, FloatingPointError, ValueError):
+            return out
+    # the statistic in the sandwich's variance; a point below the best fit (a lower minimum
+    # along the valley) counts as 0
+    D = ((phi - phi0) * (hk / sd ** 2)[kk]).reshape(2, K, M)
+    for (f_lo, f_hi), z in zip(out, zs):
+        for i, k in enumerate(checked):
+            f_lo[k] = max(1.0, profile_crossing(offs, D[0, i], z) / z)
+            f_hi[k] = max(1.0, profile_crossing(offs, D[1, i], z) / z)
+    return out
+
+
 #: the likelihood-ratio thresholds (chi-square, 1 dof) of the 95 % and 68 % levels: another
 #: minimum whose objective lies within this many variance scales of the best is as
 #: compatible with the data as the best fit's own interval edge
@@ -1322,6 +1438,11 @@ def uncertainty(method: str, state: FitState) -> Uncertainty:
     a68 = alternative_factors(u, sd_u, U_alt, D_alt, z68, LR_THRESHOLD[0.68])
     f_lo, f_hi = np.maximum(f_lo, a95[0]), np.maximum(f_hi, a95[1])
     f68_lo, f68_hi = np.maximum(f68_lo, a68[0]), np.maximum(f68_hi, a68[1])
+    ones2 = (ones, ones)
+    p95, p68 = profile_factors(state.obj, x, Cu, Hinv, prior, state.lm, (z95, z68)) \
+        if syst.profile_check else (ones2, ones2)
+    f_lo, f_hi = np.maximum(f_lo, p95[0]), np.maximum(f_hi, p95[1])
+    f68_lo, f68_hi = np.maximum(f68_lo, p68[0]), np.maximum(f68_hi, p68[1])
     # the statistical share of the variance is estimated (from R runs, or from the
     # residuals by the kernel): Student's t with its Satterthwaite degrees of freedom
     # instead of the normal quantile
@@ -1403,6 +1524,10 @@ def uncertainty(method: str, state: FitState) -> Uncertainty:
         "shape_factors": {"lower": [float(v) for v in s_lo], "upper": [float(v) for v in s_hi]},
         "variance_factors": {"lower": [float(v) for v in v95[0]],
                              "upper": [float(v) for v in v95[1]]},
+        "profile_factors": {"lower": [float(v) for v in p95[0]],
+                            "upper": [float(v) for v in p95[1]],
+                            "lower_68": [float(v) for v in p68[0]],
+                            "upper_68": [float(v) for v in p68[1]]},
         "alternative_minima": {
             "within_95": int(np.sum(D_alt <= LR_THRESHOLD[0.95])),
             "within_68": int(np.sum(D_alt <= LR_THRESHOLD[0.68])),

@@ -90,14 +90,18 @@ def same_truth(source: str, truth_seed: int, n: int, starts: int, names) -> None
     1..n and fitted with the CLI's defaults (``starts`` starts): per campaign each parameter's
     best fit over the truth less 1 and its 68 % interval relative to the best fit; then the
     fits' spread (sd of ln(best fit)) against the median of the stated 68 % half-widths in
-    ln. The estimator's own spread for one mechanism, which each campaign's interval claims
-    to describe."""
+    ln, and how many of the campaigns' 68 % intervals hold the truth, with the default and
+    without its profile check (``Systematics(profile_check=False)``, stop 48's default).
+    The estimator's own spread for one mechanism, which each campaign's interval claims to
+    describe."""
     import sources
     from bench_coverage import draw_truth
     from gprm.campaign.preprocess import PreprocessConfig, preprocess
     from gprm.fit.api import FitOptions
     from gprm.fit.identify import identify
+    from gprm.fit.methods import uncertainty_of
     from gprm.fit.objective import fit_data_from_means
+    from gprm.fit.sandwich import Systematics
     from gprm.fit.starts import MultiStartOptions
     from gprm.params import paper
 
@@ -106,8 +110,9 @@ def same_truth(source: str, truth_seed: int, n: int, starts: int, names) -> None
     print("| campaign | reduced chi2 | " + " | ".join(
         f"{k}: fit / truth - 1 [68 % interval / fit - 1]" for k in names) + " |")
     print("|---|---|" + "---|" * len(names))
-    logs = {k: [] for k in names}
-    halves = {k: [] for k in names}
+    logs: dict[str, list[float]] = {k: [] for k in names}
+    halves: dict[str, list[float]] = {k: [] for k in names}
+    inside = {k: [0, 0] for k in names}
     for s in range(1, n + 1):
         camp, _ = sources._from_truth(source, s, truth)
         means = preprocess(camp, PreprocessConfig()).to_dataset()
@@ -117,18 +122,24 @@ def same_truth(source: str, truth_seed: int, n: int, starts: int, names) -> None
                        band_samples=0, uncertainty="sandwich", prior_width=o.prior_width)
         u = fit.uncertainty
         lo, hi = u.interval(0.68)
+        lo0, hi0 = uncertainty_of(fit, "sandwich",
+                                  systematics=Systematics(profile_check=False)).interval(0.68)
         cells = []
         for k in names:
             j, b = u.names.index(k), fit.x[list(fit.names).index(k)]
             logs[k].append(np.log(b))
             halves[k].append(0.5 * (np.log(hi[j]) - np.log(lo[j])))
+            inside[k][0] += int(lo[j] <= truth[k] <= hi[j])
+            inside[k][1] += int(lo0[j] <= truth[k] <= hi0[j])
             cells.append(f"{b / truth[k] - 1:+.3f} [{lo[j] / b - 1:+.3f}, {hi[j] / b - 1:+.3f}]")
         print(f"| {s} | {fit.reduced_chi2:.2f} | " + " | ".join(cells) + " |", flush=True)
     print("\n| parameter | sd of ln(best fit) over the campaigns | median stated 68 % "
-          "half-width in ln | ratio |\n|---|---|---|---|")
+          "half-width in ln | ratio | 68 % intervals holding the truth | without the profile "
+          "check |\n|---|---|---|---|---|---|")
     for k in names:
         sd, h = float(np.std(logs[k], ddof=1)), float(np.median(halves[k]))
-        print(f"| {k} | {sd:.3f} | {h:.3f} | {sd / h:.2f} |")
+        print(f"| {k} | {sd:.3f} | {h:.3f} | {sd / h:.2f} | {inside[k][0]} of {n} | "
+              f"{inside[k][1]} of {n} |")
 
 
 def main(argv=None) -> int:

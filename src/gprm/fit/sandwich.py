@@ -93,8 +93,7 @@ COVERAGE_HEADLINE = (
     "every miss on the wide side); on the sources whose drive varies between runs the x-plane "
     "B support (k_Bx, c_Bx, d2) held it at 95 % in 94.5-100 % but at 68 % only in 33-51 %; "
     "the post-impact velocity curves' bands hold the truth in 94-100 % at 95 % "
-    "and 73-89 % at 68 % (inside both targets on 1 of the 18 sources: conservative; measured "
-    "before the profile check)")
+    "and 73-90 % at 68 % (inside both targets on 3 of the 18 sources: conservative)")
 
 
 @dataclass(frozen=True)

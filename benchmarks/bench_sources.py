@@ -200,44 +200,38 @@ def prediction_scores(case: Case, u, samples: int = 200) -> dict:
             "curves": curve_cover(fm, truth_t, samples, case.seed)}
 
 
-def score(case: Case, method: str, predictions: bool = False, *,
-          alignment_noise: str | None = None, residual_dof: bool | None = None,
-          sync_timing: bool | None = None, project_draws: bool | None = None,
-          hac_lag: int | str | None = None, profile_check: bool | None = None) -> dict:
+#: how a development check of ``--no-...`` / ``--alignment-noise`` / ``--hac-lag`` labels its
+#: rows: the Systematics field and the words for its value (docs/fitting.md)
+_CHECK_LABELS = {
+    "alignment_noise": lambda v: f"alignment noise {v}",
+    "residual_dof": lambda v: "residuals' t " + ("on" if v else "off"),
+    "sync_timing": lambda v: "synchronisation's timing " + ("on" if v else "off"),
+    "project_draws": lambda v: "draws " + ("projected" if v else "as drawn"),
+    "hac_lag": lambda v: f"residuals' lag window {v}",
+    "profile_check": lambda v: "profile check " + ("on" if v else "off"),
+}
+
+
+def method_label(method: str, systematics: Systematics) -> str:
+    """``method``, plus each development check where ``systematics`` differs from the
+    default (the fields of :data:`_CHECK_LABELS`, in that order)."""
+    d0 = Systematics()
+    return ", ".join([method] + [words(getattr(systematics, f))
+                                 for f, words in _CHECK_LABELS.items()
+                                 if getattr(systematics, f) != getattr(d0, f)])
+
+
+def score(case: Case, method: str, predictions: bool = False,
+          systematics: Systematics = Systematics()) -> dict:
     """The case's coverage with ``method`` (its uncertainty computed once for the parameters,
-    t0 and the predictions); ``alignment_noise``, ``residual_dof``, ``sync_timing``,
-    ``project_draws``, ``hac_lag``, ``profile_check``: the
-    sandwich's ``Systematics`` fields of those names (None: the default; another: a
+    t0 and the predictions), the sandwich's ``systematics`` (other than the default: a
     development check, docs/fitting.md, labelled as such in the tables)."""
     from gprm.fit.methods import uncertainty_of
 
-    d0 = Systematics()
-    align = d0.alignment_noise if alignment_noise is None else alignment_noise
-    rdof = d0.residual_dof if residual_dof is None else bool(residual_dof)
-    sync = d0.sync_timing if sync_timing is None else bool(sync_timing)
-    proj = d0.project_draws if project_draws is None else bool(project_draws)
-    prof = d0.profile_check if profile_check is None else bool(profile_check)
-    default = (align, rdof, sync, proj, hac_lag, prof) == (
-        d0.alignment_noise, d0.residual_dof, d0.sync_timing, d0.project_draws, d0.hac_lag,
-        d0.profile_check)
-    unc = uncertainty_of(case.fit, method, systematics=None if default else
-                         Systematics(alignment_noise=align, residual_dof=rdof,
-                                     sync_timing=sync, project_draws=proj, hac_lag=hac_lag,
-                                     profile_check=prof))
+    default = systematics == Systematics()
+    unc = uncertainty_of(case.fit, method, systematics=None if default else systematics)
     names, ident, lv, best, leans = intervals(case, unc)
-    label = method
-    if align != d0.alignment_noise:
-        label += f", alignment noise {align}"
-    if rdof != d0.residual_dof:
-        label += ", residuals' t " + ("on" if rdof else "off")
-    if sync != d0.sync_timing:
-        label += ", synchronisation's timing " + ("on" if sync else "off")
-    if proj != d0.project_draws:
-        label += ", draws " + ("projected" if proj else "as drawn")
-    if hac_lag != d0.hac_lag:
-        label += f", residuals' lag window {hac_lag}"
-    if prof != d0.profile_check:
-        label += ", profile check " + ("on" if prof else "off")
+    label = method_label(method, systematics)
     out = {"source": case.source, "seed": case.seed, "method": label,
            "n_identified": 0, "n_all": 0, "best_outside": 0, "n_prior": 0}
     for L in LEVELS:
@@ -508,18 +502,14 @@ def hac_lag_arg(text: str) -> int | str | None:
 
 
 def _job(index: int, jobs: list):
-    """Job ``index`` of ``jobs`` (source, seed, starts, cache, methods, predictions,
-    alignment noise, residuals' t, sigma pool, synchronisation's timing, projected draws,
-    the residuals' lag window, the profile check):
+    """Job ``index`` of ``jobs`` (source, seed, starts, cache, methods, predictions, the
+    sandwich's Systematics, sigma pool):
     its scores and the seconds its fit took. A
     Dask task of benchmarks/_studies.py's map_seeds, which keys tasks by an integer; the
     result depends only on the job."""
-    source, seed, starts, cache, methods, predictions, align, rdof, pool, sync, proj, lag, \
-        prof = jobs[index]
+    source, seed, starts, cache, methods, predictions, systematics, pool = jobs[index]
     case = run_case(source, seed, starts, cache, pool)
-    return ([score(case, m, predictions, alignment_noise=align, residual_dof=rdof,
-                   sync_timing=sync, project_draws=proj, hac_lag=lag, profile_check=prof)
-             for m in methods], case.seconds)
+    return [score(case, m, predictions, systematics) for m in methods], case.seconds
 
 
 def main(argv=None) -> int:
@@ -596,9 +586,10 @@ def main(argv=None) -> int:
     if unknown:
         ap.error(f"unknown source(s) {unknown}; one of {', '.join(known)}")
     methods = [m for m in a.methods.split(",") if m]
-    jobs = [(s, a.seed + i, a.starts, a.cache, methods, a.predictions,
-             a.alignment_noise, not a.no_residual_dof, a.sigma_pool, not a.no_sync_timing,
-             not a.raw_draws, a.hac_lag, not a.no_profile_check)
+    syst = Systematics(alignment_noise=a.alignment_noise, residual_dof=not a.no_residual_dof,
+                       sync_timing=not a.no_sync_timing, project_draws=not a.raw_draws,
+                       hac_lag=a.hac_lag, profile_check=not a.no_profile_check)
+    jobs = [(s, a.seed + i, a.starts, a.cache, methods, a.predictions, syst, a.sigma_pool)
             for s in srcs
             for i in range(a.campaigns)]
     t0 = time.perf_counter()

@@ -114,7 +114,7 @@ def same_truth(source: str, truth_seed: int, n: int, starts: int, names) -> None
     halves: dict[str, list[float]] = {k: [] for k in names}
     inside = {k: [0, 0] for k in names}
     for s in range(1, n + 1):
-        camp, _ = sources._from_truth(source, s, truth)
+        camp, _ = sources.from_truth(source, s, truth)
         means = preprocess(camp, PreprocessConfig()).to_dataset()
         o = FitOptions()
         fit = identify(fit_data_from_means(means, window=o.window, sigma=o.sigma),

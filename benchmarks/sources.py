@@ -54,8 +54,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 # the coverage study's truths: the 21 physical parameters, each x U(0.9, 1.1) of Table 3
 from bench_coverage import PHYSICAL, draw_truth  # noqa: E402
 
-__all__ = ["DRIVE_PARTS", "NOISE_SCAN", "PHYSICAL", "PROBES", "SIM2_ALONE", "SOURCES", "WIDE_SPREAD",
-           "draw_truth", "frame_shift", "make", "sim2_imperfections"]
+__all__ = ["DRIVE_PARTS", "NOISE_SCAN", "PHYSICAL", "PROBES", "SIM2_ALONE", "SOURCES",
+           "WIDE_SPREAD", "draw_truth", "frame_shift", "from_truth", "make", "sim2_imperfections"]
 
 
 _OFF = dict(nonlinear=False, mode_rel=0.0, trigger_max=0.0, v0_rel=0.0, tau_rel=0.0,
@@ -139,12 +139,12 @@ def make(source: str, seed: int, workdir: str | None = None):
                                             if k in paper().values})
     if source.startswith("probe-wide-"):
         # the same campaign as the source named after it, the truth drawn wider
-        return _from_truth(source.removeprefix("probe-wide-"), seed,
+        return from_truth(source.removeprefix("probe-wide-"), seed,
                            draw_truth(seed, WIDE_SPREAD))
-    return _from_truth(source, seed, draw_truth(seed))
+    return from_truth(source, seed, draw_truth(seed))
 
 
-def _from_truth(source: str, seed: int, truth):
+def from_truth(source: str, seed: int, truth):
     """(campaign Dataset, truth) of one of gprm's generator's sources for this truth."""
     if source in _PROBE_CONFIG:
         return synth_campaign(truth, seed=seed,

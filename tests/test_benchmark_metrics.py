@@ -271,6 +271,23 @@ def test_hac_lag_argument_reads_the_systematics_values_and_refuses_others():
             hac_lag_arg(bad)
 
 
+def test_method_label_names_each_development_check_and_nothing_for_the_default():
+    """bench_sources.py's rows are grouped by their method label: the default is the method's
+    name alone; each Systematics field changed from the default adds its words, in a fixed
+    order (the labels of the JSON files written before the labels were derived this way)."""
+    from bench_sources import method_label
+    from gprm.fit.sandwich import Systematics
+
+    assert method_label("sandwich", Systematics()) == "sandwich"
+    assert method_label("sandwich", Systematics(profile_check=False)) == \
+        "sandwich, profile check off"
+    assert method_label("sandwich", Systematics(hac_lag=5, residual_dof=False,
+                                                alignment_noise="all")) == \
+        "sandwich, alignment noise all, residuals' t off, residuals' lag window 5"
+    assert method_label("sandwich", Systematics(sync_timing=False, project_draws=False)) == \
+        "sandwich, synchronisation's timing off, draws as drawn"
+
+
 def test_support_table_pools_the_x_plane_support_per_source_and_method():
     """bench_sources.py's x-plane B support table: per source and method, the identified
     cases of k_Bx, c_Bx and d2 pooled (a campaign that did not identify one contributes no

@@ -74,7 +74,7 @@ from gprm.fit.methods import FitState
 from gprm.fit.objective import Objective
 from gprm.fit.prior import Prior
 from gprm.fit.starts import LMOptions
-from gprm.fit.uncertainty import CONTRACTION, Uncertainty, determined
+from gprm.fit.uncertainty import CONTRACTION, HeldFixed, Uncertainty, determined
 from gprm.params import LAG_PARAMETERS, batch_from_vectors
 from gprm.simulate import observe
 from gprm.simulate.core import ROW_LAGS
@@ -1039,23 +1039,6 @@ PROFILE_ITER = 60
 PROFILE_FTOL = 1e-9
 
 
-class _FixedPerRow:
-    """The objective with one parameter held fixed per row (``k[row]``): its Jacobian column
-    zeroed, so the damped step never moves it (:func:`gprm.fit.lm.scaled_svd`). For the
-    lock-step optimizer's ``indexed`` calls (each call names the rows it evaluates)."""
-
-    def __init__(self, obj: Objective, k: np.ndarray):
-        self.obj, self.k = obj, np.asarray(k, int)
-
-    def __call__(self, X, rows):
-        r, J = self.obj(X)                  # a new array each call: zeroed in place
-        J[np.arange(X.shape[0]), :, self.k[rows]] = 0.0
-        return r, J
-
-    def residuals(self, X, rows):
-        return self.obj.residuals(X)
-
-
 def profile_crossing(offsets: np.ndarray, D: np.ndarray, z: float) -> float:
     """Where sqrt(D) first reaches ``z`` along one side: ``offsets`` (ascending, > 0, in sd)
     and the profile statistic ``D`` there (NaN or inf: not evaluated, beyond a bound). sqrt(D)
@@ -1119,7 +1102,7 @@ def profile_factors(obj: Objective, x: np.ndarray, Cu: np.ndarray, Hinv: np.ndar
     phi0 = float(_objective(obj, x[None])[0])
     if ok.any() and np.isfinite(phi0):
         rows = np.flatnonzero(ok)
-        f = _FixedPerRow(obj, kk[rows])
+        f = HeldFixed(obj, kk[rows])
         lo_n, hi_n = obj.bounds_normalised()
         kw = polish_kwargs(lm, PROFILE_ITER, PROFILE_FTOL)
         try:
@@ -1439,9 +1422,8 @@ def uncertainty(method: str, state: FitState) -> Uncertainty:
     a68 = alternative_factors(u, sd_u, U_alt, D_alt, z68, LR_THRESHOLD[0.68])
     f_lo, f_hi = np.maximum(f_lo, a95[0]), np.maximum(f_hi, a95[1])
     f68_lo, f68_hi = np.maximum(f68_lo, a68[0]), np.maximum(f68_hi, a68[1])
-    ones2 = (ones, ones)
     p95, p68 = profile_factors(state.obj, x, Cu, Hinv, prior, state.lm, (z95, z68)) \
-        if syst.profile_check else (ones2, ones2)
+        if syst.profile_check else ((ones, ones), (ones, ones))
     f_lo, f_hi = np.maximum(f_lo, p95[0]), np.maximum(f_hi, p95[1])
     f68_lo, f68_hi = np.maximum(f68_lo, p68[0]), np.maximum(f68_hi, p68[1])
     # the statistical share of the variance is estimated (from R runs, or from the

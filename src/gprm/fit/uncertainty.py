@@ -422,20 +422,23 @@ def compute_bands(obj: Objective, x: np.ndarray, cov: np.ndarray | None, *, n_sa
                  int(ok.sum()))
 
 
-class _FixedOne:
-    """The objective with parameter k held fixed: its Jacobian column is zero, so the damped
+class HeldFixed:
+    """The objective with one parameter held fixed: its Jacobian column is zero, so the damped
     step never moves it (see :func:`gprm.fit.lm.scaled_svd`). Each row keeps its own fixed
-    value, whatever subset of rows the lock-step optimizer evaluates."""
+    value, whatever subset of rows the lock-step optimizer evaluates. ``k``: the parameter's
+    index, one for every row, or an array of one per row (then for the optimizer's
+    ``indexed`` calls, which name the rows they evaluate)."""
 
-    def __init__(self, obj: Objective, k: int):
-        self.obj, self.k = obj, k
+    def __init__(self, obj: Objective, k):
+        self.obj, self.k = obj, np.asarray(k, int)
 
-    def __call__(self, X):
+    def __call__(self, X, rows=None):
         r, J = self.obj(X)             # J is a new array each call: zeroed in place
-        J[:, :, self.k] = 0.0
+        k = self.k if self.k.ndim == 0 else self.k[rows]
+        J[np.arange(X.shape[0]), :, k] = 0.0
         return r, J
 
-    def residuals(self, X):
+    def residuals(self, X, rows=None):
         return self.obj.residuals(X)
 
 
@@ -464,7 +467,7 @@ def profile_likelihood(obj: Objective, x_best: np.ndarray, name: str, *, s2: flo
         (0.1 if log else 0.1 * max(abs(x_best[k]), 1e-30))
     lo_b, hi_b = obj.bounds()
     xn = obj.to_normalised(x_best)
-    f = _FixedOne(obj, k)
+    f = HeldFixed(obj, k)
     kw = lm.as_kwargs()
     kw.update(ftol_abs=min(kw["ftol_abs"], 1e-4), stall_window=0)
     lo_n, hi_n = obj.bounds_normalised()
@@ -509,7 +512,7 @@ def profile_likelihood(obj: Objective, x_best: np.ndarray, name: str, *, s2: flo
 class _Constrained:
     """The objective with a soft constraint g(x) = c appended as one residual row
     ``weight * (g(x) - c) / scale``; the target c of each row rides along as an extra,
-    never-moving coordinate (its Jacobian column is zero, as in :class:`_FixedOne`), so each
+    never-moving coordinate (its Jacobian column is zero, as in :class:`HeldFixed`), so each
     row keeps its own target whatever subset of rows the lock-step optimizer evaluates. The
     row's gradient is a forward difference in the normalised coordinates."""
 

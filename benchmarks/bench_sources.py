@@ -209,6 +209,8 @@ _CHECK_LABELS = {
     "project_draws": lambda v: "draws " + ("projected" if v else "as drawn"),
     "hac_lag": lambda v: f"residuals' lag window {v}",
     "profile_check": lambda v: "profile check " + ("on" if v else "off"),
+    "excess_test": lambda v: ("residuals' excess untested" if v is None
+                              else f"residuals' excess where above F_{v:g}"),
 }
 
 
@@ -501,6 +503,19 @@ def hac_lag_arg(text: str) -> int | str | None:
     return value
 
 
+def excess_test_arg(text: str) -> float | str | None:
+    """``--excess-test``: 'default' (the library's), 'none' or a quantile in (0, 1)."""
+    if text in ("default", "none"):
+        return None if text == "none" else text
+    try:
+        q = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not a quantile: {text!r}") from None
+    if not 0.0 < q < 1.0:
+        raise argparse.ArgumentTypeError(f"a quantile must lie in (0, 1), got {text}")
+    return q
+
+
 def _job(index: int, jobs: list):
     """Job ``index`` of ``jobs`` (source, seed, starts, cache, methods, predictions, the
     sandwich's Systematics, sigma pool):
@@ -551,6 +566,10 @@ def main(argv=None) -> int:
                     help="without the profile check of each identified parameter's sides "
                     "(Systematics.profile_check=False: stops 1-48, a development check, the "
                     "rows labelled so)")
+    ap.add_argument("--excess-test", type=excess_test_arg, default="default",
+                    help="the quantile q of the per-parameter test of the residuals' excess "
+                    "(Systematics.excess_test), or 'none' for no test (stops 1-49); default: "
+                    "the library's; another a development check, the rows labelled so")
     ap.add_argument("--sigma-pool", type=int, default=SIGMA_POOL,
                     help="the fits' weights pooled over this many samples on each side "
                     "(gprm.fit.objective.pooled_sigma; 0: stops 1-41's sample-by-sample "
@@ -588,7 +607,9 @@ def main(argv=None) -> int:
     methods = [m for m in a.methods.split(",") if m]
     syst = Systematics(alignment_noise=a.alignment_noise, residual_dof=not a.no_residual_dof,
                        sync_timing=not a.no_sync_timing, project_draws=not a.raw_draws,
-                       hac_lag=a.hac_lag, profile_check=not a.no_profile_check)
+                       hac_lag=a.hac_lag, profile_check=not a.no_profile_check,
+                       excess_test=(Systematics().excess_test if a.excess_test == "default"
+                                    else a.excess_test))
     jobs = [(s, a.seed + i, a.starts, a.cache, methods, a.predictions, syst, a.sigma_pool)
             for s in srcs
             for i in range(a.campaigns)]

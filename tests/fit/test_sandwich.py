@@ -1047,6 +1047,122 @@ def test_the_residuals_excess_stays_off_the_lags():
     assert np.linalg.eigvalsh(off.statistical).min() >= -1e-12 * np.abs(off.statistical).max()
 
 
+def _mismatch_case(seed=5, R=10, amplitude=0.05):
+    """(obj, x, yy, J, r, prior) at the paper set on means that carry an unmodelled 23 kHz
+    oscillation after 1 ms (``amplitude`` of each signal's peak; 0: none) and R runs of
+    white noise about them."""
+    from dataclasses import replace
+
+    from gprm.fit.objective import Objective
+    from gprm.params import paper
+
+    rng = np.random.default_rng(seed)
+    obj, x, y, J, r, prior, data, _ = _paper_setup()
+    t = data.time
+    bump = amplitude * np.max(np.abs(y), axis=1, keepdims=True) * np.sin(2 * np.pi * 23e3 * t)
+    values = data.values + bump * (t > 1.0e-3)
+    runs = values[:, None, :] + data.sigma[:, None, :] * np.sqrt(R) * \
+        rng.standard_normal((len(data.signals), R, t.size))
+    runs = runs - runs.mean(axis=1, keepdims=True) + values[:, None, :]
+    d2 = replace(data, values=values, runs=runs)
+    obj = Objective.create(d2, paper(), obj.names)
+    yy = obj.model(x[None]).y[0]
+    J2 = -obj.model(x[None], jacobian=True).dy[0].reshape(-1, x.size) / d2.sigma.reshape(-1, 1)
+    r2 = ((d2.values - yy) / d2.sigma).reshape(-1)
+    return obj, x, yy, J2, r2, prior
+
+
+def test_the_residuals_excess_is_tested_per_parameter():
+    """``Systematics.excess_test`` = q: the residuals' excess over the runs' covariance
+    reaches parameter k only where V_res,kk / V_runs,kk exceeds the q quantile of F(nu_res,
+    nu_runs) (:func:`excess_mask`); the statistical part is then V_runs plus the excess's
+    block on those parameters (still positive semi-definite), the runs' part elsewhere. A
+    mismatch the residuals show keeps the excess where it shows; a higher q drops more; a
+    file without runs has nothing to test; an out-of-range q is refused."""
+    from dataclasses import replace
+
+    from scipy.stats import f as f_dist
+
+    from gprm.errors import GprmInputError
+    from gprm.fit.objective import Objective
+    from gprm.fit.sandwich import (_estimator, error_model, excess_mask, propagate,
+                                   residual_dof, satterthwaite)
+
+    syst = Systematics(drive_timing=False)
+
+    def case(amplitude):
+        obj, x, yy, J, r, prior = _mismatch_case(amplitude=amplitude)
+        err = error_model(obj, x, J, r, prior, syst)
+        parts = propagate(obj, x, J, prior, err, yy)
+        Ju, Hinv = _estimator(x, J, prior)
+        nu = residual_dof(Ju, Hinv, err.R, err.max_lag, err.p_eff, whitenings=err.whitenings)
+        return excess_mask(parts, nu, 0.5)
+
+    # the exact model and white runs: dropped on most parameters; a mismatch twice the
+    # runs' noise or more (1 % of the peak): kept on every one
+    assert case(0.0).mean() < 0.5
+    assert case(0.01).all()
+    obj, x, yy, J, r, prior = _mismatch_case(amplitude=0.002)
+    err = error_model(obj, x, J, r, prior, syst)
+    parts = propagate(obj, x, J, prior, err, yy)
+    Ju, Hinv = _estimator(x, J, prior)
+    nu_res = residual_dof(Ju, Hinv, err.R, err.max_lag, err.p_eff, whitenings=err.whitenings)
+    ratio = np.diag(parts.residuals) / np.diag(parts.runs)
+    nu_runs = satterthwaite(parts.runs_by_signal, parts.n_runs)
+    assert np.all(np.isfinite(nu_res)) and np.all(nu_runs >= 9 - 1e-9)
+    masks = {q: excess_mask(parts, nu_res, q) for q in (0.5, 0.9, 0.99)}
+    for q, m in masks.items():
+        np.testing.assert_array_equal(m, ratio > f_dist.ppf(q, nu_res, nu_runs))
+    assert masks[0.5].any() and not masks[0.5].all()
+    assert np.all(masks[0.99] <= masks[0.9]) and np.all(masks[0.9] <= masks[0.5])
+    # in the propagation: the excess's principal block on the tested parameters
+    m = masks[0.5]
+    tested = propagate(obj, x, J, prior, replace(err, excess_mask=m), yy)
+    E, E_t = parts.statistical - parts.runs, tested.statistical - tested.runs
+    np.testing.assert_allclose(E_t[np.ix_(m, m)], E[np.ix_(m, m)], rtol=1e-12)
+    np.testing.assert_array_equal(E_t[~m, :], 0.0)
+    np.testing.assert_array_equal(E_t[:, ~m], 0.0)
+    np.testing.assert_allclose(tested.runs, parts.runs, rtol=1e-12)
+    np.testing.assert_allclose(tested.total - tested.statistical,
+                               parts.total - parts.statistical, rtol=1e-9, atol=1e-30)
+    assert np.linalg.eigvalsh(tested.statistical).min() >= \
+        -1e-12 * np.abs(tested.statistical).max()
+    # no runs: the residuals are the statistical part, nothing to test against
+    no_runs = Objective.create(replace(obj.data, runs=None), obj.base, obj.names)
+    e0 = error_model(no_runs, x, J, r, prior, syst)
+    assert excess_mask(propagate(no_runs, x, J, prior, e0, yy), nu_res, 0.5) is None
+    for bad in (0.0, 1.0, 1, True, -0.5):
+        with pytest.raises(GprmInputError, match="excess_test"):
+            Systematics(excess_test=bad)
+
+
+def test_the_excess_test_through_the_method_changes_only_the_dropped_parameters_variance():
+    """Through the method: fit.json records the test (``details.excess_reaches``, the stated
+    ``excess_test``, by default 0.5; None without it). A parameter the excess still reaches keeps its variance,
+    so its degrees of freedom are those without the test; one whose excess is dropped loses
+    variance that was not the runs', so its statistical part is a larger share and its
+    degrees of freedom (Student's t) fall."""
+    from gprm.fit.methods import FitState, compute
+
+    obj, x, yy, J, r, prior = _mismatch_case(amplitude=0.002)
+
+    def method(syst):
+        return compute("sandwich", FitState(obj, x, J, r, prior, n_draws=0, systematics=syst))
+
+    base = method(Systematics(drive_timing=False, excess_test=None))
+    test = method(Systematics(drive_timing=False))          # the default: 0.5
+    assert base.details["excess_reaches"] is None
+    assert base.details["stated"]["excess_test"] is None
+    reach = np.array(test.details["excess_reaches"], bool)
+    assert reach.any() and not reach.all()
+    assert test.details["stated"]["excess_test"] == 0.5
+    nu_b = np.array(base.details["degrees_of_freedom"], float)
+    nu_t = np.array(test.details["degrees_of_freedom"], float)
+    np.testing.assert_allclose(nu_t[reach], nu_b[reach], rtol=1e-9)
+    assert np.all(nu_t[~reach] <= nu_b[~reach] * (1 + 1e-9))
+    assert np.any(nu_t[~reach] < 0.9 * nu_b[~reach])
+
+
 def test_the_residuals_lag_window_is_a_stated_systematics_field():
     """``Systematics.hac_lag`` sets the residuals' kernel estimate's lag window (None: a
     quarter of the window's samples, :func:`default_max_lag`): the error model carries it,

@@ -60,10 +60,10 @@ no constant measured on synthetic data).
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
-from scipy.special import ndtri
+from scipy.special import fdtri, ndtri
 
 from gprm.campaign.preprocess import alignment_shift
 from gprm.errors import GprmInputError
@@ -158,6 +158,12 @@ class Systematics:
     #: sandwich's variance of that parameter (:func:`profile_factors`); False: not (stops
     #: 1-48, a development check)
     profile_check: bool = True
+    #: the residuals' excess over the runs' covariance reaches only the parameters whose own
+    #: ratio V_res,kk / V_runs,kk exceeds this quantile of its F distribution under no
+    #: excess, F(nu_res, nu_runs) (:func:`excess_mask`; 0.5: the median, since stop 50);
+    #: None: every parameter the matrix positive part spills onto (stops 1-49, a
+    #: development check)
+    excess_test: float | None = 0.5
 
     def __post_init__(self):
         if self.alignment_noise not in ALIGNMENT_NOISE:
@@ -174,6 +180,11 @@ class Systematics:
                 raise GprmInputError(f"per-signal entry {entry!r} must be (signal, gain_sd, "
                                      "timing_sd) with finite values >= 0",
                                      field="systematics.per_signal")
+        if self.excess_test is not None and (
+                isinstance(self.excess_test, bool) or not isinstance(self.excess_test, float)
+                or not 0.0 < self.excess_test < 1.0):
+            raise GprmInputError(f"must be a quantile in (0, 1) or None, got "
+                                 f"{self.excess_test!r}", field="systematics.excess_test")
         if self.hac_lag is not None and self.hac_lag != "auto" and (
                 isinstance(self.hac_lag, bool) or not isinstance(self.hac_lag, int)
                 or self.hac_lag < 0):
@@ -195,6 +206,7 @@ class Systematics:
                 "project_draws": self.project_draws,
                 "drive_timing": self.drive_timing, "excess_on_lags": self.excess_on_lags,
                 "hac_lag": self.hac_lag, "profile_check": self.profile_check,
+                "excess_test": self.excess_test,
                 "per_signal": {s: {"gain_sd": g, "timing_sd_s": t}
                                for s, g, t in self.per_signal}}
 
@@ -651,6 +663,9 @@ class ErrorModel:
     #: whether the residuals' excess over the runs' covariance reaches the lags
     #: (``Systematics.excess_on_lags``)
     excess_on_lags: bool = Systematics.excess_on_lags
+    #: (P,) bool: the parameters the residuals' excess over the runs' covariance reaches
+    #: (:func:`excess_mask`); None: every one
+    excess_mask: np.ndarray | None = None
 
 
 def _estimator(x: np.ndarray, J: np.ndarray, prior: Prior) -> tuple[np.ndarray, np.ndarray]:
@@ -848,6 +863,11 @@ def propagate(obj: Objective, x: np.ndarray, J: np.ndarray, prior: Prior,
             E[lag, :] = 0.0
             E[:, lag] = 0.0
             V_stat = V_runs + E
+    if V_runs is not None and err.excess_mask is not None and err.excess_mask.size == P:
+        # the excess only on the parameters whose own residual estimate shows it (a
+        # principal block of a positive semi-definite matrix: still one)
+        m = np.asarray(err.excess_mask, float)
+        V_stat = V_runs + (V_stat - V_runs) * np.outer(m, m)
     by_signal = None
     if err.dev is not None and err.dev.shape[1] >= 2:
         n_r = err.dev.shape[1]
@@ -1382,6 +1402,33 @@ def satterthwaite(v: np.ndarray, R: int) -> np.ndarray:
     return v.sum(axis=0) ** 2 / np.maximum(np.sum(v ** 2, axis=0) / (R - 1), 1e-300)
 
 
+def excess_mask(parts: SandwichParts, nu_res: np.ndarray, q: float) -> np.ndarray | None:
+    """(P,) bool: the parameters the residuals' excess over the runs' covariance reaches
+    under the test of ``Systematics.excess_test`` = ``q``; None where there is nothing to
+    test (no runs, or fewer than two).
+
+    With a model that describes the data the residuals' kernel estimate and the runs' spread
+    estimate the same variance, and their ratio V_res,kk / V_runs,kk for parameter k is about
+    F-distributed with (nu_res, nu_runs) degrees of freedom (:func:`residual_dof`,
+    :func:`satterthwaite`): two independent variance estimates. The positive part of the
+    matrix difference keeps every direction in which the residuals' estimate happens to be
+    the larger, and spills it onto parameters whose own ratio shows nothing: on data with no
+    mismatch it adds about a sixth to their variance (docs/fitting.md, "The residuals' excess
+    tested per parameter (stop 50)"). Here a parameter keeps the excess where its own ratio
+    exceeds the F distribution's ``q`` quantile; elsewhere its statistical variance is the
+    runs'. A parameter whose residual degrees of freedom are unknown keeps it."""
+    if parts.runs is None or parts.runs_by_signal is None or parts.n_runs < 2:
+        return None
+    runs = np.clip(np.diag(parts.runs), 1e-300, None)
+    ratio = np.clip(np.diag(parts.residuals), 0.0, None) / runs
+    nu_runs = satterthwaite(parts.runs_by_signal, parts.n_runs)
+    nu = np.asarray(nu_res, float)
+    ok = np.isfinite(nu) & (nu > 0) & np.isfinite(nu_runs) & (nu_runs > 0)
+    crit = np.full(ratio.shape, -np.inf)
+    crit[ok] = fdtri(nu[ok], nu_runs[ok], q)       # the F(nu, nu_runs) quantile q
+    return ratio > crit
+
+
 def student_factors(nu: np.ndarray, level: float) -> np.ndarray:
     """(P,) t_nu / z at the two-sided ``level``: how much wider an interval whose variance
     has nu degrees of freedom is than the normal one (1 where nu is infinite)."""
@@ -1403,9 +1450,22 @@ def uncertainty(method: str, state: FitState) -> Uncertainty:
     x = np.asarray(state.x, float)
     err = error_model(state.obj, x, state.J, state.r, prior, syst)
     parts = propagate(state.obj, x, state.J, prior, err)
+    Ju, Hinv = _estimator(x, state.J, prior)
+    nu_res = None
+    if syst.residual_dof or syst.excess_test is not None:
+        nu_res = residual_dof(Ju, Hinv, err.R, err.max_lag, err.p_eff,
+                              whitenings=err.whitenings,
+                              projection=getattr(state.obj, "projection", None))
+    mask = None
+    if syst.excess_test is not None and nu_res is not None:
+        mask = excess_mask(parts, nu_res, syst.excess_test)
+        if mask is not None:
+            # decided once at the best fit; every later propagation (the variance check's
+            # points) carries the same error model
+            err = replace(err, excess_mask=mask)
+            parts = propagate(state.obj, x, state.J, prior, err)
     u = prior.to_u(x)
     Cu = parts.total
-    Ju, Hinv = _estimator(x, state.J, prior)
     ones = np.ones(x.size)
     s_lo, s_hi = shape_factors(state.obj, x, Cu, Ju, prior) if syst.shape_check else \
         (ones, ones)
@@ -1429,12 +1489,7 @@ def uncertainty(method: str, state: FitState) -> Uncertainty:
     # the statistical share of the variance is estimated (from R runs, or from the
     # residuals by the kernel): Student's t with its Satterthwaite degrees of freedom
     # instead of the normal quantile
-    nu_res = None
-    if syst.residual_dof:
-        nu_res = residual_dof(Ju, Hinv, err.R, err.max_lag, err.p_eff,
-                              whitenings=err.whitenings,
-                              projection=getattr(state.obj, "projection", None))
-    nu = statistical_dof(parts, nu_res)
+    nu = statistical_dof(parts, nu_res if syst.residual_dof else None)
     t95, t68 = student_factors(nu, 0.95), student_factors(nu, 0.68)
     f_lo, f_hi = f_lo * t95, f_hi * t95
     f68_lo, f68_hi = f68_lo * t68, f68_hi * t68
@@ -1494,6 +1549,9 @@ def uncertainty(method: str, state: FitState) -> Uncertainty:
                                                   if err.crossing_offset is not None else 0.0)}
                         for i, s in enumerate(state.obj.data.signals)},
         "degrees_of_freedom": [float(v) if np.isfinite(v) else None for v in nu],
+        # the parameters the residuals' excess reached (Systematics.excess_test; None:
+        # untested, every one the matrix positive part spills onto)
+        "excess_reaches": None if mask is None else [bool(v) for v in mask],
         "degrees_of_freedom_from": dof_sources(parts, nu),
         "stated": syst.to_json(),
         "gain_estimated": parts.gain_estimated,

@@ -568,8 +568,8 @@ def main(argv=None) -> int:
                     "rows labelled so)")
     ap.add_argument("--excess-test", type=excess_test_arg, default="default",
                     help="the quantile q of the per-parameter test of the residuals' excess "
-                    "(Systematics.excess_test), or 'none' for no test (stops 1-49); default: "
-                    "the library's; another a development check, the rows labelled so")
+                    "(Systematics.excess_test, a development check of stop 50, the rows "
+                    "labelled so), or 'none' for no test; default: the library's (none)")
     ap.add_argument("--sigma-pool", type=int, default=SIGMA_POOL,
                     help="the fits' weights pooled over this many samples on each side "
                     "(gprm.fit.objective.pooled_sigma; 0: stops 1-41's sample-by-sample "

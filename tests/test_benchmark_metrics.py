@@ -286,10 +286,8 @@ def test_method_label_names_each_development_check_and_nothing_for_the_default()
         "sandwich, alignment noise all, residuals' t off, residuals' lag window 5"
     assert method_label("sandwich", Systematics(sync_timing=False, project_draws=False)) == \
         "sandwich, synchronisation's timing off, draws as drawn"
-    assert method_label("sandwich", Systematics(excess_test=None)) == \
-        "sandwich, residuals' excess untested"
-    assert method_label("sandwich", Systematics(excess_test=0.9)) == \
-        "sandwich, residuals' excess where above F_0.9"
+    assert method_label("sandwich", Systematics(excess_test=0.5)) == \
+        "sandwich, residuals' excess where above F_0.5"
 
 
 def test_support_table_pools_the_x_plane_support_per_source_and_method():

@@ -1138,7 +1138,7 @@ def test_the_residuals_excess_is_tested_per_parameter():
 
 def test_the_excess_test_through_the_method_changes_only_the_dropped_parameters_variance():
     """Through the method: fit.json records the test (``details.excess_reaches``, the stated
-    ``excess_test``, by default 0.5; None without it). A parameter the excess still reaches keeps its variance,
+    ``excess_test``; None without it, the default). A parameter the excess still reaches keeps its variance,
     so its degrees of freedom are those without the test; one whose excess is dropped loses
     variance that was not the runs', so its statistical part is a larger share and its
     degrees of freedom (Student's t) fall."""
@@ -1149,8 +1149,8 @@ def test_the_excess_test_through_the_method_changes_only_the_dropped_parameters_
     def method(syst):
         return compute("sandwich", FitState(obj, x, J, r, prior, n_draws=0, systematics=syst))
 
-    base = method(Systematics(drive_timing=False, excess_test=None))
-    test = method(Systematics(drive_timing=False))          # the default: 0.5
+    base = method(Systematics(drive_timing=False))            # the default: untested
+    test = method(Systematics(drive_timing=False, excess_test=0.5))
     assert base.details["excess_reaches"] is None
     assert base.details["stated"]["excess_test"] is None
     reach = np.array(test.details["excess_reaches"], bool)

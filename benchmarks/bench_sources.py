@@ -503,10 +503,8 @@ def hac_lag_arg(text: str) -> int | str | None:
     return value
 
 
-def excess_test_arg(text: str) -> float | str | None:
-    """``--excess-test``: 'default' (the library's), 'none' or a quantile in (0, 1)."""
-    if text in ("default", "none"):
-        return None if text == "none" else text
+def excess_test_arg(text: str) -> float:
+    """``--excess-test``: a quantile in (0, 1)."""
     try:
         q = float(text)
     except ValueError:
@@ -566,10 +564,10 @@ def main(argv=None) -> int:
                     help="without the profile check of each identified parameter's sides "
                     "(Systematics.profile_check=False: stops 1-48, a development check, the "
                     "rows labelled so)")
-    ap.add_argument("--excess-test", type=excess_test_arg, default="default",
-                    help="the quantile q of the per-parameter test of the residuals' excess "
+    ap.add_argument("--excess-test", type=excess_test_arg, default=None,
+                    help="test the residuals' excess per parameter at this quantile q "
                     "(Systematics.excess_test, a development check of stop 50, the rows "
-                    "labelled so), or 'none' for no test; default: the library's (none)")
+                    "labelled so); default: untested, the library's default")
     ap.add_argument("--sigma-pool", type=int, default=SIGMA_POOL,
                     help="the fits' weights pooled over this many samples on each side "
                     "(gprm.fit.objective.pooled_sigma; 0: stops 1-41's sample-by-sample "
@@ -608,8 +606,7 @@ def main(argv=None) -> int:
     syst = Systematics(alignment_noise=a.alignment_noise, residual_dof=not a.no_residual_dof,
                        sync_timing=not a.no_sync_timing, project_draws=not a.raw_draws,
                        hac_lag=a.hac_lag, profile_check=not a.no_profile_check,
-                       excess_test=(Systematics().excess_test if a.excess_test == "default"
-                                    else a.excess_test))
+                       excess_test=a.excess_test)
     jobs = [(s, a.seed + i, a.starts, a.cache, methods, a.predictions, syst, a.sigma_pool)
             for s in srcs
             for i in range(a.campaigns)]

@@ -271,6 +271,18 @@ def test_hac_lag_argument_reads_the_systematics_values_and_refuses_others():
             hac_lag_arg(bad)
 
 
+def test_excess_test_argument_reads_a_quantile_and_refuses_others():
+    """bench_sources.py's ``--excess-test``: a quantile strictly inside (0, 1), else refused."""
+    import argparse
+
+    from bench_sources import excess_test_arg
+
+    assert excess_test_arg("0.5") == 0.5 and excess_test_arg("0.9") == 0.9
+    for bad in ("0", "1", "-0.1", "none", "x"):
+        with pytest.raises(argparse.ArgumentTypeError):
+            excess_test_arg(bad)
+
+
 def test_method_label_names_each_development_check_and_nothing_for_the_default():
     """bench_sources.py's rows are grouped by their method label: the default is the method's
     name alone; each Systematics field changed from the default adds its words, in a fixed

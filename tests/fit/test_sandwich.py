@@ -1004,49 +1004,6 @@ def test_the_drives_hidden_time_shift_is_read_from_the_runs_shapes():
     assert drive_shift_sd(no_runs, x, dy) is None
 
 
-def test_the_residuals_excess_stays_off_the_lags():
-    """Where the residuals show more than the runs' spread (a mismatch added to the means),
-    the statistical part's excess over the runs' covariance reaches the lags' rows and
-    columns only with Systematics(excess_on_lags=True) (stops 1-44); by default those are
-    the runs' part's, and every other entry is the same as with it."""
-    from dataclasses import replace
-
-    from gprm.fit.objective import Objective
-    from gprm.fit.sandwich import error_model, propagate
-    from gprm.params import LAG_PARAMETERS, paper
-
-    rng = np.random.default_rng(5)
-    R = 10
-    obj, x, y, J, r, prior, data, _ = _paper_setup()
-    t = data.time
-    bump = 0.05 * np.max(np.abs(y), axis=1, keepdims=True) * np.sin(2 * np.pi * 23e3 * t)
-    values = data.values + bump * (t > 1.0e-3)
-    runs = values[:, None, :] + data.sigma[:, None, :] * np.sqrt(R) * \
-        rng.standard_normal((len(data.signals), R, t.size))
-    runs = runs - runs.mean(axis=1, keepdims=True) + values[:, None, :]
-    d2 = replace(data, values=values, runs=runs)
-    obj = Objective.create(d2, paper(), obj.names)
-    yy = obj.model(x[None]).y[0]
-    J2 = -obj.model(x[None], jacobian=True).dy[0].reshape(-1, x.size) / d2.sigma.reshape(-1, 1)
-    r2 = ((d2.values - yy) / d2.sigma).reshape(-1)
-
-    def parts(on):
-        e = error_model(obj, x, J2, r2, prior, Systematics(excess_on_lags=on,
-                                                           drive_timing=False))
-        return propagate(obj, x, J2, prior, e, yy)
-
-    off, on = parts(False), parts(True)
-    lags = np.array([n in LAG_PARAMETERS for n in obj.names])
-    E_off, E_on = off.statistical - off.runs, on.statistical - on.runs
-    assert np.abs(E_on[np.ix_(lags, lags)]).max() > 0           # the leak reaches them
-    np.testing.assert_array_equal(E_off[lags, :], 0.0)
-    np.testing.assert_array_equal(E_off[:, lags], 0.0)
-    keep = ~lags
-    np.testing.assert_allclose(off.statistical[np.ix_(keep, keep)],
-                               on.statistical[np.ix_(keep, keep)], rtol=1e-12)
-    assert np.linalg.eigvalsh(off.statistical).min() >= -1e-12 * np.abs(off.statistical).max()
-
-
 def _mismatch_case(seed=5, R=10, amplitude=0.05):
     """(obj, x, yy, J, r, prior) at the paper set on means that carry an unmodelled 23 kHz
     oscillation after 1 ms (``amplitude`` of each signal's peak; 0: none) and R runs of
@@ -1072,6 +1029,33 @@ def _mismatch_case(seed=5, R=10, amplitude=0.05):
     return obj, x, yy, J2, r2, prior
 
 
+def test_the_residuals_excess_stays_off_the_lags():
+    """Where the residuals show more than the runs' spread (a mismatch added to the means),
+    the statistical part's excess over the runs' covariance reaches the lags' rows and
+    columns only with Systematics(excess_on_lags=True) (stops 1-44); by default those are
+    the runs' part's, and every other entry is the same as with it."""
+    from gprm.fit.sandwich import error_model, propagate
+    from gprm.params import LAG_PARAMETERS
+
+    obj, x, yy, J2, r2, prior = _mismatch_case()
+
+    def parts(on):
+        e = error_model(obj, x, J2, r2, prior, Systematics(excess_on_lags=on,
+                                                           drive_timing=False))
+        return propagate(obj, x, J2, prior, e, yy)
+
+    off, on = parts(False), parts(True)
+    lags = np.array([n in LAG_PARAMETERS for n in obj.names])
+    E_off, E_on = off.statistical - off.runs, on.statistical - on.runs
+    assert np.abs(E_on[np.ix_(lags, lags)]).max() > 0           # the leak reaches them
+    np.testing.assert_array_equal(E_off[lags, :], 0.0)
+    np.testing.assert_array_equal(E_off[:, lags], 0.0)
+    keep = ~lags
+    np.testing.assert_allclose(off.statistical[np.ix_(keep, keep)],
+                               on.statistical[np.ix_(keep, keep)], rtol=1e-12)
+    assert np.linalg.eigvalsh(off.statistical).min() >= -1e-12 * np.abs(off.statistical).max()
+
+
 def test_the_residuals_excess_is_tested_per_parameter():
     """``Systematics.excess_test`` = q: the residuals' excess over the runs' covariance
     reaches parameter k only where V_res,kk / V_runs,kk exceeds the q quantile of F(nu_res,
@@ -1091,22 +1075,18 @@ def test_the_residuals_excess_is_tested_per_parameter():
     syst = Systematics(drive_timing=False)
 
     def case(amplitude):
+        """The mismatch case's error model, its parts and the residuals' dof."""
         obj, x, yy, J, r, prior = _mismatch_case(amplitude=amplitude)
         err = error_model(obj, x, J, r, prior, syst)
-        parts = propagate(obj, x, J, prior, err, yy)
         Ju, Hinv = _estimator(x, J, prior)
         nu = residual_dof(Ju, Hinv, err.R, err.max_lag, err.p_eff, whitenings=err.whitenings)
-        return excess_mask(parts, nu, 0.5)
+        return (obj, x, yy, J, r, prior), err, propagate(obj, x, J, prior, err, yy), nu
 
     # the exact model and white runs: dropped on most parameters; a mismatch twice the
     # runs' noise or more (1 % of the peak): kept on every one
-    assert case(0.0).mean() < 0.5
-    assert case(0.01).all()
-    obj, x, yy, J, r, prior = _mismatch_case(amplitude=0.002)
-    err = error_model(obj, x, J, r, prior, syst)
-    parts = propagate(obj, x, J, prior, err, yy)
-    Ju, Hinv = _estimator(x, J, prior)
-    nu_res = residual_dof(Ju, Hinv, err.R, err.max_lag, err.p_eff, whitenings=err.whitenings)
+    assert excess_mask(*case(0.0)[2:], 0.5).mean() < 0.5
+    assert excess_mask(*case(0.01)[2:], 0.5).all()
+    (obj, x, yy, J, r, prior), err, parts, nu_res = case(0.002)
     ratio = np.diag(parts.residuals) / np.diag(parts.runs)
     nu_runs = satterthwaite(parts.runs_by_signal, parts.n_runs)
     assert np.all(np.isfinite(nu_res)) and np.all(nu_runs >= 9 - 1e-9)

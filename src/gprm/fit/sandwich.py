@@ -863,7 +863,7 @@ def propagate(obj: Objective, x: np.ndarray, J: np.ndarray, prior: Prior,
             E[lag, :] = 0.0
             E[:, lag] = 0.0
             V_stat = V_runs + E
-    if V_runs is not None and err.excess_mask is not None and err.excess_mask.size == P:
+    if V_runs is not None and err.excess_mask is not None:
         # the excess only on the parameters whose own residual estimate shows it (a
         # principal block of a positive semi-definite matrix: still one)
         m = np.asarray(err.excess_mask, float)
@@ -1412,9 +1412,9 @@ def excess_mask(parts: SandwichParts, nu_res: np.ndarray, q: float) -> np.ndarra
     F-distributed with (nu_res, nu_runs) degrees of freedom (:func:`residual_dof`,
     :func:`satterthwaite`): two independent variance estimates. The positive part of the
     matrix difference keeps every direction in which the residuals' estimate happens to be
-    the larger, and spills it onto parameters whose own ratio shows nothing: on data with no
-    mismatch it adds about a sixth to their variance (docs/fitting.md, "The residuals' excess
-    tested per parameter (stop 50)"). Here a parameter keeps the excess where its own ratio
+    the larger, and spills it onto parameters whose own ratio shows nothing, also on data
+    with no mismatch (docs/fitting.md, "The residuals' excess tested per parameter (stop
+    50)"). Here a parameter keeps the excess where its own ratio
     exceeds the F distribution's ``q`` quantile; elsewhere its statistical variance is the
     runs'. A parameter whose residual degrees of freedom are unknown keeps it. Not the
     default (``Systematics.excess_test`` None): a prediction combines parameters, and the
@@ -1463,7 +1463,7 @@ def uncertainty(method: str, state: FitState) -> Uncertainty:
                               whitenings=err.whitenings,
                               projection=getattr(state.obj, "projection", None))
     mask = None
-    if syst.excess_test is not None and nu_res is not None:
+    if syst.excess_test is not None:
         mask = excess_mask(parts, nu_res, syst.excess_test)
         if mask is not None:
             # decided once at the best fit; every later propagation (the variance check's

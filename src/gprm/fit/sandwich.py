@@ -1457,11 +1457,10 @@ def uncertainty(method: str, state: FitState) -> Uncertainty:
     err = error_model(state.obj, x, state.J, state.r, prior, syst)
     parts = propagate(state.obj, x, state.J, prior, err)
     Ju, Hinv = _estimator(x, state.J, prior)
-    nu_res = None
-    if syst.residual_dof or syst.excess_test is not None:
-        nu_res = residual_dof(Ju, Hinv, err.R, err.max_lag, err.p_eff,
-                              whitenings=err.whitenings,
-                              projection=getattr(state.obj, "projection", None))
+    # the residuals' kernel estimate's degrees of freedom: its Student factors (item 7 of
+    # docs/fitting.md's default) and the excess test's reference distribution
+    nu_res = residual_dof(Ju, Hinv, err.R, err.max_lag, err.p_eff, whitenings=err.whitenings,
+                          projection=getattr(state.obj, "projection", None))
     mask = None
     if syst.excess_test is not None:
         mask = excess_mask(parts, nu_res, syst.excess_test)

@@ -1,5 +1,5 @@
 """Eq. 7 against the NIST certified standard deviations; its failure messages; bounds; the
-standardised covariance sampling; the multi-start draws."""
+standardised covariance sampling and factor; the multi-start draws."""
 
 from __future__ import annotations
 
@@ -73,6 +73,30 @@ def test_sample_normal_keeps_tiny_variances():
     X = sample_normal(np.zeros(3), C, 20000, np.random.default_rng(2))
     np.testing.assert_allclose(X.std(axis=0) / s, 1, atol=0.03)
     np.testing.assert_allclose(np.corrcoef(X.T), R, atol=0.03)
+
+
+
+def test_normal_factor_reproduces_every_variance_where_a_plain_eigen_factor_does_not():
+    """The posterior draws' factor (:func:`normal_factor`) on a covariance like the
+    sandwich's in the prior's coordinates, O(1) variances beside the lags' ~1e-15 s^2 with
+    correlations between them: L L^T gives back each variance and correlation to
+    round-off. The plain eigen-factor of the matrix itself (what the draws used until stop
+    51) misses the small variances by far more, which is why the factor exists."""
+    from gprm.fit.covariance import normal_factor
+
+    rng = np.random.default_rng(4)
+    P = 26
+    A = rng.standard_normal((P, 3 * P))
+    R = np.corrcoef(A)                                    # a well-conditioned correlation
+    s = np.where(np.arange(P) >= P - 5, 3e-8, rng.uniform(0.05, 1.0, P))
+    C = R * np.outer(s, s)
+    L = normal_factor(C)
+    back = L @ L.T
+    np.testing.assert_allclose(np.diag(back), np.diag(C), rtol=1e-10)
+    np.testing.assert_allclose(back / np.outer(s, s), R, atol=1e-10)
+    w, V = np.linalg.eigh(C)
+    plain = (V * np.sqrt(np.clip(w, 0, None))) @ (V * np.sqrt(np.clip(w, 0, None))).T
+    assert np.max(np.abs(np.diag(plain) / np.diag(C) - 1)[-5:]) > 1e-3
 
 
 @pytest.mark.parametrize("sampling", ["uniform", "lhs"])

@@ -33,6 +33,7 @@ from gprm.campaign.synth import Support, SynthConfig, nonlinear_correction, synt
 from scipy.stats import norm
 
 from gprm.fit.calibration import MISMATCH_CALIBRATION, calibration_factors
+from gprm.fit.covariance import normal_factor
 from gprm.fit.engine import polish_best
 from gprm.fit.methods import FitState
 from gprm.fit import subsample
@@ -253,8 +254,7 @@ def from_bootstrap(method: str, x: np.ndarray, refits: np.ndarray, laplace: Unce
     z95, z68 = norm.ppf(0.975), norm.ppf(0.84)
     D = prior.dx_du(prior.from_u(centre))
     rng = np.random.default_rng([seed, 15])
-    w, V = np.linalg.eigh(0.5 * (Cu + Cu.T))
-    Z = rng.standard_normal((int(n_draws), len(names))) @ (V * np.sqrt(np.clip(w, 0, None))).T
+    Z = rng.standard_normal((int(n_draws), len(names))) @ normal_factor(Cu).T
     cov_x = Cu * np.outer(D, D)
     return Uncertainty(method, names, 0.5 * (cov_x + cov_x.T),
                        prior.from_u(centre - z95 * sd), prior.from_u(centre + z95 * sd),

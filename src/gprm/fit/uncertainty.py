@@ -49,7 +49,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.special import ndtri
 
-from gprm.fit.covariance import CovarianceError, covariance, sample_normal
+from gprm.fit.covariance import CovarianceError, covariance, normal_factor, sample_normal
 from gprm.fit.lm import levenberg_marquardt_batch
 from gprm.fit.objective import Objective
 from gprm.fit.prior import Prior
@@ -260,9 +260,7 @@ def mcmc_chain(log_post, u0: np.ndarray, cov_u: np.ndarray, *, n_steps: int = 60
     P = u0.size
     W = int(n_walkers) if n_walkers else 2 * P + 2
     rng = np.random.default_rng([seed, 16])
-    w, V = np.linalg.eigh(0.5 * (cov_u + cov_u.T))
-    L = V * np.sqrt(np.clip(w, 0, None))
-    p0 = u0[None] + rng.standard_normal((W, P)) @ L.T
+    p0 = u0[None] + rng.standard_normal((W, P)) @ normal_factor(cov_u).T
     sampler = emcee.EnsembleSampler(W, P, log_post, vectorize=True)
     sampler._random = np.random.RandomState(int(rng.integers(2 ** 31)))
     sampler.run_mcmc(p0, int(n_steps), progress=False)

@@ -40,7 +40,7 @@ from gprm.errors import GprmInputError  # noqa: E402
 from gprm.fit.api import FitOptions  # noqa: E402
 from gprm.fit.identify import identify  # noqa: E402
 from gprm.fit.objective import SIGMA_POOL, fit_data_from_means  # noqa: E402
-from gprm.fit.sandwich import ALIGNMENT_NOISE, Systematics  # noqa: E402
+from gprm.fit.sandwich import ALIGNMENT_NOISE, EXCESS_QUANTILE, Systematics  # noqa: E402
 from gprm.fit.starts import MultiStartOptions  # noqa: E402
 from gprm.params import paper  # noqa: E402
 
@@ -211,6 +211,7 @@ _CHECK_LABELS = {
     "profile_check": lambda v: "profile check " + ("on" if v else "off"),
     "excess_test": lambda v: ("residuals' excess untested" if v is None
                               else f"residuals' excess where above F_{v:g}"),
+    "excess_test_draws": lambda v: "draws' excess " + ("tested" if v else "untested"),
 }
 
 
@@ -503,8 +504,10 @@ def hac_lag_arg(text: str) -> int | str | None:
     return value
 
 
-def excess_test_arg(text: str) -> float:
-    """``--excess-test``: a quantile in (0, 1)."""
+def excess_test_arg(text: str) -> float | None:
+    """``--excess-test``: a quantile in (0, 1), or ``none`` (untested: stops 1-50)."""
+    if text == "none":
+        return None
     try:
         q = float(text)
     except ValueError:
@@ -564,10 +567,14 @@ def main(argv=None) -> int:
                     help="without the profile check of each identified parameter's sides "
                     "(Systematics.profile_check=False: stops 1-48, a development check, the "
                     "rows labelled so)")
-    ap.add_argument("--excess-test", type=excess_test_arg, default=None,
+    ap.add_argument("--excess-test", type=excess_test_arg, default=EXCESS_QUANTILE,
                     help="test the residuals' excess per parameter at this quantile q "
-                    "(Systematics.excess_test, a development check of stop 50, the rows "
-                    "labelled so); default: untested, the library's default")
+                    "(Systematics.excess_test; another q, or none: untested as in stops "
+                    "1-50, a development check, the rows labelled so)")
+    ap.add_argument("--excess-test-draws", action="store_true",
+                    help="the test also thins the excess in the draws, so in the "
+                    "predictions (Systematics.excess_test_draws: stop 50's development "
+                    "check, the rows labelled so)")
     ap.add_argument("--sigma-pool", type=int, default=SIGMA_POOL,
                     help="the fits' weights pooled over this many samples on each side "
                     "(gprm.fit.objective.pooled_sigma; 0: stops 1-41's sample-by-sample "
@@ -606,7 +613,7 @@ def main(argv=None) -> int:
     syst = Systematics(alignment_noise=a.alignment_noise, residual_dof=not a.no_residual_dof,
                        sync_timing=not a.no_sync_timing, project_draws=not a.raw_draws,
                        hac_lag=a.hac_lag, profile_check=not a.no_profile_check,
-                       excess_test=a.excess_test)
+                       excess_test=a.excess_test, excess_test_draws=a.excess_test_draws)
     jobs = [(s, a.seed + i, a.starts, a.cache, methods, a.predictions, syst, a.sigma_pool)
             for s in srcs
             for i in range(a.campaigns)]

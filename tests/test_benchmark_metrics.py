@@ -272,13 +272,15 @@ def test_hac_lag_argument_reads_the_systematics_values_and_refuses_others():
 
 
 def test_excess_test_argument_reads_a_quantile_and_refuses_others():
-    """bench_sources.py's ``--excess-test``: a quantile strictly inside (0, 1), else refused."""
+    """bench_sources.py's ``--excess-test``: a quantile strictly inside (0, 1), or ``none``
+    (untested, stops 1-50), else refused."""
     import argparse
 
     from bench_sources import excess_test_arg
 
     assert excess_test_arg("0.5") == 0.5 and excess_test_arg("0.9") == 0.9
-    for bad in ("0", "1", "-0.1", "none", "x"):
+    assert excess_test_arg("none") is None
+    for bad in ("0", "1", "-0.1", "None", "x"):
         with pytest.raises(argparse.ArgumentTypeError):
             excess_test_arg(bad)
 
@@ -298,8 +300,11 @@ def test_method_label_names_each_development_check_and_nothing_for_the_default()
         "sandwich, alignment noise all, residuals' t off, residuals' lag window 5"
     assert method_label("sandwich", Systematics(sync_timing=False, project_draws=False)) == \
         "sandwich, synchronisation's timing off, draws as drawn"
-    assert method_label("sandwich", Systematics(excess_test=0.5)) == \
-        "sandwich, residuals' excess where above F_0.5"
+    assert method_label("sandwich", Systematics(excess_test=0.5)) == "sandwich"
+    assert method_label("sandwich", Systematics(excess_test=None)) == \
+        "sandwich, residuals' excess untested"
+    assert method_label("sandwich", Systematics(excess_test=0.9, excess_test_draws=True)) == \
+        "sandwich, residuals' excess where above F_0.9, draws' excess tested"
 
 
 def test_support_table_pools_the_x_plane_support_per_source_and_method():

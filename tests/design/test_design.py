@@ -308,7 +308,8 @@ def test_variance_parts_split_what_averages_down_from_what_does_not():
     """The runs' share of the statistical variance is 1 / rho (rho = the residuals' over the
     runs' variance), the rest and the gain share do not average down; the timing share is
     the alignment's unless a timing error is stated; t0's time origin is moved out of the
-    timing share; nothing is lost; no shares, no split."""
+    timing share; nothing is lost; where the excess test left a parameter's excess out, its
+    statistical share is all the runs'; no shares, no split."""
     from gprm.design.core import variance_parts
 
     names = ("m1", "t0")
@@ -332,6 +333,14 @@ def test_variance_parts_split_what_averages_down_from_what_does_not():
                             var, x, log)
     np.testing.assert_allclose(B3 - B, var * 0.15, rtol=1e-12)
     assert variance_parts({"uncertainty": {}}, names, var, x, log) is None
+    # the excess test left m1's excess out of its variance: its statistical share is the
+    # runs', all of it averages down
+    tested = _parts_document(names, shares, rr)
+    tested["uncertainty"]["details"]["excess_reaches"] = [False, True]
+    A4, B4 = variance_parts(tested, names, var, x, log)
+    np.testing.assert_allclose(A4[0], var[0] * (0.6 + 0.15 + 0.05), rtol=1e-12)
+    np.testing.assert_allclose(A4 + B4, var, rtol=1e-12)
+    np.testing.assert_allclose(B4[1], B[1], rtol=1e-12)
     no_runs = _parts_document(names, shares, rr)
     no_runs["uncertainty"]["details"]["residual_over_runs"] = None
     assert variance_parts(no_runs, names, var, x, log) is None

@@ -210,6 +210,24 @@ def test_report_names_the_sides_the_profile_lengthened():
     assert "profile longer" not in fit_report(d)
 
 
+def test_report_names_the_parameters_whose_intervals_left_the_residuals_excess_out():
+    """The excess test (item 9 of docs/fitting.md's default): the uncertainty block names the
+    parameters whose intervals the residuals' excess did not reach (indexed like the
+    correlation's names) and says whether the draws keep it; every one reached, or a file
+    from before the test (no field), no line."""
+    d = _new_format()
+    d["uncertainty"] = {"method": "sandwich", "details": {
+        "excess_reaches": [True, False, False], "draws_excess": "untested"}}
+    line = next(ln for ln in fit_report(d).splitlines() if "excess" in ln)
+    assert line.endswith("the draws keep it): g2, kz") and "v2" not in line
+    d["uncertainty"]["details"]["draws_excess"] = "tested"
+    line = next(ln for ln in fit_report(d).splitlines() if "excess" in ln)
+    assert "the draws leave it out too): g2, kz" in line
+    for reach in ([True, True, True], None):
+        d["uncertainty"]["details"]["excess_reaches"] = reach
+        assert "excess" not in fit_report(d)
+
+
 def test_report_lists_the_parameters_whose_variance_has_few_degrees_of_freedom():
     """Student's t: the uncertainty block lists, fewest first, each parameter whose variance
     has fewer than STUDENT_SHOWN degrees of freedom with the part they came from (indexed

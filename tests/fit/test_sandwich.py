@@ -1118,10 +1118,10 @@ def test_the_residuals_excess_is_tested_per_parameter():
 
 def test_the_excess_test_through_the_method_changes_only_the_dropped_parameters_variance():
     """Through the method: fit.json records the test (``details.excess_reaches``, the stated
-    ``excess_test``; None without it, the default). A parameter the excess still reaches keeps its variance,
-    so its degrees of freedom are those without the test; one whose excess is dropped loses
-    variance that was not the runs', so its statistical part is a larger share and its
-    degrees of freedom (Student's t) fall."""
+    ``excess_test``; None untested, stops 1-50; 0.5 the default). A parameter the excess
+    still reaches keeps its variance, so its degrees of freedom are those without the test;
+    one whose excess is dropped loses variance that was not the runs', so its statistical
+    part is a larger share and its degrees of freedom (Student's t) fall."""
     from gprm.fit.methods import FitState, compute
 
     obj, x, yy, J, r, prior = _mismatch_case(amplitude=0.002)
@@ -1129,8 +1129,8 @@ def test_the_excess_test_through_the_method_changes_only_the_dropped_parameters_
     def method(syst):
         return compute("sandwich", FitState(obj, x, J, r, prior, n_draws=0, systematics=syst))
 
-    base = method(Systematics(drive_timing=False))            # the default: untested
-    test = method(Systematics(drive_timing=False, excess_test=0.5))
+    base = method(Systematics(drive_timing=False, excess_test=None))     # untested
+    test = method(Systematics(drive_timing=False))                       # the default
     assert base.details["excess_reaches"] is None
     assert base.details["stated"]["excess_test"] is None
     reach = np.array(test.details["excess_reaches"], bool)
@@ -1141,6 +1141,53 @@ def test_the_excess_test_through_the_method_changes_only_the_dropped_parameters_
     np.testing.assert_allclose(nu_t[reach], nu_b[reach], rtol=1e-9)
     assert np.all(nu_t[~reach] <= nu_b[~reach] * (1 + 1e-9))
     assert np.any(nu_t[~reach] < 0.9 * nu_b[~reach])
+
+
+def test_the_draws_keep_the_excess_the_parameters_tests_leave_out():
+    """The excess test narrows the parameters' intervals only: by default the posterior
+    draws (every prediction's uncertainty) come from the covariance with the whole excess,
+    so a parameter whose excess was dropped spreads its draws wider than its interval by
+    sqrt(V_untested,kk / V_tested,kk), a kept one by nothing; with
+    ``excess_test_draws`` (stop 50's check) they follow the tested covariance. The intervals
+    are the same either way, and fit.json says which (``details.draws_excess``)."""
+    from gprm.fit.methods import FitState, compute
+    from gprm.fit.sandwich import error_model, propagate
+
+    obj, x, yy, J, r, prior = _mismatch_case(amplitude=0.002)
+    n = 20000
+
+    def method(syst):
+        return compute("sandwich", FitState(obj, x, J, r, prior, n_draws=n, seed=3,
+                                            systematics=syst))
+
+    common = dict(drive_timing=False, project_draws=False)
+    kept = method(Systematics(**common))
+    thin = method(Systematics(excess_test_draws=True, **common))
+    assert kept.details["draws_excess"] == "untested"
+    assert thin.details["draws_excess"] == "tested"
+    np.testing.assert_array_equal(kept.lower95, thin.lower95)
+    np.testing.assert_array_equal(kept.upper68, thin.upper68)
+    reach = np.array(kept.details["excess_reaches"], bool)
+    assert reach.any() and not reach.all()
+    # the two covariances the draws come from, before the intervals' stretch
+    err = error_model(obj, x, J, r, prior, Systematics(**common))
+    whole = propagate(obj, x, J, prior, err, yy).total
+    from dataclasses import replace
+    tested = propagate(obj, x, J, prior, replace(err, excess_mask=reach), yy).total
+    expect = np.sqrt(np.diag(whole) / np.diag(tested))
+    assert np.any(expect[~reach] > 1.1)                  # the case drops real variance
+    u_kept, u_thin = prior.to_u(kept.draws), prior.to_u(thin.draws)
+
+    def width(u):
+        """The draws' central 68 % range per parameter (scale-equivariant; the sd would
+        follow the lags' long stretched tails)."""
+        lo, hi = np.percentile(u, [16, 84], axis=0)
+        return hi - lo
+
+    # the same stretch maps both, so each marginal is the other's scaled by the
+    # covariances' sd ratio (Monte Carlo sd of the ranges' ratio from 20000 draws each:
+    # about 1.3 %)
+    np.testing.assert_allclose(width(u_kept) / width(u_thin), expect, rtol=0.05)
 
 
 def test_the_residuals_lag_window_is_a_stated_systematics_field():

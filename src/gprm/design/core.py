@@ -250,7 +250,9 @@ def variance_parts(doc: dict, names: tuple[str, ...], fit_var: np.ndarray, x: np
     Per parameter, of the variance shares (statistical, gain, timing, interpolation, prior):
     the statistical share is the larger of the runs' and the residuals' covariance; with
     rho = ``residual_over_runs``^2 (the residuals' variance over the runs'), 1/rho of it is
-    the runs' (A) and the rest the residuals' excess, mismatch common to every run (B). The
+    the runs' (A) and the rest the residuals' excess, mismatch common to every run (B), but
+    where the excess test left the excess out of the parameter's variance
+    (``excess_reaches`` false: all of it the runs'). The
     gain share (stated and estimated gain errors) is B. The timing share is the alignment's
     (A) where no timing error is stated, else B; for t0 in fit files made before stop 39 the
     time origin's variance (``time_origin_sd_s``, then the crossing offset on t0; the default
@@ -265,6 +267,7 @@ def variance_parts(doc: dict, names: tuple[str, ...], fit_var: np.ndarray, x: np
         return None
     if not isinstance(rr, list) or len(rr) != len(names):
         return None                 # no runs in the mean-signals file: nothing to split by
+    reach = det.get("excess_reaches")
     stated_t = float((det.get("stated") or {}).get("timing_sd_s") or 0.0)
     origin = float(det.get("time_origin_sd_s") or 0.0)
     A = np.zeros(len(names))
@@ -277,6 +280,8 @@ def variance_parts(doc: dict, names: tuple[str, ...], fit_var: np.ndarray, x: np
             return None
         st = sh.get("statistical", 0.0) / tot
         rho = float(rr[i]) ** 2 if isinstance(rr[i], (int, float)) else 1.0
+        if isinstance(reach, list) and i < len(reach) and reach[i] is False:
+            rho = 1.0           # the excess test left the residuals' excess out of it
         runs_frac = 1.0 / rho if rho > 1.0 else 1.0
         a = st * runs_frac + (sh.get("interpolation", 0.0) + sh.get("prior", 0.0)) / tot
         b = st * (1.0 - runs_frac) + sh.get("gain", 0.0) / tot

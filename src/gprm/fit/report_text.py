@@ -189,6 +189,16 @@ def fit_report(d: dict, *, min_correl: float = DEFAULT_MIN_CORREL) -> str:
                              "over the others; 95 % side x factor): " + ", ".join(
                                  f"{n} " + ("lower" if a >= b else "upper")
                                  + f" x{_g(max(a, b), '.3g')}" for n, a, b in side))
+        reach = det.get("excess_reaches") if isinstance(det, dict) else None
+        if isinstance(reach, list) and reach:
+            names = _fitted_names(d)
+            out = [names[i] for i, v in enumerate(reach) if i < len(names) and v is False]
+            if out:
+                lines.append("    residuals' excess over the runs' spread left out of the "
+                             "intervals (each parameter's own ratio of the two below the F "
+                             "median; the draws "
+                             + ("keep it" if det.get("draws_excess") != "tested" else
+                                "leave it out too") + "): " + ", ".join(out))
         dof = det.get("degrees_of_freedom") if isinstance(det, dict) else None
         if isinstance(dof, list) and dof:
             names = _fitted_names(d)

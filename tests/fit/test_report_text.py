@@ -214,7 +214,8 @@ def test_report_names_the_parameters_whose_intervals_left_the_residuals_excess_o
     """The excess test (item 9 of docs/fitting.md's default): the uncertainty block names the
     parameters whose intervals the residuals' excess did not reach (indexed like the
     correlation's names) and says whether the draws keep it; every one reached, or a file
-    from before the test (no field), no line."""
+    from before the test (no field), no line; the lags, which the excess reaches only when
+    stated, are not named as the test's."""
     d = _new_format()
     d["uncertainty"] = {"method": "sandwich", "details": {
         "excess_reaches": [True, False, False], "draws_excess": "untested"}}
@@ -226,6 +227,15 @@ def test_report_names_the_parameters_whose_intervals_left_the_residuals_excess_o
     for reach in ([True, True, True], None):
         d["uncertainty"]["details"]["excess_reaches"] = reach
         assert "excess" not in fit_report(d)
+    # a lag the excess never reaches (Systematics.excess_on_lags off) is not listed as left
+    # out by the test; with the excess stated on the lags it is
+    d["correlation"]["names"] = ["v2", "g2", "t0"]
+    d["uncertainty"]["details"]["excess_reaches"] = [True, False, False]
+    line = next(ln for ln in fit_report(d).splitlines() if "excess" in ln)
+    assert line.endswith("): g2")
+    d["uncertainty"]["details"]["stated"] = {"excess_on_lags": True}
+    line = next(ln for ln in fit_report(d).splitlines() if "excess" in ln)
+    assert line.endswith("): g2, t0")
 
 
 def test_report_lists_the_parameters_whose_variance_has_few_degrees_of_freedom():

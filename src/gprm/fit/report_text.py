@@ -12,6 +12,7 @@ import math
 from typing import TypeGuard
 
 from gprm.console import ProgressLines, clock_text
+from gprm.params import LAG_PARAMETERS
 
 DEFAULT_MIN_CORREL = 0.9
 
@@ -192,7 +193,11 @@ def fit_report(d: dict, *, min_correl: float = DEFAULT_MIN_CORREL) -> str:
         reach = det.get("excess_reaches") if isinstance(det, dict) else None
         if isinstance(reach, list) and reach:
             names = _fitted_names(d)
-            out = [names[i] for i, v in enumerate(reach) if i < len(names) and v is False]
+            # the lags never carry the excess unless stated (Systematics.excess_on_lags):
+            # the test did not take it from them
+            lags_off = not (det.get("stated") or {}).get("excess_on_lags", False)
+            out = [names[i] for i, v in enumerate(reach) if i < len(names) and v is False
+                   and not (lags_off and names[i] in LAG_PARAMETERS)]
             if out:
                 lines.append("    residuals' excess over the runs' spread left out of the "
                              "intervals (each parameter's own ratio of the two below the F "

@@ -759,6 +759,26 @@ def test_alternative_minima_that_fit_as_well_widen_only_their_side():
     assert LR_THRESHOLD[0.68] == pytest.approx(chi2.ppf(0.68, 1), rel=1e-4)
 
 
+def test_minima_apart_along_a_lag_are_told_apart_at_the_lags_scale():
+    """The distinct minima's Mahalanobis distance is scale-free: two minima 3 ALT_SAME of a
+    lag's sd apart along it (its variance ~1e-15 s^2 beside O(1) ones, as in the prior's
+    coordinates) are distinct, and 0.5 ALT_SAME apart the same; the whitening of Cu itself
+    (until stop 51) floored the lag's eigenvalue at 1e-14 of the largest and took them for
+    one."""
+    from gprm.fit.sandwich import ALT_SAME, _distinct_minima
+
+    sd = np.array([1.0, 0.3, 3e-8])
+    Rm = np.array([[1.0, 0.4, 0.2], [0.4, 1.0, -0.3], [0.2, -0.3, 1.0]])
+    Cu = Rm * np.outer(sd, sd)
+    u0 = np.array([0.5, -1.0, 4e-6])
+    # an offset along the lag alone, of Mahalanobis length 1
+    lag = np.array([0.0, 0.0, 1.0])
+    step = lag / np.sqrt(lag @ np.linalg.solve(Cu, lag))
+    for k, expect in ((3.0, [0]), (0.5, [])):
+        U = (u0 + k * ALT_SAME * step)[None]
+        np.testing.assert_array_equal(_distinct_minima(U, np.zeros(1), u0, Cu), expect)
+
+
 def test_minima_nearer_than_alt_same_are_one_and_could_not_move_an_interval():
     """Two polished minima count as one where their Mahalanobis distance under the fit's
     covariance is at most ALT_SAME; kept or not, such a neighbour of the best moves no side

@@ -1213,10 +1213,18 @@ def _distinct(U: np.ndarray, u0: np.ndarray, sd: np.ndarray) -> np.ndarray:
 def _distinct_minima(U: np.ndarray, D: np.ndarray, u0: np.ndarray,
                      Cu: np.ndarray) -> np.ndarray:
     """Indices of the rows of U (minima, D their rises), lowest rise first, whose Mahalanobis
-    distance under ``Cu`` from u0 and from every lower row kept exceeds ALT_SAME."""
-    w, V = np.linalg.eigh(0.5 * (Cu + Cu.T))
+    distance under ``Cu`` from u0 and from every lower row kept exceeds ALT_SAME.
+
+    Whitened in the standardised coordinates (offsets over the sds, the correlation's
+    eigen-decomposition, its eigenvalues floored at 1e-14 of the largest), so that the lags'
+    ~1e-15 variances beside O(1) ones are not lost to the floor (until stop 51 Cu itself was
+    decomposed, which under-weighed offsets along the lags)."""
+    sd = np.sqrt(np.clip(np.diag(Cu), 0.0, None))
+    sd = np.where(sd > 0, sd, 1.0)
+    R = Cu / np.outer(sd, sd)
+    w, V = np.linalg.eigh(0.5 * (R + R.T))
     w = np.clip(w, np.max(np.abs(w)) * 1e-14 + 1e-300, None)
-    Wt = ((U - u0[None]) @ V) / np.sqrt(w)[None]                 # whitened offsets
+    Wt = (((U - u0[None]) / sd[None]) @ V) / np.sqrt(w)[None]    # whitened offsets
     kept: list[int] = []
     for i in np.argsort(D, kind="stable"):
         if np.linalg.norm(Wt[i]) <= ALT_SAME:

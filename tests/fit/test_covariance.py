@@ -96,7 +96,8 @@ def test_normal_factor_reproduces_every_variance_where_a_plain_eigen_factor_does
     np.testing.assert_allclose(back / np.outer(s, s), R, atol=1e-10)
     w, V = np.linalg.eigh(C)
     plain = (V * np.sqrt(np.clip(w, 0, None))) @ (V * np.sqrt(np.clip(w, 0, None))).T
-    assert np.max(np.abs(np.diag(plain) / np.diag(C) - 1)[-5:]) > 1e-3
+    # the small sds more than 2 % off (docs/fitting.md: "several per cent")
+    assert np.max(np.abs(np.sqrt(np.diag(plain) / np.diag(C)) - 1)[-5:]) > 0.02
 
 
 @pytest.mark.parametrize("sampling", ["uniform", "lhs"])

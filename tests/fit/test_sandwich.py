@@ -777,6 +777,12 @@ def test_minima_apart_along_a_lag_are_told_apart_at_the_lags_scale():
     for k, expect in ((3.0, [0]), (0.5, [])):
         U = (u0 + k * ALT_SAME * step)[None]
         np.testing.assert_array_equal(_distinct_minima(U, np.zeros(1), u0, Cu), expect)
+    # Cu's own eigen-whitening with the floor: the 3 ALT_SAME offset shrinks about fourfold,
+    # under ALT_SAME (docs/fitting.md, "The draws' factor")
+    w, V = np.linalg.eigh(Cu)
+    w = np.clip(w, np.max(np.abs(w)) * 1e-14, None)
+    old = np.linalg.norm((3.0 * ALT_SAME * step) @ V / np.sqrt(w))
+    assert 0.2 < old / (3.0 * ALT_SAME) < 0.3
 
 
 def test_minima_nearer_than_alt_same_are_one_and_could_not_move_an_interval():
@@ -1090,7 +1096,7 @@ def test_the_residuals_excess_is_tested_per_parameter():
     from gprm.errors import GprmInputError
     from gprm.fit.objective import Objective
     from gprm.fit.sandwich import (_estimator, error_model, excess_mask, propagate,
-                                   residual_dof, satterthwaite)
+                                   residual_dof, satterthwaite, with_excess_mask)
 
     syst = Systematics(drive_timing=False)
 
@@ -1118,6 +1124,10 @@ def test_the_residuals_excess_is_tested_per_parameter():
     # in the propagation: the excess's principal block on the tested parameters
     m = masks[0.5]
     tested = propagate(obj, x, J, prior, replace(err, excess_mask=m), yy)
+    # the method restricts the parts it has instead of propagating again: the same arrays
+    short = with_excess_mask(parts, m)
+    np.testing.assert_array_equal(short.statistical, tested.statistical)
+    np.testing.assert_array_equal(short.total, tested.total)
     E, E_t = parts.statistical - parts.runs, tested.statistical - tested.runs
     np.testing.assert_allclose(E_t[np.ix_(m, m)], E[np.ix_(m, m)], rtol=1e-12)
     np.testing.assert_array_equal(E_t[~m, :], 0.0)

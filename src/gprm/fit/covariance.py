@@ -93,10 +93,19 @@ def normal_factor(cov: np.ndarray) -> np.ndarray:
     decomposition (negative round-off eigenvalues set to 0). Factorising cov itself loses
     the small variances: in the prior's coordinates the lags' variances are ~1e-15 s^2
     beside O(1) ones, below the eigen-solver's absolute error, and their draws came out with
-    sds 10 % off theirs (tests/fit/test_covariance.py)."""
+    sds several per cent off theirs (tests/fit/test_covariance.py)."""
+    s, R = standardised(cov)
+    w, V = np.linalg.eigh(R)
+    return s[:, None] * (V * np.sqrt(np.clip(w, 0, None)))
+
+
+def standardised(cov: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(sd (P,), R (P, P)): ``cov``'s standard deviations and its correlation matrix
+    (symmetrised; a zero variance leaves its row and column of R zero), the O(1) form in
+    which a covariance whose scales span many orders of magnitude is factorised or whitened
+    without losing the small ones to round-off (:func:`normal_factor`)."""
     cov = np.asarray(cov, float)
     s = np.sqrt(np.clip(np.diag(cov), 0, None))
     safe = np.where(s > 0, s, 1.0)
     R = cov / np.outer(safe, safe)
-    w, V = np.linalg.eigh(0.5 * (R + R.T))
-    return s[:, None] * (V * np.sqrt(np.clip(w, 0, None)))
+    return s, 0.5 * (R + R.T)

@@ -69,7 +69,7 @@ from scipy.special import fdtri, ndtri
 
 from gprm.campaign.preprocess import alignment_shift
 from gprm.errors import GprmInputError
-from gprm.fit.covariance import normal_factor
+from gprm.fit.covariance import normal_factor, standardised
 from gprm.fit.draws import inflation, project_draws
 from gprm.fit.engine import polish_kwargs
 from gprm.fit.lm import levenberg_marquardt_batch
@@ -857,6 +857,32 @@ def error_model(obj: Objective, x: np.ndarray, J: np.ndarray, r: np.ndarray, pri
                       v_sd, bool(systematics.excess_on_lags))
 
 
+def _excess_on(V_runs: np.ndarray, V_stat: np.ndarray, mask) -> np.ndarray:
+    """The statistical part with the residuals' excess over the runs' covariance kept on the
+    parameters of ``mask`` (P,) bool only (:func:`excess_mask`): a principal block of a
+    positive semi-definite matrix, so still one."""
+    m = np.asarray(mask, float)
+    return V_runs + (V_stat - V_runs) * np.outer(m, m)
+
+
+def _sum_of_parts(*parts: np.ndarray) -> np.ndarray:
+    """The sandwich's total, symmetrised, from its parts in :class:`SandwichParts` order."""
+    total = sum(parts[1:], parts[0])
+    return 0.5 * (total + total.T)
+
+
+def with_excess_mask(parts: SandwichParts, mask) -> SandwichParts:
+    """``parts`` as :func:`propagate` gives them for an error model carrying ``mask`` as its
+    ``excess_mask``, without propagating again (the same error at the same point); without
+    runs there is no excess to restrict, as there."""
+    if parts.runs is None:
+        return parts
+    stat = _excess_on(parts.runs, parts.statistical, mask)
+    return replace(parts, statistical=stat,
+                   total=_sum_of_parts(stat, parts.gain, parts.timing, parts.interpolation,
+                                       parts.prior))
+
+
 def propagate(obj: Objective, x: np.ndarray, J: np.ndarray, prior: Prior,
               err: ErrorModel, y: np.ndarray | None = None) -> SandwichParts:
     """The covariance in u of the estimator linearised at ``x`` (physical (P,), J (N, P)
@@ -882,10 +908,7 @@ def propagate(obj: Objective, x: np.ndarray, J: np.ndarray, prior: Prior,
             E[:, lag] = 0.0
             V_stat = V_runs + E
     if V_runs is not None and err.excess_mask is not None:
-        # the excess only on the parameters whose own residual estimate shows it (a
-        # principal block of a positive semi-definite matrix: still one)
-        m = np.asarray(err.excess_mask, float)
-        V_stat = V_runs + (V_stat - V_runs) * np.outer(m, m)
+        V_stat = _excess_on(V_runs, V_stat, err.excess_mask)
     by_signal = None
     if err.dev is not None and err.dev.shape[1] >= 2:
         n_r = err.dev.shape[1]
@@ -905,9 +928,9 @@ def propagate(obj: Objective, x: np.ndarray, J: np.ndarray, prior: Prior,
     w2 = float(prior.weight) ** 2
     lam = w2 / prior.sd ** 2
     V_prior = Hinv @ np.diag(w2 * lam) @ Hinv
-    total = V_stat + V_gain + V_time + V_interp + V_prior
     return SandwichParts(V_runs, V_res, V_stat, V_gain, V_time, V_interp, V_prior,
-                         0.5 * (total + total.T), err.timing_sd, err.gain_sd,
+                         _sum_of_parts(V_stat, V_gain, V_time, V_interp, V_prior),
+                         err.timing_sd, err.gain_sd,
                          err.gain_estimated, err.alignment_sd, err.p_eff, err.max_lag,
                          by_signal, 0 if err.dev is None else int(err.dev.shape[1]))
 
@@ -1219,10 +1242,9 @@ def _distinct_minima(U: np.ndarray, D: np.ndarray, u0: np.ndarray,
     eigen-decomposition, its eigenvalues floored at 1e-14 of the largest), so that the lags'
     ~1e-15 variances beside O(1) ones are not lost to the floor (until stop 51 Cu itself was
     decomposed, which under-weighed offsets along the lags)."""
-    sd = np.sqrt(np.clip(np.diag(Cu), 0.0, None))
+    sd, R = standardised(Cu)
     sd = np.where(sd > 0, sd, 1.0)
-    R = Cu / np.outer(sd, sd)
-    w, V = np.linalg.eigh(0.5 * (R + R.T))
+    w, V = np.linalg.eigh(R)
     w = np.clip(w, np.max(np.abs(w)) * 1e-14 + 1e-300, None)
     Wt = (((U - u0[None]) / sd[None]) @ V) / np.sqrt(w)[None]    # whitened offsets
     kept: list[int] = []
@@ -1498,7 +1520,7 @@ def uncertainty(method: str, state: FitState) -> Uncertainty:
             # decided once at the best fit; every later propagation (the variance check's
             # points) carries the same error model
             err = replace(err, excess_mask=mask)
-            parts = propagate(state.obj, x, state.J, prior, err)
+            parts = with_excess_mask(parts, mask)
             if syst.excess_test_draws:
                 C_draws = parts.total
     u = prior.to_u(x)

@@ -252,6 +252,8 @@ def test_candidates_file(tmp_path):
     ('[cost]\nbudget = "a lot"\n', "cost.budget"),
     ('[[candidate]]\nname = "a"\nchannels = [{body = "runner", at = [0, 0, 0], axis = "x"}]\n',
      "candidate[0].channels[0].axis"),
+    # more samples in the window than a design evaluates: refused, not a MemoryError
+    ('[[candidate]]\nname = "a"\nrate = "1e15 Hz"\n', "candidate[0].rate"),
 ])
 def test_bad_candidates_are_refused_naming_the_field(tmp_path, text, field):
     f = tmp_path / "c.toml"

@@ -116,6 +116,12 @@ class DesignConfig:
         return dict(self.extra_hours).get(name, 0.0)
 
 
+
+#: the most samples a candidate's fit window may hold (rate x window): 40 times the default
+#: campaign's 46, far beyond any interferometer campaign of this kind, and small enough that
+#: the per-channel noise covariances (samples squared) stay well inside a laptop's memory
+MAX_WINDOW_SAMPLES = 2000
+
 def _five() -> tuple[Channel, ...]:
     return tuple(Channel(n) for n in MODEL_CHANNELS)
 
@@ -284,6 +290,12 @@ def _block(c: dict, src: str, fld: str, window) -> Block:
     if (w1 - w0) * rate < 4:
         raise GprmInputError("fewer than 4 samples in the window", source=src,
                              field=f"{fld}.window")
+    if (w1 - w0) * rate > MAX_WINDOW_SAMPLES:
+        raise GprmInputError(f"{(w1 - w0) * rate:.3g} samples in the fit window, more than "
+                             f"the {MAX_WINDOW_SAMPLES} a design evaluates (its noise "
+                             "covariances grow with their square); the largest rate for "
+                             f"this window is {MAX_WINDOW_SAMPLES / (w1 - w0):.4g} Hz",
+                             source=src, field=f"{fld}.rate")
     voltage = _q(c.get("voltage", 1.0), "1", src, f"{fld}.voltage")
     if voltage > 1.0 + 1e-12:
         raise GprmInputError("the drop cannot exceed the nominal voltage (100 %)",

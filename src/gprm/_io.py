@@ -62,21 +62,15 @@ def _pid_alive(pid: int) -> bool:
     return True
 
 
-#: the temporary files of gprm 0.1.0 and before (mkstemp's 8 letters, no PID)
-_LEGACY_TEMP_RE = re.compile(r"\.(?P<name>.+)\.[a-z0-9_]{8}\.part")
-
-
-def remove_stale_temps(folder: str | os.PathLike, name: str | None = None, *,
-                       legacy_names=()) -> list[Path]:
+def remove_stale_temps(folder: str | os.PathLike, name: str | None = None) -> list[Path]:
     """Remove the temporary files (``.NAME.gprm-HOST-PID-*.part``) that a gprm process on
     this host left in ``folder`` when it was killed before it could clean up (its PID is no
-    longer running); with ``name``, only those of that output. ``legacy_names``: outputs
-    whose temporary files of earlier gprm versions (``.NAME.XXXXXXXX.part``, no PID) are
-    removed too (a run directory, whose file names are gprm's). Nothing else is touched, and
-    a folder that cannot be listed is left alone. Returns what was removed."""
+    longer running); with ``name``, only those of that output. Nothing else is touched (not
+    even a file named like gprm 0.1.0's temporaries, ``.NAME.XXXXXXXX.part``: nothing in such
+    a name says who made it), and a folder that cannot be listed is left alone. Returns what
+    was removed."""
     folder = Path(folder)
     host, me = _host_tag(), os.getpid()
-    legacy = set(legacy_names)
     removed: list[Path] = []
     try:
         entries = list(os.scandir(folder))
@@ -85,12 +79,10 @@ def remove_stale_temps(folder: str | os.PathLike, name: str | None = None, *,
     for e in entries:
         m = _TEMP_RE.fullmatch(e.name)
         if m is None:
-            old = _LEGACY_TEMP_RE.fullmatch(e.name)
-            if old is None or old["name"] not in legacy:
-                continue
-        elif m["host"] != host or (name is not None and m["name"] != name):
             continue
-        elif int(m["pid"]) == me or _pid_alive(int(m["pid"])):
+        if m["host"] != host or (name is not None and m["name"] != name):
+            continue
+        if int(m["pid"]) == me or _pid_alive(int(m["pid"])):
             continue
         with contextlib.suppress(OSError):
             if e.is_file(follow_symlinks=False):
@@ -187,35 +179,55 @@ def atomic_path(path: str | os.PathLike) -> Iterator[Path]:
     NetCDF library while writing becomes a :class:`GprmOutputError` naming ``path`` and the
     cause. Temporary files that killed gprm processes left for ``path`` are removed first.
     """
-    path = Path(path)
-    if path.is_dir():
-        raise GprmInputError("is a folder; expected a file to write", source=str(path))
+    with atomic_paths([path]) as (tmp,):
+        yield tmp
+
+
+@contextlib.contextmanager
+def atomic_paths(paths) -> Iterator[tuple[Path, ...]]:
+    """:func:`atomic_path` for several files that belong together (a JSON and its
+    sidecar): yield one temporary path beside each; only when the block has written every
+    one are they moved into place, in the order given. A failure while writing any of them
+    leaves every path as it was (no output replaced, no temporary file left)."""
+    paths = [Path(p) for p in paths]
+    for path in paths:
+        if path.is_dir():
+            raise GprmInputError("is a folder; expected a file to write", source=str(path))
+    tmps: list[Path] = []
     try:
-        path.parent.mkdir(parents=True, exist_ok=True)
-        remove_stale_temps(path.parent, path.name)
-        fd, tmp = tempfile.mkstemp(prefix=temp_prefix(path.name), suffix=".part",
-                                   dir=path.parent)
-    except OSError as exc:
-        raise output_error(path, exc) from None
-    os.close(fd)
-    tmp_path = Path(tmp)
-    _LIVE_TEMPS.add(tmp_path)
-    try:
-        yield tmp_path
+        for path in paths:
+            try:
+                path.parent.mkdir(parents=True, exist_ok=True)
+                remove_stale_temps(path.parent, path.name)
+                fd, tmp = tempfile.mkstemp(prefix=temp_prefix(path.name), suffix=".part",
+                                           dir=path.parent)
+            except OSError as exc:
+                raise output_error(path, exc) from None
+            os.close(fd)
+            tmps.append(Path(tmp))
+            _LIVE_TEMPS.add(tmps[-1])
+        yield tuple(tmps)
         # mkstemp makes the file private (0600); give the output the usual mode (umask applies)
-        os.chmod(tmp_path, 0o666 & ~_umask())
-        os.replace(tmp_path, path)
+        for tmp_path in tmps:
+            os.chmod(tmp_path, 0o666 & ~_umask())
+        for tmp_path, path in zip(tmps, paths):
+            os.replace(tmp_path, path)
     except BaseException as exc:
-        size = None
-        with contextlib.suppress(OSError):
-            size = tmp_path.stat().st_size
-        with contextlib.suppress(OSError):
-            tmp_path.unlink()
-        if isinstance(exc, Exception) and _is_write_failure(exc, tmp_path):
-            raise output_error(path, exc, size) from None
+        failed = None
+        for tmp_path, path in zip(tmps, paths):
+            size = None
+            with contextlib.suppress(OSError):
+                size = tmp_path.stat().st_size
+            if failed is None and isinstance(exc, Exception) and _is_write_failure(exc, tmp_path):
+                failed = (path, size)
+            with contextlib.suppress(OSError):
+                tmp_path.unlink()
+        if failed is not None:
+            raise output_error(failed[0], exc, failed[1]) from None
         raise
     finally:
-        _LIVE_TEMPS.discard(tmp_path)
+        for tmp_path in tmps:
+            _LIVE_TEMPS.discard(tmp_path)
 
 
 def _umask() -> int:
@@ -229,8 +241,13 @@ def write_text_atomic(path: str | os.PathLike, text: str) -> None:
         tmp.write_text(text, encoding="utf-8")
 
 
+def json_text(obj: Any) -> str:
+    """The text gprm writes a JSON document as."""
+    return json.dumps(obj, indent=2, allow_nan=False) + "\n"
+
+
 def write_json_atomic(path: str | os.PathLike, obj: Any) -> None:
-    write_text_atomic(path, json.dumps(obj, indent=2, allow_nan=False) + "\n")
+    write_text_atomic(path, json_text(obj))
 
 
 CONVENTIONS = "CF-1.10"
@@ -279,7 +296,13 @@ def write_netcdf_atomic(ds, path: str | os.PathLike) -> None:
     :func:`cf_dataset` (docs/data-formats.md, "Conventions")."""
     out = cf_dataset(ds)
     with atomic_path(path) as tmp:
-        out.to_netcdf(tmp, engine="netcdf4")
+        write_netcdf_to(out, tmp)
+
+
+def write_netcdf_to(ds, tmp: Path) -> None:
+    """Write ``ds`` with the CF attributes of :func:`cf_dataset` to ``tmp``, a path
+    :func:`atomic_paths` gave (several outputs written together)."""
+    cf_dataset(ds).to_netcdf(tmp, engine="netcdf4")
 
 
 # ----------------------------------------------------------------------------- reading NetCDF
@@ -515,7 +538,7 @@ def _probe_writable(folder: Path) -> str | None:
 
 
 def check_outputs(outputs: dict | list[tuple[Any, str]], inputs=(), *,
-                  folders: dict | None = None) -> None:
+                  folders: dict | None = None, own=(), sidecars=()) -> None:
     """Refuse, before any work, outputs that cannot be written or would destroy data.
 
     ``outputs`` maps each file to be written to the option it comes from (a sidecar names its
@@ -559,9 +582,93 @@ def check_outputs(outputs: dict | list[tuple[Any, str]], inputs=(), *,
                 raise GprmInputError(f"is also the output of {oopt}; choose another name",
                                      source=str(path), field=opt)
         seen.append((path, opt))
+        if (not is_folder and path.is_file() and not any(_same(path, Path(o)) for o in own)
+                and not written_by_gprm(path)):
+            raise GprmInputError("exists and is not a file gprm wrote; gprm replaces only its "
+                                 "own files: move it or choose another name",
+                                 source=str(path), field=opt)
         why = _probe_writable(path if is_folder else path.parent)
         if why:
             raise GprmInputError(f"cannot be written: {why}", source=str(path), field=opt)
+    for side, doc in sidecars:
+        side, doc = Path(side), Path(doc)
+        if side.is_file() and not sidecar_of(doc, side):
+            raise GprmInputError(f"exists and is not the sidecar of an existing {doc.name}; "
+                                 f"writing {doc.name} would replace it, which gprm does "
+                                 "not do: move it or choose another --out",
+                                 source=str(side), field="--out")
+
+
+def sidecar_of(doc: Path, side: Path) -> bool:
+    """Whether the JSON file ``doc`` is a gprm result that names ``side`` as its sidecar
+    (a fit's ``sidecar.name``, an impact result's ``curves.sidecar``)."""
+    try:
+        if doc.stat().st_size > (64 << 20):
+            return False
+        d = json.loads(doc.read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return False
+    if not isinstance(d, dict):
+        return False
+    fit_side, curves = d.get("sidecar"), d.get("curves")
+    names = (fit_side.get("name") if isinstance(fit_side, dict) else None,
+             curves.get("sidecar") if isinstance(curves, dict) else None)
+    return side.name in names
+
+
+#: what :func:`_history_entry` writes into every NetCDF file gprm makes
+_HISTORY_MARK = re.compile(rb"written by (?:gprm |the gprm Python API )")
+#: the start of what ``gprm report`` writes (its title) and of a parameter file gprm writes
+_REPORT_MARK = b"<title>GPRM tip retraction"
+_PARAMS_MARK = b"# gprm parameter file"
+
+
+def written_by_gprm(path: str | os.PathLike, chunk: int = 1 << 22) -> bool:
+    """Whether the existing file ``path`` is recognisably one gprm wrote, by its kind:
+
+    - NetCDF (``.nc``): gprm's history entry (:func:`_history_entry`, in every NetCDF file
+      gprm writes; an attribute is stored as plain bytes, so the file is scanned for it chunk
+      by chunk, without opening it as NetCDF);
+    - JSON (``.json``): an object whose ``format`` or ``model`` names gprm (``gprm-...``: the
+      fit, impact and design results), whose ``versions`` lists gprm (run.json), or a what-if
+      table (``definition`` and ``ratios``);
+    - the report (``.html``: its title) and a parameter file (``.toml``: its first line).
+
+    False for anything else and for a file that cannot be read: gprm replaces only what it
+    recognises as its own (:func:`check_outputs`)."""
+    path = Path(path)
+    suffix = path.suffix.lower()
+    try:
+        if suffix == ".nc":
+            overlap = 64
+            with open(path, "rb") as fh:
+                tail = b""
+                while True:
+                    block = fh.read(chunk)
+                    if not block:
+                        return False
+                    seen = tail + block
+                    if _HISTORY_MARK.search(seen):
+                        return True
+                    tail = seen[-overlap:]
+        if suffix == ".json":
+            if path.stat().st_size > (64 << 20):
+                return False
+            d = json.loads(path.read_text(encoding="utf-8"))
+            if not isinstance(d, dict):
+                return False
+            named = any(isinstance(d.get(k), str) and d[k].startswith("gprm")
+                        for k in ("format", "model"))
+            versions = d.get("versions")
+            return (named or (isinstance(versions, dict) and "gprm" in versions)
+                    or {"definition", "ratios"} <= d.keys())
+        if suffix in (".html", ".toml"):
+            with open(path, "rb") as fh:
+                head = fh.read(1 << 16)
+            return (_REPORT_MARK in head) if suffix == ".html" else head.startswith(_PARAMS_MARK)
+    except (OSError, ValueError):
+        return False
+    return False
 
 
 def files_read_from(folder: str | os.PathLike, suffixes) -> list[Path]:

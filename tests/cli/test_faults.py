@@ -104,17 +104,27 @@ def run_copy(run_dir, tmp_path):
 # ----------------------------------------------------------------------------- 1. data loss
 
 def test_a_run_that_fails_keeps_every_file_it_did_not_write(tmp_path):
-    """``gprm run bad.nc --out U`` where U holds the user's own fit.json, fit.nc, means.nc and
-    impact.json: the blocked stages leave them as they were, no later stage takes the user's
-    means.nc as its input, and neither the summary nor the report presents them as results."""
+    """``gprm run bad.nc --out U`` where U holds files of the run's names: the user's own
+    (not gprm's) are refused before anything runs; gprm's own (an earlier run's fit.json,
+    fit.nc, means.nc and impact.json): the blocked stages leave them as they were, no later
+    stage takes the earlier means.nc as its input, and neither the summary nor the report
+    presents them as results."""
     u = tmp_path / "U"
     u.mkdir()
-    mine = {"fit.json": b'{"my": "fit"}', "fit.nc": b"my sidecar", "means.nc": b"my means",
-            "impact.json": b'{"my": "impact"}'}
-    for name, data in mine.items():
+    theirs = {"fit.json": b'{"my": "fit"}', "means.nc": b"my means"}
+    for name, data in theirs.items():
         (u / name).write_bytes(data)
     bad = tmp_path / "bad.nc"
     bad.write_bytes(np.random.default_rng(0).bytes(1000))
+    r = _invoke(["run", bad, *SMALL, "--out", u], tmp_path)
+    assert r.exit_code == 2 and "not a file gprm wrote" in r.output, r.output
+    assert sorted(p.name for p in u.iterdir()) == sorted(theirs)
+    assert all((u / n).read_bytes() == d for n, d in theirs.items())
+    mark = b"written by gprm run (gprm 0.1.0)"     # what gprm's history says in its NetCDF
+    mine = {"fit.json": b'{"model": "gprm-3d", "my": "fit"}', "fit.nc": b"sidecar " + mark,
+            "means.nc": b"means " + mark, "impact.json": b'{"format": "gprm-impact"}'}
+    for name, data in mine.items():
+        (u / name).write_bytes(data)
     r = _invoke(["run", bad, *SMALL, "--out", u], tmp_path)
     assert r.exit_code == 1, r.output
     assert "stage(s) failed: campaign: " + str(bad) in r.output
@@ -464,11 +474,11 @@ def test_a_rerun_removes_the_temporary_files_a_killed_gprm_left_and_nothing_else
                           capture_output=True, text=True, check=True)
     dead = int(done.stdout)                                # a PID no process has now
     host = _host_tag()
-    stale = [f".predict_piezo1.nc.gprm-{host}-{dead}-abcd1234.part",
-             ".predict_piezo1.nc.k2j4_x9q.part"]           # gprm 0.1.0's name (no PID)
+    stale = [f".predict_piezo1.nc.gprm-{host}-{dead}-abcd1234.part"]
     alive = f".predict.nc.gprm-{host}-{os.getppid()}-zz11yy22.part"   # its writer runs
     users = [".notes.part", "draft.part", ".fit.json.backup.part", "notes.txt",
-             ".notes.txt.abcd1234.part"]                   # not a run file's name
+             ".notes.txt.abcd1234.part",                   # not a run file's name
+             ".predict_piezo1.nc.k2j4_x9q.part"]           # like gprm 0.1.0's: not provably
     for name in [*stale, alive, *users]:
         (run_copy / name).write_text("x")
     r = _invoke(["run", run_copy / "campaign.nc", *SMALL, "--out", run_copy], tmp_path)

@@ -221,8 +221,8 @@ def test_outputs_beside_inputs_are_fine_over_them_refused(tmp_path):
     run = tmp_path / "run"
     run.mkdir()
     (run / "fit.json").write_text("{}")
-    (run / "report.html").write_text("old report")             # a rerun replaces it
-    check_outputs({run / "report.html": "--out"},
+    (run / "report.html").write_text("<title>GPRM tip retraction</title> an old report")
+    check_outputs({run / "report.html": "--out"},              # gprm's: a rerun replaces it
                   inputs=files_read_from(run, suffixes={".json"}))
     with pytest.raises(GprmInputError, match="would overwrite the input") as e:
         check_outputs({run / "fit.json": "--out"},
@@ -353,3 +353,120 @@ def test_a_dashboard_asked_for_is_served():
             assert r.status == 200
     finally:
         cluster.close()
+
+
+# ----------------------------------------------------------------------------- others' files
+
+def test_an_existing_file_gprm_did_not_write_is_never_replaced(tmp_path):
+    """check_outputs refuses an output path that holds a file gprm does not recognise as its
+    own (the user's notes, another tool's NetCDF), names it and leaves it as it was; gprm's
+    own files, and those a record lists as gprm's (``own``), may be replaced."""
+    import xarray as xr
+
+    from gprm._io import check_outputs, write_json_atomic, write_netcdf_atomic
+
+    ds = xr.Dataset({"v": ("t", np.arange(3.0))})
+    theirs = tmp_path / "theirs.nc"
+    ds.to_netcdf(theirs)                                  # another tool's NetCDF
+    notes = tmp_path / "notes.json"
+    notes.write_text('{"my": "notes"}')
+    before = {p: p.read_bytes() for p in (theirs, notes)}
+    for path in (theirs, notes):
+        with pytest.raises(GprmInputError, match="not a file gprm wrote") as e:
+            check_outputs({path: "--out"})
+        assert e.value.source == str(path) and e.value.field == "--out"
+    assert {p: p.read_bytes() for p in before} == before
+    check_outputs({theirs: "--out"}, own=[theirs])         # a run record says it is gprm's
+    ours, ours_json = tmp_path / "ours.nc", tmp_path / "ours.json"
+    write_netcdf_atomic(ds, ours)
+    write_json_atomic(ours_json, {"format": "gprm-impact"})
+    check_outputs({ours: "--out", ours_json: "--whatif", tmp_path / "new.nc": "--x"})
+
+
+def test_written_by_gprm_reads_each_kind_by_its_content(tmp_path):
+    import xarray as xr
+
+    from gprm._io import written_by_gprm, write_netcdf_atomic
+
+    cases = {"fit.json": '{"model": "gprm-3d", "chi2": 1}', "run.json": '{"versions": '
+             '{"gprm": "0.1.0"}}', "w.json": '{"definition": "x", "ratios": {}}',
+             "r.html": "<html><title>GPRM tip retraction: x</title>",
+             "p.toml": "# gprm parameter file (values)\n[parameters]\n"}
+    for name, text in cases.items():
+        (tmp_path / name).write_text(text)
+        assert written_by_gprm(tmp_path / name), name
+    not_ours = {"a.json": '{"model": "other"}', "b.json": "[1, 2]", "c.json": "{broken",
+                "d.html": "<title>my page</title>", "e.toml": "[parameters]\n",
+                "f.txt": "written by gprm (gprm 0.1.0)"}    # unknown kinds: never
+    for name, text in not_ours.items():
+        (tmp_path / name).write_text(text)
+        assert not written_by_gprm(tmp_path / name), name
+    assert not written_by_gprm(tmp_path / "missing.nc")
+    ds = xr.Dataset({"v": ("t", np.arange(3.0))})
+    write_netcdf_atomic(ds, tmp_path / "g.nc")
+    assert written_by_gprm(tmp_path / "g.nc")
+    assert written_by_gprm(tmp_path / "g.nc", chunk=5)       # the mark across chunk ends
+    ds.to_netcdf(tmp_path / "x.nc")
+    assert not written_by_gprm(tmp_path / "x.nc")
+
+
+def test_a_sidecar_name_held_by_a_campaign_is_refused(tmp_path):
+    """`gprm fit --out campaign.json` beside a campaign.nc (which gprm wrote: a campaign)
+    must not replace it: a sidecar is replaced only where the existing JSON names it."""
+    import xarray as xr
+
+    from gprm._io import check_outputs, write_netcdf_atomic
+
+    side, doc = tmp_path / "campaign.nc", tmp_path / "campaign.json"
+    write_netcdf_atomic(xr.Dataset({"v": ("t", np.arange(3.0))}), side)
+    before = side.read_bytes()
+    with pytest.raises(GprmInputError, match="not the sidecar of an existing campaign.json"):
+        check_outputs({doc: "--out", side: "--out (its .nc sidecar)"}, sidecars=[(side, doc)])
+    doc.write_text('{"model": "gprm-3d", "sidecar": {"name": "campaign.nc"}}')
+    check_outputs({doc: "--out", side: "--out (its .nc sidecar)"}, sidecars=[(side, doc)])
+    assert side.read_bytes() == before
+
+
+def test_fit_cli_refuses_to_replace_a_campaign_by_its_sidecar(tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    make_means(__import__("gprm.params", fromlist=["paper"]).paper(), seed=2).to_netcdf("m.nc")
+    from gprm._io import write_netcdf_atomic
+
+    write_netcdf_atomic(make_means(__import__("gprm.params", fromlist=["paper"]).paper(),
+                                   seed=3), "run1.nc")
+    before = Path("run1.nc").read_bytes()
+    r = CliRunner().invoke(app, ["fit", "m.nc", "--out", "run1.json", "--starts", "2",
+                                 "--chunk", "2", "--max-iter", "3", "--band-samples", "0",
+                                 "--workers", "0"])
+    assert r.exit_code == 2 and "run1.nc" in r.output and "Traceback" not in r.output
+    assert Path("run1.nc").read_bytes() == before and not Path("run1.json").exists()
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="PR_SET_PDEATHSIG is Linux's")
+def test_local_workers_die_with_a_killed_parent(tmp_path):
+    """`kill -9` of a `gprm fit` must not leave its local worker processes idling for ever
+    (they hold a copy of the pipe the parent would close): they are killed with it."""
+    import time
+
+    script = ("import os, signal\n"
+              "from gprm.fit.engine import local_pool\n"
+              "pool = local_pool(2)\n"
+              "pids = {pool.submit(os.getpid).result() for _ in range(6)}\n"
+              "print(' '.join(map(str, pids)), flush=True)\n"
+              "os.kill(os.getpid(), signal.SIGKILL)\n")
+    r = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True,
+                       timeout=120)
+    pids = [int(p) for p in r.stdout.split()]
+    assert pids, r.stderr
+
+    def alive(pid):
+        try:
+            state = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0]
+        except OSError:
+            return False
+        return state not in ("Z", "X")      # a zombie is dead, only not yet reaped
+
+    deadline = time.monotonic() + 20
+    while any(alive(p) for p in pids) and time.monotonic() < deadline:
+        time.sleep(0.2)
+    assert not any(alive(p) for p in pids)

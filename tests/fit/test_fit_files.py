@@ -68,6 +68,13 @@ def test_load_model_resolves_paper_a_file_a_run_folder_and_a_model(saved):
     (lambda d: d.pop("parameters"), "parameters"),
     (lambda d: d["parameters"].update(zz={"value": 1.0}), "parameters.zz"),
     (lambda d: d["parameters"]["m2"].update(value=float("nan")), "parameters.m2.value"),
+    # a field of the wrong JSON type: named, not met later as an AttributeError in a reader
+    (lambda d: d.update(correlation=5), "correlation"),
+    (lambda d: d.update(polish="x"), "polish"),
+    (lambda d: d.update(identified={"v2": 1}), "identified"),
+    (lambda d: d.update(dof=True), "dof"),
+    (lambda d: d.update(window=[0.97e-3]), "window"),
+    (lambda d: d.update(window=["x", 1.2e-3]), "window[0]"),
 ])
 def test_every_reader_validates_the_fit_file(saved, tmp_path, change, field):
     _, path, _ = saved

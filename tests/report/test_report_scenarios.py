@@ -4,6 +4,7 @@ with its spread) and the impact scenarios' section only when impact.json has the
 from __future__ import annotations
 
 import numpy as np
+import pytest
 import xarray as xr
 
 from gprm.report.scenarios import fig_voltage, scenario_section, voltage_section
@@ -39,6 +40,17 @@ def test_voltage_section_without_runs_or_campaign(tmp_path):
     _campaign(tmp_path / "campaign.nc", volt=False)
     s = voltage_section(tmp_path)
     assert "not run" in "".join(s.blocks)
+
+
+def test_voltage_section_refuses_a_campaign_file_that_is_not_netcdf(tmp_path):
+    """A run folder's campaign.nc that is not NetCDF (the user's own file) is an input error
+    naming it, as every NetCDF input is, not an internal error from xarray."""
+    from gprm.errors import GprmInputError
+
+    (tmp_path / "campaign.nc").write_text("my campaign")
+    with pytest.raises(GprmInputError) as e:
+        voltage_section(tmp_path)
+    assert "campaign.nc" in str(e.value)
 
 
 def test_no_scenario_section_without_scenarios():

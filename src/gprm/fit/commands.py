@@ -128,7 +128,7 @@ def register(app: typer.Typer, synth_app: typer.Typer) -> None:
 
         from rich.console import Console
 
-        from gprm.errors import GprmInputError
+        from gprm.errors import GprmInputError, GprmOutputError
         from gprm.fit.api import FitOptions, run_fit
 
         from gprm._io import check_outputs
@@ -157,7 +157,8 @@ def register(app: typer.Typer, synth_app: typer.Typer) -> None:
                         resonance=not no_resonance)
         ckpt = checkpoint if checkpoint is not None else Path(str(out) + ".ckpt")
         check_outputs({out: "--out", out.with_suffix(".nc"): "--out (its .nc sidecar)"},
-                      inputs=[means, params], folders={ckpt: "--checkpoint"})
+                      inputs=[means, params], folders={ckpt: "--checkpoint"},
+                      sidecars=[(out.with_suffix(".nc"), out)])
         check_checkpoint_folder(ckpt, field="--checkpoint")
         if out.suffix == ".nc":
             raise GprmInputError("must not end in .nc (that name is the sidecar's)",
@@ -203,6 +204,10 @@ def register(app: typer.Typer, synth_app: typer.Typer) -> None:
                     res = run_fit(ds, opts, params=base, workers=workers,
                                   scheduler=scheduler, checkpoint_dir=ckpt,
                                   progress=progress, source=str(means), executor=pool)
+            except GprmOutputError:
+                # a write failed (no space, a quota): the chunks done so far stay, resumable
+                remove_checkpoints(ckpt, only_if_empty=True)
+                raise
             except GprmInputError as exc:
                 remove_checkpoints(ckpt, **keep)               # refused: leave nothing behind
                 if exc.field in ("checkpoint", "scheduler"):   # name the option as typed

@@ -27,7 +27,7 @@ import numpy as np
 import xarray as xr
 
 import gprm
-from gprm._io import open_netcdf, read_json, write_json_atomic, write_netcdf_atomic
+from gprm._io import (atomic_paths, json_text, open_netcdf, read_json, write_netcdf_to)
 from gprm.campaign.files import has_truth
 from gprm.errors import GprmInputError
 from gprm.fit.covariance import sample_normal
@@ -232,7 +232,45 @@ def read_fit_document(path: str | os.PathLike) -> dict:
         if not isinstance(entry, dict) or "value" not in entry:
             raise GprmInputError("missing value", source=src, field=f"parameters.{name}")
         _number(entry["value"], src, f"parameters.{name}.value")
+    _check_field_types(doc, src)
     return doc
+
+
+#: the JSON type of each top-level field of a fit result that readers use (a field may be
+#: absent, as in files of earlier versions; where present it must have this type)
+_FIELD_TYPES: dict[str, tuple[type, ...]] = {
+    **dict.fromkeys(("uncertainty", "correlation", "starts", "data", "polish", "timings_s",
+                     "sidecar"), (dict,)),
+    **dict.fromkeys(("signals", "identified", "leans_on_prior", "not_determined",
+                     "identifiable_combinations", "parameters_at_bounds", "profiles"), (list,)),
+    **dict.fromkeys(("chi2", "reduced_chi2"), (int, float)),
+    **dict.fromkeys(("dof", "seed", "sigma_pool", "band_samples"), (int,)),
+    **dict.fromkeys(("sigma", "version", "covariance_message"), (str,)),
+    "z_bk_absolute": (bool,),
+}
+_TYPE_NAMES = {dict: "an object", list: "a list", int: "a number", float: "a number",
+               str: "a string", bool: "true or false"}
+
+
+def _check_field_types(doc: dict, src: str) -> None:
+    """Refuse a fit result whose top-level fields (:data:`_FIELD_TYPES`, and ``window``: two
+    numbers) have the wrong JSON type, naming the field, so that no reader (``gprm show``,
+    ``gprm design``, the report) meets one it cannot use."""
+    for key, types in _FIELD_TYPES.items():
+        if key not in doc:
+            continue
+        v = doc[key]
+        wrong = not isinstance(v, types) or (isinstance(v, bool) and bool not in types)
+        if wrong:
+            raise GprmInputError(f"expected {_TYPE_NAMES[types[0]]}, got {str(v)[:40]!r}",
+                                 source=src, field=key)
+    if "window" in doc:
+        w = doc["window"]
+        if not (isinstance(w, list) and len(w) == 2):
+            raise GprmInputError("expected two numbers [start, end] (s)", source=src,
+                                 field="window")
+        for i, x in enumerate(w):
+            _number(x, src, f"window[{i}]")
 
 
 def read_fit_sidecar(path: str | os.PathLike) -> xr.Dataset:
@@ -630,14 +668,17 @@ _SIDECAR_LONG_NAMES = {
 }
 
 def write_fit(res: FitResult, out: str | os.PathLike) -> Path:
-    """Write a fit result: the JSON ``out`` and its sidecar (same name, ``.nc``), each
-    atomically; returns the sidecar's path."""
+    """Write a fit result: the JSON ``out`` and its sidecar (same name, ``.nc``), together
+    (:func:`gprm._io.atomic_paths`: a failure writing either leaves both as they were);
+    returns the sidecar's path."""
     out = Path(out)
     side = out.with_suffix(".nc")
-    write_netcdf_atomic(fit_sidecar(res), side)        # first the sidecar, then the JSON
-    doc = fit_document(res)                             # that binds it by its checksum
-    doc["sidecar"] = {"name": side.name, "sha256": file_sha256(side)}
-    write_json_atomic(out, doc)
+    doc = fit_document(res)
+    with atomic_paths([side, out]) as (tmp_side, tmp_out):
+        write_netcdf_to(fit_sidecar(res), tmp_side)     # the sidecar, then the JSON that
+        doc["sidecar"] = {"name": side.name,             # binds it by its checksum
+                          "sha256": file_sha256(tmp_side)}
+        tmp_out.write_text(json_text(doc), encoding="utf-8")
     return side
 
 

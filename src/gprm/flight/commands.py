@@ -145,7 +145,7 @@ def register(app: typer.Typer, synth_app: typer.Typer) -> None:
         except GprmInputError as exc:
             raise GprmInputError(exc.problem, source=exc.source, field="--out") from None
         check_outputs({out: "--out", side: "--out (its .nc sidecar)"},
-                      inputs=[*model_inputs(fit), telemetry])
+                      inputs=[*model_inputs(fit), telemetry], sidecars=[(side, out)])
         m = load_model(fit, piezo=piezo)
         doc = write_impact(run_impact(m, telemetry, opts), out).to_json()
         n_ok = sum(1 for r in doc["releases"] for a in r["impact_time"].values()

@@ -26,7 +26,7 @@ from pathlib import Path
 import numpy as np
 import xarray as xr
 
-from gprm._io import open_netcdf, read_json, write_json_atomic, write_netcdf_atomic
+from gprm._io import (atomic_paths, json_text, open_netcdf, read_json, write_netcdf_atomic, write_netcdf_to)
 from gprm.errors import GprmInputError
 from gprm.flight.telemetry import (ANGULAR_AXES, AXES, CHANNEL_KIND, CHANNEL_UNIT, CHANNELS,
                                    LINEAR_AXES, REQUIRED, Release, Telemetry)
@@ -563,12 +563,14 @@ def impact_sidecar(out: str | os.PathLike) -> Path:
 
 def write_impact(doc: dict, curves, out: str | os.PathLike) -> Path:
     """Write an impact result: the JSON ``out`` and its sidecar (:func:`impact_sidecar`: the
-    velocity curves), each atomically; ``doc["curves"]["sidecar"]`` names the sidecar."""
+    velocity curves), together (:func:`gprm._io.atomic_paths`: a failure writing either
+    leaves both as they were); ``doc["curves"]["sidecar"]`` names the sidecar."""
     out = Path(out)
     side = impact_sidecar(out)
     doc["curves"]["sidecar"] = side.name
-    write_netcdf_atomic(impact_curves_dataset(curves), side)
-    write_json_atomic(out, doc)
+    with atomic_paths([side, out]) as (tmp_side, tmp_out):
+        write_netcdf_to(impact_curves_dataset(curves), tmp_side)
+        tmp_out.write_text(json_text(doc), encoding="utf-8")
     return side
 
 

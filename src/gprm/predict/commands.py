@@ -111,7 +111,7 @@ def register(app: typer.Typer, synth_app: typer.Typer) -> None:
         from gprm.errors import GprmInputError
         from gprm.predict.api import PredictOptions, run_predict, run_whatif
         from gprm.fit.files import load_model, model_inputs
-        from gprm.predict.files import write_prediction, write_whatif
+        from gprm.predict.files import write_prediction
 
         from gprm._io import check_outputs
         from gprm.resources import check_memory
@@ -144,7 +144,8 @@ def register(app: typer.Typer, synth_app: typer.Typer) -> None:
         if not fm.has_uncertainty:
             typer.echo(f"note: {fm.uncertainty_note}")
         pred = run_predict(fm, opts)
-        write_prediction(pred, out)
+        table = None if whatif_out is None else run_whatif(fm, opts)
+        write_prediction(pred, out, table, whatif_out)
         os_, tr = pred.overshoot, pred.trajectories
         pts = list(tr.points)
         msg = (f"wrote {out}: {tr.time.size} times, {tr.n_ok}/{samples} samples, "
@@ -155,10 +156,8 @@ def register(app: typer.Typer, synth_app: typer.Typer) -> None:
             msg += "; P(cross) " + ", ".join(f"{p} {v:.3f}" for p, v in
                                              zip(pred.risk.planes, pred.risk.p_cross))
         typer.echo(msg)
-        if whatif_out is not None:
+        if whatif_out is not None and table is not None:
             from gprm.predict.whatif import ratio_table_text
 
-            table = run_whatif(fm, opts)
-            write_whatif(table, whatif_out)
             typer.echo(ratio_table_text(table.to_json()))
             typer.echo(f"wrote {whatif_out}")

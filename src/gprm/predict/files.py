@@ -15,7 +15,8 @@ import os
 import numpy as np
 import xarray as xr
 
-from gprm._io import open_netcdf, read_json, write_json_atomic, write_netcdf_atomic
+from gprm._io import (atomic_paths, json_text, open_netcdf, read_json, write_json_atomic,
+                      write_netcdf_atomic, write_netcdf_to)
 from gprm.errors import GprmInputError
 from gprm.params.netcdf import read_fitted, read_parameter_table
 from gprm.predict.prediction import FORMAT_VERSION, parameters_dataset, prediction_dataset
@@ -39,10 +40,19 @@ PREDICTION = Schema("prediction NetCDF", (
 ))
 
 
-def write_prediction(pred_or_ds, path: str | os.PathLike) -> None:
-    """Write a prediction (a :class:`Prediction` or its dataset) atomically."""
+def write_prediction(pred_or_ds, path: str | os.PathLike, whatif=None,
+                     whatif_path: str | os.PathLike | None = None) -> None:
+    """Write a prediction (a :class:`Prediction` or its dataset) atomically; with a what-if
+    table (``whatif``, as :func:`write_whatif` takes it) and ``whatif_path``, both together
+    (:func:`gprm._io.atomic_paths`: a failure writing either leaves both as they were)."""
     ds = pred_or_ds if isinstance(pred_or_ds, xr.Dataset) else prediction_dataset(pred_or_ds)
-    write_netcdf_atomic(ds, path)
+    if whatif_path is None:
+        write_netcdf_atomic(ds, path)
+        return
+    doc = whatif.to_json() if hasattr(whatif, "to_json") else whatif
+    with atomic_paths([path, whatif_path]) as (tmp, tmp_whatif):
+        write_netcdf_to(ds, tmp)
+        tmp_whatif.write_text(json_text(doc), encoding="utf-8")
 
 
 def read_prediction(path: str | os.PathLike, *, what: str = "prediction NetCDF") -> xr.Dataset:

@@ -40,19 +40,21 @@ def fig_voltage(camp):
 
 
 def voltage_section(run: Path) -> Section | None:
-    """Fig. 5 right from ``campaign.nc`` (None when the run has no campaign file; a
-    not-run note when the campaign has no voltage runs)."""
-    import xarray as xr
+    """Fig. 5 right from ``campaign.nc`` (None when the run has no campaign file of its
+    last run, :func:`gprm.report.summary.current_file`; a not-run note when the campaign has
+    no voltage runs). The file is read as every NetCDF input is (:func:`gprm._io.open_netcdf`:
+    one that is not NetCDF is an input error naming it, not a crash)."""
+    from gprm._io import open_netcdf
+    from gprm.report.summary import current_file
 
-    path = run / "campaign.nc"
-    if not path.is_file():
+    path = current_file(run, "campaign.nc")
+    if path is None or not path.is_file():
         return None
     s = Section("Retraction voltage", "voltage")
-    with xr.open_dataset(path) as camp:
-        if "voltage" not in camp.variables or "vtime" not in camp.variables:
-            s.blocks.append(not_run("Fig. 5 right", "the campaign has no voltage runs"))
-            return s
-        camp = camp.load()
+    camp = open_netcdf(path, what="campaign file")
+    if "voltage" not in camp.variables or "vtime" not in camp.variables:
+        s.blocks.append(not_run("Fig. 5 right", "the campaign has no voltage runs"))
+        return s
     v = np.asarray(camp["voltage"].values, float)
     m = np.nanmean(v, 0)
     sd = np.nanstd(v, 0, ddof=1) if v.shape[0] > 1 else np.zeros_like(m)

@@ -7,11 +7,11 @@ import os
 from dataclasses import replace
 from pathlib import Path
 
-from gprm._io import check_outputs
+from gprm._io import check_outputs, read_json, written_by_gprm
 from gprm.campaign.files import campaign_inputs
 from gprm.errors import GprmInputError
 from gprm.fit.engine import check_checkpoint_folder
-from gprm.run.engine import RUN_JSON, RunResult, run_stages
+from gprm.run.engine import RUN_JSON, RunResult, run_stages, sha256_file
 from gprm.run.options import RunOptions
 from gprm.run.stages import FIT_CHECKPOINTS, chain
 
@@ -37,8 +37,30 @@ def check_run_outputs(out: str | os.PathLike, opts: RunOptions, field: str = "ou
         if src is not None and _same_file(Path(src), run / name):
             continue
         outs.append((run / name, field))
-    check_outputs(outs, inputs=inputs)
     check_checkpoint_folder(run / FIT_CHECKPOINTS, field=field)
+    check_outputs(outs, inputs=inputs, own=recorded_outputs(run))
+
+
+def recorded_outputs(run: Path) -> list[Path]:
+    """The files of run directory ``run`` that its run.json records as a stage's outputs
+    with the SHA-256 they still have: gprm's own (a campaign or telemetry file taken as it
+    is carries no gprm history, :func:`gprm._io.written_by_gprm`), so a rerun may replace
+    them. Only the files gprm does not recognise by their content are listed (the others
+    need no record); none where there is no readable record."""
+    try:
+        rec = read_json(run / RUN_JSON, what="run record")
+    except Exception:           # no record, or a damaged one: nothing is known to be gprm's
+        return []
+    stages = rec.get("stages") if isinstance(rec, dict) else None
+    own = []
+    for entry in (stages or {}).values():
+        outputs = entry.get("outputs") if isinstance(entry, dict) else None
+        for name, digest in (outputs or {}).items() if isinstance(outputs, dict) else ():
+            path = run / str(name)
+            if (path.parent == run and path.is_file() and not written_by_gprm(path)
+                    and sha256_file(path) == digest):
+                own.append(path)
+    return own
 
 
 def _same_file(a: Path, b: Path) -> bool:

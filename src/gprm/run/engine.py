@@ -176,9 +176,9 @@ def run_stages(out: str | os.PathLike, opts, stages, *, progress: Progress | Non
     except OSError as exc:
         raise GprmInputError(f"cannot be created ({exc.strerror or exc})", source=str(run),
                              field="out") from None
-    # temporary files of writes a killed gprm left here (of any version); nothing else
-    remove_stale_temps(run, legacy_names={n for s in stages for n in s.outputs}
-                       | {RUN_JSON, "report.html"})
+    # temporary files of writes a killed gprm left here (their names say which process
+    # made them); nothing else, not even files named like an old version's temporaries
+    remove_stale_temps(run)
     prev_path = run / RUN_JSON
     previous: dict = {}
     if prev_path.exists():

@@ -26,7 +26,7 @@ from gprm._io import atomic_path
 from gprm.campaign.api import run_preprocess
 from gprm.campaign.files import load_campaign, write_campaign, write_means
 from gprm.campaign.synth import synth_campaign
-from gprm.errors import GprmInputError
+from gprm.errors import GprmInputError, GprmOutputError
 from gprm.fit.api import run_fit
 from gprm.fit.engine import remove_checkpoints
 from gprm.fit.files import FittedModel, load_model
@@ -138,6 +138,9 @@ def _fit(run: Path, opts: RunOptions, step, executor=None) -> dict:
     try:
         res = run_fit(run / "means.nc", opts.fit, workers=opts.workers, checkpoint_dir=ckpt,
                       progress=step, executor=executor)
+    except GprmOutputError:         # a write failed (no space): the chunks done stay
+        remove_checkpoints(ckpt, only_if_empty=True)
+        raise
     except GprmInputError:          # refused: no checkpoint folder of its own left behind
         remove_checkpoints(ckpt, only_if_empty=existed)
         raise

@@ -211,6 +211,12 @@ def test_memory_guard_names_the_largest_value_that_fits(monkeypatch):
     samples = rate_max * 1.2e-3 + 1
     assert 50e6 + 2000 * samples <= 0.8 * avail * 1.0001
     assert 50e6 + 2000 * samples * 1.01 > 0.8 * avail
+    # impact's band samples (about 554 kB each, measured): refused before the model loads
+    r = CliRunner().invoke(app, ["impact", "paper", "unused.nc", "--out", "unused.json",
+                                 "--samples", "1000000"])
+    assert r.exit_code == 2 and "--samples" in r.output, r.output
+    n_max = int(re.search(r"fits is (\d+)", r.output).group(1))
+    assert 250e6 + 600e3 * n_max <= 0.8 * avail < 250e6 + 600e3 * (n_max + 1)
 
 
 # ----------------------------------------------------------------------------- outputs

@@ -134,6 +134,13 @@ def register(app: typer.Typer, synth_app: typer.Typer) -> None:
         from gprm.flight.files import impact_sidecar
         from gprm.flight.inference import InferenceOptions
 
+        from gprm.resources import check_memory
+
+        # the band draws' curves: 554 kB per sample (maximum resident size 311 MB at 200,
+        # 1308 MB at 2000 and 4472 MB at 8000 samples, with 3 and with 11 releases alike;
+        # docs/README.md), counted as 600 kB plus a fixed 250 MB
+        check_memory(samples, 600e3, fixed=250e6, field="--samples",
+                     what=f"{samples} band samples", integer=True)
         opts = cli_options(ImpactOptions, piezo=piezo, multi=multi, analysis=cli_options(
             AnalysisOptions, _IMPACT_FLAGS, alpha=alpha, n_samples=samples, seed=seed,
             window=window, fit_window=fit_window, impact_model=impact_model),

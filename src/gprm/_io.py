@@ -212,6 +212,9 @@ def atomic_paths(paths) -> Iterator[tuple[Path, ...]]:
             os.chmod(tmp_path, 0o666 & ~_umask())
         for tmp_path, path in zip(tmps, paths):
             os.replace(tmp_path, path)
+            with contextlib.suppress(OSError):
+                st = os.stat(path)
+                _WRITTEN[os.path.abspath(path)] = (st.st_dev, st.st_ino)
     except BaseException as exc:
         failed = None
         for tmp_path, path in zip(tmps, paths):
@@ -582,6 +585,14 @@ def check_outputs(outputs: dict | list[tuple[Any, str]], inputs=(), *,
                 raise GprmInputError(f"is also the output of {oopt}; choose another name",
                                      source=str(path), field=opt)
         seen.append((path, opt))
+        if not is_folder and path.is_symlink():
+            raise GprmInputError("is a symbolic link; gprm writes plain files and does not "
+                                 "replace a link: name the file itself or another path",
+                                 source=str(path), field=opt)
+        if not is_folder and path.is_file() and not path.stat().st_mode & 0o222:
+            raise GprmInputError("is write-protected (read-only); gprm does not replace it: "
+                                 "make it writable or choose another name",
+                                 source=str(path), field=opt)
         if (not is_folder and path.is_file() and not any(_same(path, Path(o)) for o in own)
                 and not written_by_gprm(path)):
             raise GprmInputError("exists and is not a file gprm wrote; gprm replaces only its "
@@ -624,25 +635,28 @@ _PARAMS_MARK = b"# gprm parameter file"
 
 
 def written_by_gprm(path: str | os.PathLike, chunk: int = 1 << 22) -> bool:
-    """Whether the existing file ``path`` is recognisably one gprm wrote, by its kind:
+    """Whether the existing file ``path`` is recognisably one gprm wrote, by its content
+    (whatever its name ends in):
 
-    - NetCDF (``.nc``): gprm's history entry (:func:`_history_entry`, in every NetCDF file
-      gprm writes; an attribute is stored as plain bytes, so the file is scanned for it chunk
-      by chunk, without opening it as NetCDF);
-    - JSON (``.json``): an object whose ``format`` or ``model`` names gprm (``gprm-...``: the
-      fit, impact and design results), whose ``versions`` lists gprm (run.json), or a what-if
-      table (``definition`` and ``ratios``);
-    - the report (``.html``: its title) and a parameter file (``.toml``: its first line).
+    - a NetCDF file (its signature) whose attributes hold gprm's history entry
+      (:func:`_history_entry`, in every NetCDF file gprm writes; an attribute is stored as
+      plain bytes, so the file is scanned for it chunk by chunk, without opening it as
+      NetCDF);
+    - a JSON object whose ``format`` or ``model`` names gprm (``gprm-...``: the fit, impact
+      and design results), whose ``versions`` lists gprm (run.json), or a what-if table
+      (``definition`` and ``ratios``);
+    - the report (its title) and a parameter file (its first line).
 
     False for anything else and for a file that cannot be read: gprm replaces only what it
-    recognises as its own (:func:`check_outputs`)."""
+    recognises as its own (:func:`check_outputs`). A file edited by other tools that kept
+    gprm's marks (xarray keeps a NetCDF's history) still counts as gprm's."""
     path = Path(path)
-    suffix = path.suffix.lower()
     try:
-        if suffix == ".nc":
-            overlap = 64
-            with open(path, "rb") as fh:
-                tail = b""
+        with open(path, "rb") as fh:
+            head = fh.read(1 << 16)
+            if head[:4] in _CLASSIC_SIGNATURES or head[:8] == _HDF5_SIGNATURE:
+                overlap, tail = 64, b""
+                fh.seek(0)
                 while True:
                     block = fh.read(chunk)
                     if not block:
@@ -651,7 +665,7 @@ def written_by_gprm(path: str | os.PathLike, chunk: int = 1 << 22) -> bool:
                     if _HISTORY_MARK.search(seen):
                         return True
                     tail = seen[-overlap:]
-        if suffix == ".json":
+        if head.lstrip()[:1] == b"{":
             if path.stat().st_size > (64 << 20):
                 return False
             d = json.loads(path.read_text(encoding="utf-8"))
@@ -662,13 +676,36 @@ def written_by_gprm(path: str | os.PathLike, chunk: int = 1 << 22) -> bool:
             versions = d.get("versions")
             return (named or (isinstance(versions, dict) and "gprm" in versions)
                     or {"definition", "ratios"} <= d.keys())
-        if suffix in (".html", ".toml"):
-            with open(path, "rb") as fh:
-                head = fh.read(1 << 16)
-            return (_REPORT_MARK in head) if suffix == ".html" else head.startswith(_PARAMS_MARK)
-    except (OSError, ValueError):
+        return _REPORT_MARK in head or head.startswith(_PARAMS_MARK)
+    except (OSError, ValueError, RecursionError):
         return False
-    return False
+
+
+#: files this process moved into place (:func:`atomic_paths`): absolute path -> (device,
+#: inode) of what it wrote there, so that a run can tell its own writes from a file someone
+#: put at the same name meanwhile (:func:`written_here`)
+_WRITTEN: dict[str, tuple[int, int]] = {}
+
+
+def written_here(path: str | os.PathLike) -> bool:
+    """Whether ``path`` is still the very file this process wrote there (same device and
+    inode as when :func:`atomic_paths` moved it into place)."""
+    key = os.path.abspath(path)
+    try:
+        st = os.stat(key)
+    except OSError:
+        return False
+    return _WRITTEN.get(key) == (st.st_dev, st.st_ino)
+
+
+def write_text_to(tmp: Path, text: str) -> None:
+    """Write ``text`` (UTF-8) to the temporary path ``tmp`` of :func:`atomic_paths`; an
+    error of the file system names ``tmp`` (a failed write() carries no file name, so the
+    group's message would otherwise name the wrong file)."""
+    try:
+        tmp.write_text(text, encoding="utf-8")
+    except OSError as exc:
+        raise OSError(exc.errno, exc.strerror, str(tmp)) from exc
 
 
 def files_read_from(folder: str | os.PathLike, suffixes) -> list[Path]:

@@ -120,9 +120,15 @@ def test_a_run_that_fails_keeps_every_file_it_did_not_write(tmp_path):
     assert r.exit_code == 2 and "not a file gprm wrote" in r.output, r.output
     assert sorted(p.name for p in u.iterdir()) == sorted(theirs)
     assert all((u / n).read_bytes() == d for n, d in theirs.items())
-    mark = b"written by gprm run (gprm 0.1.0)"     # what gprm's history says in its NetCDF
-    mine = {"fit.json": b'{"model": "gprm-3d", "my": "fit"}', "fit.nc": b"sidecar " + mark,
-            "means.nc": b"means " + mark, "impact.json": b'{"format": "gprm-impact"}'}
+    import xarray as xr
+
+    from gprm._io import write_netcdf_atomic
+
+    for name in ("fit.nc", "means.nc"):                # NetCDF files gprm wrote
+        write_netcdf_atomic(xr.Dataset({"v": ("t", np.arange(3.0))}), u / name)
+    mine = {"fit.json": b'{"model": "gprm-3d", "my": "fit"}',
+            "impact.json": b'{"format": "gprm-impact"}',
+            **{n: (u / n).read_bytes() for n in ("fit.nc", "means.nc")}}
     for name, data in mine.items():
         (u / name).write_bytes(data)
     r = _invoke(["run", bad, *SMALL, "--out", u], tmp_path)
@@ -149,7 +155,9 @@ def test_a_stage_that_stops_half_way_removes_only_what_it_wrote(tmp_path):
     from gprm.run.engine import Stage, run_stages
 
     def half(run, opts, step):
-        (run / "one.txt").write_text("written now")
+        from gprm._io import write_text_atomic
+
+        write_text_atomic(run / "one.txt", "written now")   # as gprm's stages write
         raise RuntimeError("disk trouble")
 
     (tmp_path / "two.txt").write_text("the user's")

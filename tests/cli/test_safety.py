@@ -403,7 +403,8 @@ def test_written_by_gprm_reads_each_kind_by_its_content(tmp_path):
         assert written_by_gprm(tmp_path / name), name
     not_ours = {"a.json": '{"model": "other"}', "b.json": "[1, 2]", "c.json": "{broken",
                 "d.html": "<title>my page</title>", "e.toml": "[parameters]\n",
-                "f.txt": "written by gprm (gprm 0.1.0)"}    # unknown kinds: never
+                "f.txt": "written by gprm (gprm 0.1.0)",   # the mark outside a NetCDF file
+                "g.nc": "notes: written by gprm users"}
     for name, text in not_ours.items():
         (tmp_path / name).write_text(text)
         assert not written_by_gprm(tmp_path / name), name
@@ -414,6 +415,30 @@ def test_written_by_gprm_reads_each_kind_by_its_content(tmp_path):
     assert written_by_gprm(tmp_path / "g.nc", chunk=5)       # the mark across chunk ends
     ds.to_netcdf(tmp_path / "x.nc")
     assert not written_by_gprm(tmp_path / "x.nc")
+    write_netcdf_atomic(ds, tmp_path / "pred.nc4")       # by content, whatever the name
+    assert written_by_gprm(tmp_path / "pred.nc4")
+    (tmp_path / "w.txt").write_text('{"model": "gprm-3d"}')
+    assert written_by_gprm(tmp_path / "w.txt")
+
+
+def test_links_and_write_protected_files_are_not_replaced(tmp_path):
+    import xarray as xr
+
+    from gprm._io import check_outputs, write_netcdf_atomic
+
+    ours = tmp_path / "p.nc"
+    write_netcdf_atomic(xr.Dataset({"v": ("t", np.arange(3.0))}), ours)
+    link = tmp_path / "link.nc"
+    link.symlink_to(ours)
+    dangling = tmp_path / "dangling.nc"
+    dangling.symlink_to(tmp_path / "nowhere" / "x.nc")
+    for path in (link, dangling):
+        with pytest.raises(GprmInputError, match="symbolic link"):
+            check_outputs({path: "--out"})
+    ours.chmod(0o444)
+    with pytest.raises(GprmInputError, match="write-protected"):
+        check_outputs({ours: "--out"})
+    assert link.is_symlink() and dangling.is_symlink()
 
 
 def test_a_sidecar_name_held_by_a_campaign_is_refused(tmp_path):
@@ -476,3 +501,50 @@ def test_local_workers_die_with_a_killed_parent(tmp_path):
     while any(alive(p) for p in pids) and time.monotonic() < deadline:
         time.sleep(0.2)
     assert not any(alive(p) for p in pids)
+
+
+def test_a_rerun_after_an_interrupted_import_is_not_refused(tmp_path):
+    """A campaign taken as it was (no gprm history: another tool's NetCDF) and a record that
+    no longer lists it (the call that recorded it was interrupted before the stage): the
+    rerun with the same source finds the run's copy identical to it and goes on."""
+    import shutil
+
+    import xarray as xr
+
+    from gprm.campaign.synth import synth_campaign
+    from gprm.run.api import check_run_outputs
+    from gprm.run.options import RunOptions
+
+    src = tmp_path / "plain.nc"
+    ds = synth_campaign(seed=1)
+    ds.attrs.pop("history", None)
+    ds.to_netcdf(src)                                      # not written by gprm
+    run = tmp_path / "run"
+    run.mkdir()
+    shutil.copyfile(src, run / "campaign.nc")              # the copy an earlier call took
+    (run / "run.json").write_text('{"versions": {"gprm": "0.1.0"}, "stages": {}}')  # gone
+    check_run_outputs(run, RunOptions(campaign=src))
+    other = tmp_path / "other.nc"
+    xr.Dataset({"v": ("t", np.arange(3.0))}).to_netcdf(other)
+    with pytest.raises(GprmInputError, match="not a file gprm wrote"):
+        check_run_outputs(run, RunOptions(campaign=other))  # a different source: not its copy
+
+
+def test_a_failed_stage_removes_only_the_file_it_wrote(tmp_path):
+    """A file someone puts at an output's name while the stage runs is not the stage's: a
+    failed stage removes only what this process moved into place (written_here)."""
+    from types import SimpleNamespace
+
+    from gprm._io import write_text_atomic
+    from gprm.run.engine import Stage, run_stages
+
+    def mine_then_theirs(run, opts, step):
+        write_text_atomic(run / "one.txt", "written now")
+        (run / "two.txt").write_text("the user's, put there meanwhile")
+        raise RuntimeError("disk trouble")
+
+    stages = (Stage("s", "S", (), ("one.txt", "two.txt"), lambda o: {}, mine_then_theirs),)
+    res = run_stages(tmp_path, SimpleNamespace(seed=0), stages, report_html=False)
+    assert [r.status for r in res.records] == ["failed"]
+    assert not (tmp_path / "one.txt").exists()
+    assert (tmp_path / "two.txt").read_text() == "the user's, put there meanwhile"

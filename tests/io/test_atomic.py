@@ -61,3 +61,22 @@ def test_files_named_like_old_temporaries_are_not_removed(tmp_path):
         p.write_text("draft")
     assert remove_stale_temps(tmp_path) == []
     assert all(p.read_text() == "draft" for p in mine)
+
+
+def test_a_failed_write_in_a_group_names_its_own_file(tmp_path, monkeypatch):
+    """write() errors carry no file name: write_text_to gives them the temporary path, so
+    the message names the file whose write failed, not the group's first."""
+    from gprm._io import write_text_to
+
+    side, doc = tmp_path / "i.nc", tmp_path / "i.json"
+
+    def full(self, *a, **k):
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    with pytest.raises(GprmOutputError) as e:
+        with atomic_paths([side, doc]) as (t_side, t_doc):
+            t_side.write_text("curves")
+            monkeypatch.setattr(type(t_doc), "write_text", full)   # the disk fills now
+            write_text_to(t_doc, "{}")
+    monkeypatch.undo()
+    assert e.value.source == str(doc)

@@ -126,7 +126,9 @@ def test_failing_stage_is_recorded_and_the_rest_continues(tmp_path):
     chain = list(_chain(calls))
 
     def bad(run_dir, opts, step):
-        (run_dir / "b.txt").write_text("half")
+        from gprm._io import write_text_atomic
+
+        write_text_atomic(run_dir / "b.txt", "half")       # as gprm's stages write
         raise ValueError("no convergence")
 
     chain[1] = Stage("b", "B", ("a.txt",), ("b.txt",), lambda o: {}, bad)

@@ -27,7 +27,7 @@ import numpy as np
 import xarray as xr
 
 import gprm
-from gprm._io import (atomic_paths, json_text, open_netcdf, read_json, write_netcdf_to)
+from gprm._io import (atomic_paths, json_text, write_text_to, open_netcdf, read_json, write_netcdf_to)
 from gprm.campaign.files import has_truth
 from gprm.errors import GprmInputError
 from gprm.fit.covariance import sample_normal
@@ -678,7 +678,7 @@ def write_fit(res: FitResult, out: str | os.PathLike) -> Path:
         write_netcdf_to(fit_sidecar(res), tmp_side)     # the sidecar, then the JSON that
         doc["sidecar"] = {"name": side.name,             # binds it by its checksum
                           "sha256": file_sha256(tmp_side)}
-        tmp_out.write_text(json_text(doc), encoding="utf-8")
+        write_text_to(tmp_out, json_text(doc))
     return side
 
 

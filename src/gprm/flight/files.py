@@ -26,7 +26,7 @@ from pathlib import Path
 import numpy as np
 import xarray as xr
 
-from gprm._io import (atomic_paths, json_text, open_netcdf, read_json, write_netcdf_atomic, write_netcdf_to)
+from gprm._io import (atomic_paths, json_text, write_text_to, open_netcdf, read_json, write_netcdf_atomic, write_netcdf_to)
 from gprm.errors import GprmInputError
 from gprm.flight.telemetry import (ANGULAR_AXES, AXES, CHANNEL_KIND, CHANNEL_UNIT, CHANNELS,
                                    LINEAR_AXES, REQUIRED, Release, Telemetry)
@@ -570,7 +570,7 @@ def write_impact(doc: dict, curves, out: str | os.PathLike) -> Path:
     doc["curves"]["sidecar"] = side.name
     with atomic_paths([side, out]) as (tmp_side, tmp_out):
         write_netcdf_to(impact_curves_dataset(curves), tmp_side)
-        tmp_out.write_text(json_text(doc), encoding="utf-8")
+        write_text_to(tmp_out, json_text(doc))
     return side
 
 

@@ -15,7 +15,7 @@ import os
 import numpy as np
 import xarray as xr
 
-from gprm._io import (atomic_paths, json_text, open_netcdf, read_json, write_json_atomic,
+from gprm._io import (atomic_paths, json_text, write_text_to, open_netcdf, read_json, write_json_atomic,
                       write_netcdf_atomic, write_netcdf_to)
 from gprm.errors import GprmInputError
 from gprm.params.netcdf import read_fitted, read_parameter_table
@@ -52,7 +52,7 @@ def write_prediction(pred_or_ds, path: str | os.PathLike, whatif=None,
     doc = whatif.to_json() if hasattr(whatif, "to_json") else whatif
     with atomic_paths([path, whatif_path]) as (tmp, tmp_whatif):
         write_netcdf_to(ds, tmp)
-        tmp_whatif.write_text(json_text(doc), encoding="utf-8")
+        write_text_to(tmp_whatif, json_text(doc))
 
 
 def read_prediction(path: str | os.PathLike, *, what: str = "prediction NetCDF") -> xr.Dataset:

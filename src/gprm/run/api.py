@@ -11,7 +11,7 @@ from gprm._io import check_outputs, read_json, written_by_gprm
 from gprm.campaign.files import campaign_inputs
 from gprm.errors import GprmInputError
 from gprm.fit.engine import check_checkpoint_folder
-from gprm.run.engine import RUN_JSON, RunResult, run_stages, sha256_file
+from gprm.run.engine import RUN_JSON, RunResult, last_result, run_stages, sha256_file
 from gprm.run.options import RunOptions
 from gprm.run.stages import FIT_CHECKPOINTS, chain
 
@@ -38,7 +38,24 @@ def check_run_outputs(out: str | os.PathLike, opts: RunOptions, field: str = "ou
             continue
         outs.append((run / name, field))
     check_checkpoint_folder(run / FIT_CHECKPOINTS, field=field)
-    check_outputs(outs, inputs=inputs, own=recorded_outputs(run))
+    check_outputs(outs, inputs=inputs, own=[*recorded_outputs(run), *imported_copies(run, own)])
+
+
+def imported_copies(run: Path, sources: dict) -> list[Path]:
+    """The run directory's files that are byte for byte the inputs this call imports
+    (``sources``: run file name -> the campaign or telemetry file given, None where none):
+    a copy gprm took of them earlier, which the import would write again (a record of it may
+    be gone: a run stopped before it reached the stage rebuilds run.json without it)."""
+    own = []
+    for name, src in sources.items():
+        path = run / name
+        if src is None or not Path(src).is_file() or not path.is_file() \
+                or written_by_gprm(path):
+            continue
+        if path.stat().st_size == Path(src).stat().st_size \
+                and sha256_file(path) == sha256_file(Path(src)):
+            own.append(path)
+    return own
 
 
 def recorded_outputs(run: Path) -> list[Path]:
@@ -53,10 +70,11 @@ def recorded_outputs(run: Path) -> list[Path]:
         return []
     stages = rec.get("stages") if isinstance(rec, dict) else None
     own = []
-    for entry in (stages or {}).values():
+    for name in (stages if isinstance(stages, dict) else {}):
+        entry = last_result(rec, name)           # a failed stage's kept files: its earlier record
         outputs = entry.get("outputs") if isinstance(entry, dict) else None
-        for name, digest in (outputs or {}).items() if isinstance(outputs, dict) else ():
-            path = run / str(name)
+        for file, digest in (outputs or {}).items() if isinstance(outputs, dict) else ():
+            path = run / str(file)
             if (path.parent == run and path.is_file() and not written_by_gprm(path)
                     and sha256_file(path) == digest):
                 own.append(path)

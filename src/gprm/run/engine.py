@@ -36,7 +36,7 @@ import scipy
 import xarray
 
 from gprm import __version__
-from gprm._io import read_json, remove_stale_temps, write_json_atomic
+from gprm._io import read_json, remove_stale_temps, write_json_atomic, written_here
 from gprm.fit.engine import takes_keyword
 from gprm.errors import GprmInputError
 from gprm.report.build import write_report
@@ -218,7 +218,9 @@ def run_stages(out: str | os.PathLike, opts, stages, *, progress: Progress | Non
             now = _file_key(run / name)
             if now is None:
                 continue
-            if now != before.get(name):            # written by this stage, in this call
+            # written by this stage, in this call (and still the file it wrote: not one
+            # someone put at that name meanwhile)
+            if now != before.get(name) and written_here(run / name):
                 try:
                     (run / name).unlink(missing_ok=True)
                     continue

@@ -465,6 +465,9 @@ def test_sigterm_during_a_run_leaves_no_temporary_file_and_a_rerun_finishes(run_
     assert r.returncode == 128 + signal.SIGTERM, r.stderr
     assert r.stderr.strip().splitlines()[-1] == \
         "gprm: stopped by SIGTERM; unfinished outputs were not written"
+    shown = r.stdout + r.stderr              # the stage is shown as run.json records it
+    assert ": interrupted" in shown and not any(ln.endswith(": failed")
+                                                for ln in shown.splitlines()), shown
     assert _parts(run_copy) == []
     rec = json.loads((run_copy / "run.json").read_text())
     assert rec["stages"]["predict"]["status"] == "interrupted"

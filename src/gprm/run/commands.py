@@ -173,7 +173,8 @@ class _Progress:
         else:
             label = {"skip": "[dim]↷ {} (up to date)", "unavailable": "[yellow]– {} (not "
                      "available)", "blocked": "[yellow]– {} (needs an earlier stage)",
-                     "fail": "[red]✗ {} (failed)"}.get(kind)
+                     "fail": "[red]✗ {} (failed)",
+                     "interrupted": "[yellow]✗ {} (interrupted)"}.get(kind)
             if label is None:
                 return
             if stage in self.tasks:      # finished (full bar, no spinner), with its outcome
@@ -204,7 +205,7 @@ class _Progress:
         else:
             outcome = {"skip": "skipped (up to date)", "unavailable": "not available",
                        "blocked": "blocked (needs an earlier stage)",
-                       "fail": "failed"}.get(kind)
+                       "fail": "failed", "interrupted": "interrupted"}.get(kind)
             if outcome is not None:
                 lines.finish(stage, f"{title}: {outcome}")
 

@@ -165,7 +165,8 @@ def run_stages(out: str | os.PathLike, opts, stages, *, progress: Progress | Non
     """Run ``stages`` into ``out`` (created if needed), resuming what is up to date.
 
     ``progress(stage, event, done, total)`` is called with event ``start``, ``step`` (with
-    done/total, e.g. the fit's starts), ``done``, ``skip``, ``blocked`` or ``fail``; a
+    done/total, e.g. the fit's starts), ``done``, ``skip``, ``blocked``, ``fail`` or
+    ``interrupted`` (a signal or Ctrl-C stopped the stage: a rerun resumes it); a
     callback that takes a ``best_chi2`` keyword also gets the fit's smallest chi-square so far
     with its steps (the fit's progress callback, :func:`gprm.fit.run_fit`). Returns the
     stage records and the summary (also written to ``run.json``).
@@ -274,7 +275,7 @@ def run_stages(out: str | os.PathLike, opts, stages, *, progress: Progress | Non
         except BaseException:          # interrupted: record it and stop; a rerun resumes
             not_done(stage, StageRecord(stage.name, "interrupted",
                                         seconds=time.perf_counter() - t0,
-                                        detail="interrupted"), "fail", before)
+                                        detail="interrupted"), "interrupted", before)
             raise
         dt = time.perf_counter() - t0
         rec = StageRecord(stage.name, "ran", seconds=dt, info=info or {})

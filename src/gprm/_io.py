@@ -24,6 +24,7 @@ import json
 import os
 import re
 import socket
+import stat
 import tempfile
 import time
 from pathlib import Path
@@ -297,9 +298,8 @@ def cf_dataset(ds):
 def write_netcdf_atomic(ds, path: str | os.PathLike) -> None:
     """Write an xarray Dataset to NetCDF4 atomically, with the CF attributes of
     :func:`cf_dataset` (docs/data-formats.md, "Conventions")."""
-    out = cf_dataset(ds)
     with atomic_path(path) as tmp:
-        write_netcdf_to(out, tmp)
+        write_netcdf_to(ds, tmp)
 
 
 def write_netcdf_to(ds, tmp: Path) -> None:
@@ -585,19 +585,8 @@ def check_outputs(outputs: dict | list[tuple[Any, str]], inputs=(), *,
                 raise GprmInputError(f"is also the output of {oopt}; choose another name",
                                      source=str(path), field=opt)
         seen.append((path, opt))
-        if not is_folder and path.is_symlink():
-            raise GprmInputError("is a symbolic link; gprm writes plain files and does not "
-                                 "replace a link: name the file itself or another path",
-                                 source=str(path), field=opt)
-        if not is_folder and path.is_file() and not path.stat().st_mode & 0o222:
-            raise GprmInputError("is write-protected (read-only); gprm does not replace it: "
-                                 "make it writable or choose another name",
-                                 source=str(path), field=opt)
-        if (not is_folder and path.is_file() and not any(_same(path, Path(o)) for o in own)
-                and not written_by_gprm(path)):
-            raise GprmInputError("exists and is not a file gprm wrote; gprm replaces only its "
-                                 "own files: move it or choose another name",
-                                 source=str(path), field=opt)
+        if not is_folder:
+            _check_replaceable(path, opt, own)
         why = _probe_writable(path if is_folder else path.parent)
         if why:
             raise GprmInputError(f"cannot be written: {why}", source=str(path), field=opt)
@@ -610,16 +599,48 @@ def check_outputs(outputs: dict | list[tuple[Any, str]], inputs=(), *,
                                  source=str(side), field="--out")
 
 
+def _check_replaceable(path: Path, opt: str, own) -> None:
+    """Refuse an existing file at the output ``path`` that gprm must not replace: a symbolic
+    link (even a dangling one), a write-protected file, or a file gprm did not write
+    (:func:`written_by_gprm`) and that is not one of ``own``."""
+    try:
+        st = path.lstat()
+    except OSError:
+        return                                   # nothing there: nothing to replace
+    if stat.S_ISLNK(st.st_mode):
+        raise GprmInputError("is a symbolic link; gprm writes plain files and does not "
+                             "replace a link: name the file itself or another path",
+                             source=str(path), field=opt)
+    if not stat.S_ISREG(st.st_mode):
+        return                                   # a folder: refused by the caller
+    if not st.st_mode & 0o222:
+        raise GprmInputError("is write-protected (read-only); gprm does not replace it: "
+                             "make it writable or choose another name",
+                             source=str(path), field=opt)
+    if not any(_same(path, Path(o)) for o in own) and not written_by_gprm(path):
+        raise GprmInputError("exists and is not a file gprm wrote; gprm replaces only its "
+                             "own files: move it or choose another name",
+                             source=str(path), field=opt)
+
+
+def _json_object(path: Path, max_bytes: int = 64 << 20) -> dict | None:
+    """The JSON object in ``path`` (at most ``max_bytes``), or None where the file is
+    larger, unreadable, not JSON or not an object: for judging a file, not for reading an
+    input (:func:`read_json` names the problem)."""
+    try:
+        if path.stat().st_size > max_bytes:
+            return None
+        d = json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, ValueError, RecursionError):
+        return None
+    return d if isinstance(d, dict) else None
+
+
 def sidecar_of(doc: Path, side: Path) -> bool:
     """Whether the JSON file ``doc`` is a gprm result that names ``side`` as its sidecar
     (a fit's ``sidecar.name``, an impact result's ``curves.sidecar``)."""
-    try:
-        if doc.stat().st_size > (64 << 20):
-            return False
-        d = json.loads(doc.read_text(encoding="utf-8"))
-    except (OSError, ValueError):
-        return False
-    if not isinstance(d, dict):
+    d = _json_object(doc)
+    if d is None:
         return False
     fit_side, curves = d.get("sidecar"), d.get("curves")
     names = (fit_side.get("name") if isinstance(fit_side, dict) else None,
@@ -666,10 +687,8 @@ def written_by_gprm(path: str | os.PathLike, chunk: int = 1 << 22) -> bool:
                         return True
                     tail = seen[-overlap:]
         if head.lstrip()[:1] == b"{":
-            if path.stat().st_size > (64 << 20):
-                return False
-            d = json.loads(path.read_text(encoding="utf-8"))
-            if not isinstance(d, dict):
+            d = _json_object(path)
+            if d is None:
                 return False
             named = any(isinstance(d.get(k), str) and d[k].startswith("gprm")
                         for k in ("format", "model"))
@@ -677,7 +696,7 @@ def written_by_gprm(path: str | os.PathLike, chunk: int = 1 << 22) -> bool:
             return (named or (isinstance(versions, dict) and "gprm" in versions)
                     or {"definition", "ratios"} <= d.keys())
         return _REPORT_MARK in head or head.startswith(_PARAMS_MARK)
-    except (OSError, ValueError, RecursionError):
+    except OSError:
         return False
 
 

@@ -459,12 +459,12 @@ def test_a_sidecar_name_held_by_a_campaign_is_refused(tmp_path):
 
 
 def test_fit_cli_refuses_to_replace_a_campaign_by_its_sidecar(tmp_path, monkeypatch):
-    monkeypatch.chdir(tmp_path)
-    make_means(__import__("gprm.params", fromlist=["paper"]).paper(), seed=2).to_netcdf("m.nc")
     from gprm._io import write_netcdf_atomic
+    from gprm.params import paper
 
-    write_netcdf_atomic(make_means(__import__("gprm.params", fromlist=["paper"]).paper(),
-                                   seed=3), "run1.nc")
+    monkeypatch.chdir(tmp_path)
+    make_means(paper(), seed=2).to_netcdf("m.nc")
+    write_netcdf_atomic(make_means(paper(), seed=3), "run1.nc")   # gprm's, not a sidecar
     before = Path("run1.nc").read_bytes()
     r = CliRunner().invoke(app, ["fit", "m.nc", "--out", "run1.json", "--starts", "2",
                                  "--chunk", "2", "--max-iter", "3", "--band-samples", "0",
@@ -474,7 +474,7 @@ def test_fit_cli_refuses_to_replace_a_campaign_by_its_sidecar(tmp_path, monkeypa
 
 
 @pytest.mark.skipif(not sys.platform.startswith("linux"), reason="PR_SET_PDEATHSIG is Linux's")
-def test_local_workers_die_with_a_killed_parent(tmp_path):
+def test_local_workers_die_with_a_killed_parent():
     """`kill -9` of a `gprm fit` must not leave its local worker processes idling for ever
     (they hold a copy of the pipe the parent would close): they are killed with it."""
     import time

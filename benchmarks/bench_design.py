@@ -19,6 +19,15 @@
         same design agree, the floor of any such comparison. ``--from-log F`` prints the
         tables of an earlier (or interrupted) run's JSON lines.
 
+    .venv/bin/python benchmarks/bench_design.py --validate --truths 5 --starts 50 --replicates 3 --keep DIR
+        The same with three campaigns of every validated design (the control and each
+        candidate; other seeds): besides the single-campaign tables, the geometric mean of
+        each parameter's achieved / predicted sd over a design's replicates (the prediction
+        against the design's expected width, the campaigns' chance averaged), the ceiling a
+        perfect prediction of the expected width would reach against one campaign and
+        against the replicates' mean (from the replicates' own spread), and the candidates'
+        mean ratio over the control's (the base fit's own chance taken out).
+
     .venv/bin/python benchmarks/bench_design.py --run-structure DIR
         How the runs of a kept validation's campaigns (``--keep DIR``) differ: each run's
         deviation from the mean regressed on the fitted model's sensitivities to the drive's
@@ -152,10 +161,17 @@ def _workdir(keep: Path | None):
     with tempfile.TemporaryDirectory() as d:
         yield Path(d)
 
+#: the seed step between replicate campaigns of one design (replicate j of a design whose
+#: first campaign has seed s has seed s + REPLICATE_STEP * j)
+REPLICATE_STEP = 100
+
+
 def validate(n_truths: int, starts: int, seed0: int, log: Path,
-             keep: Path | None = None) -> list[dict]:
+             keep: Path | None = None, replicates: int = 1) -> list[dict]:
     """Runs the validation (see the module docstring); one JSON line per campaign to
-    ``log`` as it goes."""
+    ``log`` as it goes. ``replicates``: campaigns of each design (the control and every
+    ranked candidate), the same design with other seeds; row field ``replicate`` j = 0 ..
+    replicates - 1 (the first is the single-campaign validation of earlier stops)."""
     sys.path.insert(0, os.path.dirname(__file__))
     from dataclasses import replace
 
@@ -193,11 +209,14 @@ def validate(n_truths: int, starts: int, seed0: int, log: Path,
             design = json.loads((tdir / "design.json").read_text())
             res0 = run_design(tdir / "base_fit.json", replace(cfg_all, candidates=()))
             # control: the same design again (a new seed); its prediction is the base fit
-            rep = campaign(tdir, "replicate", seed + 7000, 10, 5, 1.5e-3, (0.97e-3, 1.2e-3))
-            emit({"seed": seed, "rank": 0, "name": "base again (control)", "runs": 10,
-                  "window": [0.97e-3, 1.2e-3],
-                  **_compare(res0, res0.base.sd_u, res0.base.identified, rep, truth,
-                             base_fit)})
+            for j in range(replicates):
+                rep = campaign(tdir, "replicate" + (f"_r{j}" if j else ""),
+                               seed + 7000 + REPLICATE_STEP * j, 10, 5, 1.5e-3,
+                               (0.97e-3, 1.2e-3))
+                emit({"seed": seed, "rank": 0, "name": "base again (control)", "runs": 10,
+                      "window": [0.97e-3, 1.2e-3], "replicate": j,
+                      **_compare(res0, res0.base.sd_u, res0.base.identified, rep, truth,
+                                 base_fit)})
             for rank, name in enumerate(design["ranking"], 1):
                 # the prediction for exactly that campaign: a design of this one addition
                 cfg = replace(cfg_all, candidates=tuple(c for c in cfg_all.candidates
@@ -206,12 +225,14 @@ def validate(n_truths: int, starts: int, seed0: int, log: Path,
                 syn = res.synth
                 assert syn["simulated"] == [name], syn
                 pred = syn["predicted"]
-                fit = campaign(tdir, name, seed + 5000, syn["runs"], syn["noise_runs"],
-                               syn["t_end"], syn["window"])
-                emit({"seed": seed, "rank": rank, "name": name, "runs": syn["runs"],
-                      "window": list(syn["window"]),
-                      **_compare(res, pred["sd_u"], pred["identified"], fit, truth,
-                                 base_fit)})
+                for j in range(replicates):
+                    fit = campaign(tdir, name + (f"_r{j}" if j else ""),
+                                   seed + 5000 + REPLICATE_STEP * j, syn["runs"],
+                                   syn["noise_runs"], syn["t_end"], syn["window"])
+                    emit({"seed": seed, "rank": rank, "name": name, "runs": syn["runs"],
+                          "window": list(syn["window"]), "replicate": j,
+                          **_compare(res, pred["sd_u"], pred["identified"], fit, truth,
+                                     base_fit)})
     return rows
 
 
@@ -284,6 +305,8 @@ def tables(rows: list[dict]) -> None:
               f" | {np.mean(np.abs(v - 1) <= 0.25):.0%} | {c:.1%} "
               f"({sum(r['cover'] for r in rs)}/{sum(r['n_cover'] for r in rs)}) | "
               f"{f'{np.median(ob):.2f}' if ob else '-'} |")
+    if any(r.get("replicate", 0) > 0 for r in rows):
+        replicate_tables(rows, groups)
     per: dict[str, list] = {}
     for r in rows:
         if r["rank"] > 0:
@@ -293,6 +316,81 @@ def tables(rows: list[dict]) -> None:
     print("|---|---|---|")
     for n, x in per.items():
         print(f"| {n} | {len(x)} | {np.median(x):.2f} ({min(x):.2f} .. {max(x):.2f}) |")
+
+
+def replicate_means(rows: list[dict]) -> list[dict]:
+    """Per design validated with replicates ((truth seed, design name) with 2 or more rows),
+    per parameter compared in every replicate: the achieved / predicted sd ratio of each
+    replicate; ``gm`` their geometric mean (the prediction against the design's expected
+    achieved sd rather than one campaign's), ``var`` the sample variance of their logs (how
+    much one campaign's achieved sd varies by chance), ``k`` the replicates."""
+    by: dict[tuple, list[dict]] = {}
+    for r in rows:
+        by.setdefault((r["seed"], r["name"]), []).append(r)
+    out = []
+    for (seed, name), rs in by.items():
+        if len(rs) < 2:
+            continue
+        common = set.intersection(*(set(r["ratios"]) for r in rs))
+        for n in sorted(common):
+            ln = np.log([r["ratios"][n] for r in rs])
+            out.append({"seed": seed, "name": name, "rank": rs[0]["rank"], "param": n,
+                        "gm": float(np.exp(ln.mean())), "var": float(ln.var(ddof=1)),
+                        "k": len(rs)})
+    return out
+
+
+def replicate_tables(rows: list[dict], groups) -> None:
+    """The replicates' tables (``--replicates``): per group of designs, the geometric mean of
+    each parameter's achieved / predicted sd over a design's replicate campaigns, and the
+    ceiling: the share within +-25 % (0.75-1.25, as the other tables) that a perfect
+    prediction of the expected sd would reach against a single campaign, from the
+    replicates' own spread (per parameter a normal in ln with the pooled within-design
+    variance, centred on the expected sd; the mean over the comparisons), and against the
+    replicates' mean (that variance over k). Last, the candidates' mean ratios divided by
+    the control's for the same truth and parameter (the control's replicates against the
+    base fit): the prediction as it would be from a base fit whose sd were its design's
+    expected one, i.e. the design's own error with the base campaign's chance taken out."""
+    from scipy.stats import norm
+
+    def inside(sd: float) -> float:
+        """P(0.75 <= exp(Z) <= 1.25) for Z ~ N(0, sd^2): the +-25 % of the other tables."""
+        sd = max(sd, 1e-12)
+        return float(norm.cdf(np.log(1.25) / sd) - norm.cdf(np.log(0.75) / sd))
+
+    reps = replicate_means(rows)
+    if not reps:
+        return
+    print("\n| designs, replicated | comparisons | achieved (geometric mean over the "
+          "replicates) / predicted sd: median (16-84 %) | within +-25 % | ceiling against "
+          "one campaign | ceiling against the replicates' mean | within +-25 % with the base "
+          "fit's chance taken out |")
+    print("|---|---|---|---|---|---|---|")
+    for label, sel in groups:
+        rs = [r for r in reps if sel(r)]
+        if not rs:
+            continue
+        gm = np.array([r["gm"] for r in rs])
+        pooled: dict[str, list] = {}
+        for r in rs:
+            pooled.setdefault(r["param"], []).append((r["var"], r["k"]))
+        sd1 = {n: np.sqrt(sum(v * (k - 1) for v, k in x) / sum(k - 1 for _, k in x))
+               for n, x in pooled.items()}
+        one = np.mean([inside(sd1[r["param"]]) for r in rs])
+        mean_k = np.mean([inside(sd1[r["param"]] / np.sqrt(r["k"])) for r in rs])
+        q = np.percentile(gm, [16, 84])
+        designs = len({(r["seed"], r["name"]) for r in rs})
+        # the base fit's own chance taken out: each candidate's mean ratio over the
+        # control's (the base design's replicates over the base fit) for that truth and
+        # parameter, i.e. the prediction as it would be from a base fit with its expected sd
+        ctrl = {(r["seed"], r["param"]): r["gm"] for r in reps if r["rank"] == 0}
+        adj = np.array([r["gm"] / ctrl[(r["seed"], r["param"])] for r in rs
+                        if r["rank"] > 0 and (r["seed"], r["param"]) in ctrl])
+        adj_cell = (f"{np.mean(np.abs(adj - 1) <= 0.25):.0%} ({len(adj)}, median "
+                    f"{np.median(adj):.2f})" if adj.size else "-")
+        print(f"| {label} ({designs} x {rs[0]['k']}) | {len(gm)} | {np.median(gm):.2f} "
+              f"({q[0]:.2f}-{q[1]:.2f}) | {np.mean(np.abs(gm - 1) <= 0.25):.0%} | "
+              f"{one:.0%} | {mean_k:.0%} | {adj_cell} |")
 
 
 #: the model's sensitivities the runs' deviations are regressed on (--run-structure), added
@@ -376,6 +474,9 @@ def main(argv=None) -> None:
                     help="only print the tables of a log written earlier")
     ap.add_argument("--run-structure", type=Path, default=None, metavar="DIR",
                     help="how the runs of a kept validation's campaigns differ")
+    ap.add_argument("--replicates", type=int, default=1,
+                    help="campaigns of each validated design (other seeds): the achieved "
+                         "sd's mean over them against the prediction, and the ceiling")
     ap.add_argument("--keep", type=Path, default=None,
                     help="keep the campaigns and fits under this folder; fits found there "
                          "are reused (re-scores the design on the same campaigns)")
@@ -395,7 +496,7 @@ def main(argv=None) -> None:
         tables(rows)
     elif a.validate:
         t = time.perf_counter()
-        rows = validate(a.truths, a.starts, a.seed, a.log, a.keep)
+        rows = validate(a.truths, a.starts, a.seed, a.log, a.keep, a.replicates)
         print(f"{a.truths} truths, {a.starts} starts per fit, {time.perf_counter() - t:.0f} s\n")
         tables(rows)
 

@@ -369,3 +369,44 @@ def test_truth_polish_finds_the_fits_own_minimum_and_scores_errors_in_half_width
     half = np.log(u.upper68[k] / u.lower68[k]) / 2
     assert r["z"]["k_Bx"][0] == pytest.approx(np.log(1 / 1.05) / half, rel=1e-9)
     assert r["truth"] == pytest.approx(r["fit"], rel=1e-4)
+
+
+def test_design_replicates_geometric_mean_and_ceiling_match_a_simulation(capsys):
+    """bench_design.py --replicates: a design's replicate rows give each parameter's geometric
+    mean ratio and the sample variance of its logs; the printed ceiling (a perfect
+    prediction's share within +-25 % of one campaign) agrees with the share simulated from
+    the same log-normal spread, and a prediction off by a factor 2 is never within."""
+    import bench_design
+
+    rng = np.random.default_rng(3)
+    sd_ln, k, rows = 0.3, 3, []
+    for seed in range(200):
+        for j in range(k):
+            ratios = {"a": float(np.exp(sd_ln * rng.standard_normal())),
+                      "b": float(2.0 * np.exp(0.01 * rng.standard_normal()))}
+            if j == 1 and seed == 0:
+                ratios.pop("b")                         # not compared in every replicate
+            rows.append({"seed": seed, "rank": 1, "name": "d", "ratios": ratios,
+                         "replicate": j})
+    reps = bench_design.replicate_means(rows)
+    first = [r for r in reps if r["seed"] == 0]
+    assert [r["param"] for r in first] == ["a"]         # only parameters in every replicate
+    a0 = [x["ratios"]["a"] for x in rows if x["seed"] == 0]
+    assert first[0]["gm"] == pytest.approx(float(np.exp(np.mean(np.log(a0)))), rel=1e-12)
+    assert first[0]["var"] == pytest.approx(float(np.var(np.log(a0), ddof=1)), rel=1e-12)
+    bench_design.replicate_tables(rows, [("all", lambda r: True),
+                                         ("a only", lambda r: r["param"] == "a")])
+    out = capsys.readouterr().out.splitlines()
+    cells = {x.split("|")[1].split("(")[0].strip(): [c.strip() for c in x.strip("|").split("|")]
+             for x in out if x.startswith("| a") or x.startswith("| all")}
+    z = sd_ln * rng.standard_normal(200_000)
+    simulated = np.mean(np.abs(np.exp(z) - 1) <= 0.25)
+    assert float(cells["a only"][4].rstrip("%")) == pytest.approx(100 * simulated, abs=3)
+    # against the replicates' mean the spread is sd / sqrt(k)
+    z_k = z / np.sqrt(k)
+    assert float(cells["a only"][5].rstrip("%")) == pytest.approx(
+        100 * np.mean(np.abs(np.exp(z_k) - 1) <= 0.25), abs=3)
+    # half the comparisons are b's, off by 2: the share within is at most a's half
+    assert float(cells["all"][3].rstrip("%")) <= 0.5 * float(cells["a only"][3].rstrip("%")) + 1
+    gm_b = np.array([r["gm"] for r in reps if r["param"] == "b"])
+    assert np.all(np.abs(gm_b - 1) > 0.25)

@@ -489,6 +489,16 @@ def test_report_section_only_where_a_design_is(tmp_path, paper_design):
     other = other_excitation(doc)
     assert set(other) == {"piezo1", "slow-retraction", "fast-retraction", "half-voltage"}
     assert "Caveat for " + ", ".join(other) in html
+    # and those fitted over another window carry the window's caveat
+    from gprm.report.design_section import other_window
+
+    base = doc["base"]["block"]
+    longer = other_window(doc)
+    expected = {c["name"] for c in doc["candidates"]
+                if c["block"]["window_ms"] != base["window_ms"]}
+    assert longer and set(longer) == expected
+    assert not set(longer) & {"more-runs", "piezo1", "fast-sampling"}
+    assert "Caveat for " + ", ".join(longer) + ": these are fitted over" in html
 
 
 def _spring_null_direction(ps):

@@ -410,13 +410,58 @@ def test_run_to_run_variation_averages_over_runs_not_over_the_window(synthetic_f
     same, long_, many, piezo1 = (a["sd_u"] ** 2 for a in out.alone)
     d = np.diag(V)
     below = out.fit_sd_u < out.prior_sd
-    # a longer window cannot take the variance below the run-to-run part of the same runs
-    assert np.all(long_[below] >= d[below] * (1 - 1e-9))
-    # four times the runs: the run-to-run part a quarter (the rest also shrinks)
+    # the share the runs' amplitude and timing errors explain (through the fit's
+    # estimator, at the base) is a share; with the base's own leak nothing changes
+    ex = runs.explained
+    assert ex is not None and np.all((ex >= 0) & (ex <= 1)) and ex[ident].max() > 0
+    np.testing.assert_allclose(runs.per_run_variance(10, runs.leak_base), V, rtol=1e-12)
+    unexplained = d * (1 - ex)
+    # a longer window cannot take the variance below the unexplained run-to-run part of
+    # the same runs (only more runs average it)
+    assert np.all(long_[below] >= unexplained[below] * (1 - 1e-9))
+    # four times the runs: the run-to-run part about a quarter (the rest also shrinks)
     assert np.all(many[below] <= same[below] * (1 + 1e-9))
-    assert np.all(many[below] >= d[below] / 4 * (1 - 1e-9))
+    assert np.all(many[below] >= unexplained[below] / 4 * (1 - 1e-9))
     # another drive is not a repeat: its runs do not average the base's variation
-    assert np.all(piezo1[below] >= np.minimum(d[below], out.prior_sd[below] ** 2) * (1 - 1e-9))
+    assert np.all(piezo1[below] >= np.minimum(unexplained[below], out.prior_sd[below] ** 2)
+                  * (1 - 1e-9))
+    # a zero leak leaves the unexplained part; the part between follows the leak linearly
+    V0 = runs.per_run_variance(10, np.zeros_like(d))
+    np.testing.assert_allclose(np.diag(V0), unexplained, rtol=1e-12, atol=1e-300)
+    half = runs.per_run_variance(10, 0.5 * runs.leak_base)
+    np.testing.assert_allclose(np.diag(half), unexplained + 0.5 * d * ex, rtol=1e-12,
+                               atol=1e-300)
+
+
+def test_run_error_leak_scales_with_runs_and_vanishes_under_a_tight_prior(synthetic_fit):
+    """gprm.design.information.run_error_leak: the runs' amplitude and timing errors reach
+    the estimate as 1 / runs (exactly, with the prior's precision scaled alike: the
+    estimator is the same, its errors average), ten runs and twenty as two blocks as
+    thirty in one (each block's mean errs independently), and not at all under a prior far
+    tighter than the data."""
+    from gprm.design.core import draws_of, load_model
+    from gprm.design.information import run_error_leak, run_error_pieces
+
+    cfg = replace(read_design_config(None), candidates=())
+    res = run_design(synthetic_fit, cfg)
+    fm = load_model(synthetic_fit)
+    X = draws_of(fm, 8, 0)
+    dx_du = np.where(np.asarray(res.log, bool)[None], X, 1.0)
+    base, noise = res.base_block, res.noise
+    P0 = np.diag(1.0 / res.prior_sd ** 2)
+
+    def pieces(runs):
+        return run_error_pieces(fm.params, fm.names, X, dx_du, replace(base, runs=runs), noise)
+
+    L10 = run_error_leak([pieces(10)], P0)
+    assert np.all(L10 >= 0) and L10.max() > 0
+    np.testing.assert_allclose(run_error_leak([pieces(40)], 4 * P0), L10 / 4, rtol=1e-8)
+    one = run_error_leak([pieces(30)], 3 * P0)
+    np.testing.assert_allclose(run_error_leak([pieces(10), pieces(20)], 3 * P0), one,
+                               rtol=1e-8)
+    np.testing.assert_allclose(one, L10 / 3, rtol=1e-8)
+    # the data's errors cannot move a parameter the prior pins
+    assert np.all(run_error_leak([pieces(10)], P0 * 1e30) <= 1e-12 * L10)
 
 
 def test_a_fit_without_the_split_is_carried_over_in_one_part(tmp_path, synthetic_fit):
@@ -453,6 +498,9 @@ def test_cli_on_a_fit_of_a_synthetic_campaign(tmp_path, synthetic_fit):
     assert runs["kappa"] == 1.0 and runs["base_runs"] == 10
     assert set(runs["run_to_run_sd_u"]) == set(doc["base"]["parameters"])
     assert max(runs["run_to_run_sd_u"].values()) > 0
+    ex = runs["run_to_run_explained"]
+    assert set(ex) == set(doc["base"]["parameters"]) and "run_to_run_explained" not in floor
+    assert all(0.0 <= v <= 1.0 for v in ex.values()) and max(ex.values()) > 0
     assert all(0.0 <= v <= 1.0 for v in runs["scale"].values())
     assert doc["noise"]["white_m"] > 0
     assert doc["base"]["fit_sd_u"] is not None

@@ -28,7 +28,10 @@ per-parameter carry-over, and a design's variance is their sum: more runs shrink
 first. The first is split once more (:func:`_carry`): what the noise model explains at the
 base (kappa 1), which shrinks with a design's information, and the excess, the mechanism
 and its drive varying from run to run, which only more runs of the same measurement average
-(:func:`same_measurement`; docs/design.md, "The runs' part: run-to-run variation").
+(:func:`same_measurement`; docs/design.md, "The runs' part: run-to-run variation"); the
+share of that excess the runs' amplitude and timing errors explain through the fit's
+estimator follows a design's window and channels instead
+(:func:`gprm.design.information.run_error_leak`; "The part of E a window changes").
 """
 
 from __future__ import annotations
@@ -41,7 +44,8 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from gprm.design.config import MODEL_CHANNELS, Block, Channel, DesignConfig
-from gprm.design.information import NoiseModel, block_information, estimate_noise
+from gprm.design.information import (NoiseModel, block_information, estimate_noise,
+                                     run_error_leak, run_error_pieces)
 from gprm.design.predictions import ReleasePredictions, release_predictions
 from gprm.fit.files import FittedModel, load_model, read_fit_document, read_fit_sidecar
 from gprm.fit.objective import DEFAULT_WINDOW
@@ -309,15 +313,44 @@ class _Part:
     scale: np.ndarray
     per_run: np.ndarray | None = None
     runs: int = 0
+    #: (P,) the share of each parameter's run-to-run variance (diagonal of ``per_run``) that
+    #: the runs' amplitude and timing errors explain through the fit's estimator
+    #: (gprm.design.information.run_error_leak), and that leak's variance at the base
+    #: (``leak_base``); None: not split (the whole carried as a covariance in u)
+    explained: np.ndarray | None = None
+    leak_base: np.ndarray | None = None
 
-    def per_run_variance(self, runs: int) -> np.ndarray:
+    def per_run_variance(self, runs: int, leak: np.ndarray | None = None) -> np.ndarray:
         """(P, P): the run-to-run part of a campaign that averages ``runs`` (> 0) runs of
-        the base's measurement (the runs' part only)."""
+        the base's measurement (the runs' part only). With ``leak`` (P,), the campaign's
+        :func:`gprm.design.information.run_error_leak`, each parameter's ``explained``
+        share follows the leak (leak / leak_base: how the campaign's window and channels
+        separate a gain or a time shift from the parameter) and the rest the runs; the
+        correlations are kept."""
         if self.per_run is None:
             raise ValueError(f"the {self.component} part has no run-to-run variation")
         if runs <= 0:
             raise ValueError(f"a campaign averages at least one run, got {runs}")
-        return self.per_run * (self.runs / runs)
+        r = self.runs / runs
+        V = self.per_run * r
+        if leak is None or self.explained is None or self.leak_base is None:
+            return V
+        with np.errstate(divide="ignore", invalid="ignore"):
+            ratio = np.where(self.leak_base > 0, np.asarray(leak, float) / self.leak_base, r)
+        f = np.sqrt(np.clip((self.explained * ratio + (1.0 - self.explained) * r) / r,
+                            0.0, None))
+        return V * np.outer(f, f)
+
+    def with_leak(self, leak_base: np.ndarray) -> "_Part":
+        """This part with its run-to-run variance split by the base campaign's leak
+        (:func:`gprm.design.information.run_error_leak`): the share each parameter's leak
+        explains, at most all of it."""
+        if self.per_run is None:
+            return self
+        d = np.clip(np.diag(self.per_run), 0.0, None)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            ex = np.where(d > 0, np.minimum(leak_base, d) / d, 0.0)
+        return replace(self, explained=ex, leak_base=np.asarray(leak_base, float))
 
 
 def _carry(P0: np.ndarray, F_base: np.ndarray, part_sd: np.ndarray, ident: np.ndarray,
@@ -447,6 +480,21 @@ def run_design(model, config: DesignConfig | None = None, *, candidates_path=Non
             scale = np.where(np.isfinite(r) & (r > 0), r, 1.0)
         parts = (_Part("all", kappa, scale),)
     noise = replace(noise1, kappa=parts[0].kappa if len(parts) == 1 else 1.0)
+    # the runs' amplitude and timing errors through each campaign's estimator: the share
+    # of the run-to-run variation they explain follows a candidate's window and channels
+    pieces: dict[str, object] = {}
+
+    def pieces_of(name: str, block: Block):
+        if name not in pieces:
+            pieces[name] = run_error_pieces(fm.params, names, X, dx_du, block, noise1,
+                                            z_bk_absolute=fm.z_bk_absolute)
+        return pieces[name]
+
+    leak0 = np.zeros(len(names))
+    if any(p.per_run is not None for p in parts):
+        leak0 = run_error_leak([pieces_of("", base)], P0)
+        parts = tuple(p.with_leak(leak0) for p in parts)
+    blocks_of = {c.name: c.block for c in cfg.candidates}
     t0 = time.perf_counter()
     preds = release_predictions(fm, sd0, log)
     t_pred = time.perf_counter() - t0
@@ -471,7 +519,13 @@ def run_design(model, config: DesignConfig | None = None, *, candidates_path=Non
             prior_var = prior_var + _prior_variance(C, P0) * part.scale ** 2
             Cm = Cm + C.mean(0) * np.outer(part.scale, part.scale)
             if part.per_run is not None:
-                V = part.per_run_variance(base.runs + sum(repeats[a] for a in adds))
+                # an addition can be left out of the fit, so it never makes the runs'
+                # errors reach a parameter more than at the base (the fit's weights are not
+                # those that would minimise it with the added runs' own errors)
+                leak = np.minimum(run_error_leak(
+                    [pieces_of("", base)] + [pieces_of(a, blocks_of[a]) for a in adds], P0),
+                    leak0)
+                V = part.per_run_variance(base.runs + sum(repeats[a] for a in adds), leak)
                 var, Cm = var + np.diag(V), Cm + V
         sd = np.minimum(np.sqrt(var), sd0)
         psd = np.sqrt(np.clip(np.einsum("kp,pq,kq->k", preds.gradient, Cm, preds.gradient),
@@ -579,7 +633,10 @@ def evaluate_block(fm: FittedModel, block: Block, cfg: DesignConfig, noise: Nois
             # a campaign of its own: its runs average the variation if it repeats the
             # base's measurement; else it is taken as the base's (not measured otherwise)
             runs = block.runs if same_measurement(block, base) else part.runs
-            var = var + np.diag(part.per_run_variance(runs))
+            leak = run_error_leak([run_error_pieces(fm.params, fm.names, X, dx_du, block,
+                                                    replace(noise, kappa=1.0),
+                                                    z_bk_absolute=fm.z_bk_absolute)], P0)
+            var = var + np.diag(part.per_run_variance(runs, leak))
     sd = np.minimum(np.sqrt(var), sd0)
     share = prior_var / np.clip(var, 1e-300, None)
     return {"sd_u": sd, "identified": _identified(sd, sd0, share, cfg.identified_threshold),

@@ -106,7 +106,12 @@ def design_document(res: DesignResult) -> dict:
                         # runs (docs/design.md), which only more runs average down
                         **({"run_to_run_sd_u": {n: float(v) for n, v in zip(
                             res.names, np.sqrt(np.clip(np.diag(p.per_run), 0.0, None)))},
-                            "base_runs": p.runs} if p.per_run is not None else {})}
+                            "base_runs": p.runs} if p.per_run is not None else {}),
+                        # the share of it the runs' amplitude and timing errors explain,
+                        # which follows a candidate's window and channels
+                        **({"run_to_run_explained": {n: float(v) for n, v in zip(
+                            res.names, p.explained)}}
+                           if getattr(p, "explained", None) is not None else {})}
                        for p in res.parts],
         "draws": res.config.n_draws, "seed": res.config.seed,
         "identified_threshold": res.config.identified_threshold,

@@ -285,3 +285,60 @@ def estimate_noise(data_sigma: np.ndarray, model: np.ndarray, runs: int) -> tupl
     A = np.stack([np.ones(ok.sum()), y2[ok]], 1) / s2[ok, None]
     sol, _ = nnls(A, np.ones(ok.sum()))
     return float(np.sqrt(sol[0])), float(np.sqrt(sol[1]))
+
+
+@dataclass(frozen=True)
+class RunErrorPieces:
+    """One block's share of :func:`run_error_leak`: its weighted information ``H`` (B, P, P)
+    (no nuisance marginalised: the fit's own estimator) and ``cols`` (K, B, P), for each of
+    its channels' mean amplitude and timing errors J^T W times the error's signature (the
+    channel's signal and its time derivative) scaled by the error's sd at the block's
+    runs."""
+
+    H: np.ndarray
+    cols: np.ndarray
+
+
+def run_error_pieces(params: ParameterSet, names: tuple[str, ...], X: np.ndarray,
+                     dx_du: np.ndarray, block: Block, noise: NoiseModel, *,
+                     z_bk_absolute: bool = False) -> RunErrorPieces:
+    """The pieces of :func:`run_error_leak` for one block at the parameter rows X (B, P)."""
+    B, P = X.shape
+    R = block.runs
+    H = np.zeros((B, P, P))
+    cols = []
+    for drive in block.drives:
+        Y, D, Yd = block_signals(params, names, X, block, drive, z_bk_absolute=z_bk_absolute)
+        Ju = D * dx_du[:, None, None, :]
+        for ci, ch in enumerate(block.channels):
+            y = Y[:, ci]
+            # the fit's weights: one over the standard error of the block's mean
+            w = np.sqrt(R / (noise.white ** 2 + noise.variability ** 2 * y ** 2))
+            J = Ju[:, ci] * w[..., None]                        # (B, T, P)
+            H += np.einsum("btp,btq->bpq", J, J)
+            amp = noise.variability / np.sqrt(R)
+            tim = np.hypot(noise.align_of(ch.name), noise.sync_of(ch.name)) * np.sqrt(
+                noise.base_runs / R)
+            cols.append(np.einsum("btp,bt->bp", J, y * w) * amp)
+            cols.append(np.einsum("btp,bt->bp", J, Yd[:, ci] * w) * tim)
+    return RunErrorPieces(H, np.asarray(cols).reshape(-1, B, P))
+
+
+def run_error_leak(pieces, P0: np.ndarray) -> np.ndarray:
+    """(P,) the variance in u, averaged over the draws, that the runs' amplitude and timing
+    errors of the channels' means put into a campaign's estimate: each error e_k with
+    signature s_k moves the weighted least-squares estimate (prior precision P0) by
+    (P0 + J^T W J)^-1 J^T W s_k e_k. ``pieces``: :func:`run_error_pieces` of the campaign's
+    blocks (their information and errors add; channels are measured in separate runs).
+
+    The amplitude sd is the noise model's runs' spread v / sqrt(R) and the timing sd the
+    alignment's and the synchronisation's at R runs; unlike the Fisher information of
+    :func:`block_information`, which marginalises them as nuisances, the fit's estimator
+    does not, so they reach the parameters, the more so the less the window tells a
+    parameter's signature from a gain or a time shift (docs/design.md, "The runs' part:
+    run-to-run variation")."""
+    pieces = list(pieces)
+    H = P0[None] + sum(p.H for p in pieces)
+    cols = np.concatenate([p.cols for p in pieces])              # (K, B, P)
+    G = np.linalg.solve(H[None], cols[..., None])[..., 0]         # (K, B, P)
+    return np.mean(np.sum(G ** 2, axis=0), axis=0)

@@ -133,14 +133,14 @@ def design_section(run: Path) -> Section | None:
         s.blocks.append(paragraph(
             f"Caveat for {', '.join(longer)}: these are fitted over another window than "
             "the fitted campaign. Most of a parameter's predicted variance is usually "
-            "the runs' variation from run to run, which the design carries over from the "
-            "fitted window and divides by the number of runs; it does not know how a longer "
-            "window separates that variation from a parameter. In the validation a longer "
-            "window's widths came within +-25 % of the achieved (the mean of three "
-            "campaigns) for 56 % of the parameters against 74-79 % for more runs, some "
-            "parameters much narrower than predicted (gamma 0.15 times) and some wider (m3 "
-            "1.3 times; docs/design.md, \"Stop 53\"): read their per-parameter widths as "
-            "rough, their ranking as the information's."))
+            "the runs' variation from run to run; the design follows a window only in the "
+            "share of it that the runs' amplitude and timing errors explain, and carries "
+            "the rest over from the fitted window, divided by the number of runs. In the "
+            "validation a longer window's widths came within +-25 % of the achieved (the "
+            "mean of three campaigns) for 67 % of the parameters against 74-79 % for more "
+            "runs, one parameter far narrower than predicted (gamma 0.15 times; "
+            "docs/design.md, \"Stop 53\"): read their per-parameter widths as rough, "
+            "their ranking as the information's."))
     s.blocks.append(paragraph("y-plane springs: " + doc["y_springs"]["text"] + "."))
     s.blocks.append(fig_to_img(fig_design(doc), "Left: what each candidate buys and its "
                                "cost. Right: the recommended campaign's interval widths over "

@@ -361,6 +361,8 @@ def replicate_tables(rows: list[dict], groups) -> None:
     reps = replicate_means(rows)
     if not reps:
         return
+    # the control's mean ratio per truth and parameter: the base fit's own chance
+    ctrl = {(r["seed"], r["param"]): r["gm"] for r in reps if r["rank"] == 0}
     print("\n| designs, replicated | comparisons | achieved (geometric mean over the "
           "replicates) / predicted sd: median (16-84 %) | within +-25 % | ceiling against "
           "one campaign | ceiling against the replicates' mean | within +-25 % with the base "
@@ -381,9 +383,8 @@ def replicate_tables(rows: list[dict], groups) -> None:
         q = np.percentile(gm, [16, 84])
         designs = len({(r["seed"], r["name"]) for r in rs})
         # the base fit's own chance taken out: each candidate's mean ratio over the
-        # control's (the base design's replicates over the base fit) for that truth and
-        # parameter, i.e. the prediction as it would be from a base fit with its expected sd
-        ctrl = {(r["seed"], r["param"]): r["gm"] for r in reps if r["rank"] == 0}
+        # control's for that truth and parameter, i.e. the prediction as it would be from
+        # a base fit with its expected sd
         adj = np.array([r["gm"] / ctrl[(r["seed"], r["param"])] for r in rs
                         if r["rank"] > 0 and (r["seed"], r["param"]) in ctrl])
         adj_cell = (f"{np.mean(np.abs(adj - 1) <= 0.25):.0%} ({len(adj)}, median "

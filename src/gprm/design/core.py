@@ -44,8 +44,9 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from gprm.design.config import MODEL_CHANNELS, Block, Channel, DesignConfig
-from gprm.design.information import (NoiseModel, block_information, estimate_noise,
-                                     run_error_leak, run_error_pieces)
+from gprm.design.information import (NoiseModel, RunErrorPieces, block_information,
+                                     drive_signals, estimate_noise, run_error_leak,
+                                     run_error_pieces)
 from gprm.design.predictions import ReleasePredictions, release_predictions
 from gprm.fit.files import FittedModel, load_model, read_fit_document, read_fit_sidecar
 from gprm.fit.objective import DEFAULT_WINDOW
@@ -444,12 +445,6 @@ def run_design(model, config: DesignConfig | None = None, *, candidates_path=Non
     fitted_lags = tuple(ch for ch, off in ALIGNMENT_OFFSETS.items() if off in names)
     lag_sd = float(default_prior(fm.params, ("dt_x_head",)).sd[0])
 
-    def info(block: Block, component: str) -> np.ndarray:
-        return block_information(fm.params, names, X, dx_du, block, noise1,
-                                 gain_sd=cfg.gain_sd, timing_sd=cfg.timing_sd, lag_sd=lag_sd,
-                                 fitted_lag_channels=fitted_lags,
-                                 z_bk_absolute=fm.z_bk_absolute, component=component)
-
     # the fit's own sd in u, and (the sandwich's) split of its variance into two parts
     fit_sd = None
     split = None
@@ -461,9 +456,25 @@ def run_design(model, config: DesignConfig | None = None, *, candidates_path=Non
         if cfg.calibrate and n0 > 0:
             split = variance_parts(read_fit_document(fm.source), names, fit_sd ** 2, xb, log)
     comps = ("runs", "floor") if split is not None else ("all",)
+
+    def terms(block: Block) -> tuple[dict, RunErrorPieces | None]:
+        """The block's information per component and, where the runs' part is split off,
+        its run errors (gprm.design.information.run_error_pieces): one simulation."""
+        sig = drive_signals(fm.params, names, X, block, z_bk_absolute=fm.z_bk_absolute)
+        F = {k: block_information(fm.params, names, X, dx_du, block, noise1,
+                                  gain_sd=cfg.gain_sd, timing_sd=cfg.timing_sd,
+                                  lag_sd=lag_sd, fitted_lag_channels=fitted_lags,
+                                  z_bk_absolute=fm.z_bk_absolute, component=k, signals=sig)
+             for k in comps}
+        pieces = (run_error_pieces(fm.params, names, X, dx_du, block, noise1, signals=sig)
+                  if split is not None else None)
+        return F, pieces
+
     t0 = time.perf_counter()
-    F_base = {k: info(base, k) for k in comps}
-    F_cand = {c.name: {k: info(c.block, k) for k in comps} for c in cfg.candidates}
+    F_base, pieces_base = terms(base)
+    cand_terms = {c.name: terms(c.block) for c in cfg.candidates}
+    F_cand = {n: t[0] for n, t in cand_terms.items()}
+    pieces_cand = {n: t[1] for n, t in cand_terms.items()}
     t_info = time.perf_counter() - t0
     # the calibration and the per-parameter carry-over: what the noise model misses of the
     # fit's sd, carried over to every design (docs/design.md)
@@ -482,19 +493,10 @@ def run_design(model, config: DesignConfig | None = None, *, candidates_path=Non
     noise = replace(noise1, kappa=parts[0].kappa if len(parts) == 1 else 1.0)
     # the runs' amplitude and timing errors through each campaign's estimator: the share
     # of the run-to-run variation they explain follows a candidate's window and channels
-    pieces: dict[str, object] = {}
-
-    def pieces_of(name: str, block: Block):
-        if name not in pieces:
-            pieces[name] = run_error_pieces(fm.params, names, X, dx_du, block, noise1,
-                                            z_bk_absolute=fm.z_bk_absolute)
-        return pieces[name]
-
     leak0 = np.zeros(len(names))
-    if any(p.per_run is not None for p in parts):
-        leak0 = run_error_leak([pieces_of("", base)], P0)
+    if pieces_base is not None:
+        leak0 = run_error_leak([pieces_base], P0)
         parts = tuple(p.with_leak(leak0) for p in parts)
-    blocks_of = {c.name: c.block for c in cfg.candidates}
     t0 = time.perf_counter()
     preds = release_predictions(fm, sd0, log)
     t_pred = time.perf_counter() - t0
@@ -523,8 +525,7 @@ def run_design(model, config: DesignConfig | None = None, *, candidates_path=Non
                 # errors reach a parameter more than at the base (the fit's weights are not
                 # those that would minimise it with the added runs' own errors)
                 leak = np.minimum(run_error_leak(
-                    [pieces_of("", base)] + [pieces_of(a, blocks_of[a]) for a in adds], P0),
-                    leak0)
+                    [pieces_base] + [pieces_cand[a] for a in adds], P0), leak0)
                 V = part.per_run_variance(base.runs + sum(repeats[a] for a in adds), leak)
                 var, Cm = var + np.diag(V), Cm + V
         sd = np.minimum(np.sqrt(var), sd0)
@@ -620,12 +621,13 @@ def evaluate_block(fm: FittedModel, block: Block, cfg: DesignConfig, noise: Nois
     that campaign should report): the validation's prediction."""
     var = np.zeros(len(fm.names))
     prior_var = np.zeros(len(fm.names))
+    noise1 = replace(noise, kappa=1.0)
+    sig = drive_signals(fm.params, fm.names, X, block, z_bk_absolute=fm.z_bk_absolute)
     for part in parts:
-        F = block_information(fm.params, fm.names, X, dx_du, block,
-                              replace(noise, kappa=1.0), gain_sd=cfg.gain_sd,
-                              timing_sd=cfg.timing_sd, lag_sd=lag_sd,
+        F = block_information(fm.params, fm.names, X, dx_du, block, noise1,
+                              gain_sd=cfg.gain_sd, timing_sd=cfg.timing_sd, lag_sd=lag_sd,
                               fitted_lag_channels=fitted_lags, z_bk_absolute=fm.z_bk_absolute,
-                              component=part.component)
+                              component=part.component, signals=sig)
         C = _posterior(P0, F, part.kappa)
         var = var + _mean_sd(C) ** 2 * part.scale ** 2
         prior_var = prior_var + _prior_variance(C, P0) * part.scale ** 2
@@ -634,8 +636,7 @@ def evaluate_block(fm: FittedModel, block: Block, cfg: DesignConfig, noise: Nois
             # base's measurement; else it is taken as the base's (not measured otherwise)
             runs = block.runs if same_measurement(block, base) else part.runs
             leak = run_error_leak([run_error_pieces(fm.params, fm.names, X, dx_du, block,
-                                                    replace(noise, kappa=1.0),
-                                                    z_bk_absolute=fm.z_bk_absolute)], P0)
+                                                    noise1, signals=sig)], P0)
             var = var + np.diag(part.per_run_variance(runs, leak))
     sd = np.minimum(np.sqrt(var), sd0)
     share = prior_var / np.clip(var, 1e-300, None)

@@ -111,7 +111,7 @@ def design_document(res: DesignResult) -> dict:
                         # which follows a candidate's window and channels
                         **({"run_to_run_explained": {n: float(v) for n, v in zip(
                             res.names, p.explained)}}
-                           if getattr(p, "explained", None) is not None else {})}
+                           if p.explained is not None else {})}
                        for p in res.parts],
         "draws": res.config.n_draws, "seed": res.config.seed,
         "identified_threshold": res.config.identified_threshold,

@@ -167,6 +167,15 @@ def block_signals(params: ParameterSet, names: tuple[str, ...], X: np.ndarray, b
     return Y, D[..., :len(names)], ydot
 
 
+def drive_signals(params: ParameterSet, names: tuple[str, ...], X: np.ndarray, block: Block,
+                  *, z_bk_absolute: bool = False) -> dict:
+    """{drive: :func:`block_signals`} for each of the block's drives: the one simulation of a
+    block that its information components and its run errors (:func:`run_error_pieces`)
+    share."""
+    return {d: block_signals(params, names, X, block, d, z_bk_absolute=z_bk_absolute)
+            for d in block.drives}
+
+
 def resonance_columns(params: ParameterSet, names: tuple[str, ...], X: np.ndarray,
                       block: Block, resonance: tuple) -> np.ndarray:
     """(B, C, T, 2): Re and Im of the resonance's response (gprm.fit.resonance.response) in
@@ -202,7 +211,7 @@ def block_information(params: ParameterSet, names: tuple[str, ...], X: np.ndarra
                       dx_du: np.ndarray, block: Block, noise: NoiseModel, *,
                       gain_sd: float, timing_sd: float, lag_sd: float,
                       fitted_lag_channels=(), z_bk_absolute: bool = False,
-                      component: str = "all") -> np.ndarray:
+                      component: str = "all", signals: dict | None = None) -> np.ndarray:
     """Fisher information (B, P, P) in u of one block at each parameter row X (B, P).
 
     ``gain_sd``, ``timing_sd``: the instrument's systematics (the block's own where it states
@@ -212,7 +221,8 @@ def block_information(params: ParameterSet, names: tuple[str, ...], X: np.ndarra
     down over the block's runs (white noise n0^2/R, the runs' amplitude spread v^2/R, the
     alignment's and the synchronisation's timing sd^2 x base_runs/R); ``floor`` only the error that does not (the model
     mismatch, the gain and stated timing errors). The own-lag nuisance is marginalised in
-    both."""
+    both. ``signals``: :func:`drive_signals` of this block at these rows where the caller
+    has them (one simulation for several components); None: simulated here."""
     if component not in COMPONENTS:
         raise ValueError(f"component must be one of {COMPONENTS}, got {component!r}")
     runs_part = component in ("all", "runs")
@@ -225,8 +235,10 @@ def block_information(params: ParameterSet, names: tuple[str, ...], X: np.ndarra
     F = np.zeros((B, P, P))
     R = block.runs
     k = noise.kappa
+    if signals is None:
+        signals = drive_signals(params, names, X, block, z_bk_absolute=z_bk_absolute)
     for drive in block.drives:
-        Y, D, Yd = block_signals(params, names, X, block, drive, z_bk_absolute=z_bk_absolute)
+        Y, D, Yd = signals[drive]
         Ju = D * dx_du[:, None, None, :]                        # (B, C, T, P)
         G = (resonance_columns(params, names, X, block, noise.resonance)
              if noise.resonance else None)
@@ -301,14 +313,18 @@ class RunErrorPieces:
 
 def run_error_pieces(params: ParameterSet, names: tuple[str, ...], X: np.ndarray,
                      dx_du: np.ndarray, block: Block, noise: NoiseModel, *,
-                     z_bk_absolute: bool = False) -> RunErrorPieces:
-    """The pieces of :func:`run_error_leak` for one block at the parameter rows X (B, P)."""
+                     z_bk_absolute: bool = False, signals: dict | None = None
+                     ) -> RunErrorPieces:
+    """The pieces of :func:`run_error_leak` for one block at the parameter rows X (B, P);
+    ``signals`` as :func:`block_information` takes them."""
     B, P = X.shape
     R = block.runs
     H = np.zeros((B, P, P))
     cols = []
+    if signals is None:
+        signals = drive_signals(params, names, X, block, z_bk_absolute=z_bk_absolute)
     for drive in block.drives:
-        Y, D, Yd = block_signals(params, names, X, block, drive, z_bk_absolute=z_bk_absolute)
+        Y, D, Yd = signals[drive]
         Ju = D * dx_du[:, None, None, :]
         for ci, ch in enumerate(block.channels):
             y = Y[:, ci]

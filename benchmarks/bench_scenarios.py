@@ -316,6 +316,162 @@ def mixture_choice_study(fm, seeds, releases: int, draws: int, n_model: int) -> 
     return {"n_model": n_model, "variants": res}
 
 
+def _aligned_frames(e: np.ndarray):
+    """Two unit vectors a, b (K, 3) completing each unit vector e (K, 3) to a right-handed
+    orthonormal frame."""
+    h = np.where((np.abs(e[:, 0]) > 0.9)[:, None], np.array([0.0, 1, 0]),
+                 np.array([1.0, 0, 0]))
+    a = h - np.sum(h * e, 1)[:, None] * e
+    a /= np.linalg.norm(a, axis=1)[:, None]
+    return a, np.cross(e, a)
+
+
+def aligned_coordinates(Y, e, a, b):
+    """The TM velocity (..., K, 6) in coordinates aligned with it, per prior draw k's frame
+    (e, a, b: (K, 3)): u = (ln |v|, n.a / n.e, n.b / n.e, omega / |v|) with n = v / |v| (its
+    direction by the gnomonic projection about e). Returns u (..., K, 6), cos = n.e and |v|.
+    The density of y is that of u times |det du/dy| = 1 / (|v|^(3 + A) cos^3), A the number
+    of angular components (the gnomonic projection's 1 / cos^3 on the sphere, d ln|v| = d|v|
+    / |v| with the volume |v|^2 d|v| d(direction), and 1 / |v| for each omega / |v|)."""
+    v = Y[..., :3]
+    r = np.linalg.norm(v, axis=-1)
+    n = v / r[..., None]
+    c = np.sum(n * e, -1)
+    u = np.concatenate([np.log(r)[..., None], (np.sum(n * a, -1) / c)[..., None],
+                        (np.sum(n * b, -1) / c)[..., None], Y[..., 3:] / r[..., None]], -1)
+    return u, c, r
+
+
+def aligned_moments(Y, ok, min_valid: float = 0.75) -> dict:
+    """Per prior draw, the parameter sets' velocities (Y (M, K, 6), ok (M, K)) summarised
+    by a Gaussian in :func:`aligned_coordinates` about their mean direction (the frame), with
+    the Jacobian of the coordinates at their mean velocity (central differences) to carry the
+    floor and the allowance over."""
+    K = ok.shape[1]
+    Yv = np.where(ok[..., None], Y, np.nan)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        n = Yv[..., :3] / np.linalg.norm(Yv[..., :3], axis=-1)[..., None]
+        e = np.nan_to_num(np.nansum(n, 0), nan=0.0)
+    norm = np.linalg.norm(e, axis=1)
+    e = np.where(norm[:, None] > 0, e / np.where(norm > 0, norm, 1.0)[:, None], [1.0, 0, 0])
+    a, b = _aligned_frames(e)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        U = aligned_coordinates(Yv, e, a, b)[0]
+    cnt = ok.sum(0)
+    m = np.where(cnt[:, None] > 0, np.nansum(np.where(ok[..., None], U, 0.0), 0)
+                 / np.maximum(cnt, 1)[:, None], np.nan)
+    d = np.where(ok[..., None], U - m, 0.0)
+    S = np.einsum("mki,mkj->kij", d, d) / np.maximum(cnt - 1, 1)[:, None, None]
+    mu = np.where(cnt[:, None] > 0, np.nansum(np.where(ok[..., None], Y, 0.0), 0)
+                  / np.maximum(cnt, 1)[:, None], np.nan)
+    G = np.zeros((K, 6, 6))
+    for j in range(6):
+        h = 1e-6 * np.maximum(np.abs(np.nan_to_num(mu[:, j])), 1e-9)
+        p, q = mu.copy(), mu.copy()
+        p[:, j] += h
+        q[:, j] -= h
+        with np.errstate(invalid="ignore", divide="ignore"):
+            G[:, :, j] = (aligned_coordinates(p, e, a, b)[0]
+                          - aligned_coordinates(q, e, a, b)[0]) / (2 * h[:, None])
+    valid = (ok.mean(0) >= min_valid) & np.isfinite(m).all(1)
+    return {"valid": valid, "e": e, "a": a, "b": b, "m": m, "S": S, "mu": mu, "G": G}
+
+
+def aligned_log_likelihood(am: dict, y, sig, use, floor, rel_floor,
+                           scale_only: bool = False) -> np.ndarray:
+    """ln L_k (K,) of a release (y, sig, use as :func:`_set_log_likelihood`) under the
+    Gaussian of :func:`aligned_moments`, as a density of y (the Jacobian of
+    :func:`aligned_coordinates`), so that its evidence compares with the method's. The
+    measurement's variance and the floor are carried into u by the Jacobian; the allowance
+    either so too (rel_floor of each component) or, with ``scale_only``, as a common scale
+    error of the velocity (rel_floor on ln |v| alone). −inf where the draw is not valid or
+    the measured direction lies more than ~87° from its frame."""
+    K = am["m"].shape[0]
+    with np.errstate(invalid="ignore", divide="ignore"):
+        uy, c, r = aligned_coordinates(np.broadcast_to(y, (K, 6)), am["e"], am["a"], am["b"])
+    ui = np.r_[0, 1, 2, 3 + np.flatnonzero(use[3:])]
+    fl = np.array([floor[0]] * 3 + [floor[1]] * 3)
+    D = sig ** 2 + fl ** 2 + (0.0 if scale_only else (rel_floor * am["mu"]) ** 2)
+    D = np.where(use, np.broadcast_to(D, (K, 6)), 0.0)
+    Sx = np.einsum("kij,kj,klj->kil", am["G"], D, am["G"])
+    if scale_only:
+        Sx[:, 0, 0] += rel_floor ** 2
+    St = (am["S"] + Sx)[:, ui][:, :, ui]
+    res = (uy - am["m"])[:, ui]
+    ok = (am["valid"] & (c > 0.05) & np.isfinite(res).all(1)
+          & np.isfinite(St).all((1, 2)))
+    ll = np.full(K, -np.inf)
+    L = np.linalg.cholesky(St[ok])
+    z = np.linalg.solve(L, res[ok][..., None])[..., 0]
+    logdet = 2 * np.sum(np.log(np.diagonal(L, axis1=-2, axis2=-1)), -1)
+    jac = -(3 + int(use[3:].sum())) * np.log(r[ok]) - 3 * np.log(c[ok])
+    ll[ok] = (-0.5 * np.sum(z * z, -1) - 0.5 * logdet - 0.5 * ui.size * np.log(2 * np.pi)
+              + jac)
+    return ll
+
+
+def aligned_study(fm, seeds, releases: int, draws: int) -> dict:
+    """Does a Gaussian in coordinates aligned with the velocity (magnitude, direction,
+    omega / |v|: :func:`aligned_coordinates`) instead of the method's Gaussian C_k of the
+    parameter sets' velocities narrow μ and separate one contact from two (docs/flight.md
+    §11)? On independent truths of xz, yz, two (TM centred, as the likelihood study), per
+    variant: the scenario chosen by the evidence (equal prior odds), and each unknown's
+    coverage under the true scenario. Variants: the method; the aligned Gaussian for the
+    one-contact scenarios (where sliding fixes the impulse's direction to μ) with the
+    allowance carried per component or as a common scale error, and for all three."""
+    from scipy.special import logsumexp
+
+    from gprm.flight.inference import InferenceOptions, _log_likelihood, prior_predictives
+    from gprm.flight.scenario import COMPARED, PARAMS, ScenarioPrior
+
+    prior = ScenarioPrior(tm_offset=0.0)
+    opts = InferenceOptions(n_draws=draws)
+    pps = prior_predictives(fm, opts, prior)
+    raw = set_velocities(fm, opts, prior)
+    ams = {k: aligned_moments(*raw[k], opts.min_valid) for k in COMPARED}
+    one = ("xz", "yz")
+    variants = {   # scenario -> likelihood: "g" the method, "a" aligned, "s" aligned, scale
+        "Gaussian C_k (the method)": {},
+        "aligned, one contact; allowance per component": {k: "a" for k in one},
+        "aligned, one contact; allowance as a common scale": {k: "s" for k in one},
+        "aligned, all three; allowance as a common scale": {k: "s" for k in COMPARED},
+    }
+    res = {v: {"n": 0, "right": 0, "confusion": {}, "in95": {k: 0 for k in PARAMS},
+               "in50": {k: 0 for k in PARAMS}, "sd": {k: [] for k in PARAMS}, "ess": []}
+           for v in variants}
+    for _s, kind, ds, tel, y, sig in scenario_campaigns(fm, seeds, releases, tm_offset=0.0):
+        for i in range(len(tel.releases)):
+            use = np.isfinite(y[i])
+            yi, si = np.nan_to_num(y[i]), np.nan_to_num(sig[i])
+            lls = {}
+            for k2 in COMPARED:
+                lls["g", k2] = _log_likelihood(pps[k2], yi, si, use, opts)[0]
+                for how in "as":
+                    lls[how, k2] = aligned_log_likelihood(ams[k2], yi, si, use, opts.floor,
+                                                          opts.rel_floor, how == "s")
+            for name, forms in variants.items():
+                logz = {k2: logsumexp(lls[forms.get(k2, "g"), k2])
+                        - np.log(lls["g", k2].size) for k2 in COMPARED}
+                chosen = max(COMPARED, key=lambda k2: logz[k2])
+                r = res[name]
+                r["n"] += 1
+                r["right"] += chosen == kind
+                count(r["confusion"], kind, chosen)
+                ll = lls[forms.get(kind, "g"), kind]
+                w = np.exp(ll - ll.max())
+                w /= w.sum()
+                r["ess"].append(1.0 / np.sum(w * w))
+                tally_unknowns(r, pps[kind].params, w, ds, i)
+                for k in PARAMS:
+                    x = pps[kind].params[k]
+                    m = np.sum(w * x)
+                    r["sd"][k].append(np.sqrt(np.sum(w * (x - m) ** 2)) / np.std(x))
+    for r in res.values():
+        r["ess"] = float(np.median(r["ess"]))
+        r["sd"] = {k: float(np.median(v)) for k, v in r["sd"].items()}
+    return res
+
+
 def likelihood_study(fm, seeds, releases: int, draws: int) -> dict:
     """Why the friction's interval is too wide (docs/flight.md §11): on independent truths of
     xz, yz, two (TM centred: the question does not involve the offset), the posterior of every
@@ -689,6 +845,9 @@ def main() -> None:
     ap.add_argument("--likelihood-study", action="store_true",
                     help="why the friction's interval is too wide (docs/flight.md §11); run "
                          "it on seeds other than the recovery's")
+    ap.add_argument("--aligned-study", action="store_true",
+                    help="the choice and the unknowns' coverage under a Gaussian aligned "
+                         "with the velocity for the one-contact scenarios (§11)")
     ap.add_argument("--geometry-study", action="store_true",
                     help="the method's prior predictives against ones with each parameter "
                          "set's own contact geometry and masses (§11)")
@@ -719,6 +878,7 @@ def main() -> None:
           f"{'--observations ' if a.observations else ''}{'--recovery ' if a.recovery else ''}"
           f"{'--impact-times ' if a.impact_times else ''}"
           f"{'--likelihood-study ' if a.likelihood_study else ''}"
+          f"{'--aligned-study ' if a.aligned_study else ''}"
           f"{'--refine-study ' if a.refine_study else ''}"
           f"{'--oracle-study ' if a.oracle_study else ''}"
           f"{'--geometry-study ' if a.geometry_study else ''}"
@@ -795,6 +955,24 @@ def main() -> None:
             print(f"| {name} | {r['ess']:.0f} | " + " | ".join(
                 f"{100 * r['in95'][k] / n:.1f} / {100 * r['in50'][k] / n:.1f} %, "
                 f"{r['sd'][k]:.2f}" for k in PARAMS) + " |")
+        print()
+    if a.aligned_study:
+        t0 = time.perf_counter()
+        res = aligned_study(fm, seeds, a.releases, a.draws)
+        from gprm.flight.scenario import PARAMS
+        n = next(iter(res.values()))["n"]
+        study_heading("A Gaussian aligned with the velocity", a, t0)
+        print(f"Right scenario per release; per unknown the truth inside the 95 % / the "
+              f"central 50 % interval (of {n}), posterior sd / prior sd (median).\n")
+        print("| likelihood | right scenario | confusion | median effective draws | "
+              + " | ".join(PARAMS) + " |")
+        print("|---|---|---|---|" + "---|" * len(PARAMS))
+        for name, r in res.items():
+            print(f"| {name} | {r['right']}/{n} ({100 * r['right'] / n:.1f} %) | "
+                  + ", ".join(f"{k} {c}" for k, c in sorted(r["confusion"].items()))
+                  + f" | {r['ess']:.0f} | " + " | ".join(
+                      f"{100 * r['in95'][k] / n:.1f} / {100 * r['in50'][k] / n:.0f} %, "
+                      f"{r['sd'][k]:.2f}" for k in PARAMS) + " |")
         print()
     if a.refine_study:
         t0 = time.perf_counter()

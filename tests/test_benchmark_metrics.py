@@ -410,3 +410,55 @@ def test_design_replicates_geometric_mean_and_ceiling_match_a_simulation(capsys)
     assert float(cells["all"][3].rstrip("%")) <= 0.5 * float(cells["a only"][3].rstrip("%")) + 1
     gm_b = np.array([r["gm"] for r in reps if r["param"] == "b"])
     assert np.all(np.abs(gm_b - 1) > 0.25)
+
+
+def test_aligned_likelihood_is_a_density_of_the_measured_components():
+    """bench_scenarios --aligned-study (docs/flight.md §11): the Jacobian term of the
+    velocity-aligned coordinates, 1 / (|v|^(3 + A) cos^3), against the determinant of their
+    numerical Jacobian (A = 3 and 2 angular components); and the log-likelihood of a release
+    against scipy's normal density in those coordinates plus that term, so that its evidence
+    compares with the method's (a density of the measured components)."""
+    from bench_scenarios import (_aligned_frames, aligned_coordinates,
+                                 aligned_log_likelihood, aligned_moments)
+    from scipy.stats import multivariate_normal
+
+    rng = np.random.default_rng(11)
+    e = rng.normal(size=(1, 3))
+    e /= np.linalg.norm(e)
+    a, b = _aligned_frames(e)
+    assert np.allclose(np.cross(a, b), e) and abs(float(np.sum(a * e))) < 1e-15
+    for n_ang in (3, 2):
+        y = np.concatenate([60e-6 * (e[0] + rng.normal(0, 0.3, 3)), rng.normal(0, 2e-4, 3)])
+        idx = list(range(3 + n_ang))
+        Jn = np.zeros((len(idx), len(idx)))
+        for j, col in enumerate(idx):
+            h = 1e-7 * abs(y[col])
+            p, q = y.copy(), y.copy()
+            p[col] += h
+            q[col] -= h
+            Jn[:, j] = ((aligned_coordinates(p[None], e, a, b)[0][0]
+                         - aligned_coordinates(q[None], e, a, b)[0][0])[idx] / (2 * h))
+        _, c, r = aligned_coordinates(y[None], e, a, b)
+        expect = -(3 + n_ang) * np.log(r[0]) - 3 * np.log(c[0])
+        assert abs(np.log(abs(np.linalg.det(Jn))) - expect) < 1e-5
+    # the likelihood: 40 sets scattered about one velocity, 3 draws
+    M, K = 40, 3
+    base = np.array([50e-6, 5e-6, 30e-6, 2e-4, -1e-4, 3e-5])
+    Y = base * (1 + rng.normal(0, 0.03, (M, K, 6)))
+    ok = np.ones((M, K), bool)
+    am = aligned_moments(Y, ok)
+    y = base * (1 + rng.normal(0, 0.03, 6))
+    sig = np.full(6, 1e-8)
+    use = np.array([True] * 5 + [False])
+    floor, rel = (0.2e-6, 10e-6), 0.02
+    ll = aligned_log_likelihood(am, y, sig, use, floor, rel)
+    for k in range(K):
+        u, c, r = aligned_coordinates(y[None], am["e"][k:k + 1], am["a"][k:k + 1],
+                                      am["b"][k:k + 1])
+        D = np.diag(np.where(use, sig ** 2 + np.array([floor[0]] * 3 + [floor[1]] * 3) ** 2
+                             + (rel * am["mu"][k]) ** 2, 0.0))
+        C = am["S"][k] + am["G"][k] @ D @ am["G"][k].T
+        ui = [0, 1, 2, 3, 4]
+        ref = (multivariate_normal(am["m"][k][ui], C[np.ix_(ui, ui)]).logpdf(u[0][ui])
+               - 5 * np.log(r[0]) - 3 * np.log(c[0]))
+        assert abs(ll[k] - ref) < 1e-9 * abs(ref)

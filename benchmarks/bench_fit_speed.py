@@ -9,7 +9,7 @@ the same identified set on 20 campaigns.
     .venv/bin/python benchmarks/bench_fit_speed.py --race 3:25,6:5 ...   (any of the above)
     .venv/bin/python benchmarks/bench_fit_speed.py --ranks 0 1 2 --starts 1000
     .venv/bin/python benchmarks/bench_fit_speed.py --cluster-cost 3
-    .venv/bin/python benchmarks/bench_fit_speed.py --chunk-phases [--race 3:25,6:5|off]
+    .venv/bin/python benchmarks/bench_fit_speed.py --chunk-phases [--race 3:25,6:5|off] [--repeat N] [--profile]
 
 Default: the demo's campaign (``gprm synth campaign --seed 0``, preprocessed with the
 defaults, written to a temporary folder), then
@@ -43,7 +43,9 @@ campaigns without racing, and per chunk the rank of its eventual best start amon
 starts after 3 .. 40 iterations. ``--cluster-cost N``: the local Dask cluster's fixed cost
 (start, first task on each of the 2 workers, close), N times. ``--chunk-phases``: the CPU
 per phase of one chunk of 250 demo starts (validity check, initial Jacobians, iterations by
-the number of starts running), with ``--race`` (default there 3:25,6:5).
+the number of starts running), with ``--race`` (default there 3:25,6:5); then the chunk's
+CPU over ``--repeat`` - 1 more runs without the phases' timers, and with ``--profile`` its 20
+functions with the most own time (cProfile).
 """
 
 from __future__ import annotations
@@ -332,6 +334,26 @@ def chunk_phases(args) -> None:
     for key, (k, t) in groups.items():
         print(f"| {key} | {k} | {t:.3f} |")
     print(f"| **the chunk** | | **{total:.3f}** |\n\nload {load():.2f}")
+    # the chunk again without the phases' timers, --repeat times, and with --profile under
+    # cProfile: where its CPU goes by function
+    plain = []
+    for _ in range(max(0, args.repeat - 1)):
+        c = time.process_time()
+        engine.run_chunk(task)
+        plain.append(time.process_time() - c)
+    if plain:
+        print(f"\nthe chunk's CPU without the phase timers, {len(plain)} more runs: "
+              f"median {statistics.median(plain):.3f} s (range {min(plain):.3f}-"
+              f"{max(plain):.3f})\n")
+    if args.profile:
+        pr = cProfile.Profile()
+        pr.enable()
+        engine.run_chunk(task)
+        pr.disable()
+        out = io.StringIO()
+        pstats.Stats(pr, stream=out).sort_stats("tottime").print_stats(20)
+        print("profile (own time) of the chunk:\n```\n" + "\n".join(
+            ln for ln in out.getvalue().splitlines() if ln.strip()) + "\n```\n")
 
 
 def _warm_worker() -> int:

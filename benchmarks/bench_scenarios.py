@@ -216,6 +216,37 @@ def tally_unknowns(r: dict, params: dict, w, ds, i: int) -> None:
         r["in50"][k] += abs(pit - 0.5) <= 0.25
 
 
+def posterior_tally() -> dict:
+    """An empty tally of :func:`tally_posterior`."""
+    from gprm.flight.scenario import PARAMS
+
+    return {"n": 0, "in95": {k: 0 for k in PARAMS}, "in50": {k: 0 for k in PARAMS},
+            "sd": {k: [] for k in PARAMS}, "ess": []}
+
+
+def tally_posterior(r: dict, params: dict, w, ds, i: int) -> None:
+    """Adds release ``i``'s posterior (weights ``w`` over the prior draws ``params``) to a
+    :func:`posterior_tally`: one release more, its effective number of draws, every
+    unknown's coverage (:func:`tally_unknowns`) and its posterior sd over the prior's."""
+    from gprm.flight.scenario import PARAMS
+
+    r["n"] += 1
+    r["ess"].append(1.0 / np.sum(w * w))
+    tally_unknowns(r, params, w, ds, i)
+    for k in PARAMS:
+        x = params[k]
+        m = np.sum(w * x)
+        r["sd"][k].append(np.sqrt(np.sum(w * (x - m) ** 2)) / np.std(x))
+
+
+def summarise_tallies(res: dict) -> dict:
+    """Each tally of ``res`` with its effective draws and sds as medians over the releases."""
+    for r in res.values():
+        r["ess"] = float(np.median(r["ess"]))
+        r["sd"] = {k: float(np.median(v)) for k, v in r["sd"].items()}
+    return res
+
+
 def _set_log_likelihood(Y, ok, y, sig, use, floor, rel_floor):
     """(sets, draws) ln N(y; y_mk, diag(σ² + floor² + (rel y_mk)²)) of the measured
     components ``use`` at every parameter set m and prior draw k (Y (M, K, 6), ok (M, K));
@@ -422,7 +453,7 @@ def aligned_study(fm, seeds, releases: int, draws: int) -> dict:
     from scipy.special import logsumexp
 
     from gprm.flight.inference import InferenceOptions, _log_likelihood, prior_predictives
-    from gprm.flight.scenario import COMPARED, PARAMS, ScenarioPrior
+    from gprm.flight.scenario import COMPARED, ScenarioPrior
 
     prior = ScenarioPrior(tm_offset=0.0)
     opts = InferenceOptions(n_draws=draws)
@@ -436,9 +467,7 @@ def aligned_study(fm, seeds, releases: int, draws: int) -> dict:
         "aligned, one contact; allowance as a common scale": {k: "s" for k in one},
         "aligned, all three; allowance as a common scale": {k: "s" for k in COMPARED},
     }
-    res = {v: {"n": 0, "right": 0, "confusion": {}, "in95": {k: 0 for k in PARAMS},
-               "in50": {k: 0 for k in PARAMS}, "sd": {k: [] for k in PARAMS}, "ess": []}
-           for v in variants}
+    res = {v: {**posterior_tally(), "right": 0, "confusion": {}} for v in variants}
     for _s, kind, ds, tel, y, sig in scenario_campaigns(fm, seeds, releases, tm_offset=0.0):
         for i in range(len(tel.releases)):
             use = np.isfinite(y[i])
@@ -454,22 +483,12 @@ def aligned_study(fm, seeds, releases: int, draws: int) -> dict:
                         - np.log(lls["g", k2].size) for k2 in COMPARED}
                 chosen = max(COMPARED, key=lambda k2: logz[k2])
                 r = res[name]
-                r["n"] += 1
                 r["right"] += chosen == kind
                 count(r["confusion"], kind, chosen)
                 ll = lls[forms.get(kind, "g"), kind]
                 w = np.exp(ll - ll.max())
-                w /= w.sum()
-                r["ess"].append(1.0 / np.sum(w * w))
-                tally_unknowns(r, pps[kind].params, w, ds, i)
-                for k in PARAMS:
-                    x = pps[kind].params[k]
-                    m = np.sum(w * x)
-                    r["sd"][k].append(np.sqrt(np.sum(w * (x - m) ** 2)) / np.std(x))
-    for r in res.values():
-        r["ess"] = float(np.median(r["ess"]))
-        r["sd"] = {k: float(np.median(v)) for k, v in r["sd"].items()}
-    return res
+                tally_posterior(r, pps[kind].params, w / w.sum(), ds, i)
+    return summarise_tallies(res)
 
 
 def likelihood_study(fm, seeds, releases: int, draws: int) -> dict:
@@ -482,7 +501,7 @@ def likelihood_study(fm, seeds, releases: int, draws: int) -> dict:
     from dataclasses import replace
 
     from gprm.flight.inference import InferenceOptions, posterior_weights, prior_predictives
-    from gprm.flight.scenario import PARAMS, ScenarioPrior
+    from gprm.flight.scenario import ScenarioPrior
 
     prior = ScenarioPrior(tm_offset=0.0)
     opts = InferenceOptions(n_draws=draws)
@@ -498,8 +517,7 @@ def likelihood_study(fm, seeds, releases: int, draws: int) -> dict:
         "exact mixture over the 48 sets, floor + 2 %": ("mix", opts),
         "exact mixture over the 48 sets, floor + 5 %": ("mix", replace(opts, rel_floor=0.05)),
     }
-    res = {v: {"n": 0, "in95": {k: 0 for k in PARAMS}, "in50": {k: 0 for k in PARAMS},
-               "sd": {k: [] for k in PARAMS}, "ess": []} for v in variants}
+    res = {v: posterior_tally() for v in variants}
     for _s, kind, ds, tel, y, sig in scenario_campaigns(fm, seeds, releases, tm_offset=0.0):
         for i in range(len(tel.releases)):
             use = np.isfinite(y[i])
@@ -507,18 +525,8 @@ def likelihood_study(fm, seeds, releases: int, draws: int) -> dict:
             for name, (how, o) in variants.items():
                 w = (posterior_weights(pps[kind], yi, si, use, o) if how == "gauss"
                      else _mixture_weights(*raw[kind], yi, si, use, o.floor, o.rel_floor))
-                r = res[name]
-                r["n"] += 1
-                r["ess"].append(1.0 / np.sum(w * w))
-                tally_unknowns(r, pps[kind].params, w, ds, i)
-                for k in PARAMS:
-                    x = pps[kind].params[k]
-                    m = np.sum(w * x)
-                    r["sd"][k].append(np.sqrt(np.sum(w * (x - m) ** 2)) / np.std(x))
-    for r in res.values():
-        r["ess"] = float(np.median(r["ess"]))
-        r["sd"] = {k: float(np.median(v)) for k, v in r["sd"].items()}
-    return res
+                tally_posterior(res[name], pps[kind].params, w, ds, i)
+    return summarise_tallies(res)
 
 
 def refine_study(fm, seeds, releases: int, draws: int, refine: int) -> dict:

@@ -415,9 +415,12 @@ def test_design_replicates_geometric_mean_and_ceiling_match_a_simulation(capsys)
 def test_aligned_likelihood_is_a_density_of_the_measured_components():
     """bench_scenarios --aligned-study (docs/flight.md §11): the Jacobian term of the
     velocity-aligned coordinates, 1 / (|v|^(3 + A) cos^3), against the determinant of their
-    numerical Jacobian (A = 3 and 2 angular components); and the log-likelihood of a release
-    against scipy's normal density in those coordinates plus that term, so that its evidence
-    compares with the method's (a density of the measured components)."""
+    numerical Jacobian (A = 3 and 2 angular components); each draw's frame is the sets' mean
+    direction and its moments numpy's mean and covariance of the sets there (a set with no
+    impact left out); and the log-likelihood of a release against scipy's normal density in
+    those coordinates plus that term, so that its evidence compares with the method's (a
+    density of the measured components), with the allowance per component and as a common
+    scale."""
     from bench_scenarios import (_aligned_frames, aligned_coordinates,
                                  aligned_log_likelihood, aligned_moments)
     from scipy.stats import multivariate_normal
@@ -446,19 +449,35 @@ def test_aligned_likelihood_is_a_density_of_the_measured_components():
     base = np.array([50e-6, 5e-6, 30e-6, 2e-4, -1e-4, 3e-5])
     Y = base * (1 + rng.normal(0, 0.03, (M, K, 6)))
     ok = np.ones((M, K), bool)
+    ok[3, 1] = False                                    # a set without an impact at draw 1
     am = aligned_moments(Y, ok)
+    for k in range(K):
+        Yk = Y[ok[:, k], k]
+        n = Yk[:, :3] / np.linalg.norm(Yk[:, :3], axis=1)[:, None]
+        e_k = n.mean(0) / np.linalg.norm(n.mean(0))
+        np.testing.assert_allclose(am["e"][k], e_k, rtol=1e-12)
+        U = aligned_coordinates(Yk[:, None], am["e"][k:k + 1], am["a"][k:k + 1],
+                                am["b"][k:k + 1])[0][:, 0]
+        np.testing.assert_allclose(am["m"][k], U.mean(0), rtol=1e-10, atol=1e-15)
+        np.testing.assert_allclose(am["S"][k], np.cov(U, rowvar=False), rtol=1e-8,
+                                   atol=1e-12 * np.abs(np.cov(U, rowvar=False)).max())
+        np.testing.assert_allclose(am["mu"][k], Yk.mean(0), rtol=1e-12)
     y = base * (1 + rng.normal(0, 0.03, 6))
     sig = np.full(6, 1e-8)
     use = np.array([True] * 5 + [False])
     floor, rel = (0.2e-6, 10e-6), 0.02
-    ll = aligned_log_likelihood(am, y, sig, use, floor, rel)
-    for k in range(K):
-        u, c, r = aligned_coordinates(y[None], am["e"][k:k + 1], am["a"][k:k + 1],
-                                      am["b"][k:k + 1])
-        D = np.diag(np.where(use, sig ** 2 + np.array([floor[0]] * 3 + [floor[1]] * 3) ** 2
-                             + (rel * am["mu"][k]) ** 2, 0.0))
-        C = am["S"][k] + am["G"][k] @ D @ am["G"][k].T
-        ui = [0, 1, 2, 3, 4]
-        ref = (multivariate_normal(am["m"][k][ui], C[np.ix_(ui, ui)]).logpdf(u[0][ui])
-               - 5 * np.log(r[0]) - 3 * np.log(c[0]))
-        assert abs(ll[k] - ref) < 1e-9 * abs(ref)
+    fl = np.array([floor[0]] * 3 + [floor[1]] * 3)
+    for scale_only in (False, True):
+        ll = aligned_log_likelihood(am, y, sig, use, floor, rel, scale_only)
+        for k in range(K):
+            u, c, r = aligned_coordinates(y[None], am["e"][k:k + 1], am["a"][k:k + 1],
+                                          am["b"][k:k + 1])
+            extra = 0.0 if scale_only else (rel * am["mu"][k]) ** 2
+            D = np.diag(np.where(use, sig ** 2 + fl ** 2 + extra, 0.0))
+            C = am["S"][k] + am["G"][k] @ D @ am["G"][k].T
+            if scale_only:
+                C[0, 0] += rel ** 2                     # on ln |v| alone
+            ui = [0, 1, 2, 3, 4]
+            ref = (multivariate_normal(am["m"][k][ui], C[np.ix_(ui, ui)]).logpdf(u[0][ui])
+                   - 5 * np.log(r[0]) - 3 * np.log(c[0]))
+            assert abs(ll[k] - ref) < 1e-9 * abs(ref)

@@ -52,35 +52,6 @@ def test_sensitivity_order_and_shape():
     assert np.all(o.dy[:, [0, 2, 3, 4], :, 2] == 0) and np.any(o.dy[:, 1, :, 2] != 0)
 
 
-def test_slices_and_index_arrays_write_the_same_sensitivities(random_sets, monkeypatch):
-    """The equations-of-motion sensitivities are written through slices where their
-    parameters and a lag group's rows are consecutive, through index arrays elsewhere
-    (gprm.simulate.modal._eom_sensitivities): the slices give the same bits as the index
-    arrays would, and a request whose parameters and rows are scattered gives the same
-    numbers (to rounding: its products have other shapes) as a consecutive one."""
-    import gprm.simulate.modal as modal
-
-    assert modal._as_slice(np.array([3, 4, 5])) == slice(3, 6)
-    assert isinstance(modal._as_slice(np.array([0, 2])), np.ndarray)
-    pb = batch(random_sets(3, seed=7))
-    eom = ("m2", "k_lr", "c_Ax")
-    names = eom + ("t0", "t1")
-    together = observe(pb, TIMES, OUTPUTS, sensitivities=names)
-    with monkeypatch.context() as m:
-        m.setattr(modal, "_as_slice", np.asarray)       # every write through an index array
-        indexed = observe(pb, TIMES, OUTPUTS, sensitivities=names)
-    assert np.array_equal(indexed.dy, together.dy) and np.array_equal(indexed.y, together.y)
-    scattered_names = ("t0", "m2", "d_x_head", "k_lr", "t1", "c_Ax")
-    rows = ("x_base", "z_bk", "x_head")        # the unlagged group's rows 0 and 2
-    scattered = observe(pb, TIMES, rows, sensitivities=scattered_names)
-    for n in eom:
-        a = together.dy[..., names.index(n)]
-        b = scattered.dy[..., scattered_names.index(n)]
-        for k, row in enumerate(rows):
-            ref = a[:, OUTPUTS.index(row)]
-            np.testing.assert_allclose(b[:, k], ref, rtol=0, atol=1e-12 * np.abs(ref).max())
-
-
 def test_failed_sets_are_masked_without_disturbing_the_others(random_sets):
     """A batch with a singular set (no lateral x stiffness: a free mode) in the middle: that
     set comes back NaN with ok False and a reason; the others equal their single-set runs."""

@@ -649,41 +649,20 @@ def _eom_sensitivities(pb, piezo, eom, ss, lam, V, W, HV, S, wS, betaS, conv_res
     # dy[o, t, p] = Re sum_i (L[i, o, p] I_i(t) + N[i, o, p] J_i(t)), i < S
     HVt = HV[:, :, :S].transpose(0, 2, 1)[..., None]               # (B, S, o, 1)
     w = wS[:, :, None, None]
-    L = HVt * c[:, :, None, :]                  # (HVt c - beta HVP) w, without temporaries
-    np.multiply(betaS[:, :, None, None], HVP, out=HVP)     # this order: the same bits
-    L -= HVP
-    L *= w
+    L = (HVt * c[:, :, None, :] - betaS[:, :, None, None] * HVP) * w
     N = HVt * (dg * wS[:, :, None])[:, :, None, :]                 # (B, S, o, P)
     LN = np.concatenate([L.real, L.imag, N.real, N.imag], axis=1)  # (B, 4S, o, P)
     T = conv_res[0][0].shape[-1]
-    cols = _as_slice(idx)
     for k, rows in enumerate(groups):
         I, J, _ = conv_res[k]
+        IJ = np.concatenate([I.real, -I.imag, J.real, -J.imag], axis=1).transpose(0, 2, 1)
         r = np.flatnonzero(rows)
         if r.size == 0:
             continue
-        IJ = np.empty((Bn, 4 * S, T))              # [Re I, -Im I, Re J, -Im J] (B, 4S, T)
-        IJ[:, :S] = I.real
-        np.negative(I.imag, out=IJ[:, S:2 * S])
-        IJ[:, 2 * S:3 * S] = J.real
-        np.negative(J.imag, out=IJ[:, 3 * S:])
-        IJ = IJ.transpose(0, 2, 1)
-        rs = _as_slice(r)
-        # a slice where the rows (parameters) are consecutive: a strided copy, where an index
-        # array makes numpy gather (scatter) element by element; the same values either way
-        LNr = LN[:, :, rs].reshape(Bn, 4 * S, r.size * P)
+        LNr = LN[:, :, r].reshape(Bn, 4 * S, r.size * P)
         val = (IJ @ LNr).reshape(Bn, T, r.size, P)
-        if isinstance(rs, slice):
-            dyT[:, :, rs, cols] = val
+        if np.array_equal(r, np.arange(r[0], r[-1] + 1)):
+            dyT[:, :, r[0]:r[-1] + 1, idx] = val
         else:
             for k, rr in enumerate(r):
-                dyT[:, :, rr, cols] = val[:, :, k]
-
-
-def _as_slice(index: np.ndarray):
-    """``index`` (sorted, distinct integers) as the slice it equals where it is a consecutive
-    run, else the array itself."""
-    index = np.asarray(index)
-    if index.size and np.array_equal(index, np.arange(index[0], index[0] + index.size)):
-        return slice(int(index[0]), int(index[0]) + index.size)
-    return index
+                dyT[:, :, rr, idx] = val[:, :, k]

@@ -106,6 +106,11 @@ def scenario_campaigns(fm, seeds, releases: int, mixed: bool = False, **synth):
             yield s, kind, ds, tel, y, sig
 
 
+#: the prior probability of one scenario per file at which the recovery also scores the
+#: file rule (gprm.flight.inference.file_probabilities; the method's is P_SAME)
+FILE_P_SAME_CHECK = (0.1, 0.9)
+
+
 def recovery(fm, seeds, releases: int, draws: int, rel_floor: float | None = None,
              refine: int = 0, mixed: bool = False) -> dict:
     """The scenario posterior's recovery on the files of :func:`scenario_campaigns`: the
@@ -113,9 +118,10 @@ def recovery(fm, seeds, releases: int, draws: int, rel_floor: float | None = Non
     (``pooled``: gprm.flight.inference.pooled_probabilities) and jointly (one for the file;
     on ``mixed`` files not scored, the file having no one scenario), and each unknown's
     coverage under the release's true scenario."""
-    from gprm.flight.inference import (InferenceOptions, infer_scenarios, model_frame,
-                                       posterior_weights, pooled_probabilities,
-                                       prior_predictives, refined_predictive)
+    from gprm.flight.inference import (InferenceOptions, file_probabilities,
+                                       infer_scenarios, model_frame, posterior_weights,
+                                       pooled_probabilities, prior_predictives,
+                                       refined_predictive)
     from gprm.flight.scenario import COMPARED, PARAMS, SCENARIOS, ScenarioPrior
     from gprm.params import batch
 
@@ -125,7 +131,12 @@ def recovery(fm, seeds, releases: int, draws: int, rel_floor: float | None = Non
            "below": {k: 0 for k in PARAMS + ("t",)}, "above": {k: 0 for k in PARAMS + ("t",)},
            "joint": {k: [0, 0] for k in COMPARED}, "joint_confusion": {},
            "pooled": 0, "pooled_by_truth": {k: [0, 0] for k in COMPARED},
-           "pooled_confusion": {}}
+           "pooled_confusion": {},
+           "file": 0, "file_by_truth": {k: [0, 0] for k in COMPARED},
+           "file_confusion": {}, "file_p_same": [],
+           # the file rule's prior odds varied (FILE_P_SAME_CHECK): right choices
+           "file_check": {q: 0 for q in FILE_P_SAME_CHECK},
+           "files": []}
     bounds = ScenarioPrior().bounds()
     opts = InferenceOptions(n_draws=draws, n_refine=refine,
                             **({} if rel_floor is None else {"rel_floor": rel_floor}))
@@ -143,22 +154,31 @@ def recovery(fm, seeds, releases: int, draws: int, rel_floor: float | None = Non
             out["joint"][file_kind][0] += res.joint["chosen"] == file_kind
             out["joint"][file_kind][1] += 1
             count(out["joint_confusion"], file_kind, res.joint["chosen"])
-        pooled = pooled_probabilities(res.log_evidence())
+        given = {"pooled": pooled_probabilities(res.log_evidence())}
+        given["file"], p_same = file_probabilities(res.log_evidence())
+        out["file_p_same"].append(p_same)
+        out["files"].append((_s, file_kind, res.log_evidence(),
+                             [str(v) for v in truth["truth_scenario"].values]))
+        check = {q: file_probabilities(res.log_evidence(), q)[0] for q in FILE_P_SAME_CHECK}
         for i in range(len(tel.releases)):
             kind = str(truth["truth_scenario"].values[i]) if mixed else file_kind
-            pc = (res.options["scenarios"][int(np.argmax(pooled[i]))]
-                  if np.all(np.isfinite(pooled[i])) else None)
-            okp = pc == kind
-            out["pooled"] += okp
-            out["pooled_by_truth"][kind][0] += okp
-            out["pooled_by_truth"][kind][1] += 1
-            count(out["pooled_confusion"], kind, pc)
+            for q, probs in check.items():
+                out["file_check"][q] += bool(np.all(np.isfinite(probs[i]))) and \
+                    res.options["scenarios"][int(np.argmax(probs[i]))] == kind
+            for rule, probs in given.items():
+                pc = (res.options["scenarios"][int(np.argmax(probs[i]))]
+                      if np.all(np.isfinite(probs[i])) else None)
+                okp = pc == kind
+                out[rule] += okp
+                out[f"{rule}_by_truth"][kind][0] += okp
+                out[f"{rule}_by_truth"][kind][1] += 1
+                count(out[f"{rule}_confusion"], kind, pc)
             out["n"] += 1
-            ok = res.chosen[i] == kind
+            ok = res.chosen_alone[i] == kind
             out["right"] += ok
             out["by_truth"][kind][0] += ok
             out["by_truth"][kind][1] += 1
-            count(out["confusion"], kind, res.chosen[i])
+            count(out["confusion"], kind, res.chosen_alone[i])
             f = res.fits[i][kind]
             out["ess_median"].append(f.ess)
             # the posterior's CDF at the truth (PIT): inside the central 50 %?
@@ -186,6 +206,44 @@ def recovery(fm, seeds, releases: int, draws: int, rel_floor: float | None = Non
                         *bounds[p][::-1])))
     out["ess_median"] = float(np.median(out["ess_median"]))
     out["width"] = {k: float(np.median(v)) for k, v in out["width"].items()}
+    if not mixed:
+        out["composite"] = composite_files(out["files"], res.options["scenarios"])
+    return out
+
+
+def composite_files(files, scenarios, minority=(1, 2, 3)) -> dict:
+    """Files of one scenario with a few releases of another: for each seed and each ordered
+    pair (A, B) of the scenarios' files, the releases of A with the first m of them replaced
+    by B's first m (m in ``minority``; the releases are independent given the model, so
+    their evidences combine into a file as they are). The scenario chosen per release on its
+    own evidence and given the file (gprm.flight.inference.file_probabilities), counted
+    apart for the majority's and the minority's releases: what the file rule costs where a
+    file is almost, but not quite, of one scenario."""
+    from gprm.flight.inference import file_probabilities
+
+    by_seed: dict = {}
+    for seed, kind, L, _ in files:
+        by_seed.setdefault(seed, {})[kind] = L
+    out = {m: {"files": 0, "same": 0, "majority": [0, 0, 0], "minority": [0, 0, 0]}
+           for m in minority}       # [alone right, given the file right, releases]
+    for per in by_seed.values():
+        for a, La in per.items():
+            for b, Lb in per.items():
+                if a == b:
+                    continue
+                for m in minority:
+                    L = np.vstack([Lb[:m], La[m:]])
+                    truth = [b] * m + [a] * (La.shape[0] - m)
+                    P, p = file_probabilities(L)
+                    t = out[m]
+                    t["files"] += 1
+                    t["same"] += p > 0.5
+                    for i, k in enumerate(truth):
+                        part = t["minority"] if i < m else t["majority"]
+                        part[0] += scenarios[int(np.argmax(L[i]))] == k
+                        part[1] += bool(np.all(np.isfinite(P[i]))) and \
+                            scenarios[int(np.argmax(P[i]))] == k
+                        part[2] += 1
     return out
 
 
@@ -784,7 +842,7 @@ def geometry_study(fm, seeds, releases: int, draws: int) -> dict:
             inf = infer_scenarios(fm, [r.id for r in tel.releases], y, sig, opts,
                                   predictive=pps)
             r = res[name]
-            for i, chosen in enumerate(inf.chosen):
+            for i, chosen in enumerate(inf.chosen_alone):
                 r["n"] += 1
                 r["right"] += chosen == kind
                 count(r["confusion"], kind, chosen)
@@ -1074,6 +1132,24 @@ def main() -> None:
               f" ({100 * out['pooled'] / n:.1f} %); by truth: "
               + ", ".join(f"{k} {v[0]}/{v[1]}" for k, v in out["pooled_by_truth"].items())
               + f"; confusion {out['pooled_confusion']}")
+        print(f"- right scenario chosen per release given the file (one scenario for all "
+              f"or each its own, file_probabilities): {out['file']}/{n}"
+              f" ({100 * out['file'] / n:.1f} %); by truth: "
+              + ", ".join(f"{k} {v[0]}/{v[1]}" for k, v in out["file_by_truth"].items())
+              + f"; confusion {out['file_confusion']}; P(one scenario | file) per file: "
+              + ", ".join(f"{p:.2g}" for p in out["file_p_same"]))
+        print("- the same with other prior probabilities of one scenario per file: "
+              + ", ".join(f"{q:g}: {c}/{n} ({100 * c / n:.1f} %)"
+                          for q, c in out["file_check"].items()))
+        if "composite" in out:
+            print("\n| files of one scenario with m releases of another | files | P(one scenario) "
+                  "> 0.5 | majority's releases right: alone, given the file | minority's "
+                  "releases right: alone, given the file |\n|---|---|---|---|---|")
+            for m, t in out["composite"].items():
+                ma, mi = t["majority"], t["minority"]
+                print(f"| m = {m} | {t['files']} | {t['same']} | {ma[0]}/{ma[2]}, {ma[1]}/{ma[2]} "
+                      f"| {mi[0]}/{mi[2]}, {mi[1]}/{mi[2]} |")
+            print()
         jr = sum(v[0] for v in out["joint"].values())
         jn = sum(v[1] for v in out["joint"].values())
         print(f"- right scenario chosen jointly over a file's {a.releases} releases: {jr}/{jn}"

@@ -180,7 +180,7 @@ def test_mixture_choice_study_agrees_with_the_method_and_counts_each_release_onc
     confusion: dict = {}
     for _s, kind, _ds, tel, y, sig in scenario_campaigns(fm, [3000], 2, tm_offset=0.0):
         res = infer_scenarios(fm, [r.id for r in tel.releases], y, sig, opts, predictive=pps)
-        for c in res.chosen:
+        for c in res.chosen_alone:
             confusion[f"{kind}->{c}"] = confusion.get(f"{kind}->{c}", 0) + 1
     assert out["variants"]["Gaussian C_k, floor + 2 % (the method)"]["confusion"] == confusion
 
@@ -481,3 +481,31 @@ def test_aligned_likelihood_is_a_density_of_the_measured_components():
             ref = (multivariate_normal(am["m"][k][ui], C[np.ix_(ui, ui)]).logpdf(u[0][ui])
                    - 5 * np.log(r[0]) - 3 * np.log(c[0]))
             assert abs(ll[k] - ref) < 1e-9 * abs(ref)
+
+
+def test_composite_files_counts_majority_and_minority_releases():
+    """bench_scenarios.composite_files: per seed and ordered pair of scenario files, the
+    first m releases of A replaced by B's; each release scored on its own evidence and given
+    the file. With decisive evidences both are right everywhere; with a minority whose own
+    evidence barely favours its scenario, the file's majority takes it along, and the tally
+    says so."""
+    from bench_scenarios import composite_files
+
+    sc = ["xz", "yz", "two"]
+
+    def file_of(k, n=6, margin=20.0):
+        L = np.zeros((n, 3))
+        L[:, sc.index(k)] = margin
+        return L
+
+    files = [(1, k, file_of(k), [k] * 6) for k in sc]
+    out = composite_files(files, sc, minority=(1, 2))
+    for m, t in out.items():
+        assert t["files"] == 6 and t["same"] == 0
+        assert t["majority"] == [6 * (6 - m)] * 3 and t["minority"] == [6 * m] * 3
+    # two files whose releases barely tell xz from two: one odd release follows its file
+    weak = [(2, "xz", np.tile([0.3, -50.0, 0.0], (6, 1)), ["xz"] * 6),
+            (2, "two", np.tile([0.0, -50.0, 0.3], (6, 1)), ["two"] * 6)]
+    t = composite_files(weak, sc, minority=(1,))[1]
+    assert t["files"] == 2 and t["same"] == 2
+    assert t["minority"] == [2, 0, 2] and t["majority"] == [10, 10, 10]

@@ -61,8 +61,12 @@ def test_scenarios_and_unknowns_recovered(recovered):
     every unknown's truth inside its 95 % interval in at least 7 of 9 (a calibrated interval
     fails that with probability < 1 %)."""
     kinds, tr, res = recovered
-    right = sum(c == k for c, k in zip(res.chosen, kinds))
-    assert right >= 7, (res.chosen, kinds)
+    right = sum(c == k for c, k in zip(res.chosen_alone, kinds))
+    assert right >= 7, (res.chosen_alone, kinds)
+    # three scenarios in one file: "each release its own" wins, and the choice given the
+    # file is each release's own
+    assert res.joint["p_same"] < 1e-3
+    assert res.chosen == res.chosen_alone
     for p in PARAMS + ("t",):
         inside = 0
         for i, k in enumerate(kinds):
@@ -125,6 +129,40 @@ def test_impact_document_has_truth_only_for_synthetic_telemetry():
     assert "no truth exists" in html and "true scenario" not in html
     html = "".join(scenario_section(doc).blocks)
     assert "true scenario" in html
+    # each release chosen given the file (the largest of its probabilities given the file),
+    # its own choice beside it; the truth counts both
+    for r in sc["releases"]:
+        pr, pa = r["probability"], r["probability_alone"]
+        assert r["chosen"] == max(pr, key=lambda k: pr[k])
+        assert r["chosen_alone"] == max(pa, key=lambda k: pa[k])
+        assert r["truth"]["chosen_alone_right"] == (r["chosen_alone"] == r["truth"]["scenario"])
+    assert sc["truth_summary"]["chosen_alone_right"] == sum(
+        r["truth"]["chosen_alone_right"] for r in sc["releases"])
+    assert 0.0 <= sc["joint"]["p_same"] <= 1.0 and sc["joint"]["p_same_prior"] == 0.5
+    assert "share one is" in html and "on its own evidence" in html
+
+
+def test_scenario_section_reads_an_impact_file_without_the_file_rule():
+    """impact.json written before each release was chosen given the file has no
+    ``chosen_alone``, ``probability_alone`` or ``p_same``: the section still renders, each
+    release's own choice read as its choice."""
+    from gprm.report.scenarios import scenario_rows, scenario_section
+
+    fit = {"log_evidence": -1.0, "ess": 50.0, "params": {}}
+    imp = {"scenarios": {
+        "observations": {"n": 1, "components": ["vx"], "xz_share_threshold": 0.9,
+                         "releases": [{"id": "R1", "z_not_largest": True, "xz_share": 0.95,
+                                       "xz_almost_all": True, "components": {},
+                                       "all_non_compliant": False}],
+                         "z_not_largest": 1, "xz_almost_all": 1, "all_non_compliant": 0,
+                         "xz_share_median": 0.95},
+        "joint": {"chosen": "xz", "probability": {"xz": 0.7, "two": 0.3}},
+        "releases": [{"id": "R1", "chosen": "xz", "probability": {"xz": 0.7, "two": 0.3},
+                      "fits": {"xz": fit, "two": {**fit, "log_evidence": -1.8}}}]}}
+    rows = scenario_rows(imp)
+    assert rows[0][3] == "the same (0.700)"
+    html = "".join(scenario_section(imp).blocks)
+    assert "share one" not in html
 
 
 def test_auto_needs_the_scenarios():
@@ -315,3 +353,77 @@ def test_pooled_probabilities_limits():
     spread = np.array([[3.0, 0.0, 0.0], [0.0, 3.0, 0.0], [0.0, 0.0, 3.0]] * 3 + [doubtful])
     p = pooled_probabilities(spread)[-1]
     assert np.argmax(p) == 1 and abs(p[1] - p[0]) < 0.2
+
+
+
+def _file_by_enumeration(L, p_same):
+    """Each release's scenario marginals under the prior over assignments of
+    file_probabilities: p_same / K on each all-equal assignment plus (1 - p_same) K^-R on
+    every assignment, summed over all K^R assignments; and P(all equal | y) under the first
+    term."""
+    import itertools
+
+    R, K = L.shape
+    out = np.zeros((R, K))
+    w_same = w_all = 0.0
+    for s in itertools.product(range(K), repeat=R):
+        like = np.exp(sum(L[r, k] for r, k in enumerate(s)))
+        equal = len(set(s)) == 1
+        w1 = p_same / K * like if equal else 0.0
+        w = w1 + (1 - p_same) * K ** -R * like
+        w_same += w1
+        w_all += w
+        for r, k in enumerate(s):
+            out[r, k] += w
+    return out / w_all, w_same / w_all
+
+
+@pytest.mark.parametrize("p_same", [0.5, 0.1, 0.9])
+def test_file_probabilities_are_the_marginals_of_their_two_hypotheses(p_same):
+    """file_probabilities (one scenario for the file, or each release its own) against the
+    enumeration of every assignment, with its probability of one scenario; a release with
+    no finite evidence takes no part and gets NaN."""
+    from gprm.flight.inference import file_probabilities
+
+    rng = np.random.default_rng(3)
+    L = rng.normal(0, 2, (5, 3))
+    L[1, 2] = -np.inf
+    got, p = file_probabilities(L, p_same)
+    want, p_want = _file_by_enumeration(L, p_same)
+    np.testing.assert_allclose(got, want, rtol=1e-10)
+    assert p == pytest.approx(p_want, rel=1e-10)
+    got6, p6 = file_probabilities(np.vstack([L - 700.0, np.full(3, -np.inf)]), p_same)
+    assert np.all(np.isnan(got6[5])) and p6 == pytest.approx(p, rel=1e-9)
+    np.testing.assert_allclose(got6[:5], got, rtol=1e-9)
+
+
+def test_file_probabilities_limits():
+    """One release: its own probabilities. A file of one scenario whose clear releases
+    outvote a doubtful one takes the doubtful one along; a file whose releases point to
+    different scenarios leaves each release its own choice (unlike the Dirichlet pooling,
+    which leans a doubtful release towards the file's majority). p_same 0 and 1: each release
+    alone and one scenario for all. A p_same outside [0, 1] is refused, naming it."""
+    from gprm.errors import GprmInputError
+    from gprm.flight.inference import _probs, file_probabilities
+
+    one = np.array([[0.0, np.log(3.0), -1.0]])
+    own = np.array(list(_probs({"a": 0.0, "b": np.log(3.0), "c": -1.0}).values()))
+    got, p = file_probabilities(one)
+    np.testing.assert_allclose(got[0], own, rtol=1e-12)
+    assert p == pytest.approx(0.5)
+    doubtful = [0.0, 0.2, -5.0]                            # alone: b, barely
+    same = np.array([[3.0, 0.0, 0.0]] * 10 + [doubtful])
+    got, p = file_probabilities(same)
+    assert np.argmax(got[-1]) == 0 and p > 0.99
+    mixed = np.array([[3.0, -30.0, -30.0], [-30.0, 3.0, -30.0], [-30.0, -30.0, 3.0]] * 3
+                     + [doubtful])
+    got, p = file_probabilities(mixed)
+    assert p < 1e-10 and np.argmax(got[-1]) == 1
+    L = np.random.default_rng(1).normal(0, 2, (4, 3))
+    alone = np.exp(L - np.logaddexp.reduce(L, axis=1, keepdims=True))
+    np.testing.assert_allclose(file_probabilities(L, 0.0)[0], alone, rtol=1e-12)
+    joint = np.exp(L.sum(0) - np.logaddexp.reduce(L.sum(0)))
+    np.testing.assert_allclose(file_probabilities(L, 1.0)[0], np.tile(joint, (4, 1)),
+                               rtol=1e-12)
+    with pytest.raises(GprmInputError, match="p_same"):
+        file_probabilities(L, 1.5)

@@ -175,15 +175,20 @@ def register(app: typer.Typer, synth_app: typer.Typer) -> None:
         if sc:
             ob = sc["observations"]
             jc = sc["joint"]["chosen"]
-            typer.echo(f"scenarios: chosen per release {', '.join(r['chosen'] for r in sc['releases'])}; "
-                       f"jointly {jc}; paper's observations: z not the largest in "
+            ps = sc["joint"].get("p_same")
+            typer.echo(f"scenarios: chosen per release {', '.join(str(r['chosen']) for r in sc['releases'])}"
+                       + ("" if ps is None else
+                          f" (given the file: one scenario for all with probability {ps:.3g})")
+                       + f"; jointly {jc}; paper's observations: z not the largest in "
                        f"{ob['z_not_largest']}/{ob['n']}, momentum almost all in x-z in "
                        f"{ob['xz_almost_all']}/{ob['n']}, every component non-compliant in "
                        f"{ob['all_non_compliant']}/{ob['n']}")
             if "truth_summary" in sc:
                 ts = sc["truth_summary"]
                 typer.echo(f"truth (synthetic): scenario chosen right in "
-                           f"{ts['chosen_right']}/{ts['releases']}")
+                           f"{ts['chosen_right']}/{ts['releases']}"
+                           + (f" ({ts['chosen_alone_right']} on each release's own evidence)"
+                              if "chosen_alone_right" in ts else ""))
         if "truth" in doc:
             s = doc["truth"]["summary"]
             typer.echo(f"truth (synthetic): {s['found']}/{s['impact_times']} found, "

@@ -25,10 +25,12 @@ Gaussian approximation):
 * posterior weights w_k ∝ L_k (the draws are from the prior); evidence Z = mean_k L_k (the
   prior-sampling estimate of the marginal likelihood); scenario probabilities Z_s / Σ Z
   (equal prior odds), jointly over releases with Σ_r log Z_{s,r} (one scenario for all);
-  :func:`pooled_probabilities` gives each release's scenario given the whole file (the
-  releases' scenarios drawn from frequencies the file shares), a development measurement
-  (docs/flight.md §11: it helps on files of one scenario and costs on mixed ones), not a
-  reported choice;
+  each release's reported scenario is chosen given the whole file
+  (:func:`file_probabilities`: the file's releases share one scenario, or each has its own,
+  prior odds 1:1), its choice on its own evidence kept beside it;
+  :func:`pooled_probabilities` (the releases' scenarios drawn from frequencies the file
+  shares) is a development measurement (docs/flight.md §11: it helps on files of one
+  scenario and costs on mixed ones);
 * intervals: weighted 2.5 / 97.5 % points of the φ_k; for the impact time, the mixture over
   k of the Gaussian conditionals t | y (linear-Gaussian in the θ_m), sampled.
 * optionally (``InferenceOptions.n_refine``), a second importance stage per release and
@@ -357,18 +359,24 @@ def fit_release(pp: PriorPredictive, y: np.ndarray, sigma: np.ndarray, use: np.n
 
 @dataclass(frozen=True)
 class ScenarioInference:
-    """Scenario fits of every release: ``fits[r][scenario]`` (:class:`ScenarioFit`),
-    ``probability[r][scenario]`` (equal prior odds), ``chosen[r]``; ``joint``: the
-    scenarios' summed log evidence and probabilities over the releases, and the one chosen;
-    ``components``: the velocity components used."""
+    """Scenario fits of every release: ``fits[r][scenario]`` (:class:`ScenarioFit`);
+    ``probability[r][scenario]`` and ``chosen[r]``: each release's scenario given the whole
+    file (:func:`file_probabilities`: one scenario for the file or each release its own);
+    ``probability_alone``, ``chosen_alone``: on the release's own evidence (equal prior
+    odds); ``joint``: the scenarios' summed log evidence and probabilities over the releases
+    (one scenario for all), the one chosen, and the posterior probability that the releases
+    share one scenario (``p_same``, prior ``p_same_prior``); ``components``: the velocity
+    components used."""
 
     ids: tuple[str, ...]
     fits: tuple[dict, ...]
     probability: tuple[dict, ...]
-    chosen: tuple[str, ...]
+    chosen: tuple[str | None, ...]
     joint: dict
     components: tuple[str, ...]
     options: dict
+    probability_alone: tuple[dict, ...] = ()
+    chosen_alone: tuple[str, ...] = ()
 
     def log_evidence(self) -> np.ndarray:
         """(R, K) each release's natural-log evidence of each compared scenario, in
@@ -384,9 +392,12 @@ class ScenarioInference:
                 "components": list(self.components), "options": self.options,
                 "releases": [{"id": i, "chosen": c,
                               "probability": {k: _f(v) for k, v in p.items()},
+                              "chosen_alone": ca,
+                              "probability_alone": {k: _f(v) for k, v in pa.items()},
                               "fits": {k: f.to_json() for k, f in fits.items()}}
-                             for i, c, p, fits in zip(self.ids, self.chosen,
-                                                      self.probability, self.fits)],
+                             for i, c, p, ca, pa, fits in zip(
+                                 self.ids, self.chosen, self.probability, self.chosen_alone,
+                                 self.probability_alone, self.fits)],
                 "joint": self.joint}
 
 
@@ -455,6 +466,56 @@ def pooled_probabilities(logz, alpha: float = POOL_ALPHA) -> np.ndarray:
     return out
 
 
+#: the prior probability that a file's releases share one scenario (the alternative: each
+#: release its own, independently, with equal prior odds); :func:`file_probabilities`
+P_SAME = 0.5
+
+
+def file_probabilities(logz, p_same: float = P_SAME) -> tuple[np.ndarray, float]:
+    """Each release's scenario probabilities given every release of its file, and the
+    posterior probability that the file's releases share one scenario.
+
+    Two hypotheses about a file of R releases and K scenarios, with prior weights ``p_same``
+    and 1 - ``p_same``: *same*, one scenario for every release (equal prior odds over the
+    K), evidence (1/K) sum_k prod_r Z_rk; *each*, every release its own scenario
+    independently (equal prior odds), evidence prod_r (1/K) sum_k Z_rk. Then
+
+        P(s_r = k | y) = P(same | y) prod_r' Z_r'k / sum_j prod_r' Z_r'j
+                         + P(each | y) Z_rk / sum_j Z_rj.
+
+    A file whose releases point to different scenarios makes *each* the more probable by
+    the product of its releases' evidence ratios, and every release keeps its own choice; a
+    file of one scenario lets its clear releases decide its ambiguous ones. With one release
+    both hypotheses are the same and so is the result. ``logz`` (R, K) natural-log evidences
+    Z_rk; a release with no finite evidence takes no part and gets NaN. Returns ((R, K),
+    P(same | y)); NaN for P where no release has an evidence."""
+    from scipy.special import logsumexp
+
+    if not 0.0 <= float(p_same) <= 1.0:
+        raise GprmInputError(f"must be a probability in [0, 1], got {p_same!r}",
+                             field="p_same")
+    L = np.asarray(logz, float)
+    R, K = L.shape
+    out = np.full((R, K), np.nan)
+    ok = np.flatnonzero(np.any(np.isfinite(L), axis=1))
+    if ok.size == 0:
+        return out, float("nan")
+    Lok = np.where(np.isfinite(L[ok]), L[ok], -np.inf)
+    own = Lok - logsumexp(Lok, axis=1, keepdims=True)             # each release alone
+    tot = Lok.sum(axis=0)                                          # (K,) one scenario for all
+    z_same = float(logsumexp(tot))
+    if not np.isfinite(z_same):         # no scenario has an evidence in every release
+        out[ok] = np.exp(own)
+        return out, 0.0
+    with np.errstate(divide="ignore"):
+        log_same = np.log(float(p_same)) + z_same - np.log(K)
+        log_each = np.log(1.0 - float(p_same)) + float(
+            np.sum(logsumexp(Lok, axis=1) - np.log(K)))
+    p = float(np.exp(log_same - np.logaddexp(log_same, log_each)))
+    out[ok] = p * np.exp(tot - z_same)[None, :] + (1.0 - p) * np.exp(own)
+    return out, p
+
+
 def _probs(logz: dict) -> dict:
     a = np.array([logz[k] for k in logz])
     if not np.any(np.isfinite(a)):
@@ -517,17 +578,26 @@ def infer_scenarios(model, ids, y, sigma, opts: InferenceOptions = InferenceOpti
         for s in opts.scenarios:
             total[s] += fr[s].log_evidence
     jp = _probs(total)
+    # each release's scenario given the file: one scenario for all, or each its own
+    sc = list(opts.scenarios)
+    L = np.array([[fr[s].log_evidence for s in sc] for fr in fits], float).reshape(-1, len(sc))
+    given, p_same = file_probabilities(np.where(np.isfinite(L), L, -np.inf), P_SAME)
+    probs_file = [{s: (None if not np.isfinite(g[j]) else float(g[j]))
+                   for j, s in enumerate(sc)} for g in given]
+    chosen_file = [sc[int(np.argmax(g))] if np.all(np.isfinite(g)) else None for g in given]
     joint = {"log_evidence": {s: _f(v) for s, v in total.items()}, "probability": jp,
              "chosen": (max(total, key=lambda s: total[s])
-                        if any(np.isfinite(v) for v in total.values()) else None)}
+                        if any(np.isfinite(v) for v in total.values()) else None),
+             "p_same": _f(p_same), "p_same_prior": P_SAME}
     comps = tuple(c for c, u in zip(COMPONENTS, use.all(0)) if u)
-    return ScenarioInference(tuple(ids), tuple(fits), tuple(probs), tuple(chosen), joint,
-                             comps, {"scenarios": list(opts.scenarios),
+    return ScenarioInference(tuple(ids), tuple(fits), tuple(probs_file), tuple(chosen_file),
+                             joint, comps, {"scenarios": list(opts.scenarios),
                                      "n_draws": opts.n_draws, "n_model": opts.n_model,
                                      "n_refine": opts.n_refine,
                                      "seed": opts.seed, "floor": list(opts.floor),
                                      "rel_floor": opts.rel_floor,
-                                     "tm_offset": (prior or ScenarioPrior()).tm_offset})
+                                     "tm_offset": (prior or ScenarioPrior()).tm_offset},
+                             tuple(probs), tuple(chosen))
 
 
 def measured_components(tel, *, fit_window: float | None = None, min_samples: int = 5):
@@ -626,7 +696,7 @@ def scenario_document(model, tel, opts: InferenceOptions = InferenceOptions(), *
     doc["observations"] = paper_observations(ids, y, s)
     tr = tel.truth_scenario
     if tr is not None and tel.truth_impact_time is not None:
-        right = 0
+        right = alone = 0
         for i, rec in enumerate(doc["releases"]):
             k = tr["scenario"][i]
             vals = {p: tr["scenario_params"][p][i] for p in PARAMS}
@@ -638,7 +708,10 @@ def scenario_document(model, tel, opts: InferenceOptions = InferenceOptions(), *
                                      <= fit["params"][p]["ci95"][1]))
                        for p, v in vals.items()})
             rec["truth"] = {"scenario": k, "params": vals, "in_ci95": inside,
-                            "chosen_right": rec["chosen"] == k}
+                            "chosen_right": rec["chosen"] == k,
+                            "chosen_alone_right": rec["chosen_alone"] == k}
             right += rec["chosen"] == k
-        doc["truth_summary"] = {"releases": len(doc["releases"]), "chosen_right": right}
+            alone += rec["chosen_alone"] == k
+        doc["truth_summary"] = {"releases": len(doc["releases"]), "chosen_right": right,
+                                "chosen_alone_right": alone}
     return doc

@@ -118,12 +118,16 @@ def scenario_rows(imp: dict) -> list:
     for r in sc["releases"]:
         c = r["chosen"]
         pr = r["probability"]
+        ca = r.get("chosen_alone", c)          # impact.json files before the file rule
+        pa = r.get("probability_alone", pr)
         le = {k: f["log_evidence"] for k, f in r["fits"].items()}
         ranked = sorted((v, k) for k, v in le.items() if v is not None)
         bf = (f"{ranked[-1][0] - ranked[-2][0]:.1f}" if len(ranked) >= 2 else "—")
         fit = r["fits"].get(c)
         row = [r["id"], SCENARIO_TEXT.get(c, c),
-               "—" if pr.get(c) is None else f"{pr[c]:.3f}", bf,
+               "—" if pr.get(c) is None else f"{pr[c]:.3f}",
+               ("the same" if ca == c else SCENARIO_TEXT.get(ca, ca))
+               + ("" if pa.get(ca) is None else f" ({pa[ca]:.3f})"), bf,
                _ci(fit, "t", MS, ".4f"), _ci(fit, "mu", 1, ".2f"),
                _ci(fit, "phi", 180 / np.pi, ".0f"),
                "—" if not fit or fit.get("ess") is None else f"{fit['ess']:.0f}"]
@@ -166,10 +170,18 @@ def scenario_section(imp: dict | None) -> Section | None:
         f"(one scenario for all): {SCENARIO_TEXT.get(j.get('chosen'), j.get('chosen'))}"
         + (f", probability {jp[j['chosen']]:.3f}." if jp.get(j.get("chosen")) is not None
            else ".")
+        + (" Each release's scenario is chosen given the whole file: either its releases "
+           "share one scenario or each has its own (prior odds "
+           f"{j['p_same_prior']:g} : {1 - j['p_same_prior']:g}); here the probability that "
+           f"they share one is {j['p_same']:.3g}, and the table gives each release's choice "
+           "on its own evidence beside it." if j.get("p_same") is not None else "")
         + (f" Synthetic telemetry: the chosen scenario is the true one in "
-           f"{sc['truth_summary']['chosen_right']}/{sc['truth_summary']['releases']} releases."
+           f"{sc['truth_summary']['chosen_right']}/{sc['truth_summary']['releases']} releases"
+           + (f" ({sc['truth_summary']['chosen_alone_right']} on each release's own "
+              "evidence)." if "chosen_alone_right" in sc["truth_summary"] else ".")
            if truth else "")))
-    head = ["release", "chosen scenario", "probability", "ln Bayes factor vs runner-up",
+    head = ["release", "chosen scenario", "probability", "on its own evidence",
+            "ln Bayes factor vs runner-up",
             "impact time [ms] (95 %)", "friction μ (95 %)", "azimuth φ [°] (95 %)",
             "effective draws"]
     if truth:

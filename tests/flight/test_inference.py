@@ -142,6 +142,14 @@ def test_impact_document_has_truth_only_for_synthetic_telemetry():
     assert "share one is" in html and "on its own evidence" in html
 
 
+def test_probability_text_keeps_the_ends_from_rounding_to_certainty():
+    from gprm.flight.inference import probability_text
+
+    assert probability_text(0.99951) == "> 0.999"
+    assert probability_text(0.5) == "0.500"
+    assert probability_text(2.5e-31) == "< 0.001 (2.5e-31)"
+
+
 def test_scenario_section_reads_an_impact_file_without_the_file_rule():
     """impact.json written before each release was chosen given the file has no
     ``chosen_alone``, ``probability_alone`` or ``p_same``: the section still renders, each

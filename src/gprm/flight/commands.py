@@ -132,7 +132,7 @@ def register(app: typer.Typer, synth_app: typer.Typer) -> None:
         from gprm.fit.files import load_model, model_inputs
         from gprm.flight.api import ImpactOptions, run_impact, write_impact
         from gprm.flight.files import impact_sidecar
-        from gprm.flight.inference import InferenceOptions
+        from gprm.flight.inference import InferenceOptions, probability_text
 
         from gprm.resources import check_memory
 
@@ -178,7 +178,8 @@ def register(app: typer.Typer, synth_app: typer.Typer) -> None:
             ps = sc["joint"].get("p_same")
             typer.echo(f"scenarios: chosen per release {', '.join(str(r['chosen']) for r in sc['releases'])}"
                        + ("" if ps is None else
-                          f" (given the file: one scenario for all with probability {ps:.3g})")
+                          f" (given the file: one scenario for all with probability "
+                             f"{probability_text(ps)})")
                        + f"; jointly {jc}; paper's observations: z not the largest in "
                        f"{ob['z_not_largest']}/{ob['n']}, momentum almost all in x-z in "
                        f"{ob['xz_almost_all']}/{ob['n']}, every component non-compliant in "

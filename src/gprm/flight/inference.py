@@ -516,6 +516,16 @@ def file_probabilities(logz, p_same: float = P_SAME) -> tuple[np.ndarray, float]
     return out, p
 
 
+def probability_text(p: float) -> str:
+    """A probability as a reader should see it: three decimals, "> 0.999" / "< 0.001" at
+    the ends rather than a rounded 1 or 0 (written out in scientific notation below 1e-3)."""
+    if p >= 0.9995:
+        return "> 0.999"
+    if p < 0.0005:
+        return f"< 0.001 ({p:.1e})"
+    return f"{p:.3f}"
+
+
 def _probs(logz: dict) -> dict:
     a = np.array([logz[k] for k in logz])
     if not np.any(np.isfinite(a)):

@@ -10,6 +10,7 @@ from pathlib import Path
 
 import numpy as np
 
+from gprm.flight.inference import probability_text
 from gprm.report.html import Section, fig_to_img, not_run, paragraph, table
 
 MS = 1e3
@@ -173,7 +174,7 @@ def scenario_section(imp: dict | None) -> Section | None:
         + (" Each release's scenario is chosen given the whole file: either its releases "
            "share one scenario or each has its own (prior odds "
            f"{j['p_same_prior']:g} : {1 - j['p_same_prior']:g}); here the probability that "
-           f"they share one is {j['p_same']:.3g}, and the table gives each release's choice "
+           f"they share one is {probability_text(j['p_same'])}, and the table gives each release's choice "
            "on its own evidence beside it." if j.get("p_same") is not None else "")
         + (f" Synthetic telemetry: the chosen scenario is the true one in "
            f"{sc['truth_summary']['chosen_right']}/{sc['truth_summary']['releases']} releases"

@@ -294,7 +294,9 @@ def variants(workers: int) -> str:
             "| starts within dchi2 <= 1 |", "|---|---|---|---|---|---|"]
     d = MultiStartOptions()
     for name, o in [
-            ("default: window 5 / 0.05, pruning", d),
+            (f"default: window {d.lm.stall_window} / {d.lm.stall_tol:g}, pruning", d),
+            ("window 5 / 0.05, pruning (stops 1-54)",
+             replace(d, lm=LMOptions(stall_window=5, stall_tol=0.05))),
             ("window 10 / 0.1, pruning", replace(d, lm=LMOptions(stall_window=10,
                                                                    stall_tol=0.1))),
             ("no window, pruning", replace(d, lm=LMOptions(stall_window=0))),

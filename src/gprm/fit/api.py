@@ -49,8 +49,8 @@ class FitOptions:
     piezo: int = 2
     chunk: int = 250
     max_iter: int = 100
-    stall_window: int = 5
-    stall_tol: float = 0.05
+    stall_window: int = 3
+    stall_tol: float = 0.03
     prune_after: int = 10
     prune_factor: float = 100.0
     #: racing within each chunk of starts: (iterations, keep) pairs, () for none

@@ -58,13 +58,14 @@ def register(app: typer.Typer, synth_app: typer.Typer) -> None:
                                   "spread over more workers)"),
         max_iter: int = typer.Option(100, "--max-iter", parser=Int(min=1),
                                      help="LM iteration limit per start"),
-        stall_window: int = typer.Option(5, "--stall-window", parser=Int(min=0),
+        stall_window: int = typer.Option(3, "--stall-window", parser=Int(min=0),
                                          help="stop a start once chi2 "
                                          "fell by at most --stall-tol over this many "
                                          "iterations (0: off; docs/fitting.md)"),
-        stall_tol: float = typer.Option(0.05, "--stall-tol", parser=Number(min=0),
-                                        help="relative chi2 decrease that counts as stalled "
-                                             "(with --stall-window)"),
+        stall_tol: float = typer.Option(0.03, "--stall-tol", parser=Number(min=0),
+                                        help="chi2 decrease (absolute, over "
+                                             "--stall-window iterations) that counts as "
+                                             "stalled"),
         prune_after: int = typer.Option(10, "--prune-after", parser=Int(min=0),
                                         help="stop starts whose chi2 is "
                                         "over --prune-factor x the chunk's best after this "

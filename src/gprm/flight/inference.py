@@ -357,6 +357,14 @@ def fit_release(pp: PriorPredictive, y: np.ndarray, sigma: np.ndarray, use: np.n
     return ScenarioFit(pp.scenario, float(logZ), float(ess), summ)
 
 
+def _log_evidence(fits, scenarios) -> np.ndarray:
+    """(R, K) the releases' ``fits`` natural-log evidences of ``scenarios`` (-inf where a
+    scenario has none)."""
+    L = np.array([[f[s].log_evidence for s in scenarios] for f in fits],
+                 float).reshape(len(fits), len(scenarios))
+    return np.where(np.isfinite(L), L, -np.inf)
+
+
 @dataclass(frozen=True)
 class ScenarioInference:
     """Scenario fits of every release: ``fits[r][scenario]`` (:class:`ScenarioFit`);
@@ -381,10 +389,7 @@ class ScenarioInference:
     def log_evidence(self) -> np.ndarray:
         """(R, K) each release's natural-log evidence of each compared scenario, in
         ``options["scenarios"]`` order (-inf where a scenario has none)."""
-        sc = self.options["scenarios"]
-        L = np.array([[f[s].log_evidence for s in sc] for f in self.fits],
-                     float).reshape(len(self.fits), len(sc))
-        return np.where(np.isfinite(L), L, -np.inf)
+        return _log_evidence(self.fits, self.options["scenarios"])
 
     def to_json(self) -> dict:
         return {"method": "importance sampling from the prior; model parameters marginalised "
@@ -590,8 +595,7 @@ def infer_scenarios(model, ids, y, sigma, opts: InferenceOptions = InferenceOpti
     jp = _probs(total)
     # each release's scenario given the file: one scenario for all, or each its own
     sc = list(opts.scenarios)
-    L = np.array([[fr[s].log_evidence for s in sc] for fr in fits], float).reshape(-1, len(sc))
-    given, p_same = file_probabilities(np.where(np.isfinite(L), L, -np.inf), P_SAME)
+    given, p_same = file_probabilities(_log_evidence(fits, sc), P_SAME)
     probs_file = [{s: (None if not np.isfinite(g[j]) else float(g[j]))
                    for j, s in enumerate(sc)} for g in given]
     chosen_file = [sc[int(np.argmax(g))] if np.all(np.isfinite(g)) else None for g in given]

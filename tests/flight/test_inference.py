@@ -168,7 +168,7 @@ def test_scenario_section_reads_an_impact_file_without_the_file_rule():
         "releases": [{"id": "R1", "chosen": "xz", "probability": {"xz": 0.7, "two": 0.3},
                       "fits": {"xz": fit, "two": {**fit, "log_evidence": -1.8}}}]}}
     rows = scenario_rows(imp)
-    assert rows[0][3] == "the same (0.700)"
+    assert rows[0][2] == "0.700" and rows[0][3] == "the same (0.700)"
     html = "".join(scenario_section(imp).blocks)
     assert "share one" not in html
 

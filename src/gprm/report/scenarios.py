@@ -126,9 +126,9 @@ def scenario_rows(imp: dict) -> list:
         bf = (f"{ranked[-1][0] - ranked[-2][0]:.1f}" if len(ranked) >= 2 else "—")
         fit = r["fits"].get(c)
         row = [r["id"], SCENARIO_TEXT.get(c, c),
-               "—" if pr.get(c) is None else f"{pr[c]:.3f}",
+               "—" if pr.get(c) is None else probability_text(pr[c]),
                ("the same" if ca == c else SCENARIO_TEXT.get(ca, ca))
-               + ("" if pa.get(ca) is None else f" ({pa[ca]:.3f})"), bf,
+               + ("" if pa.get(ca) is None else f" ({probability_text(pa[ca])})"), bf,
                _ci(fit, "t", MS, ".4f"), _ci(fit, "mu", 1, ".2f"),
                _ci(fit, "phi", 180 / np.pi, ".0f"),
                "—" if not fit or fit.get("ess") is None else f"{fit['ess']:.0f}"]

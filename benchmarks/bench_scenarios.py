@@ -145,29 +145,32 @@ def recovery(fm, seeds, releases: int, draws: int, rel_floor: float | None = Non
     out["pp_cpu_s"] = time.process_time() - t0
     pb0 = batch([fm.params])
     frame = model_frame(fm, opts, pb0)
-    for _s, file_kind, ds, tel, y, sig in scenario_campaigns(fm, seeds, releases, mixed):
+    for seed, file_kind, ds, tel, y, sig in scenario_campaigns(fm, seeds, releases, mixed):
         truth = ds  # truth variables
         res = infer_scenarios(fm, [r.id for r in tel.releases], y, sig, opts,
                               predictive=pps)
+        L = res.log_evidence()
+        sc = res.options["scenarios"]
         if not mixed:
             # the scenario chosen jointly over the file's releases (one scenario for all)
             out["joint"][file_kind][0] += res.joint["chosen"] == file_kind
             out["joint"][file_kind][1] += 1
             count(out["joint_confusion"], file_kind, res.joint["chosen"])
-        given = {"pooled": pooled_probabilities(res.log_evidence())}
-        given["file"], p_same = file_probabilities(res.log_evidence())
-        out["file_p_same"].append(p_same)
-        out["files"].append((_s, file_kind, res.log_evidence(),
-                             [str(v) for v in truth["truth_scenario"].values]))
-        check = {q: file_probabilities(res.log_evidence(), q)[0] for q in FILE_P_SAME_CHECK}
+        # the per-release choices given the file: the method's (res.chosen, the file rule
+        # at P_SAME) and the Dirichlet pooling's
+        pooled = pooled_probabilities(L)
+        given = {"pooled": [sc[int(np.argmax(p))] if np.all(np.isfinite(p)) else None
+                            for p in pooled], "file": res.chosen}
+        out["file_p_same"].append(res.joint["p_same"])
+        out["files"].append((seed, file_kind, L))
+        check = {q: file_probabilities(L, q)[0] for q in FILE_P_SAME_CHECK}
         for i in range(len(tel.releases)):
             kind = str(truth["truth_scenario"].values[i]) if mixed else file_kind
             for q, probs in check.items():
                 out["file_check"][q] += bool(np.all(np.isfinite(probs[i]))) and \
-                    res.options["scenarios"][int(np.argmax(probs[i]))] == kind
-            for rule, probs in given.items():
-                pc = (res.options["scenarios"][int(np.argmax(probs[i]))]
-                      if np.all(np.isfinite(probs[i])) else None)
+                    sc[int(np.argmax(probs[i]))] == kind
+            for rule, chosen in given.items():
+                pc = chosen[i]
                 okp = pc == kind
                 out[rule] += okp
                 out[f"{rule}_by_truth"][kind][0] += okp
@@ -207,22 +210,23 @@ def recovery(fm, seeds, releases: int, draws: int, rel_floor: float | None = Non
     out["ess_median"] = float(np.median(out["ess_median"]))
     out["width"] = {k: float(np.median(v)) for k, v in out["width"].items()}
     if not mixed:
-        out["composite"] = composite_files(out["files"], res.options["scenarios"])
+        out["composite"] = composite_files(out["files"], opts.scenarios)
     return out
 
 
 def composite_files(files, scenarios, minority=(1, 2, 3)) -> dict:
-    """Files of one scenario with a few releases of another: for each seed and each ordered
-    pair (A, B) of the scenarios' files, the releases of A with the first m of them replaced
-    by B's first m (m in ``minority``; the releases are independent given the model, so
-    their evidences combine into a file as they are). The scenario chosen per release on its
+    """Files of one scenario with a few releases of another, built from ``files`` ((seed,
+    scenario, (R, K) log evidences in ``scenarios`` order) of files of one scenario): for
+    each seed and each ordered pair (A, B) of the scenarios' files, the releases of A with
+    the first m of them replaced by B's first m (m in ``minority``; the releases are
+    independent given the model, so their evidences combine into a file as they are). The scenario chosen per release on its
     own evidence and given the file (gprm.flight.inference.file_probabilities), counted
     apart for the majority's and the minority's releases: what the file rule costs where a
     file is almost, but not quite, of one scenario."""
     from gprm.flight.inference import file_probabilities
 
     by_seed: dict = {}
-    for seed, kind, L, _ in files:
+    for seed, kind, L in files:
         by_seed.setdefault(seed, {})[kind] = L
     out = {m: {"files": 0, "same": 0, "majority": [0, 0, 0], "minority": [0, 0, 0]}
            for m in minority}       # [alone right, given the file right, releases]

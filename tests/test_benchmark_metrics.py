@@ -498,14 +498,14 @@ def test_composite_files_counts_majority_and_minority_releases():
         L[:, sc.index(k)] = margin
         return L
 
-    files = [(1, k, file_of(k), [k] * 6) for k in sc]
+    files = [(1, k, file_of(k)) for k in sc]
     out = composite_files(files, sc, minority=(1, 2))
     for m, t in out.items():
         assert t["files"] == 6 and t["same"] == 0
         assert t["majority"] == [6 * (6 - m)] * 3 and t["minority"] == [6 * m] * 3
     # two files whose releases barely tell xz from two: one odd release follows its file
-    weak = [(2, "xz", np.tile([0.3, -50.0, 0.0], (6, 1)), ["xz"] * 6),
-            (2, "two", np.tile([0.0, -50.0, 0.3], (6, 1)), ["two"] * 6)]
+    weak = [(2, "xz", np.tile([0.3, -50.0, 0.0], (6, 1))),
+            (2, "two", np.tile([0.0, -50.0, 0.3], (6, 1)))]
     t = composite_files(weak, sc, minority=(1,))[1]
     assert t["files"] == 2 and t["same"] == 2
     assert t["minority"] == [2, 0, 2] and t["majority"] == [10, 10, 10]

@@ -35,7 +35,6 @@ def test_gprm_fit_writes_json_and_sidecar(means_file, tmp_path):
     d = json.loads(out.read_text())
     assert d["starts"]["requested"] == 3 and d["seed"] == 2
     assert d["starts"]["max_iter"] == 8 and d["starts"]["chunk_size"] == 3
-    # the command's defaults are the library's (FitOptions)
     from gprm.fit.api import FitOptions
 
     assert d["starts"]["stall_window"] == FitOptions().stall_window
@@ -261,3 +260,22 @@ def test_the_default_workers_are_the_fastest_on_two_cores(means_file, tmp_path, 
                         workers=None).workers == expect
     assert make_options(RunOptions, quick=True, seed=0, starts=None, workers=None).workers == 0
     assert make_options(RunOptions, quick=False, seed=0, starts=None, workers=3).workers == 3
+
+
+def test_gprm_fit_defaults_are_the_librarys():
+    """Every option of ``gprm fit`` that names a FitOptions field defaults to that field's
+    default (the command writes its defaults out, to start without importing the fit)."""
+    from dataclasses import fields
+
+    import typer.main
+
+    from gprm.fit.api import FitOptions
+
+    fit = typer.main.get_command(app).commands["fit"]
+    lib = {f.name: getattr(FitOptions(), f.name) for f in fields(FitOptions)}
+    shared = [p for p in fit.params if p.name in lib and p.default is not None
+              and not isinstance(p.default, bool)]
+    assert {"starts", "max_iter", "stall_window", "stall_tol", "chunk"} <= {p.name for p in shared}
+    for p in shared:
+        if p.name != "window":          # given as text there ("0.97ms,1.2ms"), SI here
+            assert p.default == lib[p.name], p.name

@@ -169,6 +169,12 @@ def test_scenario_section_reads_an_impact_file_without_the_file_rule():
                       "fits": {"xz": fit, "two": {**fit, "log_evidence": -1.8}}}]}}
     rows = scenario_rows(imp)
     assert rows[0][2] == "0.700" and rows[0][3] == "the same (0.700)"
+    # a release no scenario could explain (no finite evidence): no choice, shown as such
+    none = {"id": "R2", "chosen": None, "probability": {"xz": None, "two": None},
+            "chosen_alone": "xz", "probability_alone": {"xz": None, "two": None},
+            "fits": {"xz": {**fit, "log_evidence": None}, "two": {**fit, "log_evidence": None}}}
+    imp["scenarios"]["releases"].append(none)
+    assert scenario_rows(imp)[1][1:4] == ["—", "—", "one contact in x–z"]
     html = "".join(scenario_section(imp).blocks)
     assert "share one" not in html
 

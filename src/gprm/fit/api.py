@@ -48,9 +48,9 @@ class FitOptions:
     fit_offsets: bool = True                  # also fit dt_x_head, dt_y_base, dt_y_head
     piezo: int = 2
     chunk: int = 250
-    max_iter: int = 100
-    stall_window: int = 3
-    stall_tol: float = 0.03
+    max_iter: int = LMOptions.max_iter
+    stall_window: int = LMOptions.stall_window
+    stall_tol: float = LMOptions.stall_tol
     prune_after: int = 10
     prune_factor: float = 100.0
     #: racing within each chunk of starts: (iterations, keep) pairs, () for none

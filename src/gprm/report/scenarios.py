@@ -125,7 +125,7 @@ def scenario_rows(imp: dict) -> list:
         ranked = sorted((v, k) for k, v in le.items() if v is not None)
         bf = (f"{ranked[-1][0] - ranked[-2][0]:.1f}" if len(ranked) >= 2 else "—")
         fit = r["fits"].get(c)
-        row = [r["id"], SCENARIO_TEXT.get(c, c),
+        row = [r["id"], "—" if c is None else SCENARIO_TEXT.get(c, c),
                "—" if pr.get(c) is None else probability_text(pr[c]),
                ("the same" if ca == c else SCENARIO_TEXT.get(ca, ca))
                + ("" if pa.get(ca) is None else f" ({probability_text(pa[ca])})"), bf,

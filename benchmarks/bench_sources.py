@@ -130,15 +130,17 @@ def run_case(source: str, seed: int, starts: int, cache: str | None,
                 shift = _campaign(source, seed, tmp)[3]
             case = replace(case, frame_shift=shift, frame_axis=FRAME_AXIS)
             _save(case, path)
-        if case.fit.data.sync_timing_sd is None:
+        if case.fit.data.sync_timing_sd is None or case.fit.data.baseline is None:
             # a fit made before preprocessing wrote the synchronisation's timing sd (stop
-            # 43): the campaign made again for those numbers, the fit untouched (the sd
-            # enters the uncertainty only)
+            # 43) or step 0's baseline (stop 56): the campaign made again for those
+            # numbers, the fit untouched (they enter the uncertainty only)
             with tempfile.TemporaryDirectory(prefix="gprm-src-") as tmp:
                 ms = _campaign(source, seed, tmp)[2]
             sd = dict(zip(ms.signals, ms.sync_timing_sd))
+            base = dict(zip(ms.signals, ms.baseline))
             data = replace(case.fit.data, sync_timing_sd=np.array(
-                [sd[s] for s in case.fit.data.signals]))
+                [sd[s] for s in case.fit.data.signals]), baseline=np.array(
+                [base[s] for s in case.fit.data.signals]))
             case = replace(case, fit=replace(case.fit, data=data))
             _save(case, path)
         return case

@@ -112,6 +112,61 @@ def test_sync_timing_sd_is_written_and_read(full_means, tmp_path):
         fit_data_from_means(bad)
 
 
+def test_detrended_noise_factor_is_the_projection_of_step_0s_operator():
+    """Step 0 (``_detrend``) is linear in the run: its matrix D (each unit sample through
+    it) gives a white-noise run's variance along weights w over a window exactly as
+    |D w|^2 (noise sd 1). detrended_noise_factor must equal it, for a window right after
+    the baseline and one far from it, and exceed |w|^2 (the line's noise adds along w)."""
+    from gprm.campaign.preprocess import _detrend, detrended_noise_factor
+
+    T, n_base = 400, 120
+    time = 1e-6 * np.arange(T) + 3e-4
+    D = _detrend(np.eye(T), time, n_base)         # row k: unit sample k after step 0
+    rng = np.random.default_rng(4)
+    for win in (np.arange(130, 200), np.arange(300, 390)):
+        w = rng.normal(size=win.size) + np.linspace(0, 3, win.size)
+        full = np.zeros(T)
+        full[win] = w
+        exact = float(np.sum((D @ full) ** 2))
+        got = detrended_noise_factor(w, time[win], time[:n_base])
+        assert got == pytest.approx(exact, rel=1e-10)
+        assert got > 1.01 * float(w @ w)
+    # no baseline given: the run's own noise only
+    assert detrended_noise_factor(w, time[win], time[:0]) == pytest.approx(float(w @ w))
+
+
+def test_baseline_is_written_and_read(full_means):
+    """The means file carries step 0's baseline per signal (first and last sample on the
+    aligned axis, in s): before the motion's onset, as long as the samples step 0 used; the
+    fit's data read it, an older file without it gives None, and a stop before its start is
+    an error naming the field."""
+    from gprm.errors import GprmInputError
+    from gprm.fit.objective import fit_data_from_means
+
+    ds = full_means.to_dataset()
+    for end in ("start", "stop"):
+        assert ds[f"baseline_{end}"].dims == ("signal",)
+        assert ds[f"baseline_{end}"].attrs["units"] == "s"
+    start, stop = ds["baseline_start"].values, ds["baseline_stop"].values
+    dt = float(ds["time"][1] - ds["time"][0])
+    n = np.rint((stop - start) / dt) + 1
+    assert np.all(n >= 10) and np.allclose((stop - start) / dt + 1, n)
+    # the baseline lies before every fitted signal's crossing into the motion (a position
+    # that barely moves finds its onset late, and its baseline may run past the crossing)
+    model = [list(POSITIONS).index(p) for p in MODEL_POSITIONS]
+    assert np.all(stop[model] < ds["crossing_time"].values[model])
+    fd = fit_data_from_means(ds)
+    want = [[float(ds[f"baseline_{e}"].sel(signal=s)) for e in ("start", "stop")]
+            for s in fd.signals]
+    np.testing.assert_array_equal(fd.baseline, want)
+    assert fit_data_from_means(ds.drop_vars(["baseline_start", "baseline_stop"])).baseline \
+        is None
+    bad = ds.copy()
+    bad["baseline_stop"] = bad["baseline_start"] - dt
+    with pytest.raises(GprmInputError, match="baseline_start"):
+        fit_data_from_means(bad)
+
+
 def test_fit_data_subset_selects_every_per_signal_field(full_means):
     """FitData.subset (the adequacy check's leave-one-signal-out) selects every field that
     is indexed by signal first, and PER_SIGNAL_FIELDS names every such field of a fit's

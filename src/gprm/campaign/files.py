@@ -395,6 +395,13 @@ def means_dataset(ms) -> xr.Dataset:
             "units": "s", "long_name": "standard deviation of the time shift the "
             "synchronisation takes out of the runs' spread but leaves in their mean (from "
             "the noise runs and the mean's slope over the synchronisation window)"})
+    if getattr(ms, "baseline", None) is not None:
+        for j, end in enumerate(("start", "stop")):
+            ds[f"baseline_{end}"] = (("signal",), np.asarray(ms.baseline, float)[:, j], {
+                "units": "s", "long_name": f"the {'first' if j == 0 else 'last'} of the "
+                "baseline samples each run's straight line was fitted to before the "
+                "synchronisation (step 0), on the aligned time axis (the reference run's; "
+                "the line's noise is part of every run)"})
     if getattr(ms, "crossing_time", None) is not None:
         ds["crossing_time"] = (("signal",), ms.crossing_time, {
             "units": "s", "long_name": "where the mean's first sustained crossing of "

@@ -137,6 +137,10 @@ class MeanSignals:
     #: (signal,) s: the standard deviation of the time shift that the synchronisation takes
     #: out of the runs' spread but leaves in their mean (:func:`sync_timing_sd`)
     sync_timing_sd: np.ndarray | None = None
+    #: (signal, 2) s: the first and last of the baseline samples step 0 fitted its straight
+    #: line to, on the output time axis (the reference run's; a run moved by whole samples
+    #: has them that many samples earlier or later), uniformly spaced like ``time``
+    baseline: np.ndarray | None = None
 
     def to_dataset(self) -> xr.Dataset:
         """The mean-signals NetCDF layout (:func:`gprm.campaign.files.means_dataset`)."""
@@ -182,14 +186,30 @@ def sync_timing_sd(splines, shifts: np.ndarray, win: np.ndarray, noise_sd: float
     if ss <= 0 or not np.isfinite(noise_sd) or n_base < 2:
         return 0.0
     g = slope / ss
-    tb = time[:n_base]
-    tm, ts = tb.mean(), max(np.ptp(tb), 1e-30)
-    Xb = np.stack([np.ones(n_base), (tb - tm) / ts], axis=1)
-    Xw = np.stack([np.ones(win.size), (time[win] - tm) / ts], axis=1)
-    c = Xw.T @ g
-    var = noise_sd ** 2 * (float(g @ g) + float(c @ np.linalg.solve(Xb.T @ Xb, c)))
+    var = noise_sd ** 2 * detrended_noise_factor(g, time[win], time[:n_base])
     dt = float(time[1] - time[0])
     return dt * float(np.sqrt(var / R))
+
+
+def detrended_noise_factor(w: np.ndarray, t_w: np.ndarray, t_base: np.ndarray) -> float:
+    """Var<w, e> / noise_sd^2 for a run's white noise e after step 0: |w|^2 + c^T (X_b^T
+    X_b)^-1 c, c = X_w^T w, exactly.
+
+    Step 0 fits a straight line to each run's baseline samples (times ``t_base``) and
+    subtracts it from the whole run, so the run keeps its own noise (|w|^2) and, along ``w``
+    (weights at the times ``t_w``), the line's error extrapolated from the baseline: X the
+    line's design, over the baseline (b) and at t_w (w). Every time on one axis (s); the
+    baseline as :func:`_detrend` takes it. Used by :func:`sync_timing_sd` and by the fit's
+    drive term (gprm.fit.sandwich.drive_shift_sd)."""
+    w = np.asarray(w, float)
+    t_base = np.asarray(t_base, float)
+    if t_base.size < 2:
+        return float(w @ w)
+    tm, ts = t_base.mean(), max(np.ptp(t_base), 1e-30)
+    Xb = np.stack([np.ones(t_base.size), (t_base - tm) / ts], axis=1)
+    Xw = np.stack([np.ones(np.size(t_w)), (np.asarray(t_w, float) - tm) / ts], axis=1)
+    c = Xw.T @ w
+    return float(w @ w) + float(c @ np.linalg.solve(Xb.T @ Xb, c))
 
 
 def _detrend(Y: np.ndarray, time: np.ndarray, n_base: int) -> np.ndarray:
@@ -329,7 +349,8 @@ def _position(Y, N, time, cfg: PreprocessConfig, name: str, src: str,
     ref = int(np.argmin(np.mean((Yb[:, win] - med[win]) ** 2, axis=1)))
     shifts, splines = synchronise(Yb, ref, win, cfg.max_lag)
     return dict(noise_std=sn, ref=ref, shifts=shifts, splines=splines, onset=i_on, runs=Yb,
-                sync_timing_sd=sync_timing_sd(splines, shifts, win, sn, time, n_base))
+                sync_timing_sd=sync_timing_sd(splines, shifts, win, sn, time, n_base),
+                baseline=(float(time[0]), float(time[n_base - 1])))
 
 
 def preprocess(campaign: xr.Dataset, config: PreprocessConfig | None = None) -> MeanSignals:
@@ -499,5 +520,6 @@ def preprocess(campaign: xr.Dataset, config: PreprocessConfig | None = None) -> 
                        truth_shift, truth_mean, truth_spread, tuple(no_cross), truth, alignment,
                        runs=runs, interpolation_error=interp_err, sync_remainder=remainder,
                        sync_timing_sd=np.array([per[n]["sync_timing_sd"] for n in POSITIONS]),
+                       baseline=np.array([per[n]["baseline"] for n in POSITIONS]) + shift[:, None],
                        crossing_time=cfg.align_time + np.where(
                            [n in no_cross for n in POSITIONS], 0.0, rounding))

@@ -60,7 +60,7 @@ def pooled_sigma(sigma: np.ndarray, half_width: int) -> np.ndarray:
 
 #: FitData's fields indexed by signal first (FitData.subset selects along them)
 PER_SIGNAL_FIELDS = ("values", "sigma", "runs", "noise_std", "interpolation_error",
-                     "crossing_time", "sync_remainder", "sync_timing_sd")
+                     "crossing_time", "sync_remainder", "sync_timing_sd", "baseline")
 
 
 @dataclass(frozen=True)
@@ -97,6 +97,10 @@ class FitData:
     #: spread but left in their mean (gprm.campaign.preprocess.sync_timing_sd; None: not
     #: known, older files), a timing error of each signal in the default uncertainty
     sync_timing_sd: np.ndarray | None = None
+    #: (n_signals, 2) s: the first and last baseline sample of step 0's straight line on
+    #: ``time``'s axis (gprm.campaign.preprocess.MeanSignals.baseline; None: not known, older
+    #: files): the line's noise in the runs, counted by the drive term's noise correction
+    baseline: np.ndarray | None = None
 
     @property
     def n_obs(self) -> int:
@@ -185,8 +189,18 @@ def fit_data_from_means(ds: xr.Dataset, *, window=DEFAULT_WINDOW, sigma: str = "
         if not np.all(np.isfinite(sync_sd)) or np.any(sync_sd < 0):
             raise GprmInputError("sync_timing_sd must be finite and >= 0, one value per "
                                  "signal", source=source, field="sync_timing_sd")
+    base = None
+    if "baseline_start" in ds.variables and "baseline_stop" in ds.variables:
+        base = np.array([[float(ds[f"baseline_{e}"].sel(signal=s)) for e in ("start", "stop")]
+                         for s in SIGNALS])
+        dt = float(np.median(np.diff(t))) if t.size > 1 else 0.0
+        if not np.all(np.isfinite(base)) or np.any(base[:, 1] - base[:, 0] < dt * 0.999):
+            raise GprmInputError("baseline_start and baseline_stop must be finite, the stop "
+                                 "at least one sample after the start, one value each per "
+                                 "signal", source=source, field="baseline_start")
     return FitData(t[sel], vals, pooled_sigma(sig, sigma_pool), SIGNALS, (lo, hi), sigma,
-                   source, dict(ds.attrs), runs, nstd, ierr, cross, rem, sigma_pool, sync_sd)
+                   source, dict(ds.attrs), runs, nstd, ierr, cross, rem, sigma_pool, sync_sd,
+                   base)
 
 
 @dataclass(frozen=True)

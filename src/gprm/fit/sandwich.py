@@ -67,7 +67,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 from scipy.special import fdtri, ndtri
 
-from gprm.campaign.preprocess import alignment_shift
+from gprm.campaign.preprocess import alignment_shift, detrended_noise_factor
 from gprm.errors import GprmInputError
 from gprm.fit.covariance import normal_factor, standardised
 from gprm.fit.draws import inflation, project_draws
@@ -744,6 +744,16 @@ def time_derivative(obj: Objective, x: np.ndarray, J: np.ndarray, y: np.ndarray)
 DRIVE_PARAMETERS = ("V0", "tau_v")
 
 
+def _baseline_times(d, i: int) -> np.ndarray:
+    """s: signal i's baseline sample times (step 0's straight line) on the data's axis; none
+    where the file does not say (the line's noise is then not counted)."""
+    if getattr(d, "baseline", None) is None or d.time.size < 2:
+        return np.empty(0)
+    dt = float(d.time[1] - d.time[0])
+    lo, hi = (float(v) for v in d.baseline[i])
+    return lo + dt * np.arange(int(round((hi - lo) / dt)) + 1)
+
+
 def drive_shift_sd(obj: Objective, x: np.ndarray, dy: np.ndarray) -> np.ndarray | None:
     """(S,) s: the time shift the runs' synchronisation takes out of their spread but leaves
     in their mean when the drive varies from run to run (None without runs).
@@ -762,7 +772,12 @@ def drive_shift_sd(obj: Objective, x: np.ndarray, dy: np.ndarray) -> np.ndarray 
     regressed (least squares) on [y', S_V0, S_tau_v] at the best fit (the sensitivities by
     central differences, the mechanism model without any projected nuisance); the drive
     part's projection on g is that run's h_r; its variance over the runs, less what the
-    signal's white noise (``noise_std``) alone would give it, over R. ``dy`` (S, T) is the
+    signal's white noise (``noise_std``) alone would give it, over R. That noise is the
+    run's own along the projection and, where the file gives step 0's baseline
+    (``FitData.baseline``), its straight line's noise extrapolated into the window
+    (gprm.campaign.preprocess.detrended_noise_factor, as ``sync_timing_sd`` counts it; until
+    stop 56 the line's part was left out, and on the white-noise source the term came out
+    positive in most campaigns though the drive there never varies). ``dy`` (S, T) is the
     model signals' time derivative at ``x``."""
     d = obj.data
     if d.runs is None or not hasattr(obj, "base"):
@@ -794,7 +809,8 @@ def drive_shift_sd(obj: Objective, x: np.ndarray, dy: np.ndarray) -> np.ndarray 
         runs = d.runs[i]
         h_r = (runs - runs.mean(axis=0)) @ w
         n0 = float(d.noise_std[i]) if d.noise_std is not None else 0.0
-        noise = n0 ** 2 * float(w @ w) if np.isfinite(n0) else 0.0
+        noise = n0 ** 2 * detrended_noise_factor(w, d.time, _baseline_times(d, i)) \
+            if np.isfinite(n0) else 0.0
         out[i] = np.sqrt(max(float(np.var(h_r, ddof=1)) - noise, 0.0) / runs.shape[0])
     return out
 

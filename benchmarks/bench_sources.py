@@ -130,17 +130,21 @@ def run_case(source: str, seed: int, starts: int, cache: str | None,
                 shift = _campaign(source, seed, tmp)[3]
             case = replace(case, frame_shift=shift, frame_axis=FRAME_AXIS)
             _save(case, path)
-        if case.fit.data.sync_timing_sd is None or case.fit.data.baseline is None:
+        if case.fit.data.sync_timing_sd is None or case.fit.data.baseline is None \
+                or case.fit.data.noise_acov is None:
             # a fit made before preprocessing wrote the synchronisation's timing sd (stop
-            # 43) or step 0's baseline (stop 56): the campaign made again for those
-            # numbers, the fit untouched (they enter the uncertainty only)
+            # 43), step 0's baseline or the noise's autocovariance (stop 56, which also
+            # changed the timing sd): the campaign made again for those numbers, the fit
+            # untouched (they enter the uncertainty only)
             with tempfile.TemporaryDirectory(prefix="gprm-src-") as tmp:
                 ms = _campaign(source, seed, tmp)[2]
             sd = dict(zip(ms.signals, ms.sync_timing_sd))
             base = dict(zip(ms.signals, ms.baseline))
+            acov = dict(zip(ms.signals, ms.noise_acov))
             data = replace(case.fit.data, sync_timing_sd=np.array(
                 [sd[s] for s in case.fit.data.signals]), baseline=np.array(
-                [base[s] for s in case.fit.data.signals]))
+                [base[s] for s in case.fit.data.signals]), noise_acov=np.array(
+                [acov[s] for s in case.fit.data.signals]))
             case = replace(case, fit=replace(case.fit, data=data))
             _save(case, path)
         return case

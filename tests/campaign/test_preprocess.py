@@ -135,6 +135,91 @@ def test_detrended_noise_factor_is_the_projection_of_step_0s_operator():
     assert detrended_noise_factor(w, time[win], time[:0]) == pytest.approx(float(w @ w))
 
 
+def test_noise_autocovariance_models_the_noise_runs_correlation():
+    """An AR(3) fitted to the noise runs by Yule-Walker: lag 0 is noise_std^2 exactly; on
+    white noise the other lags are near 0; on an AR(1) process (phi 0.5, 400 runs of 300
+    samples) the function is the process's phi^h / (1 - phi^2) within 5 % of lag 0 at every
+    lag (the runs' own lines take a little of the low-frequency power); it obeys the fitted
+    recursion beyond lag 3, and its Toeplitz matrix is positive definite."""
+    from scipy.linalg import toeplitz
+
+    from gprm.campaign.preprocess import noise_autocovariance
+
+    T = 300
+    time = 5e-6 * np.arange(T)
+    rng = np.random.default_rng(8)
+    white = rng.normal(0, 2e-10, (5, T))
+    ac = noise_autocovariance(white, time)
+    assert ac.shape == (T,)
+    assert ac[0] == pytest.approx(noise_std(white, time) ** 2, rel=1e-12)
+    assert np.all(np.abs(ac[1:]) < 0.1 * ac[0])
+    phi = 0.5
+    e = rng.normal(size=(400, T + 100))
+    x = np.zeros_like(e)
+    for t in range(1, e.shape[1]):
+        x[:, t] = phi * x[:, t - 1] + e[:, t]
+    ac = noise_autocovariance(x[:, 100:], time)
+    theory = phi ** np.arange(T) / (1 - phi ** 2)
+    np.testing.assert_allclose(ac, theory, atol=0.05 * theory[0])
+    A = toeplitz(ac[:3])
+    coef = np.linalg.solve(A, ac[1:4])
+    np.testing.assert_allclose(ac[4:40], [coef @ ac[h - 1::-1][:3] for h in range(4, 40)],
+                               rtol=1e-9, atol=1e-15)
+    assert np.linalg.eigvalsh(toeplitz(ac[:120])).min() > 0
+
+
+def test_detrended_noise_variance_is_the_quadratic_form_through_step_0():
+    """Var<w, e> after step 0 for noise of a given autocovariance: the exact quadratic form
+    (D w)^T C (D w) with D step 0's matrix and C the Toeplitz covariance; for white noise
+    (a delta) it is sd^2 times detrended_noise_factor; along a smooth template, correlated
+    noise gives well over the white model's."""
+    from scipy.linalg import toeplitz
+
+    from gprm.campaign.preprocess import (_detrend, detrended_noise_factor,
+                                          detrended_noise_variance)
+
+    T, n_base, dt = 300, 180, 5e-6
+    time = dt * np.arange(T) + 1e-4
+    rng = np.random.default_rng(2)
+    w = rng.normal(size=60) + 1.0
+    win = np.arange(200, 260)
+    acov = 0.8 ** np.arange(T) / (1 - 0.64)
+    D = _detrend(np.eye(T), time, n_base)
+    full = np.zeros(T)
+    full[win] = w
+    v = D @ full
+    got = detrended_noise_variance(w, time[win], time[:n_base], acov, dt)
+    assert got == pytest.approx(float(v @ toeplitz(acov) @ v), rel=1e-10)
+    delta = np.zeros(T)
+    delta[0] = 4.0
+    assert detrended_noise_variance(w, time[win], time[:n_base], delta, dt) == pytest.approx(
+        4.0 * detrended_noise_factor(w, time[win], time[:n_base]), rel=1e-12)
+    # correlated noise along a smooth template: more than the white model gives
+    assert got > 1.5 * acov[0] * detrended_noise_factor(w, time[win], time[:n_base])
+
+
+def test_noise_acov_is_written_and_read(full_means):
+    """The means file carries the noise's autocovariance per signal over the record's lags,
+    lag 0 the noise_std squared; the fit's data read it; an older file without it gives
+    None; a lag larger than lag 0 is refused naming the field."""
+    from gprm.errors import GprmInputError
+    from gprm.fit.objective import fit_data_from_means
+
+    ds = full_means.to_dataset()
+    v = ds["noise_acov"]
+    assert v.dims == ("signal", "lag") and v.attrs["units"] == "m2"
+    np.testing.assert_allclose(v.values[:, 0], ds["noise_std"].values ** 2, rtol=1e-12)
+    fd = fit_data_from_means(ds)
+    np.testing.assert_array_equal(fd.noise_acov[0], v.sel(signal=fd.signals[0]).values)
+    assert fit_data_from_means(ds.drop_vars("noise_acov")).noise_acov is None
+    bad = ds.copy()
+    vals = bad["noise_acov"].values.copy()
+    vals[:, 1] = 2 * vals[:, 0]
+    bad["noise_acov"] = (("signal", "lag"), vals)
+    with pytest.raises(GprmInputError, match="noise_acov"):
+        fit_data_from_means(bad)
+
+
 def test_baseline_is_written_and_read(full_means):
     """The means file carries step 0's baseline per signal (first and last sample on the
     aligned axis, in s): before the motion's onset, as long as the samples step 0 used; the

@@ -1038,7 +1038,8 @@ def test_the_drive_terms_noise_correction_counts_step_0s_baseline_line():
     x 5 signals (R = 10 runs), the runs' variance over that prediction is 1 within 4 Monte
     Carlo sds, and clearly above 1 over the old |w|^2 alone (the line's part 20-150 % here);
     the corrected term is then 0 on most seeds, and the uncorrected estimate's excess over
-    the corrected one is what the line adds."""
+    the corrected one is what the line adds. With the noise's autocovariance in the data
+    (stop 56) a white one reproduces the white model, a correlated one subtracts more."""
     from dataclasses import replace
 
     from gprm.campaign.preprocess import detrended_noise_factor
@@ -1084,6 +1085,18 @@ def test_the_drive_terms_noise_correction_counts_step_0s_baseline_line():
                          x, dy)
     new = drive_shift_sd(Objective.create(on, paper(), obj.names), x, dy)
     assert np.all(old >= new) and np.any(old > new)
+    # the noise's autocovariance where the data give it: a white one (a delta of n0^2) is
+    # the white model to round-off; a correlated one subtracts more, never less
+    L = nb + gap + T
+    delta = np.zeros((S, L))
+    delta[:, 0] = n0 ** 2
+    same = drive_shift_sd(Objective.create(replace(on, noise_acov=delta), paper(),
+                                           obj.names), x, dy)
+    np.testing.assert_allclose(same, new, rtol=1e-9, atol=1e-18)
+    red = np.tile(n0 ** 2 * 0.7 ** np.arange(L), (S, 1))
+    less = drive_shift_sd(Objective.create(replace(on, noise_acov=red), paper(), obj.names),
+                          x, dy)
+    assert np.all(less <= new) and np.any(less < new)
 
 
 def _mismatch_case(seed=5, R=10, amplitude=0.05):

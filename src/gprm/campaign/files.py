@@ -402,6 +402,11 @@ def means_dataset(ms) -> xr.Dataset:
                 "baseline samples each run's straight line was fitted to before the "
                 "synchronisation (step 0), on the aligned time axis (the reference run's; "
                 "the line's noise is part of every run)"})
+    if getattr(ms, "noise_acov", None) is not None:
+        ds["noise_acov"] = (("signal", "lag"), np.asarray(ms.noise_acov, float), {
+            "units": "m2", "long_name": "autocovariance of the noise runs at lags 0.. record "
+            "samples: an autoregression (order 3, Yule-Walker) fitted to the runs, each less "
+            "its straight line; lag 0 is noise_std squared"})
     if getattr(ms, "crossing_time", None) is not None:
         ds["crossing_time"] = (("signal",), ms.crossing_time, {
             "units": "s", "long_name": "where the mean's first sustained crossing of "

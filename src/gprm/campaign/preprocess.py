@@ -141,6 +141,9 @@ class MeanSignals:
     #: line to, on the output time axis (the reference run's; a run moved by whole samples
     #: has them that many samples earlier or later), uniformly spaced like ``time``
     baseline: np.ndarray | None = None
+    #: (signal, lag) m^2: the noise runs' autocovariance at lags 0.. samples of the record
+    #: (:func:`noise_autocovariance`), the noise model of both hidden-shift terms
+    noise_acov: np.ndarray | None = None
 
     def to_dataset(self) -> xr.Dataset:
         """The mean-signals NetCDF layout (:func:`gprm.campaign.files.means_dataset`)."""
@@ -155,8 +158,80 @@ def noise_std(noise: np.ndarray, time: np.ndarray) -> float:
     return float(np.sqrt(np.sum(res ** 2) / (noise.shape[0] * (time.size - 2))))
 
 
+#: order of the autoregression fitted to each position's noise runs (:func:`noise_autocovariance`)
+NOISE_AR_ORDER = 3
+
+
+def noise_autocovariance(noise: np.ndarray, time: np.ndarray, order: int = NOISE_AR_ORDER
+                         ) -> np.ndarray:
+    """(T,) m^2: the autocovariance at lags 0..T-1 samples of an autoregression of order
+    ``order`` fitted to the noise runs (N, T) by Yule-Walker, the runs pooled, each about a
+    straight line fitted to it (as :func:`noise_std`).
+
+    The first order + 1 lags are the runs' pooled sample autocovariances (ddof 2 at lag 0,
+    so lag 0 is noise_std^2); the rest follow the fitted recursion
+    c_h = sum_k phi_k c_(h-k), so the whole function is a valid (positive definite)
+    autocovariance whatever the record's length. White noise gives phi ~ 0 and c_h ~ 0 for
+    h > 0; low-pass or drifting noise a slowly decaying c. A model rather than the raw
+    sample autocovariance at every lag, because a campaign has few noise runs (five of 300
+    samples in the generator's): the raw estimate at long lags is noise, and a quadratic
+    form over hundreds of samples sums it (docs/fitting.md, "Step 0's line and the noise's
+    own correlation in the hidden shifts (stop 56)")."""
+    N = np.atleast_2d(np.asarray(noise, float))
+    T = N.shape[1]
+    X = np.stack([np.ones_like(time), (time - time.mean()) / np.ptp(time)], axis=1)
+    coef, *_ = np.linalg.lstsq(X, N.T, rcond=None)
+    res = N - (X @ coef).T
+    p = int(min(max(order, 0), T - 3))
+    c = np.array([np.sum(res[:, :T - h] * res[:, h:]) for h in range(p + 1)])
+    c /= N.shape[0] * np.concatenate([[T - 2], T - np.arange(1, p + 1)])
+    out = np.zeros(T)
+    out[: p + 1] = c
+    if p > 0 and c[0] > 0:
+        A = np.array([[c[abs(i - j)] for j in range(p)] for i in range(p)])
+        try:
+            phi = np.linalg.solve(A, c[1:])
+        except np.linalg.LinAlgError:
+            phi = np.zeros(p)
+        for h in range(p + 1, T):
+            out[h] = float(phi @ out[h - 1::-1][:p])        # c_(h-1), ..., c_(h-p)
+    return out
+
+
+def detrended_noise_variance(w: np.ndarray, t_w: np.ndarray, t_base: np.ndarray,
+                             acov: np.ndarray, dt: float) -> float:
+    """m^2 x w's units^2: Var<w, e> for a run's noise e of autocovariance ``acov`` (lags
+    0.. in samples of ``dt``) after step 0 (the straight line fitted to the baseline samples
+    at ``t_base`` subtracted), w weights at the sample times ``t_w`` (one axis, s).
+
+    <w, e - line> = a^T e over the baseline and window samples, a = w on the window less
+    X_b (X_b^T X_b)^-1 X_w^T w on the baseline, so Var = a^T C a with C_ij =
+    acov[|i - j|] (0 beyond its length). With acov = (sd^2, 0, 0, ...) this is sd^2 times
+    :func:`detrended_noise_factor`."""
+    w = np.asarray(w, float)
+    t_w = np.asarray(t_w, float)
+    t_base = np.asarray(t_base, float)
+    acov = np.asarray(acov, float)
+    t0 = float(min(t_w.min(), t_base.min())) if t_base.size else float(t_w.min())
+    iw = np.rint((t_w - t0) / dt).astype(int)
+    n = int(iw.max()) + 1
+    a = np.zeros(n)
+    np.add.at(a, iw, w)
+    if t_base.size >= 2:
+        ib = np.rint((t_base - t0) / dt).astype(int)
+        n = max(n, int(ib.max()) + 1)
+        a = np.concatenate([a, np.zeros(n - a.size)])
+        tm, ts = t_base.mean(), max(np.ptp(t_base), 1e-30)
+        Xb = np.stack([np.ones(t_base.size), (t_base - tm) / ts], axis=1)
+        Xw = np.stack([np.ones(t_w.size), (t_w - tm) / ts], axis=1)
+        np.add.at(a, ib, -Xb @ np.linalg.solve(Xb.T @ Xb, Xw.T @ w))
+    lag = np.abs(np.arange(n)[:, None] - np.arange(n)[None, :])
+    C = np.where(lag < acov.size, acov[np.minimum(lag, acov.size - 1)], 0.0)
+    return float(a @ C @ a)
+
+
 def sync_timing_sd(splines, shifts: np.ndarray, win: np.ndarray, noise_sd: float,
-                   time: np.ndarray, n_base: int) -> float:
+                   time: np.ndarray, n_base: int, acov: np.ndarray | None = None) -> float:
     """s: the standard deviation of the time shift that step 1 takes out of the runs' spread
     but leaves in their mean.
 
@@ -174,9 +249,13 @@ def sync_timing_sd(splines, shifts: np.ndarray, win: np.ndarray, noise_sd: float
     e_r is the run's noise after step 0 (its straight line fitted to the first ``n_base``
     samples and subtracted), white with sd ``noise_sd`` (the noise runs' pooled sd):
     Var<g, e> = noise_sd^2 (|g|^2 + c^T (X_b^T X_b)^-1 c), c = X_w^T g, X the line's design
-    over the baseline (b) and the window (w), exactly. (Projecting the noise runs themselves
-    on g was tried: each noise run's own straight line takes out a tenth of the variance
-    along a template that is mostly one-signed, as a slope over a rise is.)
+    over the baseline (b) and the window (w), exactly. With ``acov`` (the noise's
+    autocovariance, :func:`noise_autocovariance`; how preprocessing calls it since stop 56)
+    e has that correlation instead of being white (:func:`detrended_noise_variance`): on
+    low-pass noise the shift is up to twice the white model's. (Projecting the noise runs
+    themselves on g was tried: each noise run's own straight line takes out a tenth of the
+    variance along a template that is mostly one-signed, as a slope over a rise is; and a
+    campaign's few short noise runs give that projection too few independent placements.)
     ``splines``/``shifts``: step 1's per-run splines over the sample index and shifts
     (samples); ``win``: its window (sample indices after the baseline); ``time`` (T,) s.
     0 where the window has no slope."""
@@ -186,9 +265,12 @@ def sync_timing_sd(splines, shifts: np.ndarray, win: np.ndarray, noise_sd: float
     if ss <= 0 or not np.isfinite(noise_sd) or n_base < 2:
         return 0.0
     g = slope / ss
-    var = noise_sd ** 2 * detrended_noise_factor(g, time[win], time[:n_base])
     dt = float(time[1] - time[0])
-    return dt * float(np.sqrt(var / R))
+    if acov is None:
+        var = noise_sd ** 2 * detrended_noise_factor(g, time[win], time[:n_base])
+    else:
+        var = detrended_noise_variance(g, time[win], time[:n_base], acov, dt)
+    return dt * float(np.sqrt(max(var, 0.0) / R))
 
 
 def detrended_noise_factor(w: np.ndarray, t_w: np.ndarray, t_base: np.ndarray) -> float:
@@ -325,6 +407,7 @@ def _position(Y, N, time, cfg: PreprocessConfig, name: str, src: str,
     fit, e.g. a flange that barely moves); without it such a position is an input error."""
     T = time.size
     sn = noise_std(N, time)
+    acov = noise_autocovariance(N, time)
     first = Y[:, : max(T // 5, 4)]
     y0 = Y - np.median(first, axis=1, keepdims=True)
     med0 = np.median(y0, axis=0)
@@ -349,8 +432,8 @@ def _position(Y, N, time, cfg: PreprocessConfig, name: str, src: str,
     ref = int(np.argmin(np.mean((Yb[:, win] - med[win]) ** 2, axis=1)))
     shifts, splines = synchronise(Yb, ref, win, cfg.max_lag)
     return dict(noise_std=sn, ref=ref, shifts=shifts, splines=splines, onset=i_on, runs=Yb,
-                sync_timing_sd=sync_timing_sd(splines, shifts, win, sn, time, n_base),
-                baseline=(float(time[0]), float(time[n_base - 1])))
+                sync_timing_sd=sync_timing_sd(splines, shifts, win, sn, time, n_base, acov),
+                baseline=(float(time[0]), float(time[n_base - 1])), noise_acov=acov)
 
 
 def preprocess(campaign: xr.Dataset, config: PreprocessConfig | None = None) -> MeanSignals:
@@ -521,5 +604,6 @@ def preprocess(campaign: xr.Dataset, config: PreprocessConfig | None = None) -> 
                        runs=runs, interpolation_error=interp_err, sync_remainder=remainder,
                        sync_timing_sd=np.array([per[n]["sync_timing_sd"] for n in POSITIONS]),
                        baseline=np.array([per[n]["baseline"] for n in POSITIONS]) + shift[:, None],
+                       noise_acov=np.array([per[n]["noise_acov"] for n in POSITIONS]),
                        crossing_time=cfg.align_time + np.where(
                            [n in no_cross for n in POSITIONS], 0.0, rounding))

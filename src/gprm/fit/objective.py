@@ -60,7 +60,8 @@ def pooled_sigma(sigma: np.ndarray, half_width: int) -> np.ndarray:
 
 #: FitData's fields indexed by signal first (FitData.subset selects along them)
 PER_SIGNAL_FIELDS = ("values", "sigma", "runs", "noise_std", "interpolation_error",
-                     "crossing_time", "sync_remainder", "sync_timing_sd", "baseline")
+                     "crossing_time", "sync_remainder", "sync_timing_sd", "baseline",
+                     "noise_acov")
 
 
 @dataclass(frozen=True)
@@ -101,6 +102,10 @@ class FitData:
     #: ``time``'s axis (gprm.campaign.preprocess.MeanSignals.baseline; None: not known, older
     #: files): the line's noise in the runs, counted by the drive term's noise correction
     baseline: np.ndarray | None = None
+    #: (n_signals, L) m^2: the noise runs' autocovariance at lags 0..L-1 samples
+    #: (gprm.campaign.preprocess.noise_autocovariance; None: not known, older files, and the
+    #: noise is then taken as white of sd ``noise_std``)
+    noise_acov: np.ndarray | None = None
 
     @property
     def n_obs(self) -> int:
@@ -198,9 +203,18 @@ def fit_data_from_means(ds: xr.Dataset, *, window=DEFAULT_WINDOW, sigma: str = "
             raise GprmInputError("baseline_start and baseline_stop must be finite, the stop "
                                  "at least one sample after the start, one value each per "
                                  "signal", source=source, field="baseline_start")
+    acov = None
+    if "noise_acov" in ds.variables:
+        acov = np.stack([np.asarray(ds["noise_acov"].sel(signal=s).values, float)
+                         for s in SIGNALS])
+        if acov.ndim != 2 or not np.all(np.isfinite(acov)) or np.any(acov[:, 0] <= 0) \
+                or np.any(np.abs(acov) > acov[:, :1] * (1 + 1e-9)):
+            raise GprmInputError("noise_acov must be finite, one row of lags per signal, "
+                                 "its lag 0 positive and no lag larger in size",
+                                 source=source, field="noise_acov")
     return FitData(t[sel], vals, pooled_sigma(sig, sigma_pool), SIGNALS, (lo, hi), sigma,
                    source, dict(ds.attrs), runs, nstd, ierr, cross, rem, sigma_pool, sync_sd,
-                   base)
+                   base, acov)
 
 
 @dataclass(frozen=True)

@@ -67,7 +67,8 @@ from dataclasses import dataclass, replace
 import numpy as np
 from scipy.special import fdtri, ndtri
 
-from gprm.campaign.preprocess import alignment_shift, detrended_noise_factor
+from gprm.campaign.preprocess import (alignment_shift, detrended_noise_factor,
+                                      detrended_noise_variance)
 from gprm.errors import GprmInputError
 from gprm.fit.covariance import normal_factor, standardised
 from gprm.fit.draws import inflation, project_draws
@@ -777,8 +778,11 @@ def drive_shift_sd(obj: Objective, x: np.ndarray, dy: np.ndarray) -> np.ndarray 
     (``FitData.baseline``), its straight line's noise extrapolated into the window
     (gprm.campaign.preprocess.detrended_noise_factor, as ``sync_timing_sd`` counts it; until
     stop 56 the line's part was left out, and on the white-noise source the term came out
-    positive in most campaigns though the drive there never varies). ``dy`` (S, T) is the
-    model signals' time derivative at ``x``."""
+    positive in most campaigns though the drive there never varies); where the file gives
+    the noise runs' autocovariance (``FitData.noise_acov``) the noise has that correlation
+    instead of being white (detrended_noise_variance; stop 56: on low-pass noise the term
+    had been taking up the noise's correlation as a drive). ``dy`` (S, T) is the model
+    signals' time derivative at ``x``."""
     d = obj.data
     if d.runs is None or not hasattr(obj, "base"):
         return None
@@ -809,8 +813,13 @@ def drive_shift_sd(obj: Objective, x: np.ndarray, dy: np.ndarray) -> np.ndarray 
         runs = d.runs[i]
         h_r = (runs - runs.mean(axis=0)) @ w
         n0 = float(d.noise_std[i]) if d.noise_std is not None else 0.0
-        noise = n0 ** 2 * detrended_noise_factor(w, d.time, _baseline_times(d, i)) \
-            if np.isfinite(n0) else 0.0
+        acov = getattr(d, "noise_acov", None)
+        if acov is not None:
+            noise = detrended_noise_variance(w, d.time, _baseline_times(d, i), acov[i],
+                                             float(d.time[1] - d.time[0]))
+        else:
+            noise = n0 ** 2 * detrended_noise_factor(w, d.time, _baseline_times(d, i)) \
+                if np.isfinite(n0) else 0.0
         out[i] = np.sqrt(max(float(np.var(h_r, ddof=1)) - noise, 0.0) / runs.shape[0])
     return out
 

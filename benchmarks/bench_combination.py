@@ -32,7 +32,8 @@ correlation of the two over the campaigns (stop 45: the curves' common factor is
 part of the sandwich's covariance alone and combined, and under stop 44's default (no drive
 shift, the excess on the lags), as an rms z over the campaigns (1: calibrated), with the
 parts' shares of the default's variance (stop 45: on the clean sources the curves' common
-factor is t0, ``--curves``).
+factor is t0, ``--curves``), the drive term's and the estimated gain's shares alone and the
+rms z without the drive term (stop 56: drive-2's ingredients apart).
 
 ``--ridge``: instead, what the uncertainty's draws do to the y-plane spring pair's
 combinations that the data determine (K0 = k_Cy + k_Dy, K1 = k_Cy b1 + k_Dy (b1 + b2),
@@ -258,8 +259,10 @@ def t0_table(srcs, a) -> None:
           "excess on the lags) | runs' part only | residuals' only | runs + timing, stop 44 "
           "| the noise's Gauss-Newton covariance | the excess beyond the synchronisation's "
           "part, stop 44 | the drive's shift on x_base, median ns | shares of the default: "
-          "statistical, timing (of which the synchronisation's and the drive's) |")
-    print("|---|---|---|---|---|---|---|---|---|---|")
+          "statistical, timing (of which the synchronisation's and the drive's) | shares "
+          "of the default: the drive's term alone, the gain's | t0's rms z without the "
+          "drive's term |")
+    print("|---|---|---|---|---|---|---|---|---|---|---|---|")
     old = Systematics(drive_timing=False, excess_on_lags=True)
     for src in srcs:
         rows = []
@@ -276,6 +279,8 @@ def t0_table(srcs, a) -> None:
             no_drive = propagate(st.obj, x, st.J, prior, error_model(
                 st.obj, x, st.J, st.r, prior, Systematics(sync_timing=False,
                                                           drive_timing=False)))
+            only_drive_off = propagate(st.obj, x, st.J, prior, error_model(
+                st.obj, x, st.J, st.r, prior, Systematics(drive_timing=False)))
             names = list(case.fit.names)
             i = names.index("t0")
             truth = bs.truth_in_fit_time(case)[1]
@@ -291,14 +296,19 @@ def t0_table(srcs, a) -> None:
                          P.residuals[i, i], P44.runs[i, i] + P44.timing[i, i],
                          s2 * Hinv[i, i], beyond[i, i], drive * 1e9,
                          P.statistical[i, i] / P.total[i, i], P.timing[i, i] / P.total[i, i],
-                         (P.timing[i, i] - no_drive.timing[i, i]) / P.total[i, i]])
+                         (P.timing[i, i] - no_drive.timing[i, i]) / P.total[i, i],
+                         (P.timing[i, i] - only_drive_off.timing[i, i]) / P.total[i, i],
+                         P.gain[i, i] / P.total[i, i],
+                         P.total[i, i] - (P.timing[i, i] - only_drive_off.timing[i, i])])
         R = np.array(rows)
 
         def rms(j, R=R):
             return f"{np.sqrt(np.mean(R[:, 0] / R[:, j])):.2f}"
         print(f"| {src} | " + " | ".join(rms(j) for j in range(1, 8))
               + f" | {np.median(R[:, 8]):.1f} | {np.median(R[:, 9]):.2f}, "
-              f"{np.median(R[:, 10]):.2f} ({np.median(R[:, 11]):.2f}) |", flush=True)
+              f"{np.median(R[:, 10]):.2f} ({np.median(R[:, 11]):.2f}) | "
+              f"{np.median(R[:, 12]):.2f}, {np.median(R[:, 13]):.2f} | "
+              f"{np.sqrt(np.mean(R[:, 0] / R[:, 14])):.2f} |", flush=True)
 
 
 def _k(M: np.ndarray, idx: dict) -> np.ndarray:

@@ -107,6 +107,12 @@ def cached_study_arguments(ap, sources_default: str = ",".join(sources.SOURCES))
     ap.add_argument("--cache", required=True, help="bench_sources.py's cache of fits")
 
 
+#: the fit data's fields a cached fit may predate, made again from the campaign's seed
+#: (they enter the uncertainty only): the synchronisation's timing sd (stop 43), step 0's
+#: baseline and the noise's autocovariance (stop 56)
+REMADE_FIELDS = ("sync_timing_sd", "baseline", "noise_acov")
+
+
 def run_case(source: str, seed: int, starts: int, cache: str | None,
              sigma_pool: int = SIGMA_POOL) -> Case:
     """The fitted campaign (from ``cache`` where it holds it); ``sigma_pool``: the fit's
@@ -130,21 +136,17 @@ def run_case(source: str, seed: int, starts: int, cache: str | None,
                 shift = _campaign(source, seed, tmp)[3]
             case = replace(case, frame_shift=shift, frame_axis=FRAME_AXIS)
             _save(case, path)
-        if case.fit.data.sync_timing_sd is None or case.fit.data.baseline is None \
-                or case.fit.data.noise_acov is None:
+        if any(getattr(case.fit.data, f) is None for f in REMADE_FIELDS):
             # a fit made before preprocessing wrote the synchronisation's timing sd (stop
             # 43), step 0's baseline or the noise's autocovariance (stop 56, which also
             # changed the timing sd): the campaign made again for those numbers, the fit
             # untouched (they enter the uncertainty only)
             with tempfile.TemporaryDirectory(prefix="gprm-src-") as tmp:
                 ms = _campaign(source, seed, tmp)[2]
-            sd = dict(zip(ms.signals, ms.sync_timing_sd))
-            base = dict(zip(ms.signals, ms.baseline))
-            acov = dict(zip(ms.signals, ms.noise_acov))
-            data = replace(case.fit.data, sync_timing_sd=np.array(
-                [sd[s] for s in case.fit.data.signals]), baseline=np.array(
-                [base[s] for s in case.fit.data.signals]), noise_acov=np.array(
-                [acov[s] for s in case.fit.data.signals]))
+            rows = {s: i for i, s in enumerate(ms.signals)}
+            pick = [rows[s] for s in case.fit.data.signals]
+            data = replace(case.fit.data, **{f: np.asarray(getattr(ms, f))[pick]
+                                              for f in REMADE_FIELDS})
             case = replace(case, fit=replace(case.fit, data=data))
             _save(case, path)
         return case

@@ -53,6 +53,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import xarray as xr
 from scipy.interpolate import CubicSpline, make_interp_spline
+from scipy.linalg import toeplitz
 from scipy.optimize import brentq, minimize_scalar
 
 import gprm
@@ -150,11 +151,25 @@ class MeanSignals:
         return means_dataset(self)
 
 
+def _line_design(t_fit: np.ndarray, t_eval: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(X_fit, X_eval): a straight line's design at the times it is fitted to and at the
+    times it is evaluated, both scaled by the fit times' mean and span."""
+    tm, ts = t_fit.mean(), max(np.ptp(t_fit), 1e-30)
+    return (np.stack([np.ones(t_fit.size), (t_fit - tm) / ts], axis=1),
+            np.stack([np.ones(np.size(t_eval)), (np.asarray(t_eval, float) - tm) / ts], axis=1))
+
+
+def _line_residuals(noise: np.ndarray, time: np.ndarray) -> np.ndarray:
+    """(T, N): each noise run (N, T) less the straight line fitted to all of it, one run per
+    column."""
+    X, _ = _line_design(time, time)
+    coef, *_ = np.linalg.lstsq(X, noise.T, rcond=None)
+    return noise.T - X @ coef
+
+
 def noise_std(noise: np.ndarray, time: np.ndarray) -> float:
     """Pooled std of noise runs (N, T) about a straight line fitted to each run (ddof 2)."""
-    X = np.stack([np.ones_like(time), (time - time.mean()) / np.ptp(time)], axis=1)
-    coef, *_ = np.linalg.lstsq(X, noise.T, rcond=None)
-    res = noise.T - X @ coef
+    res = _line_residuals(noise, time)
     return float(np.sqrt(np.sum(res ** 2) / (noise.shape[0] * (time.size - 2))))
 
 
@@ -171,7 +186,9 @@ def noise_autocovariance(noise: np.ndarray, time: np.ndarray, order: int = NOISE
     The first order + 1 lags are the runs' pooled sample autocovariances (ddof 2 at lag 0,
     so lag 0 is noise_std^2); the rest follow the fitted recursion
     c_h = sum_k phi_k c_(h-k), so the whole function is a valid (positive definite)
-    autocovariance whatever the record's length. White noise gives phi ~ 0 and c_h ~ 0 for
+    autocovariance whatever the record's length (where the first lags' Toeplitz matrix is not
+    positive definite, which the pooled estimate is in practice, the noise is taken as
+    white beyond lag 0). White noise gives phi ~ 0 and c_h ~ 0 for
     h > 0; low-pass or drifting noise a slowly decaying c. A model rather than the raw
     sample autocovariance at every lag, because a campaign has few noise runs (five of 300
     samples in the generator's): the raw estimate at long lags is noise, and a quadratic
@@ -179,20 +196,15 @@ def noise_autocovariance(noise: np.ndarray, time: np.ndarray, order: int = NOISE
     own correlation in the hidden shifts (stop 56)")."""
     N = np.atleast_2d(np.asarray(noise, float))
     T = N.shape[1]
-    X = np.stack([np.ones_like(time), (time - time.mean()) / np.ptp(time)], axis=1)
-    coef, *_ = np.linalg.lstsq(X, N.T, rcond=None)
-    res = N - (X @ coef).T
+    res = np.ascontiguousarray(_line_residuals(N, time).T)
     p = int(min(max(order, 0), T - 3))
     c = np.array([np.sum(res[:, :T - h] * res[:, h:]) for h in range(p + 1)])
     c /= N.shape[0] * np.concatenate([[T - 2], T - np.arange(1, p + 1)])
     out = np.zeros(T)
-    out[: p + 1] = c
-    if p > 0 and c[0] > 0:
-        A = np.array([[c[abs(i - j)] for j in range(p)] for i in range(p)])
-        try:
-            phi = np.linalg.solve(A, c[1:])
-        except np.linalg.LinAlgError:
-            phi = np.zeros(p)
+    out[0] = c[0]
+    if p > 0 and c[0] > 0 and np.linalg.eigvalsh(toeplitz(c)).min() > 0:
+        phi = np.linalg.solve(toeplitz(c[:p]), c[1:])
+        out[: p + 1] = c
         for h in range(p + 1, T):
             out[h] = float(phi @ out[h - 1::-1][:p])        # c_(h-1), ..., c_(h-p)
     return out
@@ -210,23 +222,18 @@ def detrended_noise_variance(w: np.ndarray, t_w: np.ndarray, t_base: np.ndarray,
     :func:`detrended_noise_factor`."""
     w = np.asarray(w, float)
     t_w = np.asarray(t_w, float)
-    t_base = np.asarray(t_base, float)
+    t_base = np.asarray(t_base, float) if np.size(t_base) >= 2 else np.empty(0)
     acov = np.asarray(acov, float)
-    t0 = float(min(t_w.min(), t_base.min())) if t_base.size else float(t_w.min())
+    t0 = float(np.concatenate([t_w, t_base]).min())
     iw = np.rint((t_w - t0) / dt).astype(int)
-    n = int(iw.max()) + 1
+    ib = np.rint((t_base - t0) / dt).astype(int)
+    n = int(max(iw.max(), ib.max(initial=0))) + 1
     a = np.zeros(n)
     np.add.at(a, iw, w)
-    if t_base.size >= 2:
-        ib = np.rint((t_base - t0) / dt).astype(int)
-        n = max(n, int(ib.max()) + 1)
-        a = np.concatenate([a, np.zeros(n - a.size)])
-        tm, ts = t_base.mean(), max(np.ptp(t_base), 1e-30)
-        Xb = np.stack([np.ones(t_base.size), (t_base - tm) / ts], axis=1)
-        Xw = np.stack([np.ones(t_w.size), (t_w - tm) / ts], axis=1)
+    if t_base.size:
+        Xb, Xw = _line_design(t_base, t_w)
         np.add.at(a, ib, -Xb @ np.linalg.solve(Xb.T @ Xb, Xw.T @ w))
-    lag = np.abs(np.arange(n)[:, None] - np.arange(n)[None, :])
-    C = np.where(lag < acov.size, acov[np.minimum(lag, acov.size - 1)], 0.0)
+    C = toeplitz(np.concatenate([acov, np.zeros(max(n - acov.size, 0))])[:n])
     return float(a @ C @ a)
 
 
@@ -252,7 +259,7 @@ def sync_timing_sd(splines, shifts: np.ndarray, win: np.ndarray, noise_sd: float
     over the baseline (b) and the window (w), exactly. With ``acov`` (the noise's
     autocovariance, :func:`noise_autocovariance`; how preprocessing calls it since stop 56)
     e has that correlation instead of being white (:func:`detrended_noise_variance`): on
-    low-pass noise the shift is up to twice the white model's. (Projecting the noise runs
+    low-pass noise the shift is larger than the white model's. (Projecting the noise runs
     themselves on g was tried: each noise run's own straight line takes out a tenth of the
     variance along a template that is mostly one-signed, as a slope over a rise is; and a
     campaign's few short noise runs give that projection too few independent placements.)
@@ -287,20 +294,15 @@ def detrended_noise_factor(w: np.ndarray, t_w: np.ndarray, t_base: np.ndarray) -
     t_base = np.asarray(t_base, float)
     if t_base.size < 2:
         return float(w @ w)
-    tm, ts = t_base.mean(), max(np.ptp(t_base), 1e-30)
-    Xb = np.stack([np.ones(t_base.size), (t_base - tm) / ts], axis=1)
-    Xw = np.stack([np.ones(np.size(t_w)), (np.asarray(t_w, float) - tm) / ts], axis=1)
+    Xb, Xw = _line_design(t_base, t_w)
     c = Xw.T @ w
     return float(w @ w) + float(c @ np.linalg.solve(Xb.T @ Xb, c))
 
 
 def _detrend(Y: np.ndarray, time: np.ndarray, n_base: int) -> np.ndarray:
     """Subtract from each run the straight line fitted to its first ``n_base`` samples."""
-    tb = time[:n_base]
-    tm, ts = tb.mean(), max(np.ptp(tb), 1e-30)
-    X = np.stack([np.ones(n_base), (tb - tm) / ts], axis=1)
+    X, Xf = _line_design(time[:n_base], time)
     coef, *_ = np.linalg.lstsq(X, Y[:, :n_base].T, rcond=None)
-    Xf = np.stack([np.ones_like(time), (time - tm) / ts], axis=1)
     return Y - (Xf @ coef).T
 
 

@@ -748,7 +748,7 @@ DRIVE_PARAMETERS = ("V0", "tau_v")
 def _baseline_times(d, i: int) -> np.ndarray:
     """s: signal i's baseline sample times (step 0's straight line) on the data's axis; none
     where the file does not say (the line's noise is then not counted)."""
-    if getattr(d, "baseline", None) is None or d.time.size < 2:
+    if d.baseline is None or d.time.size < 2:
         return np.empty(0)
     dt = float(d.time[1] - d.time[0])
     lo, hi = (float(v) for v in d.baseline[i])
@@ -812,14 +812,13 @@ def drive_shift_sd(obj: Objective, x: np.ndarray, dy: np.ndarray) -> np.ndarray 
         w = np.linalg.pinv(A)[1:].T @ (A[:, 1:].T @ g)
         runs = d.runs[i]
         h_r = (runs - runs.mean(axis=0)) @ w
-        n0 = float(d.noise_std[i]) if d.noise_std is not None else 0.0
-        acov = getattr(d, "noise_acov", None)
-        if acov is not None:
-            noise = detrended_noise_variance(w, d.time, _baseline_times(d, i), acov[i],
+        tb = _baseline_times(d, i)
+        if d.noise_acov is not None:
+            noise = detrended_noise_variance(w, d.time, tb, d.noise_acov[i],
                                              float(d.time[1] - d.time[0]))
         else:
-            noise = n0 ** 2 * detrended_noise_factor(w, d.time, _baseline_times(d, i)) \
-                if np.isfinite(n0) else 0.0
+            n0 = float(d.noise_std[i]) if d.noise_std is not None else 0.0
+            noise = n0 ** 2 * detrended_noise_factor(w, d.time, tb) if np.isfinite(n0) else 0.0
         out[i] = np.sqrt(max(float(np.var(h_r, ddof=1)) - noise, 0.0) / runs.shape[0])
     return out
 

@@ -35,6 +35,17 @@ parts' shares of the default's variance (stop 45: on the clean sources the curve
 factor is t0, ``--curves``), the drive term's and the estimated gain's shares alone and the
 rms z without the drive term (stop 56: drive-2's ingredients apart).
 
+``--prediction-excess``: instead, the residuals' excess tested along each prediction's own
+combination of the parameters (stop 57; docs/fitting.md, "The excess tested along each
+prediction (stop 57)"): per campaign, the velocity curves' points and the overshoots (as
+bench_coverage scores them, 300 draws) under the draws that keep the whole excess (the
+default), the draws whose excess the parameters' own tests thinned
+(``Systematics.excess_test_draws``) and, per prediction, the one or the other as the
+prediction's own ratio g^T V_res g / g^T V_runs g exceeds the median of F(nu_res(g),
+nu_runs(g)) or not, g its gradient in u (least squares over the draws), nu_res(g)
+:func:`gprm.fit.sandwich.residual_dof` along g and nu_runs(g) Satterthwaite's over the
+signals' runs; with the share of predictions that keep it.
+
 ``--ridge``: instead, what the uncertainty's draws do to the y-plane spring pair's
 combinations that the data determine (K0 = k_Cy + k_Dy, K1 = k_Cy b1 + k_Dy (b1 + b2),
 K2 = k_Cy b1^2 + k_Dy (b1 + b2)^2; docs/fitting.md, "Identifiability"): per source, the
@@ -311,6 +322,138 @@ def t0_table(srcs, a) -> None:
               f"{np.sqrt(np.mean(R[:, 0] / R[:, 14])):.2f} |", flush=True)
 
 
+def draws_gradients(U: np.ndarray, V: np.ndarray) -> np.ndarray:
+    """(Q, P): each prediction's gradient in u, least squares of its values V (n, Q) over the
+    draws' coordinates U (n, P) with an intercept."""
+    A = np.concatenate([np.ones((U.shape[0], 1)), U - U.mean(0)], 1)
+    coef = np.linalg.lstsq(A, V - V.mean(0), rcond=None)[0]
+    return coef[1:].T
+
+
+def excess_along(case, G: np.ndarray) -> np.ndarray:
+    """(Q,) bool: whether each combination g (rows of G, in u) keeps the residuals' excess:
+    g^T V_res g / g^T V_runs g above the median of F(nu_res(g), nu_runs(g)) (all True where
+    the campaign has no runs to test against)."""
+    from scipy.special import fdtri
+
+    st = state_of(case.fit)
+    x, prior = np.asarray(st.x, float), st.obj.prior
+    err = error_model(st.obj, x, st.J, st.r, prior, Systematics())
+    parts = propagate(st.obj, x, st.J, prior, err)
+    if parts.runs is None or err.dev is None or err.dev.shape[1] < 2:
+        return np.ones(G.shape[0], bool)
+    ratio = (np.einsum("qi,ij,qj->q", G, parts.residuals, G)
+             / np.maximum(np.einsum("qi,ij,qj->q", G, parts.runs, G), 1e-300))
+    Ju, Hinv, Bs, _, _ = _linearised(st.obj, x, st.J, prior)
+    n_r = err.dev.shape[1]
+    Bg = np.einsum("qp,pst->qst", G, Bs)
+    by_signal = np.stack([np.sum((err.dev[s] @ Bg[:, s, :].T) ** 2, axis=0)
+                          for s in range(Bs.shape[1])]) / (n_r * (n_r - 1))
+    nu_runs = satterthwaite(by_signal, n_r)
+    nu_res = residual_dof(Ju, Hinv, err.R, err.max_lag, err.p_eff, whitenings=err.whitenings,
+                          projection=getattr(st.obj, "projection", None), rows=G)
+    return ratio > fdtri(nu_res, nu_runs, 0.5)
+
+
+def _band_counts(V: np.ndarray, x: np.ndarray) -> np.ndarray:
+    """(in 95 %, in 68 %, n) of the truths x (Q,) in the draws' percentile bands V (n, Q)."""
+    q = np.percentile(V, [2.5, 97.5, 16, 84], axis=0)
+    return np.array([np.sum((q[0] <= x) & (x <= q[1])), np.sum((q[2] <= x) & (x <= q[3])),
+                     x.size], float)
+
+
+PREDICTION_RULES = ("the whole excess (default)", "tested per parameter",
+                    "tested along each prediction")
+
+
+def prediction_excess(case, n: int = 300) -> dict:
+    """One campaign's counts for ``--prediction-excess``: {group: {rule: (in95, in68, n)},
+    group + "_keep": share of predictions whose own test keeps the excess}."""
+    from bench_coverage import curve_times, overshoots
+
+    from gprm.fit.files import FittedModel
+    from gprm.flight.predicted import tm_velocity_vs_time
+    from gprm.flight.telemetry import AXES
+    from gprm.params import batch
+    from gprm.predict.scenarios import apply_scenario, standard_scenarios
+    from gprm.predict.trajectories import default_times
+    from gprm.simulate.kinematics import body_motion
+
+    fms = []
+    for syst in (None, Systematics(excess_test_draws=True)):
+        u = uncertainty_of(case.fit, "sandwich", systematics=syst)
+        fms.append(FittedModel(case.fit.params, u.covariance, piezo=2, draws=u.draws,
+                               uncertainty=u.method))
+    prior = state_of(case.fit).obj.prior
+    names = list(case.fit.names)
+
+    def to_u(pb):
+        return prior.to_u(np.stack([np.asarray(pb[k], float) for k in names], 1))
+
+    def score(V0, V1, U, x):
+        keep = excess_along(case, draws_gradients(U, V0))
+        return keep, {r: _band_counts(np.where(sel[None], V0, V1), x) for r, sel in zip(
+            PREDICTION_RULES, (np.ones_like(keep), np.zeros_like(keep), keep))}
+
+    truth = bs.truth_in_fit_time(case)[1]
+    out = {}
+    t = curve_times(truth)
+    vt = np.concatenate([tm_velocity_vs_time(body_motion(batch([truth]), t, piezo=2))[a][0]
+                         for a in AXES])
+    vals, oks, Us = [], [], []
+    for fm in fms:
+        pb = fm.sample(n, case.seed)
+        m = body_motion(pb, t, piezo=2)
+        vd = tm_velocity_vs_time(m)
+        vals.append(np.concatenate([vd[a] for a in AXES], 1))
+        oks.append(m.ok)
+        Us.append(to_u(pb))
+    ok = oks[0] & oks[1]
+    cols = np.isfinite(vt) & np.all([np.mean(np.isfinite(v[ok]), 0) > 0.5 for v in vals], 0)
+    keep, out["curves"] = score(*(np.nan_to_num(v[ok][:, cols]) for v in vals), Us[0][ok],
+                                vt[cols])
+    out["curves_keep"] = float(keep.mean())
+    out["overshoots"] = {r: np.zeros(3) for r in PREDICTION_RULES}
+    kept = []
+    for sc in standard_scenarios():
+        t_os = overshoots(batch([truth]), sc, default_times())[0][0]
+        moving = t_os > 0.01 * t_os.max()
+        res = []
+        for fm in fms:
+            pb = apply_scenario(fm, sc).sample(n, case.seed)
+            res.append((*overshoots(pb, sc, default_times()), to_u(pb)))
+        ok = res[0][1] & res[1][1]
+        keep, c = score(res[0][0][ok][:, moving], res[1][0][ok][:, moving], res[0][2][ok],
+                        t_os[moving])
+        kept.append(keep)
+        for r in PREDICTION_RULES:
+            out["overshoots"][r] += c[r]
+    out["overshoots_keep"] = float(np.concatenate(kept).mean())
+    return out
+
+
+def prediction_excess_table(srcs, a) -> None:
+    """``--prediction-excess``: the predictions' coverage under the three rules for the
+    residuals' excess in the draws (module docstring)."""
+    print("| source | group | predictions whose own test keeps the excess | "
+          + " | ".join(f"{r}: 95 / 68 %" for r in PREDICTION_RULES) + " |")
+    print("|---|---|---|" + "---|" * len(PREDICTION_RULES))
+    for src in srcs:
+        tot: dict = {}
+        keep: dict = {}
+        for k in range(a.campaigns):
+            o = prediction_excess(bs.run_case(src, a.seed + k, a.starts, a.cache))
+            for g in ("curves", "overshoots"):
+                for r in PREDICTION_RULES:
+                    tot.setdefault(g, {}).setdefault(r, np.zeros(3))
+                    tot[g][r] += o[g][r]
+                keep.setdefault(g, []).append(o[g + "_keep"])
+        for g in ("curves", "overshoots"):
+            cells = " | ".join(f"{100 * v[0] / v[2]:.1f} / {100 * v[1] / v[2]:.1f}"
+                               for v in tot[g].values())
+            print(f"| {src} | {g} | {100 * np.mean(keep[g]):.0f} % | {cells} |", flush=True)
+
+
 def _k(M: np.ndarray, idx: dict) -> np.ndarray:
     """(..., 3): K0, K1, K2 of parameter rows M (SI) with the columns ``idx``."""
     kc, kd, b1, b2 = (M[..., idx[n]] for n in ("k_Cy", "k_Dy", "b1", "b2"))
@@ -393,11 +536,12 @@ def main(argv=None) -> int:
     ap.add_argument("--curves", action="store_true")
     ap.add_argument("--ridge", action="store_true")
     ap.add_argument("--t0", action="store_true")
+    ap.add_argument("--prediction-excess", action="store_true")
     a = ap.parse_args(argv)
     srcs = [s for s in a.sources.split(",") if s]
     t = time.perf_counter()
     (ridge_table if a.ridge else curves_table if a.curves else t0_table if a.t0
-     else rules_table)(srcs, a)
+     else prediction_excess_table if a.prediction_excess else rules_table)(srcs, a)
     print(f"\n({time.perf_counter() - t:.0f} s; cache {a.cache})")
     return 0
 

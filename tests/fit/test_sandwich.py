@@ -907,6 +907,8 @@ def test_residual_dof_matches_the_kernel_estimates_moments(prewhiten, projected)
     nu = residual_dof(Ju, Hinv, sig.reshape(S, T), max_lag, p_eff, whitenings=w,
                       projection=Qp)
     Q = np.empty((4000, P))
+    G = np.random.default_rng(12).standard_normal((3, P))   # three combinations of them
+    QG = np.empty((4000, G.shape[0]))
     est = np.empty((4000, P))                           # the estimator's own error, B e
     for i in range(Q.shape[0]):
         e = sig * rng.standard_normal(N)
@@ -917,6 +919,7 @@ def test_residual_dof_matches_the_kernel_estimates_moments(prewhiten, projected)
         V = statistical_covariance(Bs, r, None, max_lag, p_eff, whitenings=wi,
                                    prewhiten=2 if prewhiten else 0)[1]
         Q[i] = np.diag(V)
+        QG[i] = np.einsum("qi,ij,qj->q", G, V, G)
     nu_mc = 2 * Q.mean(0) ** 2 / Q.var(0)
     E, _, target = residual_moments(Ju, Hinv, sig.reshape(S, T), max_lag, p_eff,
                                     whitenings=w, projection=Qp)
@@ -928,6 +931,19 @@ def test_residual_dof_matches_the_kernel_estimates_moments(prewhiten, projected)
     # has relative sd sqrt(2 / n); 4.5 of them for 18 comparisons (3 cases x 6 parameters)
     np.testing.assert_allclose(target, est.var(0), rtol=4.5 * np.sqrt(2 / est.shape[0]))
     assert np.all(nu > 1.0) and np.all(nu < 5 * N)
+    # along combinations g of the parameters (rows): the estimate of g^T V g, same checks
+    nu_g = residual_dof(Ju, Hinv, sig.reshape(S, T), max_lag, p_eff, whitenings=w,
+                        projection=Qp, rows=G)
+    E_g, _, target_g = residual_moments(Ju, Hinv, sig.reshape(S, T), max_lag, p_eff,
+                                        whitenings=w, projection=Qp, rows=G)
+    np.testing.assert_allclose(2 * QG.mean(0) ** 2 / QG.var(0), nu_g, rtol=0.12)
+    np.testing.assert_allclose(QG.mean(0), E_g, rtol=0.05)
+    np.testing.assert_allclose(target_g, (est @ G.T).var(0),
+                               rtol=4.5 * np.sqrt(2 / est.shape[0]))
+    # the identity's rows are the parameters themselves
+    np.testing.assert_allclose(residual_dof(Ju, Hinv, sig.reshape(S, T), max_lag, p_eff,
+                                            whitenings=w, projection=Qp, rows=np.eye(P)),
+                               nu, rtol=1e-12)
 
 
 def _paper_setup(seed=3):

@@ -1394,7 +1394,7 @@ def statistical_dof(parts: SandwichParts, nu_res: np.ndarray | None = None) -> n
 
 def residual_moments(Ju: np.ndarray, Hinv: np.ndarray, R: np.ndarray, max_lag: int,
                      p_eff: float, kernel: str = DEFAULT_KERNEL, whitenings=None,
-                     projection: np.ndarray | None = None
+                     projection: np.ndarray | None = None, rows: np.ndarray | None = None
                      ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(mean, variance, target), each (P,): the residual kernel (HAC) estimate of each
     parameter's variance under a Gaussian working model of independent errors, and the
@@ -1412,7 +1412,9 @@ def residual_moments(Ju: np.ndarray, Hinv: np.ndarray, R: np.ndarray, max_lag: i
     (None entries: no filter; None: computed from R); ``projection``: the orthonormal
     columns (N, k) the objective projects its residuals off (an unmodelled resonance,
     :mod:`gprm.fit.resonance`; Ju then is the projected Jacobian), so that M = I - Q Q^T -
-    Ju Hinv Ju^T."""
+    Ju Hinv Ju^T; ``rows``: (Q, P) combinations g of the parameters (in u) to give the
+    moments of instead, each the estimate of g^T V g (None: the parameters themselves, the
+    identity)."""
     R = np.asarray(R, float)
     S, T = R.shape
     N, P = Ju.shape
@@ -1421,6 +1423,9 @@ def residual_moments(Ju: np.ndarray, Hinv: np.ndarray, R: np.ndarray, max_lag: i
     if projection is not None:
         Q = np.asarray(projection, float)
         M -= Q @ Q.T
+    if rows is not None:
+        B = np.atleast_2d(np.asarray(rows, float)) @ B     # (Q, N)
+        P = B.shape[0]
     if whitenings is None:
         whitenings = tuple(whitening(R[s], PREWHITEN_ORDER) for s in range(S))
     lag = np.abs(np.arange(T)[:, None] - np.arange(T)[None, :])
@@ -1449,13 +1454,16 @@ def residual_moments(Ju: np.ndarray, Hinv: np.ndarray, R: np.ndarray, max_lag: i
 
 def residual_dof(Ju: np.ndarray, Hinv: np.ndarray, R: np.ndarray, max_lag: int,
                  p_eff: float, kernel: str = DEFAULT_KERNEL, whitenings=None,
-                 projection: np.ndarray | None = None) -> np.ndarray:
-    """(P,) degrees of freedom of each parameter's residual kernel (HAC) variance estimate:
+                 projection: np.ndarray | None = None,
+                 rows: np.ndarray | None = None) -> np.ndarray:
+    """(P,) degrees of freedom of each parameter's residual kernel (HAC) variance estimate
+    ((Q,) of each combination with ``rows``):
     Satterthwaite's nu = 2 E[Q]^2 / Var[Q] of :func:`residual_moments` (the degrees of
     freedom Bell and McCaffrey give a cluster-robust variance, here for a kernel one: a
     window of a quarter of ~47 samples per signal leaves it 4-12 on the studies' campaigns,
     where the runs' part has 9-45 with 10 runs). Same arguments."""
-    E, V, _ = residual_moments(Ju, Hinv, R, max_lag, p_eff, kernel, whitenings, projection)
+    E, V, _ = residual_moments(Ju, Hinv, R, max_lag, p_eff, kernel, whitenings, projection,
+                               rows)
     return np.where(V > 0, 2.0 * E ** 2 / np.maximum(V, 1e-300), np.inf)
 
 
@@ -1493,7 +1501,8 @@ def excess_mask(parts: SandwichParts, nu_res: np.ndarray, q: float) -> np.ndarra
     0.5, ``excess_test_draws`` False): a prediction combines parameters, and the excess
     along a combination can be real where no single parameter's ratio shows it (measured
     with the draws tested too: the independent simulator's overshoots fall under their
-    target).
+    target; and tested along each prediction's own gradient, stop 57, they fall under just
+    the same: their own ratios show no excess either).
     The reference distribution is the working model's; the kernel estimate's shortfall under
     white errors (:func:`residual_dof`) makes the test drop the excess more often than 1 - q
     on clean data."""

@@ -26,7 +26,12 @@ the share of the velocity curves' points (bench_coverage.curve_cover) inside the
 band: on the clean sources the curves' misses are t0's. With it, linearised at the best
 fit (the sandwich's covariance in u before the intervals' factors): t0's share of the curves'
 variance, the truth's |z| for t0 and for the curves (median over the points), and the
-correlation of the two over the campaigns (stop 45: the curves' common factor is t0).
+correlation of the two over the campaigns (stop 45: the curves' common factor is t0). And
+in the draws themselves: the curves' 68 % half-width with every parameter but t0 held at the
+best fit over the whole band's (median over the points, then over the campaigns; 1: the
+band is t0's alone, as the linearisation says it nearly is), with ``--draws-stretch`` to
+score the draws stretched otherwise (stop 57; docs/fitting.md, "The draws stretched
+otherwise (stop 57)").
 
 ``--t0``: instead, the lag t0's error (in the fit's aligned axis) over its sd under each
 part of the sandwich's covariance alone and combined, and under stop 44's default (no drive
@@ -78,9 +83,9 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 import bench_sources as bs  # noqa: E402
 
 from gprm.fit.methods import state_of, uncertainty_of  # noqa: E402
-from gprm.fit.sandwich import (Systematics, _estimator, _linearised, _psd_part,  # noqa: E402
-                               error_model, gain_moments, propagate, residual_dof,
-                               satterthwaite)
+from gprm.fit.sandwich import (DRAWS_STRETCH, Systematics, _estimator,  # noqa: E402
+                               _linearised, _psd_part, error_model, gain_moments,
+                               propagate, residual_dof, satterthwaite)
 
 GAIN_Z = 1.645
 QUANTILES = (0.5, 0.9)
@@ -209,23 +214,55 @@ def curves_gradient(case, parts, prior, x: np.ndarray) -> tuple[np.ndarray, np.n
     return G[ok], d[ok]
 
 
+def t0_band_ratio(case, draws: np.ndarray, i: int) -> float:
+    """The velocity curves' 68 % half-width (bench_coverage.curve_cover's points) from
+    ``draws`` with every parameter but the ``i``-th (t0) held at the best fit, over the
+    half-width from the draws as they are: median over the points where both exist."""
+    from bench_coverage import curve_times
+
+    from gprm.flight.predicted import tm_velocity_vs_time
+    from gprm.flight.telemetry import AXES
+    from gprm.params.core import batch_from_vectors
+    from gprm.simulate.kinematics import body_motion
+
+    names = list(case.fit.names)
+    x = np.asarray(case.fit.x, float)
+    t = curve_times(bs.truth_in_fit_time(case)[1])
+    held = np.repeat(x[None], len(draws), 0)
+    held[:, i] = draws[:, i]
+    half = []
+    for D in (draws, held):
+        m = body_motion(batch_from_vectors(case.fit.params, names, D), t, piezo=2)
+        v = tm_velocity_vs_time(m)
+        V = np.concatenate([v[ax] for ax in AXES], axis=1)[m.ok]
+        ok = np.mean(np.isfinite(V), axis=0) > 0.5
+        q = np.full((2, V.shape[1]), np.nan)
+        q[:, ok] = np.nanpercentile(V[:, ok], [16, 84], axis=0)
+        half.append(0.5 * (q[1] - q[0]))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        r = half[1] / half[0]
+    return float(np.nanmedian(r[np.isfinite(r)])) if np.isfinite(r).any() else float("nan")
+
+
 def curves_table(srcs, a) -> None:
     from bench_coverage import curve_cover
 
     from gprm.fit.files import FittedModel
 
+    syst = Systematics(draws_stretch=a.draws_stretch)
+    print(f"(draws stretched: {a.draws_stretch})")
     print("| source | campaigns | t0 outside its 68 % | curves' points inside 68 %: "
           "those campaigns | the others | all | linearised: t0's share of the curves' "
           "variance, median | \\|z\\| of t0, of the curves: medians | their correlation "
-          "over the campaigns |")
-    print("|---|---|---|---|---|---|---|---|---|")
+          "over the campaigns | draws: t0's band over the curves' band, median (range) |")
+    print("|---|---|---|---|---|---|---|---|---|---|")
     for src in srcs:
         out_in = out_n = in_in = in_n = 0
         n_out = 0
-        share, z_t0, z_cv = [], [], []
+        share, z_t0, z_cv, band = [], [], [], []
         for k in range(a.campaigns):
             case = bs.run_case(src, a.seed + k, a.starts, a.cache)
-            unc = uncertainty_of(case.fit, "sandwich")
+            unc = uncertainty_of(case.fit, "sandwich", systematics=syst)
             names = list(case.fit.names)
             i = names.index("t0")
             lo, hi = unc.interval(0.68)
@@ -233,6 +270,7 @@ def curves_table(srcs, a) -> None:
             fm = FittedModel(case.fit.params, unc.covariance, piezo=2, draws=unc.draws,
                              uncertainty=unc.method)
             c = curve_cover(fm, bs.truth_in_fit_time(case)[1], 200, case.seed)
+            band.append(t0_band_ratio(case, np.asarray(unc.draws, float), i))
             if lo[i] <= t_true <= hi[i]:
                 in_in, in_n = in_in + c["in68"], in_n + c["n"]
             else:
@@ -261,7 +299,9 @@ def curves_table(srcs, a) -> None:
         corr = float(np.corrcoef(z_t0, z_cv)[0, 1]) if len(z_cv) > 2 else float("nan")
         print(f"| {src} | {a.campaigns} | {n_out} | {pct(out_in, out_n)} | {pct(in_in, in_n)} | "
               f"{pct(out_in + in_in, out_n + in_n)} | {np.median(share):.2f} | "
-              f"{np.median(z_t0):.2f}, {np.median(z_cv):.2f} | {corr:.2f} |", flush=True)
+              f"{np.median(z_t0):.2f}, {np.median(z_cv):.2f} | {corr:.2f} | "
+              f"{np.nanmedian(band):.2f} ({np.nanmin(band):.2f}-{np.nanmax(band):.2f}) |",
+              flush=True)
 
 
 def t0_table(srcs, a) -> None:
@@ -537,6 +577,9 @@ def main(argv=None) -> int:
     ap.add_argument("--ridge", action="store_true")
     ap.add_argument("--t0", action="store_true")
     ap.add_argument("--prediction-excess", action="store_true")
+    ap.add_argument("--draws-stretch", choices=DRAWS_STRETCH,
+                    default=Systematics().draws_stretch,
+                    help="--curves: the draws stretched this way (Systematics.draws_stretch)")
     a = ap.parse_args(argv)
     srcs = [s for s in a.sources.split(",") if s]
     t = time.perf_counter()

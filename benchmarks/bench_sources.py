@@ -40,7 +40,8 @@ from gprm.errors import GprmInputError  # noqa: E402
 from gprm.fit.api import FitOptions  # noqa: E402
 from gprm.fit.identify import identify  # noqa: E402
 from gprm.fit.objective import SIGMA_POOL, fit_data_from_means  # noqa: E402
-from gprm.fit.sandwich import ALIGNMENT_NOISE, EXCESS_QUANTILE, Systematics  # noqa: E402
+from gprm.fit.sandwich import (ALIGNMENT_NOISE, DRAWS_STRETCH, EXCESS_QUANTILE,  # noqa: E402
+                                Systematics)
 from gprm.fit.starts import MultiStartOptions  # noqa: E402
 from gprm.params import paper  # noqa: E402
 
@@ -220,6 +221,7 @@ _CHECK_LABELS = {
     "excess_test": lambda v: ("residuals' excess untested" if v is None
                               else f"residuals' excess where above F_{v:g}"),
     "excess_test_draws": lambda v: "draws' excess " + ("tested" if v else "untested"),
+    "draws_stretch": lambda v: f"draws stretched {v}",
 }
 
 
@@ -583,6 +585,10 @@ def main(argv=None) -> int:
                     help="the test also thins the excess in the draws, so in the "
                     "predictions (Systematics.excess_test_draws: stop 50's development "
                     "check, the rows labelled so)")
+    ap.add_argument("--draws-stretch", choices=DRAWS_STRETCH, default=Systematics().draws_stretch,
+                    help="how the draws are stretched to the intervals' factors "
+                    "(Systematics.draws_stretch; other than the default: a development "
+                    "check, the rows labelled so)")
     ap.add_argument("--sigma-pool", type=int, default=SIGMA_POOL,
                     help="the fits' weights pooled over this many samples on each side "
                     "(gprm.fit.objective.pooled_sigma; 0: stops 1-41's sample-by-sample "
@@ -621,7 +627,8 @@ def main(argv=None) -> int:
     syst = Systematics(alignment_noise=a.alignment_noise, residual_dof=not a.no_residual_dof,
                        sync_timing=not a.no_sync_timing, project_draws=not a.raw_draws,
                        hac_lag=a.hac_lag, profile_check=not a.no_profile_check,
-                       excess_test=a.excess_test, excess_test_draws=a.excess_test_draws)
+                       excess_test=a.excess_test, excess_test_draws=a.excess_test_draws,
+                       draws_stretch=a.draws_stretch)
     jobs = [(s, a.seed + i, a.starts, a.cache, methods, a.predictions, syst, a.sigma_pool)
             for s in srcs
             for i in range(a.campaigns)]

@@ -18,7 +18,8 @@ from scipy.stats import binom
 from gprm.errors import GprmInputError
 from gprm.fit.adequacy import ljung_box
 from gprm.fit.sandwich import (Systematics, gain_moments, gain_variance, hac_meat,
-                               statistical_covariance, stretch_draws)
+                               statistical_covariance, stretch_draws, stretch_whitened,
+                               symmetric_root)
 from gprm.params.files import read_systematics
 
 
@@ -527,6 +528,65 @@ def test_stretched_draws_reproduce_both_levels_intervals():
     for k in range(P):
         assert np.all(np.diff(W[np.argsort(Z[:, k]), k]) >= 0)
     np.testing.assert_allclose(W[:, 0], Z[:, 0], rtol=1e-12, atol=0)
+
+
+def test_whitened_stretch_keeps_tight_combinations_tight():
+    """The draws stretched through the correlation's symmetric root (Systematics.draws_stretch
+    "whitened"): with every factor 1 they are the Gaussian's; with one factor per parameter
+    (the same at both levels, so the map is linear) their covariance is S R^(1/2) F^2
+    R^(1/2) S, between f_min^2 and f_max^2 times the Gaussian's for every combination of the
+    parameters; an uncorrelated parameter keeps its interval exactly. The per-coordinate
+    map stretches a combination that two correlated parameters hold tight by far more than
+    any factor: the failure this stretch exists to avoid."""
+    from scipy.special import ndtri
+
+    rng = np.random.default_rng(11)
+    n, P = 200_000, 4
+    sd = np.array([2.0, 1e-3, 5.0, 0.3])
+    R = np.eye(P)
+    R[0, 1] = R[1, 0] = 0.999           # parameters 0 and 1 the data hold in a tight pair
+    R[0, 2] = R[2, 0] = -0.4
+    R[1, 2] = R[2, 1] = -0.4            # parameter 3 uncorrelated
+    C = R * np.outer(sd, sd)
+    s, Rh = symmetric_root(C)
+    np.testing.assert_allclose(s, sd, rtol=1e-12)
+    np.testing.assert_allclose(Rh @ Rh, R, atol=1e-10)
+    np.testing.assert_allclose(Rh, Rh.T, atol=1e-12)
+    z = (ndtri(0.84), ndtri(0.975))
+    E = rng.standard_normal((n, P))
+    one = (np.ones(P), np.ones(P))
+    W1 = stretch_whitened(E, sd, Rh, one, one, z)
+    np.testing.assert_allclose(np.cov(W1.T) / np.outer(sd, sd), R, atol=0.01)
+    f = np.array([1.0, 2.0, 1.3, 1.7])
+    ff = (f, f)
+    W = stretch_whitened(E, sd, Rh, ff, ff, z)
+    C_w = (Rh * f ** 2) @ Rh * np.outer(sd, sd)
+    np.testing.assert_allclose(np.cov(W.T) / np.outer(sd, sd), C_w / np.outer(sd, sd),
+                               atol=0.02)
+    # every combination between the smallest and the largest factor (in the matrix sense)
+    Ci = np.linalg.inv(np.linalg.cholesky(C))
+    ev = np.linalg.eigvalsh(Ci @ C_w @ Ci.T)
+    assert ev.min() >= f.min() ** 2 * (1 - 1e-9) and ev.max() <= f.max() ** 2 * (1 + 1e-9)
+    # the uncorrelated parameter's quantiles are its interval's ends
+    q = np.quantile(W[:, 3], [0.16, 0.84]) / sd[3]
+    np.testing.assert_allclose(q, [-z[0] * f[3], z[0] * f[3]], atol=0.02)
+    # the tight pair's combination: the coordinates' map loosens it, the whitened one not
+    a = np.array([1 / sd[0], -1 / sd[1], 0.0, 0.0])
+    v0 = a @ C @ a
+    W_coord = stretch_draws(E @ np.linalg.cholesky(C).T, sd, ff, ff, z)
+    assert np.var(W_coord @ a) > 10 * f.max() ** 2 * v0
+    assert f.min() ** 2 * v0 * 0.95 <= np.var(W @ a) <= f.max() ** 2 * v0 * 1.05
+    # whitened for some parameters only: the others are the plain draw mapped coordinate by
+    # coordinate, and their factors (here a large one) stay out of the whitened ones
+    big = (np.array([1.0, 2.0, 6.0, 1.7]),) * 2
+    mask = np.array([True, True, False, True])
+    Wm = stretch_whitened(E, sd, Rh, big, big, z, whiten=mask)
+    plain = E @ Rh.T * sd
+    np.testing.assert_allclose(Wm[:, 2], stretch_draws(plain, sd, big, big, z)[:, 2],
+                               rtol=1e-12)
+    Wf = stretch_whitened(E, sd, Rh, (np.where(mask, big[0], 1.0),) * 2,
+                          (np.where(mask, big[0], 1.0),) * 2, z)
+    np.testing.assert_allclose(Wm[:, mask], Wf[:, mask], rtol=1e-12)
 
 
 def test_timing_error_moves_only_the_lags_it_is_absorbed_by():
@@ -1303,6 +1363,40 @@ def test_the_draws_keep_the_excess_the_parameters_tests_leave_out():
     # covariances' sd ratio (Monte Carlo sd of the ranges' ratio from 20000 draws each:
     # about 1.3 %)
     np.testing.assert_allclose(width(u_kept) / width(u_thin), expect, rtol=0.05)
+
+
+def test_the_draws_stretch_changes_the_draws_only():
+    """``Systematics.draws_stretch`` (stop 57's development checks) acts on the posterior
+    draws alone: every map gives the same intervals; "identified" leaves the identified
+    parameters' draws exactly the default's and maps the others by nothing (the same
+    Gaussian draw, so the same ranks and no wider); an unknown map is refused."""
+    from gprm.fit.methods import FitState, compute
+
+    obj, x, yy, J, r, prior = _mismatch_case(amplitude=0.002)
+
+    def method(syst):
+        return compute("sandwich", FitState(obj, x, J, r, prior, n_draws=4000, seed=5,
+                                            systematics=syst))
+
+    common = dict(drive_timing=False, project_draws=False)
+    base = method(Systematics(**common))
+    for mode in ("whitened", "whitened-all", "identified"):
+        other = method(Systematics(draws_stretch=mode, **common))
+        np.testing.assert_array_equal(base.lower95, other.lower95)
+        np.testing.assert_array_equal(base.upper68, other.upper68)
+        assert other.details["stated"]["draws_stretch"] == mode
+        assert other.draws.shape == base.draws.shape
+        assert np.all(np.isfinite(other.draws))
+        if mode == "identified":
+            ident = np.asarray(base.identified, bool)
+            assert ident.any() and not ident.all()       # the case has both kinds
+            u0, u1 = prior.to_u(base.draws), prior.to_u(other.draws)
+            np.testing.assert_allclose(u1[:, ident], u0[:, ident], rtol=1e-12, atol=1e-15)
+            for k in np.nonzero(~ident)[0]:
+                assert np.array_equal(np.argsort(u0[:, k]), np.argsort(u1[:, k]))
+                assert np.ptp(u1[:, k] - np.mean(u1[:, k])) <= np.ptp(u0[:, k]) * (1 + 1e-12)
+    with pytest.raises(GprmInputError, match="draws_stretch"):
+        Systematics(draws_stretch="diagonal")
 
 
 def test_the_residuals_lag_window_is_a_stated_systematics_field():

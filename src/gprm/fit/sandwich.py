@@ -182,8 +182,22 @@ class Systematics:
     #: because a prediction combines parameters and the excess along a combination can be
     #: real where no single parameter's ratio shows it
     excess_test_draws: bool = False
+    #: how the posterior draws are stretched to the intervals' factors (each side and level
+    #: of each parameter): "coordinates" (the default) maps each parameter's coordinate of
+    #: the correlated draw, so its marginal quantiles are the intervals, but a combination
+    #: that the data hold tight loosens wherever its parameters' factors differ;
+    #: development checks (docs/fitting.md, "The draws stretched otherwise (stop 57)",
+    #: measured, not adopted): "whitened-all" maps the independent normals behind the draw,
+    #: one per parameter of the correlation matrix's symmetric root (:func:`stretch_whitened`),
+    #: so that no combination is stretched more than the most stretched parameter;
+    #: "whitened" so for the identified parameters and the lags, the others by coordinate;
+    #: "identified" by coordinate, the identified parameters and the lags only
+    draws_stretch: str = "coordinates"
 
     def __post_init__(self):
+        if self.draws_stretch not in DRAWS_STRETCH:
+            raise GprmInputError(f"must be one of {', '.join(DRAWS_STRETCH)}, got "
+                                 f"{self.draws_stretch!r}", field="systematics.draws_stretch")
         if self.alignment_noise not in ALIGNMENT_NOISE:
             raise GprmInputError(f"must be one of {', '.join(ALIGNMENT_NOISE)}, got "
                                  f"{self.alignment_noise!r}", field="systematics.alignment_noise")
@@ -226,6 +240,7 @@ class Systematics:
                 "hac_lag": self.hac_lag, "profile_check": self.profile_check,
                 "excess_test": self.excess_test,
                 "excess_test_draws": self.excess_test_draws,
+                "draws_stretch": self.draws_stretch,
                 "per_signal": {s: {"gain_sd": g, "timing_sd_s": t}
                                for s, g, t in self.per_signal}}
 
@@ -381,6 +396,8 @@ ORIGIN_LAG = "t0"
 
 #: the choices of :attr:`Systematics.alignment_noise`
 ALIGNMENT_NOISE = ("fixed-lags", "all", "none")
+#: the ways the draws are stretched to the intervals (Systematics.draws_stretch)
+DRAWS_STRETCH = ("coordinates", "whitened", "whitened-all", "identified")
 
 
 def own_lag(signal: str) -> str:
@@ -1354,6 +1371,59 @@ def stretch_draws(Z: np.ndarray, sd: np.ndarray, f68: tuple, f95: tuple,
     return np.sign(t) * g * sd[None, :]
 
 
+def symmetric_root(cov: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(sd (P,), R^(1/2) (P, P)): ``cov`` = S R S with S = diag(sd), and the symmetric
+    positive semi-definite square root of the correlation R (its eigen-decomposition,
+    negative round-off eigenvalues set to 0; the O(1) form, :func:`normal_factor`)."""
+    s, R = standardised(cov)
+    w, V = np.linalg.eigh(R)
+    return s, (V * np.sqrt(np.clip(w, 0, None))) @ V.T
+
+
+def stretch_whitened(E: np.ndarray, sd: np.ndarray, R_half: np.ndarray, f68: tuple,
+                     f95: tuple, z: tuple[float, float],
+                     whiten: np.ndarray | None = None) -> np.ndarray:
+    """Draws (n, P) of N(0, S R S) (``sd``, ``R_half`` from :func:`symmetric_root`) built
+    from standard normals ``E`` (n, P) with the intervals' factors applied to ``E`` rather
+    than to the draw's coordinates: each column of E is mapped as :func:`stretch_draws`
+    maps a coordinate (its sides, both levels), then the draw is S R^(1/2) E'.
+
+    With every factor 1 these are the Gaussian's draws. The symmetric root ties column k of
+    E to parameter k (it is the root closest to the identity), so parameter k's draws are
+    stretched mostly by its own factors, exactly so where it is uncorrelated. What it buys:
+    the draws' covariance S R^(1/2) F^2 R^(1/2) S (F the factors, one level, symmetric)
+    lies between f_min^2 and f_max^2 times the Gaussian's in the matrix sense, so every
+    combination of the parameters is stretched by a factor within the parameters' own
+    range. Mapping the coordinates instead (``stretch_draws``, S F R F S) stretches a
+    combination the data hold tight by |f_j - f_k| times the loose parameters' scale: the
+    factors, each measured on one parameter's interval, then widen predictions that the
+    data determine. What it costs: a parameter correlated with others is stretched by a
+    weighted mean of their factors, so its marginal quantiles are near, not on, its
+    interval's ends.
+
+    ``whiten`` (P,) bool: the parameters stretched so (default every one); the others'
+    coordinates are those of the unstretched draw S R^(1/2) E, mapped coordinate by
+    coordinate as :func:`stretch_draws` maps them, and their factors stay out of the
+    whitened map. A parameter the data leave undetermined can carry a large factor (an
+    alternative minimum along a ridge) that would otherwise spread over every parameter
+    correlated with it."""
+    P = E.shape[1]
+    sd = np.asarray(sd, float)
+    w = np.ones(P, bool) if whiten is None else np.asarray(whiten, bool)
+    ones = np.ones(P)
+
+    def only(f):
+        return tuple(np.where(w, side, 1.0) for side in f)
+
+    out = stretch_draws(E, ones, only(f68), only(f95), z) @ R_half.T * sd[None, :]
+    if not w.all():
+        rest = ~w
+        Z = (E @ R_half.T)[:, rest] * sd[None, rest]
+        out[:, rest] = stretch_draws(Z, sd[rest], tuple(side[rest] for side in f68),
+                                     tuple(side[rest] for side in f95), z)
+    return out
+
+
 def runs_lead(parts: SandwichParts) -> np.ndarray:
     """(P,) where the runs' part of a parameter's variance is the larger statistical part
     (and can be counted: a file with runs, at least two); elsewhere the residuals' leads."""
@@ -1602,13 +1672,28 @@ def uncertainty(method: str, state: FitState) -> Uncertainty:
     # parameter"); each is stretched by its parameter's interval factors
     L = normal_factor(C_draws)
     sd_draws = np.sqrt(np.clip(np.diag(C_draws), 0.0, None))
+    R_half = (symmetric_root(C_draws)[1] if syst.draws_stretch.startswith("whitened")
+              else None)
+    # "whitened": the identified parameters (and the lags) whitened, the rest by coordinate;
+    # "identified": only those stretched, by coordinate
+    lags = np.array([n in LAG_PARAMETERS for n in getattr(state.obj, "names", ())], bool)
+    whiten = (identified | (lags if lags.size == x.size else False)
+              if syst.draws_stretch in ("whitened", "identified") else np.ones(x.size, bool))
 
     def propose(k: int, rnd: int = 0) -> np.ndarray:
         """k draws (offsets in u) of the Gaussian stretched to the intervals; proposal round
         ``rnd`` (0: the stream of stops 1-43)."""
         rng = np.random.default_rng([state.seed, 21] if rnd == 0 else [state.seed, 21, rnd])
-        Z = rng.standard_normal((int(k), x.size)) @ L.T
-        return stretch_draws(Z, sd_draws, (f68_lo, f68_hi), (f_lo, f_hi), (z68, z95))
+        E = rng.standard_normal((int(k), x.size))
+        if R_half is not None:
+            return stretch_whitened(E, sd_draws, R_half, (f68_lo, f68_hi), (f_lo, f_hi),
+                                    (z68, z95), whiten=whiten)
+        if syst.draws_stretch == "identified":
+            def only(*f):
+                return tuple(np.where(whiten, side, 1.0) for side in f)
+            return stretch_draws(E @ L.T, sd_draws, only(f68_lo, f68_hi), only(f_lo, f_hi),
+                                 (z68, z95))
+        return stretch_draws(E @ L.T, sd_draws, (f68_lo, f68_hi), (f_lo, f_hi), (z68, z95))
 
     draws, draws_json = None, None           # draws_json: fit.json's account of them
     if state.n_draws > 0 and syst.project_draws:

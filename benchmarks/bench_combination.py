@@ -29,7 +29,10 @@ variance, the truth's |z| for t0 and for the curves (median over the points), an
 correlation of the two over the campaigns (stop 45: the curves' common factor is t0). And
 in the draws themselves: the curves' 68 % half-width with every parameter but t0 held at the
 best fit over the whole band's (median over the points, then over the campaigns; 1: the
-band is t0's alone, as the linearisation says it nearly is), with ``--draws-stretch`` to
+band is t0's alone, as the linearisation says it nearly is), and the truth's offset from
+the best fit's curves over the part of it t0's own error makes (G_t0 (u_t0 - u^_t0),
+linearised; median over the points, then over the campaigns: below 1, the other parameters'
+errors cancel part of t0's along the curves), with ``--draws-stretch`` to
 score the draws stretched otherwise (stop 57; docs/fitting.md, "The draws stretched
 otherwise (stop 57)").
 
@@ -254,12 +257,13 @@ def curves_table(srcs, a) -> None:
     print("| source | campaigns | t0 outside its 68 % | curves' points inside 68 %: "
           "those campaigns | the others | all | linearised: t0's share of the curves' "
           "variance, median | \\|z\\| of t0, of the curves: medians | their correlation "
-          "over the campaigns | draws: t0's band over the curves' band, median (range) |")
-    print("|---|---|---|---|---|---|---|---|---|---|")
+          "over the campaigns | draws: t0's band over the curves' band, median (range) | "
+          "the truth's offset from the curves over t0's error's part, median (range) |")
+    print("|---|---|---|---|---|---|---|---|---|---|---|")
     for src in srcs:
         out_in = out_n = in_in = in_n = 0
         n_out = 0
-        share, z_t0, z_cv, band = [], [], [], []
+        share, z_t0, z_cv, band, offset = [], [], [], [], []
         for k in range(a.campaigns):
             case = bs.run_case(src, a.seed + k, a.starts, a.cache)
             unc = uncertainty_of(case.fit, "sandwich", systematics=syst)
@@ -292,6 +296,12 @@ def curves_table(srcs, a) -> None:
                 u_true = prior.to_u(np.array([bs.truth_in_fit_time(case)[1][n]
                                               for n in names]))[i]
                 z_t0.append(abs(u_true - prior.to_u(x)[i]) / np.sqrt(parts.total[i, i]))
+                # the truth's offset from the fit's curves over t0's error's own part of it
+                # (linearised): below 1, the other parameters' errors cancel part of t0's
+                part = np.abs(G[:, i] * (u_true - prior.to_u(x)[i]))
+                keep = part > 0
+                if keep.any():
+                    offset.append(float(np.median(np.abs(d[keep]) / part[keep])))
 
         def pct(p, q):
             """share inside, with the points counted"""
@@ -300,7 +310,8 @@ def curves_table(srcs, a) -> None:
         print(f"| {src} | {a.campaigns} | {n_out} | {pct(out_in, out_n)} | {pct(in_in, in_n)} | "
               f"{pct(out_in + in_in, out_n + in_n)} | {np.median(share):.2f} | "
               f"{np.median(z_t0):.2f}, {np.median(z_cv):.2f} | {corr:.2f} | "
-              f"{np.nanmedian(band):.2f} ({np.nanmin(band):.2f}-{np.nanmax(band):.2f}) |",
+              f"{np.nanmedian(band):.2f} ({np.nanmin(band):.2f}-{np.nanmax(band):.2f}) | "
+              f"{np.median(offset):.2f} ({np.min(offset):.2f}-{np.max(offset):.2f}) |",
               flush=True)
 
 

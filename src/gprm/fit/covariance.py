@@ -94,9 +94,24 @@ def normal_factor(cov: np.ndarray) -> np.ndarray:
     the small variances: in the prior's coordinates the lags' variances are ~1e-15 s^2
     beside O(1) ones, below the eigen-solver's absolute error, and their draws came out with
     sds several per cent off theirs (tests/fit/test_covariance.py)."""
+    s, B, _ = _correlation_eigen(cov)
+    return s[:, None] * B
+
+
+def symmetric_root(cov: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(sd (P,), R^(1/2) (P, P)): ``cov`` = S R S with S = diag(sd), and the symmetric
+    positive semi-definite square root of the correlation R, the root nearest the identity
+    (the eigen-decomposition of :func:`normal_factor`; gprm.fit.sandwich.stretch_whitened)."""
+    s, B, V = _correlation_eigen(cov)
+    return s, B @ V.T
+
+
+def _correlation_eigen(cov: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(sd, V sqrt(w), V): ``cov``'s sds and its correlation's eigenvectors V scaled by the
+    square roots of the eigenvalues w (negative round-off ones set to 0)."""
     s, R = standardised(cov)
     w, V = np.linalg.eigh(R)
-    return s[:, None] * (V * np.sqrt(np.clip(w, 0, None)))
+    return s, V * np.sqrt(np.clip(w, 0, None)), V
 
 
 def standardised(cov: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -70,7 +70,7 @@ from scipy.special import fdtri, ndtri
 from gprm.campaign.preprocess import (alignment_shift, detrended_noise_factor,
                                       detrended_noise_variance)
 from gprm.errors import GprmInputError
-from gprm.fit.covariance import normal_factor, standardised
+from gprm.fit.covariance import normal_factor, standardised, symmetric_root
 from gprm.fit.draws import inflation, project_draws
 from gprm.fit.engine import polish_kwargs
 from gprm.fit.lm import levenberg_marquardt_batch
@@ -1371,13 +1371,9 @@ def stretch_draws(Z: np.ndarray, sd: np.ndarray, f68: tuple, f95: tuple,
     return np.sign(t) * g * sd[None, :]
 
 
-def symmetric_root(cov: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(sd (P,), R^(1/2) (P, P)): ``cov`` = S R S with S = diag(sd), and the symmetric
-    positive semi-definite square root of the correlation R (its eigen-decomposition,
-    negative round-off eigenvalues set to 0; the O(1) form, :func:`normal_factor`)."""
-    s, R = standardised(cov)
-    w, V = np.linalg.eigh(R)
-    return s, (V * np.sqrt(np.clip(w, 0, None))) @ V.T
+def masked(f: tuple, keep: np.ndarray) -> tuple:
+    """Interval factors ``f`` = (lower (P,), upper (P,)) with 1 where ``keep`` is False."""
+    return tuple(np.where(keep, side, 1.0) for side in f)
 
 
 def stretch_whitened(E: np.ndarray, sd: np.ndarray, R_half: np.ndarray, f68: tuple,
@@ -1410,12 +1406,8 @@ def stretch_whitened(E: np.ndarray, sd: np.ndarray, R_half: np.ndarray, f68: tup
     P = E.shape[1]
     sd = np.asarray(sd, float)
     w = np.ones(P, bool) if whiten is None else np.asarray(whiten, bool)
-    ones = np.ones(P)
-
-    def only(f):
-        return tuple(np.where(w, side, 1.0) for side in f)
-
-    out = stretch_draws(E, ones, only(f68), only(f95), z) @ R_half.T * sd[None, :]
+    out = stretch_draws(E, np.ones(P), masked(f68, w), masked(f95, w), z) @ R_half.T \
+        * sd[None, :]
     if not w.all():
         rest = ~w
         Z = (E @ R_half.T)[:, rest] * sd[None, rest]
@@ -1672,13 +1664,16 @@ def uncertainty(method: str, state: FitState) -> Uncertainty:
     # parameter"); each is stretched by its parameter's interval factors
     L = normal_factor(C_draws)
     sd_draws = np.sqrt(np.clip(np.diag(C_draws), 0.0, None))
-    R_half = (symmetric_root(C_draws)[1] if syst.draws_stretch.startswith("whitened")
-              else None)
-    # "whitened": the identified parameters (and the lags) whitened, the rest by coordinate;
-    # "identified": only those stretched, by coordinate
-    lags = np.array([n in LAG_PARAMETERS for n in getattr(state.obj, "names", ())], bool)
-    whiten = (identified | (lags if lags.size == x.size else False)
-              if syst.draws_stretch in ("whitened", "identified") else np.ones(x.size, bool))
+    f68_d, f95_d = (f68_lo, f68_hi), (f_lo, f_hi)
+    # stop 57's development maps (Systematics.draws_stretch): "whitened" and "identified"
+    # treat the identified parameters and the lags apart from the others
+    mode = syst.draws_stretch
+    apart = np.ones(x.size, bool)
+    if mode in ("whitened", "identified"):
+        apart = identified | np.array([n in LAG_PARAMETERS for n in state.obj.names], bool)
+    if mode == "identified":
+        f68_d, f95_d = masked(f68_d, apart), masked(f95_d, apart)
+    R_half = symmetric_root(C_draws)[1] if mode.startswith("whitened") else None
 
     def propose(k: int, rnd: int = 0) -> np.ndarray:
         """k draws (offsets in u) of the Gaussian stretched to the intervals; proposal round
@@ -1686,14 +1681,9 @@ def uncertainty(method: str, state: FitState) -> Uncertainty:
         rng = np.random.default_rng([state.seed, 21] if rnd == 0 else [state.seed, 21, rnd])
         E = rng.standard_normal((int(k), x.size))
         if R_half is not None:
-            return stretch_whitened(E, sd_draws, R_half, (f68_lo, f68_hi), (f_lo, f_hi),
-                                    (z68, z95), whiten=whiten)
-        if syst.draws_stretch == "identified":
-            def only(*f):
-                return tuple(np.where(whiten, side, 1.0) for side in f)
-            return stretch_draws(E @ L.T, sd_draws, only(f68_lo, f68_hi), only(f_lo, f_hi),
-                                 (z68, z95))
-        return stretch_draws(E @ L.T, sd_draws, (f68_lo, f68_hi), (f_lo, f_hi), (z68, z95))
+            return stretch_whitened(E, sd_draws, R_half, f68_d, f95_d, (z68, z95),
+                                    whiten=apart)
+        return stretch_draws(E @ L.T, sd_draws, f68_d, f95_d, (z68, z95))
 
     draws, draws_json = None, None           # draws_json: fit.json's account of them
     if state.n_draws > 0 and syst.project_draws:

@@ -43,6 +43,20 @@ parts' shares of the default's variance (stop 45: on the clean sources the curve
 factor is t0, ``--curves``), the drive term's and the estimated gain's shares alone and the
 rms z without the drive term (stop 56: drive-2's ingredients apart).
 
+``--widths``: instead, where the 68 % intervals' width comes from (stop 58): per source, over
+the identified physical parameters pooled and each apart, and t0, the truth's error over
+the default's sd (the sandwich's covariance with the excess test applied, before the
+intervals' factors) and over the Gauss-Newton noise covariance s^2 H^-1 (which is the
+error's own on a source whose model is exact and whose noise is white), as an rms z; the
+median of sd over the Gauss-Newton sd, of the 68 % half-width over z_68 sd (the intervals'
+factors: Student's t, shape, variance, profile) and of the Student factor alone; and the
+share of the truths inside the 68 % interval, inside +-sd and inside +-the Gauss-Newton sd;
+and with the gain errors' variance estimate taken as it comes, unclipped
+(gprm.fit.sandwich.gain_moments: unbiased, negative by chance where there is no gain error;
+the default clips it at 0, which is positive on average there), the cases whose variance is
+then not positive and the share of the others inside +-sd (docs/fitting.md, "Sixty
+campaigns on white and drive-1 (stop 58)").
+
 ``--prediction-excess``: instead, the residuals' excess tested along each prediction's own
 combination of the parameters (stop 57; docs/fitting.md, "The excess tested along each
 prediction (stop 57)"): per campaign, the velocity curves' points and the overshoots (as
@@ -69,6 +83,7 @@ bench_stat_combination.py.)
 
     .venv/bin/python benchmarks/bench_combination.py --campaigns 20 --cache DIR [--sources ...]
     .venv/bin/python benchmarks/bench_combination.py --curves --sources white --cache DIR
+    .venv/bin/python benchmarks/bench_combination.py --widths --sources white --campaigns 60 --cache DIR
 """
 
 from __future__ import annotations
@@ -80,6 +95,7 @@ import time
 from pathlib import Path
 
 import numpy as np
+from scipy.special import ndtri
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
@@ -581,6 +597,71 @@ def ridge_table(srcs, a) -> None:
               f"{np.median(acc):.2f} | {pc('raw')} | {pc('proj')} | {pc('held')} |", flush=True)
 
 
+def widths_table(srcs, a) -> None:
+    """``--widths``: the 68 % intervals' width taken apart (module docstring)."""
+    from gprm.fit.sandwich import (excess_mask, statistical_dof, student_factors,
+                                   with_excess_mask)
+
+    z68 = float(ndtri(0.84))
+    print("| source | parameter | cases | rms z: sd / Gauss-Newton | sd over Gauss-Newton, "
+          "median | 68 % half-width over z sd, median (Student's factor) | inside 68 %: "
+          "interval / +-sd / +-Gauss-Newton sd | the gain unclipped: cases whose variance "
+          "is not positive, the others inside +-sd |")
+    print("|---|---|---|---|---|---|---|---|")
+    for src in srcs:
+        rows = []
+        for k in range(a.campaigns):
+            case = bs.run_case(src, a.seed + k, a.starts, a.cache)
+            f = case.fit
+            st = state_of(f)
+            prior, names = st.obj.prior, list(f.names)
+            x = np.asarray(f.x, float)
+            unc = uncertainty_of(f, "sandwich")
+            err = error_model(st.obj, x, st.J, st.r, prior, Systematics())
+            parts = propagate(st.obj, x, st.J, prior, err)
+            Ju, Hinv = _estimator(x, st.J, prior)
+            nu_res = residual_dof(Ju, Hinv, err.R, err.max_lag, err.p_eff,
+                                  whitenings=err.whitenings,
+                                  projection=getattr(st.obj, "projection", None))
+            mask = excess_mask(parts, nu_res, Systematics().excess_test)
+            if mask is not None:
+                parts = with_excess_mask(parts, mask)
+            t68 = student_factors(statistical_dof(parts, nu_res), 0.68)
+            s2 = float(st.r @ st.r) / max(st.obj.dof, 1)
+            Jl, Hl, _, y, _ = _linearised(st.obj, x, st.J, prior)
+            d = st.obj.data
+            gv = gain_moments(Jl, Hl, err.R, y, d.sigma, d.runs, max_lag=err.max_lag).variance
+            unit = propagate(st.obj, x, st.J, prior, error_model(
+                st.obj, x, st.J, st.r, prior, Systematics(gain_sd=1.0, estimate_gain=False))).gain
+            v_u = np.diag(parts.total - parts.gain + gv * unit)
+            sd_u = np.sqrt(np.where(v_u > 0, v_u, np.nan))
+            truth = bs.truth_in_fit_time(case)[1]
+            u, ut = prior.to_u(x), prior.to_u(np.array([truth[n] for n in names]))
+            lo, hi = (prior.to_u(b[None])[0] for b in unc.interval(0.68))
+            sd = np.sqrt(np.clip(np.diag(parts.total), 1e-300, None))
+            gn = np.sqrt(s2 * np.clip(np.diag(Hinv), 1e-300, None))
+            for i, n in enumerate(names):
+                if n == "t0" or (n in case.truth and unc.identified[i]):
+                    e = ut[i] - u[i]
+                    half = hi[i] - u[i] if e > 0 else u[i] - lo[i]
+                    rows.append((n, e / sd[i], e / gn[i], sd[i] / gn[i], half / (z68 * sd[i]),
+                                 t68[i], abs(e) <= half, e / sd_u[i]))
+
+        def line(label, rr, src=src):
+            A = np.array([r[1:] for r in rr], float)
+            print(f"| {src} | {label} | {len(rr)} | {np.sqrt(np.mean(A[:, 0] ** 2)):.2f} / "
+                  f"{np.sqrt(np.mean(A[:, 1] ** 2)):.2f} | {np.median(A[:, 2]):.2f} | "
+                  f"{np.median(A[:, 3]):.2f} ({np.median(A[:, 4]):.2f}) | "
+                  f"{100 * np.mean(A[:, 5]):.1f} / {100 * np.mean(np.abs(A[:, 0]) <= 1):.1f} / "
+                  f"{100 * np.mean(np.abs(A[:, 1]) <= 1):.1f} | "
+                  f"{np.sum(~np.isfinite(A[:, 6]))}, "
+                  f"{100 * np.mean(np.abs(A[np.isfinite(A[:, 6]), 6]) <= 1):.1f} |",
+                  flush=True)
+        line("identified physical, pooled", [r for r in rows if r[0] != "t0"])
+        for n in sorted({r[0] for r in rows}):
+            line(n, [r for r in rows if r[0] == n])
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     bs.cached_study_arguments(ap)
@@ -588,6 +669,7 @@ def main(argv=None) -> int:
     ap.add_argument("--ridge", action="store_true")
     ap.add_argument("--t0", action="store_true")
     ap.add_argument("--prediction-excess", action="store_true")
+    ap.add_argument("--widths", action="store_true")
     ap.add_argument("--draws-stretch", choices=DRAWS_STRETCH,
                     default=Systematics().draws_stretch,
                     help="--curves: the draws stretched this way (Systematics.draws_stretch)")
@@ -595,7 +677,8 @@ def main(argv=None) -> int:
     srcs = [s for s in a.sources.split(",") if s]
     t = time.perf_counter()
     (ridge_table if a.ridge else curves_table if a.curves else t0_table if a.t0
-     else prediction_excess_table if a.prediction_excess else rules_table)(srcs, a)
+     else prediction_excess_table if a.prediction_excess else widths_table if a.widths
+     else rules_table)(srcs, a)
     print(f"\n({time.perf_counter() - t:.0f} s; cache {a.cache})")
     return 0
 

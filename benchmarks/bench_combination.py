@@ -54,7 +54,10 @@ share of the truths inside the 68 % interval, inside +-sd and inside +-the Gauss
 and with the gain errors' variance estimate taken as it comes, unclipped
 (gprm.fit.sandwich.gain_moments: unbiased, negative by chance where there is no gain error;
 the default clips it at 0, which is positive on average there), the cases whose variance is
-then not positive and the share of the others inside +-sd (docs/fitting.md, "Sixty
+then not positive and the share of the others inside +-sd; the mean shares of the
+default's variance that the residuals' excess over the runs, the gain and the timing parts
+make (means: each is zero in most campaigns), and the median of the runs' part's sd over the
+Gauss-Newton sd (docs/fitting.md, "Sixty
 campaigns on white and drive-1 (stop 58)").
 
 ``--prediction-excess``: instead, the residuals' excess tested along each prediction's own
@@ -606,8 +609,10 @@ def widths_table(srcs, a) -> None:
     print("| source | parameter | cases | rms z: sd / Gauss-Newton | sd over Gauss-Newton, "
           "median | 68 % half-width over z sd, median (Student's factor) | inside 68 %: "
           "interval / +-sd / +-Gauss-Newton sd | the gain unclipped: cases whose variance "
-          "is not positive, the others inside +-sd |")
-    print("|---|---|---|---|---|---|---|---|")
+          "is not positive, the others inside +-sd | shares of the default's variance, mean: "
+          "the residuals' excess, the gain, the timing | the runs' part's sd over "
+          "Gauss-Newton's, median |")
+    print("|---|---|---|---|---|---|---|---|---|---|")
     for src in srcs:
         rows = []
         for k in range(a.campaigns):
@@ -644,8 +649,12 @@ def widths_table(srcs, a) -> None:
                 if n == "t0" or (n in case.truth and unc.identified[i]):
                     e = ut[i] - u[i]
                     half = hi[i] - u[i] if e > 0 else u[i] - lo[i]
+                    tot = sd[i] ** 2
                     rows.append((n, e / sd[i], e / gn[i], sd[i] / gn[i], half / (z68 * sd[i]),
-                                 t68[i], abs(e) <= half, e / sd_u[i]))
+                                 t68[i], abs(e) <= half, e / sd_u[i],
+                                 (parts.statistical[i, i] - parts.runs[i, i]) / tot,
+                                 parts.gain[i, i] / tot, parts.timing[i, i] / tot,
+                                 np.sqrt(max(parts.runs[i, i], 0.0)) / gn[i]))
 
         def line(label, rr, src=src):
             A = np.array([r[1:] for r in rr], float)
@@ -655,8 +664,9 @@ def widths_table(srcs, a) -> None:
                   f"{100 * np.mean(A[:, 5]):.1f} / {100 * np.mean(np.abs(A[:, 0]) <= 1):.1f} / "
                   f"{100 * np.mean(np.abs(A[:, 1]) <= 1):.1f} | "
                   f"{np.sum(~np.isfinite(A[:, 6]))}, "
-                  f"{100 * np.mean(np.abs(A[np.isfinite(A[:, 6]), 6]) <= 1):.1f} |",
-                  flush=True)
+                  f"{100 * np.mean(np.abs(A[np.isfinite(A[:, 6]), 6]) <= 1):.1f} | "
+                  f"{np.mean(A[:, 7]):.2f}, {np.mean(A[:, 8]):.2f}, "
+                  f"{np.mean(A[:, 9]):.2f} | {np.median(A[:, 10]):.2f} |", flush=True)
         line("identified physical, pooled", [r for r in rows if r[0] != "t0"])
         for n in sorted({r[0] for r in rows}):
             line(n, [r for r in rows if r[0] == n])

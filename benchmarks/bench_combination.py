@@ -113,28 +113,39 @@ GAIN_Z = 1.645
 QUANTILES = (0.5, 0.9)
 
 
-def campaign(case) -> dict:
-    """The default's parts per identified physical parameter of one fitted campaign."""
+def default_sandwich(case) -> dict:
+    """What both the rules' and the widths' tables start from, for one fitted campaign: the
+    fit's state, its default uncertainty, the default's error model and parts at the best fit,
+    the estimator's linearisation there (Ju, Hinv, the model signals y), the residuals'
+    degrees of freedom and the gain estimate's moments."""
     f = case.fit
     st = state_of(f)
-    prior, names = st.obj.prior, list(f.names)
+    prior = st.obj.prior
     x = np.asarray(f.x, float)
-    unc = uncertainty_of(f, "sandwich")
     err = error_model(st.obj, x, st.J, st.r, prior, Systematics())
-    parts = propagate(st.obj, x, st.J, prior, err)
+    Ju, Hinv, _, y, _ = _linearised(st.obj, x, st.J, prior)
+    d = st.obj.data
+    return {"st": st, "prior": prior, "names": list(f.names), "x": x,
+            "unc": uncertainty_of(f, "sandwich"), "err": err,
+            "parts": propagate(st.obj, x, st.J, prior, err), "Ju": Ju, "Hinv": Hinv,
+            "nu_res": residual_dof(Ju, Hinv, err.R, err.max_lag, err.p_eff,
+                                   whitenings=err.whitenings,
+                                   projection=getattr(st.obj, "projection", None)),
+            "gain": gain_moments(Ju, Hinv, err.R, y, d.sigma, d.runs, max_lag=err.max_lag)}
+
+
+def campaign(case) -> dict:
+    """The default's parts per identified physical parameter of one fitted campaign."""
+    c = default_sandwich(case)
+    st, prior, names, x = c["st"], c["prior"], c["names"], c["x"]
+    unc, parts, nu_res = c["unc"], c["parts"], c["nu_res"]
     # the synchronisation's part of the timing (the sandwich with it off, subtracted) and
     # the statistical part with the excess taken beyond it
     sync = parts.timing - propagate(st.obj, x, st.J, prior, error_model(
         st.obj, x, st.J, st.r, prior, Systematics(sync_timing=False))).timing
     beyond = parts.total - parts.statistical + parts.runs + _psd_part(
         parts.residuals - parts.runs - sync)
-    Ju, Hinv = _estimator(x, st.J, prior)
-    nu_res = residual_dof(Ju, Hinv, err.R, err.max_lag, err.p_eff, whitenings=err.whitenings,
-                          projection=getattr(st.obj, "projection", None))
     nu_runs = satterthwaite(parts.runs_by_signal, parts.n_runs)
-    Jl, Hl, _, y, _ = _linearised(st.obj, x, st.J, prior)
-    d = st.obj.data
-    gm = gain_moments(Jl, Hl, err.R, y, d.sigma, d.runs, max_lag=err.max_lag)
     xt = np.array([case.truth.get(n, v) for n, v in zip(names, x)])
     u, ut = prior.to_u(x), prior.to_u(xt)
     lv = {L: [prior.to_u(b[None])[0] for b in unc.interval(L)] for L in (0.68, 0.95)}
@@ -148,7 +159,7 @@ def campaign(case) -> dict:
                      "beyond_sync": beyond[i, i],
                      "nu_res": nu_res[i], "nu_runs": nu_runs[i],
                      "sides": {L: (u[i] - lv[L][0][i], lv[L][1][i] - u[i]) for L in lv}})
-    return {"gain_z": gm.z, "rows": rows}
+    return {"gain_z": c["gain"].z, "rows": rows}
 
 
 def coverage(camps: list[dict], gain_z: float | None = None, q: float | None = None,
@@ -617,25 +628,15 @@ def widths_table(srcs, a) -> None:
         rows = []
         for k in range(a.campaigns):
             case = bs.run_case(src, a.seed + k, a.starts, a.cache)
-            f = case.fit
-            st = state_of(f)
-            prior, names = st.obj.prior, list(f.names)
-            x = np.asarray(f.x, float)
-            unc = uncertainty_of(f, "sandwich")
-            err = error_model(st.obj, x, st.J, st.r, prior, Systematics())
-            parts = propagate(st.obj, x, st.J, prior, err)
-            Ju, Hinv = _estimator(x, st.J, prior)
-            nu_res = residual_dof(Ju, Hinv, err.R, err.max_lag, err.p_eff,
-                                  whitenings=err.whitenings,
-                                  projection=getattr(st.obj, "projection", None))
+            c = default_sandwich(case)
+            st, prior, names, x = c["st"], c["prior"], c["names"], c["x"]
+            unc, parts, nu_res = c["unc"], c["parts"], c["nu_res"]
             mask = excess_mask(parts, nu_res, Systematics().excess_test)
             if mask is not None:
                 parts = with_excess_mask(parts, mask)
             t68 = student_factors(statistical_dof(parts, nu_res), 0.68)
             s2 = float(st.r @ st.r) / max(st.obj.dof, 1)
-            Jl, Hl, _, y, _ = _linearised(st.obj, x, st.J, prior)
-            d = st.obj.data
-            gv = gain_moments(Jl, Hl, err.R, y, d.sigma, d.runs, max_lag=err.max_lag).variance
+            Hinv, gv = c["Hinv"], c["gain"].variance
             unit = propagate(st.obj, x, st.J, prior, error_model(
                 st.obj, x, st.J, st.r, prior, Systematics(gain_sd=1.0, estimate_gain=False))).gain
             v_u = np.diag(parts.total - parts.gain + gv * unit)

@@ -46,8 +46,9 @@ rms z without the drive term (stop 56: drive-2's ingredients apart).
 ``--widths``: instead, where the 68 % intervals' width comes from (stop 58): per source, over
 the identified physical parameters pooled and each apart, and t0, the truth's error over
 the default's sd (the sandwich's covariance with the excess test applied, before the
-intervals' factors) and over the Gauss-Newton noise covariance s^2 H^-1 (which is the
-error's own on a source whose model is exact and whose noise is white), as an rms z; the
+intervals' factors) and over the Gauss-Newton noise covariance s^2 H^-1 (the white noise's
+alone: on a source whose model is exact and whose noise is white the mean still carries
+each run's baseline line, which it lacks; ``--noise-mc``, stop 59), as an rms z; the
 median of sd over the Gauss-Newton sd, of the 68 % half-width over z_68 sd (the intervals'
 factors: Student's t, shape, variance, profile) and of the Student factor alone; and the
 share of the truths inside the 68 % interval, inside +-sd and inside +-the Gauss-Newton sd;
@@ -59,6 +60,22 @@ default's variance that the residuals' excess over the runs, the gain and the ti
 make (means: each is zero in most campaigns), and the median of the runs' part's sd over the
 Gauss-Newton sd (docs/fitting.md, "Sixty
 campaigns on white and drive-1 (stop 58)").
+
+``--noise-mc K``: instead, what the mean's noise does through the estimator at a fixed truth
+(stop 59; docs/fitting.md, "What the runs carry that white noise does not (stop 59)"): for
+each of the first ``--campaigns`` cached fits of a source of gprm's generator, K more
+campaigns made from its truth with fresh noise (seeds 90000 + 1000 k + j), preprocessed as
+the fits' were (the runs moved the rest of their shift through the model at the cached fit's
+point, gprm.fit.subsample, as the fit moves them), and per identified parameter of the cached fit's linearised estimator
+B = H^-1 J^T (fixed, the cached campaign's): the sd over the K campaigns of B e, e the
+weighted error of each mean signal against its noise-free truth (``truth_mean``), and the
+mean over the K of the runs' part, alone, with the synchronisation's hidden time shift
+(the timing part of ``sync_timing_sd``, which the default adds) and with the drive's too
+(``drive_shift_sd`` on each campaign's runs, the default's drive term), all over the white-noise
+part sqrt(B B^T) that the Gauss-Newton covariance holds; beside them that white part plus
+step 0's straight line,
+each run's baseline fit extrapolated into the window (gprm.campaign.preprocess
+.detrended_noise_factor, the runs' noise sd), predicted without a Monte Carlo.
 
 ``--prediction-excess``: instead, the residuals' excess tested along each prediction's own
 combination of the parameters (stop 57; docs/fitting.md, "The excess tested along each
@@ -87,6 +104,7 @@ bench_stat_combination.py.)
     .venv/bin/python benchmarks/bench_combination.py --campaigns 20 --cache DIR [--sources ...]
     .venv/bin/python benchmarks/bench_combination.py --curves --sources white --cache DIR
     .venv/bin/python benchmarks/bench_combination.py --widths --sources white --campaigns 60 --cache DIR
+    .venv/bin/python benchmarks/bench_combination.py --noise-mc 400 --sources white --campaigns 1 --cache DIR
 """
 
 from __future__ import annotations
@@ -673,6 +691,89 @@ def widths_table(srcs, a) -> None:
             line(n, [r for r in rows if r[0] == n])
 
 
+def noise_mc_table(srcs, a) -> None:
+    """``--noise-mc K``: the mean's noise through the estimator at fixed truths (module
+    docstring)."""
+    import sources
+
+    from gprm.campaign.preprocess import PreprocessConfig, detrended_noise_factor, preprocess
+    from gprm.fit.api import FitOptions
+    from gprm.fit import subsample
+    from gprm.fit.objective import Objective, fit_data_from_means
+    from gprm.fit.sandwich import drive_shift_sd, run_deviations
+    from gprm.params import paper
+
+    opts = FitOptions()
+    base = opts.parameters(paper())
+    print("| source | truth (seed) | parameter | fresh campaigns | sd of B e over the white "
+          "part | the runs' part over it, mean | the runs' and the synchronisation's "
+          "timing parts over it, mean | and the drive's timing part too | white + step "
+          "0's line over white, predicted |")
+    print("|---|---|---|---|---|---|---|---|---|")
+    for src in srcs:
+        if src.startswith("sim2") or src == "probe-sim2-2x":
+            print(f"| {src} | (sim2 draws its own truth: skipped) ||||||||")
+            continue
+        for k in range(a.campaigns):
+            case = bs.run_case(src, a.seed + k, a.starts, a.cache)
+            c = default_sandwich(case)
+            st, names, unc = c["st"], c["names"], c["unc"]
+            d = st.obj.data
+            _, _, Bs, _, dy = _linearised(st.obj, c["x"], st.J, c["prior"])
+            P, S, _ = Bs.shape
+            # the synchronisation's hidden time shift through the estimator, per unit sd
+            bt = np.stack([Bs[:, s, :] @ (dy[s] / d.sigma[s]) for s in range(S)])  # (S, P)
+            white = np.einsum("pst,pst->p", Bs, Bs)
+            # step 0's line in the mean: each run's noise (sd noise_std) after its baseline
+            # line, averaged over the runs, along the weights B / sigma; against the same
+            # noise without the line (|w|^2 alone)
+            dt = float(d.time[1] - d.time[0])
+            with_line, alone = np.zeros(P), np.zeros(P)
+            for s in range(S):
+                tb = np.arange(d.baseline[s][0], d.baseline[s][1] + dt / 2, dt)
+                v = float(d.noise_std[s]) ** 2 / d.runs.shape[1]
+                for i in range(P):
+                    w = Bs[i, s] / d.sigma[s]
+                    with_line[i] += v * detrended_noise_factor(w, d.time, tb)
+                    alone[i] += v * float(w @ w)
+            truth = paper().with_values(**case.truth)
+            err, runs, sync, drive = [], [], [], []
+            for j in range(a.noise_mc):
+                camp = sources.from_truth(src, 90000 + 1000 * k + j, truth)[0]
+                ds = preprocess(camp, PreprocessConfig()).to_dataset()
+                got = [fit_data_from_means(v, window=opts.window, sigma=opts.sigma,
+                                           sigma_pool=d.sigma_pool)
+                       for v in (ds, ds.assign(mean=ds["truth_mean"]))]
+                if got[0].values.shape != d.values.shape:
+                    continue
+                obj = Objective.create(got[0], base, names, prior=c["prior"])
+                if subsample.applies(got[0]):
+                    # the runs moved the rest of their shift through the model, as the fit
+                    # moves them (gprm.fit.subsample), at the cached fit's point
+                    got[0] = subsample.corrected(got[0], subsample.run_corrections(
+                        obj, c["x"], got[0].sync_remainder))
+                    obj = Objective.create(got[0], base, names, prior=c["prior"])
+                v_sd = drive_shift_sd(obj, c["x"], dy)
+                drive.append(np.zeros(P) if v_sd is None else v_sd ** 2 @ bt ** 2)
+                e = (got[0].values - got[1].values) / got[0].sigma
+                err.append(np.einsum("pst,st->p", Bs, e))
+                dev = run_deviations(got[0].runs, got[0].sigma)
+                n = dev.shape[1]
+                runs.append(sum(np.sum((dev[s] @ Bs[:, s, :].T) ** 2, axis=0)
+                                for s in range(S)) / (n * (n - 1)))
+                sync.append(np.asarray(got[0].sync_timing_sd, float) ** 2 @ bt ** 2)
+            E, V, W, D = np.array(err), np.array(runs), np.array(sync), np.array(drive)
+            for i, n in enumerate(names):
+                if not unc.identified[i]:
+                    continue
+                print(f"| {src} | {a.seed + k} | {n} | {len(E)} | "
+                      f"{np.std(E[:, i]) / np.sqrt(white[i]):.3f} | "
+                      f"{np.sqrt(np.mean(V[:, i]) / white[i]):.3f} | "
+                      f"{np.sqrt(np.mean(V[:, i] + W[:, i]) / white[i]):.3f} | "
+                      f"{np.sqrt(np.mean(V[:, i] + W[:, i] + D[:, i]) / white[i]):.3f} | "
+                      f"{np.sqrt(with_line[i] / alone[i]):.3f} |", flush=True)
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     bs.cached_study_arguments(ap)
@@ -681,6 +782,8 @@ def main(argv=None) -> int:
     ap.add_argument("--t0", action="store_true")
     ap.add_argument("--prediction-excess", action="store_true")
     ap.add_argument("--widths", action="store_true")
+    ap.add_argument("--noise-mc", type=int, default=0, metavar="K",
+                    help="K fresh campaigns per cached truth (module docstring)")
     ap.add_argument("--draws-stretch", choices=DRAWS_STRETCH,
                     default=Systematics().draws_stretch,
                     help="--curves: the draws stretched this way (Systematics.draws_stretch)")
@@ -689,7 +792,7 @@ def main(argv=None) -> int:
     t = time.perf_counter()
     (ridge_table if a.ridge else curves_table if a.curves else t0_table if a.t0
      else prediction_excess_table if a.prediction_excess else widths_table if a.widths
-     else rules_table)(srcs, a)
+     else noise_mc_table if a.noise_mc else rules_table)(srcs, a)
     print(f"\n({time.perf_counter() - t:.0f} s; cache {a.cache})")
     return 0
 

@@ -61,21 +61,21 @@ make (means: each is zero in most campaigns), and the median of the runs' part's
 Gauss-Newton sd (docs/fitting.md, "Sixty
 campaigns on white and drive-1 (stop 58)").
 
-``--noise-mc K``: instead, what the mean's noise does through the estimator at a fixed truth
-(stop 59; docs/fitting.md, "What the runs carry that white noise does not (stop 59)"): for
-each of the first ``--campaigns`` cached fits of a source of gprm's generator, K more
+``--noise-mc K``: instead, what the mean's error does through the estimator at fixed truths
+(stop 59; docs/fitting.md, "What the runs carry that white noise does not ... (stop 59)"):
+for each of the first ``--campaigns`` cached fits of a source of gprm's generator, K more
 campaigns made from its truth with fresh noise (seeds 90000 + 1000 k + j), preprocessed as
-the fits' were (the runs moved the rest of their shift through the model at the cached fit's
-point, gprm.fit.subsample, as the fit moves them), and per identified parameter of the cached fit's linearised estimator
-B = H^-1 J^T (fixed, the cached campaign's): the sd over the K campaigns of B e, e the
-weighted error of each mean signal against its noise-free truth (``truth_mean``), and the
+the fits' were (the runs moved the rest of their shift through the model at the cached
+fit's point, as the fit moves them, gprm.fit.subsample); per identified parameter of the
+cached fit's linearised estimator B = H^-1 J^T (held fixed): the sd over the K of B e, e
+the weighted error of each mean signal against its noise-free truth (``truth_mean``); the
 mean over the K of the runs' part, alone, with the synchronisation's hidden time shift
-(the timing part of ``sync_timing_sd``, which the default adds) and with the drive's too
-(``drive_shift_sd`` on each campaign's runs, the default's drive term), all over the white-noise
-part sqrt(B B^T) that the Gauss-Newton covariance holds; beside them that white part plus
-step 0's straight line,
-each run's baseline fit extrapolated into the window (gprm.campaign.preprocess
-.detrended_noise_factor, the runs' noise sd), predicted without a Monte Carlo.
+(``sync_timing_sd``) and with the drive's too (``drive_shift_sd`` on each campaign's runs):
+the default's statistical-runs and timing terms (its stated timing error is 0); all over
+the white-noise part sqrt(B B^T) that the Gauss-Newton covariance holds; and beside them,
+without a Monte Carlo, the white noise plus step 0's straight line (each run's baseline fit
+extrapolated into the window, gprm.campaign.preprocess.detrended_noise_factor with the
+noise runs' sd) over the white noise alone.
 
 ``--prediction-excess``: instead, the residuals' excess tested along each prediction's own
 combination of the parameters (stop 57; docs/fitting.md, "The excess tested along each
@@ -104,7 +104,7 @@ bench_stat_combination.py.)
     .venv/bin/python benchmarks/bench_combination.py --campaigns 20 --cache DIR [--sources ...]
     .venv/bin/python benchmarks/bench_combination.py --curves --sources white --cache DIR
     .venv/bin/python benchmarks/bench_combination.py --widths --sources white --campaigns 60 --cache DIR
-    .venv/bin/python benchmarks/bench_combination.py --noise-mc 400 --sources white --campaigns 1 --cache DIR
+    .venv/bin/python benchmarks/bench_combination.py --noise-mc 200 --sources white --campaigns 3 --cache DIR
 """
 
 from __future__ import annotations

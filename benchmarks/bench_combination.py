@@ -132,20 +132,22 @@ QUANTILES = (0.5, 0.9)
 
 
 def default_sandwich(case) -> dict:
-    """What both the rules' and the widths' tables start from, for one fitted campaign: the
+    """What the rules', widths' and noise tables start from, for one fitted campaign: the
     fit's state, its default uncertainty, the default's error model and parts at the best fit,
-    the estimator's linearisation there (Ju, Hinv, the model signals y), the residuals'
-    degrees of freedom and the gain estimate's moments."""
+    the estimator's linearisation there (Ju, Hinv, its influence Bs per signal and time, the
+    model signals y and their time derivative dy), the residuals' degrees of freedom and the
+    gain estimate's moments."""
     f = case.fit
     st = state_of(f)
     prior = st.obj.prior
     x = np.asarray(f.x, float)
     err = error_model(st.obj, x, st.J, st.r, prior, Systematics())
-    Ju, Hinv, _, y, _ = _linearised(st.obj, x, st.J, prior)
+    Ju, Hinv, Bs, y, dy = _linearised(st.obj, x, st.J, prior)
     d = st.obj.data
     return {"st": st, "prior": prior, "names": list(f.names), "x": x,
             "unc": uncertainty_of(f, "sandwich"), "err": err,
-            "parts": propagate(st.obj, x, st.J, prior, err), "Ju": Ju, "Hinv": Hinv,
+            "parts": propagate(st.obj, x, st.J, prior, err, y), "Ju": Ju, "Hinv": Hinv,
+            "Bs": Bs, "y": y, "dy": dy,
             "nu_res": residual_dof(Ju, Hinv, err.R, err.max_lag, err.p_eff,
                                    whitenings=err.whitenings,
                                    projection=getattr(st.obj, "projection", None)),
@@ -654,9 +656,10 @@ def widths_table(srcs, a) -> None:
                 parts = with_excess_mask(parts, mask)
             t68 = student_factors(statistical_dof(parts, nu_res), 0.68)
             s2 = float(st.r @ st.r) / max(st.obj.dof, 1)
-            Hinv, gv = c["Hinv"], c["gain"].variance
-            unit = propagate(st.obj, x, st.J, prior, error_model(
-                st.obj, x, st.J, st.r, prior, Systematics(gain_sd=1.0, estimate_gain=False))).gain
+            Hinv, gv, Bs, d = c["Hinv"], c["gain"].variance, c["Bs"], st.obj.data
+            # the gain part for a unit gain error on every signal (propagate's V_gain)
+            bg = [Bs[:, s, :] @ (c["y"][s] / d.sigma[s]) for s in range(Bs.shape[1])]
+            unit = sum(np.outer(b, b) for b in bg)
             v_u = np.diag(parts.total - parts.gain + gv * unit)
             sd_u = np.sqrt(np.where(v_u > 0, v_u, np.nan))
             truth = bs.truth_in_fit_time(case)[1]
@@ -700,7 +703,7 @@ def noise_mc_table(srcs, a) -> None:
     from gprm.fit.api import FitOptions
     from gprm.fit import subsample
     from gprm.fit.objective import Objective, fit_data_from_means
-    from gprm.fit.sandwich import drive_shift_sd, run_deviations
+    from gprm.fit.sandwich import drive_shift_sd, run_deviations, runs_covariance
     from gprm.params import paper
 
     opts = FitOptions()
@@ -717,9 +720,8 @@ def noise_mc_table(srcs, a) -> None:
         for k in range(a.campaigns):
             case = bs.run_case(src, a.seed + k, a.starts, a.cache)
             c = default_sandwich(case)
-            st, names, unc = c["st"], c["names"], c["unc"]
+            st, names, unc, Bs, dy = c["st"], c["names"], c["unc"], c["Bs"], c["dy"]
             d = st.obj.data
-            _, _, Bs, _, dy = _linearised(st.obj, c["x"], st.J, c["prior"])
             P, S, _ = Bs.shape
             # the synchronisation's hidden time shift through the estimator, per unit sd
             bt = np.stack([Bs[:, s, :] @ (dy[s] / d.sigma[s]) for s in range(S)])  # (S, P)
@@ -757,10 +759,8 @@ def noise_mc_table(srcs, a) -> None:
                 drive.append(np.zeros(P) if v_sd is None else v_sd ** 2 @ bt ** 2)
                 e = (got[0].values - got[1].values) / got[0].sigma
                 err.append(np.einsum("pst,st->p", Bs, e))
-                dev = run_deviations(got[0].runs, got[0].sigma)
-                n = dev.shape[1]
-                runs.append(sum(np.sum((dev[s] @ Bs[:, s, :].T) ** 2, axis=0)
-                                for s in range(S)) / (n * (n - 1)))
+                runs.append(np.diag(runs_covariance(Bs, run_deviations(got[0].runs,
+                                                                       got[0].sigma))))
                 sync.append(np.asarray(got[0].sync_timing_sd, float) ** 2 @ bt ** 2)
             E, V, W, D = np.array(err), np.array(runs), np.array(sync), np.array(drive)
             for i, n in enumerate(names):

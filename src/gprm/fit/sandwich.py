@@ -657,12 +657,22 @@ def statistical_covariance(Bs: np.ndarray, R: np.ndarray, dev: np.ndarray | None
     V_res *= N / max(N - p_eff, 1.0)
     if dev is None:
         return None, V_res, V_res
+    V_runs = runs_covariance(Bs, dev)
+    return V_runs, V_res, V_runs + _psd_part(V_res - V_runs)
+
+
+def runs_covariance(Bs: np.ndarray, dev: np.ndarray) -> np.ndarray:
+    """(P, P) the runs' part: the sample covariance of the runs' deviations ``dev`` (S,
+    n_runs, T; :func:`run_deviations`) taken through the estimator's influence ``Bs`` (P, S,
+    T), over n_runs (n_runs - 1): the covariance of the runs' mean, each signal's runs
+    independent of the others'."""
+    P, S, _ = Bs.shape
     n_r = dev.shape[1]
-    V_runs = np.zeros((P, P))
+    V = np.zeros((P, P))
     for s in range(S):
         Z = dev[s] @ Bs[:, s, :].T                                   # (n_runs, P)
-        V_runs += Z.T @ Z / (n_r * (n_r - 1))
-    return V_runs, V_res, V_runs + _psd_part(V_res - V_runs)
+        V += Z.T @ Z / (n_r * (n_r - 1))
+    return V
 
 
 @dataclass(frozen=True)

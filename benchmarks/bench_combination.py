@@ -75,7 +75,19 @@ the default's statistical-runs and timing terms (its stated timing error is 0); 
 the white-noise part sqrt(B B^T) that the Gauss-Newton covariance holds; and beside them,
 without a Monte Carlo, the white noise plus step 0's straight line (each run's baseline fit
 extrapolated into the window, gprm.campaign.preprocess.detrended_noise_factor with the
-noise runs' sd) over the white noise alone.
+noise runs' sd) over the white noise alone. ``--mc-source SRC``: the fresh campaigns from
+another source at the cached fits' truths (drive-1's fits with drive-v0-2's campaigns, say).
+``--put-back`` (stop 60; docs/fitting.md, "The drive's shift put back into each run (stop
+60)"): two more columns, the runs' part with each run's drive shift h_r
+(gprm.fit.sandwich.drive_shift_weights) put back into its deviation along y', its cross
+term with the rest of the run's deviation included and the runs' noise's share of both
+subtracted in expectation (+ the synchronisation's part; in brackets the share of campaigns
+where the sum is negative and its sd over its mean), without and with a time-warp column
+(t - t_x) y' in the regression (a stiffness that varies between runs, to first order); and
+a second table: per fresh campaign, B e inside each estimate's 68 % / 95 % normal interval
+(the default's runs + sync + drive, the two put-backs, and the warp put-back kept only on
+the signals whose runs' variance of h exceeds its noise expectation at the 95 % point of
+chi2(R - 1) / (R - 1)).
 
 ``--prediction-excess``: instead, the residuals' excess tested along each prediction's own
 combination of the parameters (stop 57; docs/fitting.md, "The excess tested along each
@@ -105,6 +117,7 @@ bench_stat_combination.py.)
     .venv/bin/python benchmarks/bench_combination.py --curves --sources white --cache DIR
     .venv/bin/python benchmarks/bench_combination.py --widths --sources white --campaigns 60 --cache DIR
     .venv/bin/python benchmarks/bench_combination.py --noise-mc 200 --sources white --campaigns 3 --cache DIR
+    .venv/bin/python benchmarks/bench_combination.py --noise-mc 100 --put-back --sources drive-1 --mc-source drive-param-2 --campaigns 2 --cache DIR
 """
 
 from __future__ import annotations
@@ -117,6 +130,7 @@ from pathlib import Path
 
 import numpy as np
 from scipy.special import ndtri
+from scipy.stats import chi2
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
@@ -694,6 +708,34 @@ def widths_table(srcs, a) -> None:
             line(n, [r for r in rows if r[0] == n])
 
 
+def put_back_parts(obj, Bs: np.ndarray, dy: np.ndarray, W: np.ndarray):
+    """((S, P), (S,)): per signal, what putting each run's drive shift h_r = W . (run - mean)
+    back into its deviation along y' adds to the runs' part's variances (the cross term with
+    the rest of the run's deviation included), less what the runs' noise adds to them in
+    expectation; and the runs' variance of h over its noise expectation (``--put-back``)."""
+    from gprm.fit.sandwich import run_deviations, run_noise_variance
+
+    d = obj.data
+    S, R = d.runs.shape[0], d.runs.shape[1]
+    dev = run_deviations(d.runs, d.sigma)
+    out, F = np.zeros((S, Bs.shape[0])), np.zeros(S)
+    for s in range(S):
+        bt = Bs[:, s, :] @ (dy[s] / d.sigma[s])
+        h = (d.runs[s] - d.runs[s].mean(axis=0)) @ W[s]
+        Z0 = dev[s] @ Bs[:, s, :].T
+        Z = Z0 + h[:, None] * bt[None, :]
+        out[s] = (np.sum(Z ** 2, axis=0) - np.sum(Z0 ** 2, axis=0)) / (R * (R - 1))
+        # the noise's extra: 2 bt <B/sigma, C w> + bt^2 <w, C w>, the bilinear form by
+        # polarisation of the run's noise variance along a weight vector
+        q = run_noise_variance(d, s, W[s])
+        F[s] = np.var(h, ddof=1) / q if q > 0 else np.inf
+        for p in np.flatnonzero(bt):
+            a = Bs[p, s] / d.sigma[s]
+            c = (run_noise_variance(d, s, a + W[s]) - run_noise_variance(d, s, a - W[s])) / 4
+            out[s, p] -= (2 * bt[p] * c + bt[p] ** 2 * q) / R
+    return out, F
+
+
 def noise_mc_table(srcs, a) -> None:
     """``--noise-mc K``: the mean's noise through the estimator at fixed truths (module
     docstring)."""
@@ -703,16 +745,20 @@ def noise_mc_table(srcs, a) -> None:
     from gprm.fit.api import FitOptions
     from gprm.fit import subsample
     from gprm.fit.objective import Objective, fit_data_from_means
-    from gprm.fit.sandwich import drive_shift_sd, run_deviations, runs_covariance
+    from gprm.fit.sandwich import (drive_shift_sd, drive_shift_weights, run_deviations,
+                                   runs_covariance)
     from gprm.params import paper
 
     opts = FitOptions()
     base = opts.parameters(paper())
+    pb_head = (" the runs' part with the drive's shift put back, + sync (negative, sd / mean) |"
+               " the same with a time-warp column (negative, sd / mean) |" if a.put_back else "")
     print("| source | truth (seed) | parameter | fresh campaigns | sd of B e over the white "
           "part | the runs' part over it, mean | the runs' and the synchronisation's "
           "timing parts over it, mean | and the drive's timing part too | white + step "
-          "0's line over white, predicted |")
-    print("|---|---|---|---|---|---|---|---|---|")
+          "0's line over white, predicted |" + pb_head)
+    print("|---|---|---|---|---|---|---|---|---|" + "---|" * (2 * a.put_back))
+    coverage = []
     for src in srcs:
         if src.startswith("sim2") or src == "probe-sim2-2x":
             print(f"| {src} | (sim2 draws its own truth: skipped) ||||||||")
@@ -739,9 +785,15 @@ def noise_mc_table(srcs, a) -> None:
                     with_line[i] += v * detrended_noise_factor(w, d.time, tb)
                     alone[i] += v * float(w @ w)
             truth = paper().with_values(**case.truth)
-            err, runs, sync, drive = [], [], [], []
+            err, runs, sync, drive, put = [], [], [], [], []
+            gen = a.mc_source or src
+            # the time-warp column (t - t_x) y', t_x each mean's crossing: a run whose
+            # stiffness differs is, to first order, the motion on a stretched time axis
+            t_x = (np.full(S, PreprocessConfig().align_time) if d.crossing_time is None
+                   else np.asarray(d.crossing_time, float))
+            warp = ((d.time[None, :] - t_x[:, None]) * dy)[:, :, None]
             for j in range(a.noise_mc):
-                camp = sources.from_truth(src, 90000 + 1000 * k + j, truth)[0]
+                camp = sources.from_truth(gen, 90000 + 1000 * k + j, truth)[0]
                 ds = preprocess(camp, PreprocessConfig()).to_dataset()
                 got = [fit_data_from_means(v, window=opts.window, sigma=opts.sigma,
                                            sigma_pool=d.sigma_pool)
@@ -757,21 +809,59 @@ def noise_mc_table(srcs, a) -> None:
                     obj = Objective.create(got[0], base, names, prior=c["prior"])
                 v_sd = drive_shift_sd(obj, c["x"], dy)
                 drive.append(np.zeros(P) if v_sd is None else v_sd ** 2 @ bt ** 2)
+                if a.put_back:
+                    put.append([put_back_parts(obj, Bs, dy, drive_shift_weights(
+                        obj, c["x"], dy, extra=ex)) for ex in (None, warp)])
                 e = (got[0].values - got[1].values) / got[0].sigma
                 err.append(np.einsum("pst,st->p", Bs, e))
                 runs.append(np.diag(runs_covariance(Bs, run_deviations(got[0].runs,
                                                                        got[0].sigma))))
                 sync.append(np.asarray(got[0].sync_timing_sd, float) ** 2 @ bt ** 2)
             E, V, W, D = np.array(err), np.array(runs), np.array(sync), np.array(drive)
+            # (K, 2, P): the runs' part's change with the shift put back, without / with
+            # the warp column; the same kept only on the signals whose runs show a shift
+            # (their variance of h over its noise expectation above the 95 % point of
+            # chi2(R - 1) / (R - 1))
+            if a.put_back:
+                R_ = d.runs.shape[1]
+                crit = chi2.ppf(0.95, R_ - 1) / (R_ - 1)
+                U = np.array([[p.sum(axis=0) for p, _ in m] for m in put])
+                Ut = np.array([[(p * (F > crit)[:, None]).sum(axis=0) for p, F in m]
+                               for m in put])
+                # per fresh campaign, each estimate's interval against B e
+                est = np.stack([V + W + D, V + W + U[:, 0], V + W + U[:, 1], V + W + Ut[:, 1]],
+                               axis=1)                                       # (K, 4, P)
+                z = np.abs(E[:, None, :]) / np.sqrt(np.maximum(est, 1e-300))
+                coverage.append((gen, a.seed + k, [n for i, n in enumerate(names)
+                                                   if unc.identified[i]],
+                                 np.mean(z < 1.0, axis=0)[:, unc.identified],
+                                 np.mean(z < ndtri(0.975), axis=0)[:, unc.identified]))
             for i, n in enumerate(names):
                 if not unc.identified[i]:
                     continue
-                print(f"| {src} | {a.seed + k} | {n} | {len(E)} | "
+                pb_cells = ""
+                for m in range(2 if a.put_back else 0):
+                    tot = V[:, i] + U[:, m, i] + W[:, i]
+                    pb_cells += (f" {np.sqrt(max(np.mean(tot), 0.0) / white[i]):.3f} "
+                                 f"({np.mean(tot < 0):.2f}, "
+                                 f"{np.std(tot) / abs(np.mean(tot)):.2f}) |")
+                print(f"| {gen} | {a.seed + k} | {n} | {len(E)} | "
                       f"{np.std(E[:, i]) / np.sqrt(white[i]):.3f} | "
                       f"{np.sqrt(np.mean(V[:, i]) / white[i]):.3f} | "
                       f"{np.sqrt(np.mean(V[:, i] + W[:, i]) / white[i]):.3f} | "
                       f"{np.sqrt(np.mean(V[:, i] + W[:, i] + D[:, i]) / white[i]):.3f} | "
-                      f"{np.sqrt(with_line[i] / alone[i]):.3f} |", flush=True)
+                      f"{np.sqrt(with_line[i] / alone[i]):.3f} |" + pb_cells, flush=True)
+    if coverage:
+        print("\nThe fresh campaigns' B e inside each estimate's 68 % / 95 % normal interval "
+              "(per cent; the runs', synchronisation's and drive's parts only):\n")
+        print("| source | truth (seed) | parameter | the default's runs + sync + drive | "
+              "the drive's shift put back | with the warp column | the warp put-back where "
+              "the runs show it |")
+        print("|---|---|---|---|---|---|---|")
+        for gen, seed, ns, c68, c95 in coverage:
+            for j, n in enumerate(ns):
+                print(f"| {gen} | {seed} | {n} | " + " | ".join(
+                    f"{100 * c68[m, j]:.0f} / {100 * c95[m, j]:.0f}" for m in range(4)) + " |")
 
 
 def main(argv=None) -> int:
@@ -784,6 +874,12 @@ def main(argv=None) -> int:
     ap.add_argument("--widths", action="store_true")
     ap.add_argument("--noise-mc", type=int, default=0, metavar="K",
                     help="K fresh campaigns per cached truth (module docstring)")
+    ap.add_argument("--put-back", action="store_true",
+                    help="--noise-mc: also the drive's shift put back into each run (module "
+                         "docstring)")
+    ap.add_argument("--mc-source", default="", metavar="SRC",
+                    help="--noise-mc: the fresh campaigns from this source at the cached "
+                         "fits' truths (default: the cached fits' own)")
     ap.add_argument("--draws-stretch", choices=DRAWS_STRETCH,
                     default=Systematics().draws_stretch,
                     help="--curves: the draws stretched this way (Systematics.draws_stretch)")

@@ -1107,6 +1107,43 @@ def test_the_drives_hidden_time_shift_is_read_from_the_runs_shapes():
     assert drive_shift_sd(no_runs, x, dy) is None
 
 
+def test_drive_shift_weights_count_an_extra_columns_shift_with_the_drives():
+    """drive_shift_weights: w . (run - mean) is each run's slope component the
+    synchronisation took, <g, shape_r>, exactly for noise-free shapes in the span of the
+    drive's sensitivities and the ``extra`` columns (here a time warp (t - t_x) y', a
+    stiffness change to first order), whatever trigger shift the run also has; without the
+    extra column a warped run's shift is not recovered."""
+    from dataclasses import replace
+
+    from gprm.fit.objective import Objective
+    from gprm.fit.sandwich import drive_shift_weights
+    from gprm.params import paper
+
+    rng = np.random.default_rng(5)
+    R = 8
+    a, e, c = rng.normal(0, 0.02, R), rng.normal(0, 0.01, R), rng.normal(0, 3e-8, R)
+    obj, x, y, J, r, prior, data, dy = _paper_setup()
+    SV, _ = _drive_sensitivities(data, x, obj.names)
+    V0 = float(paper().values["V0"])
+    warp = (data.time[None, :] - 1.01e-3) * dy                       # (S, T)
+    shape = a[None, :, None] * V0 * SV[:, None, :] + e[None, :, None] * warp[:, None, :]
+    g = dy / np.sum(dy ** 2, axis=1, keepdims=True)
+    h = np.einsum("srt,st->sr", shape, g)
+    # the synchronised runs: the slope component taken out, a trigger shift c_r left in
+    runs = y[:, None, :] + shape - (h - c[None, :])[:, :, None] * dy[:, None, :]
+    obj = Objective.create(replace(data, runs=runs), paper(), obj.names)
+    dev = runs - runs.mean(axis=1, keepdims=True)
+    W = drive_shift_weights(obj, x, dy, extra=warp[:, :, None])
+    got = np.einsum("srt,st->sr", dev, W)
+    want = h - h.mean(axis=1, keepdims=True)
+    np.testing.assert_allclose(got, want, rtol=1e-6, atol=1e-6 * np.abs(want).max())
+    W0 = drive_shift_weights(obj, x, dy)
+    off = np.einsum("srt,st->sr", dev, W0) - want
+    assert np.abs(off).max() > 0.1 * np.abs(want).max()
+    assert drive_shift_weights(Objective.create(replace(data, runs=None), paper(), obj.names),
+                               x, dy) is None
+
+
 def test_the_drive_terms_noise_correction_counts_step_0s_baseline_line():
     """Runs of white noise that went through step 0 (a straight line fitted to 150 baseline
     samples before the window and subtracted): their variance along the drive term's

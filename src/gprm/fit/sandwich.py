@@ -811,6 +811,26 @@ def drive_shift_sd(obj: Objective, x: np.ndarray, dy: np.ndarray) -> np.ndarray 
     had been taking up the noise's correlation as a drive). ``dy`` (S, T) is the model
     signals' time derivative at ``x``."""
     d = obj.data
+    W = drive_shift_weights(obj, x, dy)
+    if W is None or d.runs is None:
+        return None
+    out = np.zeros(len(d.signals))
+    for i in range(len(d.signals)):
+        runs = d.runs[i]
+        h_r = (runs - runs.mean(axis=0)) @ W[i]
+        noise = run_noise_variance(d, i, W[i])
+        out[i] = np.sqrt(max(float(np.var(h_r, ddof=1)) - noise, 0.0) / runs.shape[0])
+    return out
+
+
+def drive_shift_weights(obj: Objective, x: np.ndarray, dy: np.ndarray,
+                        extra: np.ndarray | None = None) -> np.ndarray | None:
+    """(S, T) s/m: weights w per signal such that w . (run - runs' mean) is the time shift
+    h_r the synchronisation took out of a run whose drive differs (:func:`drive_shift_sd`):
+    the least-squares regression of the run's deviation on [y', S_V0, S_tau_v] (+ ``extra``
+    (S, T, k') columns, whose part is counted with the drive's), its non-y' part projected on
+    g = y' / |y'|^2. None without runs or where the model fails at ``x``."""
+    d = obj.data
     if d.runs is None or not hasattr(obj, "base"):
         return None
     names = list(getattr(obj, "names", ()))
@@ -827,27 +847,32 @@ def drive_shift_sd(obj: Objective, x: np.ndarray, dy: np.ndarray) -> np.ndarray 
     if not np.all(obs.ok):
         return None
     sens = [(obs.y[2 * j] - obs.y[2 * j + 1]) / (2 * h) for j, h in enumerate(steps)]
-    out = np.zeros(len(d.signals))
+    W = np.zeros(d.values.shape)
     for i in range(len(d.signals)):
         slope = np.asarray(dy[i], float)
         ss = float(slope @ slope)
         if not ss > 0:
             continue
-        A = np.stack([slope] + [sv[i] for sv in sens], axis=1)      # (T, 1 + k)
+        cols = [slope] + [sv[i] for sv in sens]
+        if extra is not None:
+            cols += list(np.asarray(extra[i], float).reshape(slope.size, -1).T)
+        A = np.stack(cols, axis=1)                                   # (T, 1 + k + k')
         g = slope / ss
-        # h_r = w . (run_r - mean): the drive part of the regression, projected on g
-        w = np.linalg.pinv(A)[1:].T @ (A[:, 1:].T @ g)
-        runs = d.runs[i]
-        h_r = (runs - runs.mean(axis=0)) @ w
-        tb = _baseline_times(d, i)
-        if d.noise_acov is not None:
-            noise = detrended_noise_variance(w, d.time, tb, d.noise_acov[i],
-                                             float(d.time[1] - d.time[0]))
-        else:
-            n0 = float(d.noise_std[i]) if d.noise_std is not None else 0.0
-            noise = n0 ** 2 * detrended_noise_factor(w, d.time, tb) if np.isfinite(n0) else 0.0
-        out[i] = np.sqrt(max(float(np.var(h_r, ddof=1)) - noise, 0.0) / runs.shape[0])
-    return out
+        # h_r = w . (run_r - mean): the non-y' part of the regression, projected on g
+        W[i] = np.linalg.pinv(A)[1:].T @ (A[:, 1:].T @ g)
+    return W
+
+
+def run_noise_variance(d, i: int, w: np.ndarray) -> float:
+    """m^2 x w's units^2: Var<w, e> for one run's noise e of signal i after step 0 (its
+    baseline line counted where the file gives it), with the noise runs' autocovariance
+    where the file gives it, else white of sd ``noise_std`` (0 where unknown)."""
+    tb = _baseline_times(d, i)
+    if d.noise_acov is not None:
+        return detrended_noise_variance(w, d.time, tb, d.noise_acov[i],
+                                        float(d.time[1] - d.time[0]))
+    n0 = float(d.noise_std[i]) if d.noise_std is not None else 0.0
+    return n0 ** 2 * detrended_noise_factor(w, d.time, tb) if np.isfinite(n0) else 0.0
 
 
 def error_model(obj: Objective, x: np.ndarray, J: np.ndarray, r: np.ndarray, prior: Prior,

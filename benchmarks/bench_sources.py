@@ -222,6 +222,7 @@ _CHECK_LABELS = {
                               else f"residuals' excess where above F_{v:g}"),
     "excess_test_draws": lambda v: "draws' excess " + ("tested" if v else "untested"),
     "draws_stretch": lambda v: f"draws stretched {v}",
+    "drive_put_back": lambda v: "drive's shift " + ("put back" if v else "as a timing term"),
 }
 
 
@@ -589,6 +590,10 @@ def main(argv=None) -> int:
                     help="how the draws are stretched to the intervals' factors "
                     "(Systematics.draws_stretch; other than the default: a development "
                     "check, the rows labelled so)")
+    ap.add_argument("--drive-put-back", action="store_true",
+                    help="each run's drive shift put back into its deviation instead of the "
+                    "drive term (Systematics.drive_put_back: stop 60's development check, "
+                    "the rows labelled so)")
     ap.add_argument("--sigma-pool", type=int, default=SIGMA_POOL,
                     help="the fits' weights pooled over this many samples on each side "
                     "(gprm.fit.objective.pooled_sigma; 0: stops 1-41's sample-by-sample "
@@ -628,7 +633,7 @@ def main(argv=None) -> int:
                        sync_timing=not a.no_sync_timing, project_draws=not a.raw_draws,
                        hac_lag=a.hac_lag, profile_check=not a.no_profile_check,
                        excess_test=a.excess_test, excess_test_draws=a.excess_test_draws,
-                       draws_stretch=a.draws_stretch)
+                       draws_stretch=a.draws_stretch, drive_put_back=a.drive_put_back)
     jobs = [(s, a.seed + i, a.starts, a.cache, methods, a.predictions, syst, a.sigma_pool)
             for s in srcs
             for i in range(a.campaigns)]

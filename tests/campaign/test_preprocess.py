@@ -198,6 +198,35 @@ def test_detrended_noise_variance_is_the_quadratic_form_through_step_0():
     assert got > 1.5 * acov[0] * detrended_noise_factor(w, time[win], time[:n_base])
 
 
+def test_detrended_noise_cross_is_the_covariance_through_step_0():
+    """Cov(e'(t_i), <w, e'>) after step 0: exactly (D^T C D w_full)_i over the window's
+    samples i, D the identity's rows through step 0, C the Toeplitz covariance; its inner
+    product with w is
+    detrended_noise_variance, with another weight vector the two projections' covariance."""
+    from scipy.linalg import toeplitz
+
+    from gprm.campaign.preprocess import (_detrend, detrended_noise_cross,
+                                          detrended_noise_variance)
+
+    T, n_base, dt = 300, 180, 5e-6
+    time = dt * np.arange(T) + 1e-4
+    rng = np.random.default_rng(4)
+    w, u = rng.normal(size=60) + 1.0, rng.normal(size=60)
+    win = np.arange(200, 260)
+    acov = 0.7 ** np.arange(T) / (1 - 0.49)
+    D = _detrend(np.eye(T), time, n_base)
+    full = np.zeros(T)
+    full[win] = w
+    want = (D.T @ toeplitz(acov) @ D @ full)[win]
+    got = detrended_noise_cross(w, time[win], time[:n_base], acov, dt)
+    np.testing.assert_allclose(got, want, rtol=1e-9, atol=1e-12 * np.abs(want).max())
+    assert float(w @ got) == pytest.approx(
+        detrended_noise_variance(w, time[win], time[:n_base], acov, dt), rel=1e-10)
+    q = [detrended_noise_variance(u + s * w, time[win], time[:n_base], acov, dt)
+         for s in (1, -1)]
+    assert float(u @ got) == pytest.approx((q[0] - q[1]) / 4, rel=1e-9)
+
+
 def test_noise_acov_is_written_and_read(full_means):
     """The means file carries the noise's autocovariance per signal over the record's lags,
     lag 0 the noise_std squared; the fit's data read it; an older file without it gives

@@ -237,6 +237,36 @@ def detrended_noise_variance(w: np.ndarray, t_w: np.ndarray, t_base: np.ndarray,
     return float(a @ C @ a)
 
 
+def detrended_noise_cross(w: np.ndarray, t_w: np.ndarray, t_base: np.ndarray,
+                          acov: np.ndarray, dt: float) -> np.ndarray:
+    """(n_w,) m^2 x w's units: Cov(e'(t_i), <w, e'>) for each window time t_i of ``t_w``,
+    e' = a run's noise after step 0 (the straight line fitted to the baseline samples at
+    ``t_base`` subtracted), of autocovariance ``acov`` (lags 0.. in samples of ``dt``); the
+    vector whose inner product with w is :func:`detrended_noise_variance` (and with another
+    weight vector v, the covariance of <v, e'> and <w, e'>)."""
+    w = np.asarray(w, float)
+    t_w = np.asarray(t_w, float)
+    t_base = np.asarray(t_base, float) if np.size(t_base) >= 2 else np.empty(0)
+    acov = np.asarray(acov, float)
+    t0 = float(np.concatenate([t_w, t_base]).min())
+    iw = np.rint((t_w - t0) / dt).astype(int)
+    ib = np.rint((t_base - t0) / dt).astype(int)
+    n = int(max(iw.max(), ib.max(initial=0))) + 1
+    a = np.zeros(n)
+    np.add.at(a, iw, w)
+    proj = None
+    if t_base.size:
+        Xb, Xw = _line_design(t_base, t_w)
+        proj = Xw @ np.linalg.solve(Xb.T @ Xb, Xb.T)             # (n_w, n_b): the line
+        np.add.at(a, ib, -proj.T @ w)
+    C = toeplitz(np.concatenate([acov, np.zeros(max(n - acov.size, 0))])[:n])
+    Ca = C @ a
+    out = Ca[iw]
+    if proj is not None:
+        out = out - proj @ Ca[ib]
+    return out
+
+
 def sync_timing_sd(splines, shifts: np.ndarray, win: np.ndarray, noise_sd: float,
                    time: np.ndarray, n_base: int, acov: np.ndarray | None = None) -> float:
     """s: the standard deviation of the time shift that step 1 takes out of the runs' spread

@@ -65,9 +65,10 @@ from __future__ import annotations
 from dataclasses import dataclass, replace
 
 import numpy as np
-from scipy.special import fdtri, ndtri
+from scipy.special import chdtri, fdtri, ndtri
 
-from gprm.campaign.preprocess import (alignment_shift, detrended_noise_factor,
+from gprm.campaign.preprocess import (PreprocessConfig, alignment_shift,
+                                      detrended_noise_cross, detrended_noise_factor,
                                       detrended_noise_variance)
 from gprm.errors import GprmInputError
 from gprm.fit.covariance import normal_factor, standardised, symmetric_root
@@ -193,6 +194,13 @@ class Systematics:
     #: "whitened" so for the identified parameters and the lags, the others by coordinate;
     #: "identified" by coordinate, the identified parameters and the lags only
     draws_stretch: str = "coordinates"
+    #: instead of the drive term, each run's drive shift put back into its deviation along
+    #: y' (:func:`drive_put_back`: the regression with a time-warp column, kept on the
+    #: signals whose runs show it), so the runs' part keeps the shift's cross term with the
+    #: rest of the run, the runs' noise's share subtracted in expectation; False (the
+    #: default): the drive term. A development check (docs/fitting.md, "The drive's shift put
+    #: back into each run (stop 60)")
+    drive_put_back: bool = False
 
     def __post_init__(self):
         if self.draws_stretch not in DRAWS_STRETCH:
@@ -241,6 +249,7 @@ class Systematics:
                 "excess_test": self.excess_test,
                 "excess_test_draws": self.excess_test_draws,
                 "draws_stretch": self.draws_stretch,
+                "drive_put_back": self.drive_put_back,
                 "per_signal": {s: {"gain_sd": g, "timing_sd_s": t}
                                for s, g, t in self.per_signal}}
 
@@ -712,6 +721,10 @@ class ErrorModel:
     #: (P,) bool: the parameters the residuals' excess over the runs' covariance reaches
     #: (:func:`excess_mask`); None: every one
     excess_mask: np.ndarray | None = None
+    #: (U, Cv, q): where the drive's shift was put back into the runs' deviations
+    #: (``Systematics.drive_put_back``), what the runs' noise adds to their covariance
+    #: through it, per signal (:func:`drive_put_back`); None: nothing put back
+    put_back_noise: tuple | None = None
 
 
 def _estimator(x: np.ndarray, J: np.ndarray, prior: Prior) -> tuple[np.ndarray, np.ndarray]:
@@ -875,6 +888,75 @@ def run_noise_variance(d, i: int, w: np.ndarray) -> float:
     return n0 ** 2 * detrended_noise_factor(w, d.time, tb) if np.isfinite(n0) else 0.0
 
 
+#: the level at which a signal's runs must show a drive shift above their noise for
+#: :func:`drive_put_back` to put it back (the chi2(R - 1) / (R - 1) quantile)
+PUT_BACK_LEVEL = 0.95
+
+
+def drive_put_back(obj: Objective, x: np.ndarray, dy: np.ndarray, level: float = PUT_BACK_LEVEL):
+    """(H (S, R) s, U (S, T), Cv (S, T), q (S,)) or None: each run's drive shift to put back
+    into its weighted deviation along U = y' / sigma, and what that adds through the runs'
+    noise (a development check, ``Systematics.drive_put_back``).
+
+    The synchronisation leaves each run without its shape deviation's part along the slope,
+    y' <g, d_r>, while the mean keeps the runs' average d; so the mean's error through the
+    estimator is B d and the runs' part sees B (I - P_g) d_r. The drive term adds
+    Var<g, d> / R along the lags alone and misses the cross term; putting h_r = <g, d_r> back
+    into each run keeps it. h_r is read from the run by the drive term's regression
+    (:func:`drive_shift_weights`) with a time-warp column (t - t_x) y' added, t_x the mean's
+    crossing (a stiffness that differs between runs, to first order); only where the runs'
+    variance of h exceeds its noise expectation at ``level`` of chi2(R - 1) / (R - 1), so
+    that runs that do not vary do not take the shift's noise. The noise it carries into the
+    runs' covariance, 2 sym(B Cv (B U)^T) + q (B U)(B U)^T over R in expectation, Cv the
+    noise's covariance with h per weighted sample and q h's noise variance, is what
+    :func:`propagate` subtracts."""
+    d = obj.data
+    if d.runs is None or d.runs.shape[1] < 2:
+        return None
+    S, R, T = d.runs.shape
+    t_x = (np.full(S, PreprocessConfig().align_time) if d.crossing_time is None
+           else np.asarray(d.crossing_time, float))
+    warp = ((d.time[None, :] - t_x[:, None]) * dy)[:, :, None]
+    W = drive_shift_weights(obj, x, dy, extra=warp)
+    if W is None:
+        return None
+    crit = float(chdtri(R - 1, 1.0 - level) / (R - 1))
+    H = np.zeros((S, R))
+    U = np.asarray(dy, float) / d.sigma
+    Cv = np.zeros((S, T))
+    q = np.zeros(S)
+    dt = float(d.time[1] - d.time[0])
+    for i in range(S):
+        h = (d.runs[i] - d.runs[i].mean(axis=0)) @ W[i]
+        qi = run_noise_variance(d, i, W[i])
+        if not (qi > 0 and np.var(h, ddof=1) > crit * qi):
+            continue
+        if d.noise_acov is not None:
+            acov = d.noise_acov[i]
+        elif d.noise_std is not None:
+            acov = np.array([float(d.noise_std[i]) ** 2])
+        else:
+            continue
+        H[i], q[i] = h, qi
+        tb = _baseline_times(d, i)
+        Cv[i] = detrended_noise_cross(W[i], d.time, tb, acov, dt) / d.sigma[i]
+    return H, U, Cv, q
+
+
+def _put_back_correction(Bs: np.ndarray, put_back, n_runs: int) -> np.ndarray:
+    """(P, P): what the runs' noise adds to the runs' covariance through the put-back shifts
+    (:func:`drive_put_back`), in expectation, through the estimator's influence Bs."""
+    U, Cv, q = put_back
+    P = Bs.shape[0]
+    D = np.zeros((P, P))
+    for s in range(Bs.shape[1]):
+        if not q[s] > 0:
+            continue
+        bu, bc = Bs[:, s, :] @ U[s], Bs[:, s, :] @ Cv[s]
+        D += (np.outer(bu, bc) + np.outer(bc, bu) + q[s] * np.outer(bu, bu)) / n_runs
+    return D
+
+
 def error_model(obj: Objective, x: np.ndarray, J: np.ndarray, r: np.ndarray, prior: Prior,
                 systematics: Systematics = Systematics(), *,
                 max_lag: int | str | None = None) -> ErrorModel:
@@ -921,6 +1003,14 @@ def error_model(obj: Objective, x: np.ndarray, J: np.ndarray, r: np.ndarray, pri
             np.asarray(d.sync_timing_sd, float) * bool(systematics.sync_timing))
     # the same for the drive varying between runs, read from the runs' shapes
     v_sd = drive_shift_sd(obj, x, dy) if systematics.drive_timing else None
+    put_back = None
+    if systematics.drive_put_back and dev is not None:
+        pb = drive_put_back(obj, x, dy)
+        if pb is not None:
+            H, U, Cv, q = pb
+            dev = dev + H[:, :, None] * U[:, None, :]
+            put_back = (U, Cv, q)
+            v_sd = None
     t_sd = np.array([np.sqrt(systematics.for_signal(s)[1] ** 2
                              + (a_sd[i] if used[i] else 0.0) ** 2
                              + (0.0 if s_sd is None else s_sd[i]) ** 2
@@ -930,7 +1020,7 @@ def error_model(obj: Objective, x: np.ndarray, J: np.ndarray, r: np.ndarray, pri
     if systematics.estimate_gain:
         g_sd = np.maximum(g_sd, gm.sd)
     return ErrorModel(R, dev, g_sd, t_sd, a_sd, gm.sd, p_eff, L, c_off, whitenings, gm.z, s_sd,
-                      v_sd, bool(systematics.excess_on_lags))
+                      v_sd, bool(systematics.excess_on_lags), put_back_noise=put_back)
 
 
 def _excess_on(V_runs: np.ndarray, V_stat: np.ndarray, mask) -> np.ndarray:
@@ -971,6 +1061,14 @@ def propagate(obj: Objective, x: np.ndarray, J: np.ndarray, prior: Prior,
     Ju, Hinv, Bs, y, dy = _linearised(obj, x, J, prior, y)
     V_runs, V_res, V_stat = statistical_covariance(Bs, err.R, err.dev, err.max_lag, err.p_eff,
                                                    whitenings=err.whitenings)
+    if V_runs is not None and err.put_back_noise is not None and err.dev is not None:
+        # the put-back shifts' noise, subtracted in expectation; what is left kept positive
+        # semi-definite, the statistical part moved with it
+        D = _put_back_correction(Bs, err.put_back_noise, int(err.dev.shape[1]))
+        w, Q = np.linalg.eigh(0.5 * (V_runs - D + (V_runs - D).T))
+        V_new = (Q * np.maximum(w, 0.0)) @ Q.T
+        V_stat = V_stat + (V_new - V_runs)
+        V_runs = V_new
     if V_runs is not None and not err.excess_on_lags:
         # the lags' error is a time shift, which the lags absorb from the residuals: the
         # excess reaches them only through the positive part's leak from other directions,

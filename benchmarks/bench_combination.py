@@ -712,27 +712,33 @@ def put_back_parts(obj, Bs: np.ndarray, dy: np.ndarray, W: np.ndarray):
     """((S, P), (S,)): per signal, what putting each run's drive shift h_r = W . (run - mean)
     back into its deviation along y' adds to the runs' part's variances (the cross term with
     the rest of the run's deviation included), less what the runs' noise adds to them in
-    expectation; and the runs' variance of h over its noise expectation (``--put-back``)."""
-    from gprm.fit.sandwich import run_deviations, run_noise_variance
+    expectation (gprm.fit.sandwich's put-back correction); and the runs' variance of h over
+    its noise expectation (``--put-back``)."""
+    from gprm.campaign.preprocess import detrended_noise_cross
+    from gprm.fit.sandwich import (_baseline_times, _put_back_correction, run_deviations,
+                                   run_noise_variance)
 
     d = obj.data
-    S, R = d.runs.shape[0], d.runs.shape[1]
+    S, R, T = d.runs.shape
     dev = run_deviations(d.runs, d.sigma)
+    dt = float(d.time[1] - d.time[0])
     out, F = np.zeros((S, Bs.shape[0])), np.zeros(S)
     for s in range(S):
-        bt = Bs[:, s, :] @ (dy[s] / d.sigma[s])
+        u = dy[s] / d.sigma[s]
         h = (d.runs[s] - d.runs[s].mean(axis=0)) @ W[s]
         Z0 = dev[s] @ Bs[:, s, :].T
-        Z = Z0 + h[:, None] * bt[None, :]
-        out[s] = (np.sum(Z ** 2, axis=0) - np.sum(Z0 ** 2, axis=0)) / (R * (R - 1))
-        # the noise's extra: 2 bt <B/sigma, C w> + bt^2 <w, C w>, the bilinear form by
-        # polarisation of the run's noise variance along a weight vector
+        Z = Z0 + h[:, None] * (Bs[:, s, :] @ u)[None, :]
         q = run_noise_variance(d, s, W[s])
         F[s] = np.var(h, ddof=1) / q if q > 0 else np.inf
-        for p in np.flatnonzero(bt):
-            a = Bs[p, s] / d.sigma[s]
-            c = (run_noise_variance(d, s, a + W[s]) - run_noise_variance(d, s, a - W[s])) / 4
-            out[s, p] -= (2 * bt[p] * c + bt[p] ** 2 * q) / R
+        acov = (d.noise_acov[s] if d.noise_acov is not None
+                else np.array([float(d.noise_std[s]) ** 2]))
+        one = np.zeros(S)
+        one[s] = q
+        U, Cv = np.zeros((S, T)), np.zeros((S, T))
+        U[s] = u
+        Cv[s] = detrended_noise_cross(W[s], d.time, _baseline_times(d, s), acov, dt) / d.sigma[s]
+        out[s] = ((np.sum(Z ** 2, axis=0) - np.sum(Z0 ** 2, axis=0)) / (R * (R - 1))
+                  - np.diag(_put_back_correction(Bs, (U, Cv, one), R)))
     return out, F
 
 

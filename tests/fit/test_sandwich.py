@@ -1107,6 +1107,28 @@ def test_the_drives_hidden_time_shift_is_read_from_the_runs_shapes():
     assert drive_shift_sd(no_runs, x, dy) is None
 
 
+def _warped_synchronised_runs(seed, R, at_crossing=False):
+    """The paper setup with runs whose amplitude (V0, 2 %) and time scale ((t - t_x) y', 1 %)
+    differ, synchronised: each run's shape slope part h taken out, a trigger shift c left in.
+    Returns (obj, x, y, J, r, prior, data, dy, runs, shape, h, c, warp); t_x each mean's
+    crossing time where ``at_crossing`` and the data give one, else 1.01 ms."""
+    from gprm.params import paper
+
+    rng = np.random.default_rng(seed)
+    a, e, c = rng.normal(0, 0.02, R), rng.normal(0, 0.01, R), rng.normal(0, 3e-8, R)
+    obj, x, y, J, r, prior, data, dy = _paper_setup()
+    SV, _ = _drive_sensitivities(data, x, obj.names)
+    V0 = float(paper().values["V0"])
+    t_x = (np.asarray(data.crossing_time, float) if at_crossing and data.crossing_time is not None
+           else np.full(len(data.signals), 1.01e-3))
+    warp = (data.time[None, :] - t_x[:, None]) * dy                  # (S, T)
+    shape = a[None, :, None] * V0 * SV[:, None, :] + e[None, :, None] * warp[:, None, :]
+    g = dy / np.sum(dy ** 2, axis=1, keepdims=True)
+    h = np.einsum("srt,st->sr", shape, g)
+    runs = y[:, None, :] + shape - (h - c[None, :])[:, :, None] * dy[:, None, :]
+    return obj, x, y, J, r, prior, data, dy, runs, shape, h, c, warp
+
+
 def test_drive_shift_weights_count_an_extra_columns_shift_with_the_drives():
     """drive_shift_weights: w . (run - mean) is each run's slope component the
     synchronisation took, <g, shape_r>, exactly for noise-free shapes in the span of the
@@ -1119,18 +1141,7 @@ def test_drive_shift_weights_count_an_extra_columns_shift_with_the_drives():
     from gprm.fit.sandwich import drive_shift_weights
     from gprm.params import paper
 
-    rng = np.random.default_rng(5)
-    R = 8
-    a, e, c = rng.normal(0, 0.02, R), rng.normal(0, 0.01, R), rng.normal(0, 3e-8, R)
-    obj, x, y, J, r, prior, data, dy = _paper_setup()
-    SV, _ = _drive_sensitivities(data, x, obj.names)
-    V0 = float(paper().values["V0"])
-    warp = (data.time[None, :] - 1.01e-3) * dy                       # (S, T)
-    shape = a[None, :, None] * V0 * SV[:, None, :] + e[None, :, None] * warp[:, None, :]
-    g = dy / np.sum(dy ** 2, axis=1, keepdims=True)
-    h = np.einsum("srt,st->sr", shape, g)
-    # the synchronised runs: the slope component taken out, a trigger shift c_r left in
-    runs = y[:, None, :] + shape - (h - c[None, :])[:, :, None] * dy[:, None, :]
+    obj, x, y, J, r, prior, data, dy, runs, shape, h, c, warp = _warped_synchronised_runs(5, 8)
     obj = Objective.create(replace(data, runs=runs), paper(), obj.names)
     dev = runs - runs.mean(axis=1, keepdims=True)
     W = drive_shift_weights(obj, x, dy, extra=warp[:, :, None])
@@ -1158,19 +1169,8 @@ def test_the_drive_put_back_restores_each_runs_slope_part():
     from gprm.fit.sandwich import error_model, propagate
     from gprm.params import LAG_PARAMETERS, paper
 
-    rng = np.random.default_rng(7)
-    R = 10
-    a, e, c = rng.normal(0, 0.02, R), rng.normal(0, 0.01, R), rng.normal(0, 3e-8, R)
-    obj, x, y, J, r, prior, data, dy = _paper_setup()
-    SV, _ = _drive_sensitivities(data, x, obj.names)
-    V0 = float(paper().values["V0"])
-    t_x = (np.full(len(data.signals), 1.01e-3) if data.crossing_time is None
-           else np.asarray(data.crossing_time, float))
-    warp = (data.time[None, :] - t_x[:, None]) * dy
-    shape = a[None, :, None] * V0 * SV[:, None, :] + e[None, :, None] * warp[:, None, :]
-    g = dy / np.sum(dy ** 2, axis=1, keepdims=True)
-    h = np.einsum("srt,st->sr", shape, g)
-    runs = y[:, None, :] + shape - (h - c[None, :])[:, :, None] * dy[:, None, :]
+    obj, x, y, J, r, prior, data, dy, runs, shape, h, c, warp = _warped_synchronised_runs(
+        7, 10, at_crossing=True)
     tiny = np.full(len(data.signals), 1e-16)
     d1 = replace(data, runs=runs, noise_std=tiny)
     o1 = Objective.create(d1, paper(), obj.names)

@@ -210,16 +210,13 @@ def noise_autocovariance(noise: np.ndarray, time: np.ndarray, order: int = NOISE
     return out
 
 
-def detrended_noise_variance(w: np.ndarray, t_w: np.ndarray, t_base: np.ndarray,
-                             acov: np.ndarray, dt: float) -> float:
-    """m^2 x w's units^2: Var<w, e> for a run's noise e of autocovariance ``acov`` (lags
-    0.. in samples of ``dt``) after step 0 (the straight line fitted to the baseline samples
-    at ``t_base`` subtracted), w weights at the sample times ``t_w`` (one axis, s).
-
-    <w, e - line> = a^T e over the baseline and window samples, a = w on the window less
-    X_b (X_b^T X_b)^-1 X_w^T w on the baseline, so Var = a^T C a with C_ij =
-    acov[|i - j|] (0 beyond its length). With acov = (sd^2, 0, 0, ...) this is sd^2 times
-    :func:`detrended_noise_factor`."""
+def _detrended_weights(w: np.ndarray, t_w: np.ndarray, t_base: np.ndarray,
+                       acov: np.ndarray, dt: float):
+    """(a, C, iw, ib, line): step 0 as weights on one grid of ``dt`` over the baseline and
+    the window. <w, e - line> = a^T e, a = w on the window (indices iw) less
+    X_b (X_b^T X_b)^-1 X_w^T w on the baseline (indices ib); C_ij = acov[|i - j|] (0 beyond
+    its length); line (n_w, n_b) the baseline line's value at the window's times (None
+    without a baseline)."""
     w = np.asarray(w, float)
     t_w = np.asarray(t_w, float)
     t_base = np.asarray(t_base, float) if np.size(t_base) >= 2 else np.empty(0)
@@ -230,10 +227,25 @@ def detrended_noise_variance(w: np.ndarray, t_w: np.ndarray, t_base: np.ndarray,
     n = int(max(iw.max(), ib.max(initial=0))) + 1
     a = np.zeros(n)
     np.add.at(a, iw, w)
+    line = None
     if t_base.size:
         Xb, Xw = _line_design(t_base, t_w)
         np.add.at(a, ib, -Xb @ np.linalg.solve(Xb.T @ Xb, Xw.T @ w))
+        line = Xw @ np.linalg.solve(Xb.T @ Xb, Xb.T)
     C = toeplitz(np.concatenate([acov, np.zeros(max(n - acov.size, 0))])[:n])
+    return a, C, iw, ib, line
+
+
+def detrended_noise_variance(w: np.ndarray, t_w: np.ndarray, t_base: np.ndarray,
+                             acov: np.ndarray, dt: float) -> float:
+    """m^2 x w's units^2: Var<w, e> for a run's noise e of autocovariance ``acov`` (lags
+    0.. in samples of ``dt``) after step 0 (the straight line fitted to the baseline samples
+    at ``t_base`` subtracted), w weights at the sample times ``t_w`` (one axis, s).
+
+    <w, e - line> = a^T e over the baseline and window samples (:func:`_detrended_weights`),
+    so Var = a^T C a. With acov = (sd^2, 0, 0, ...) this is sd^2 times
+    :func:`detrended_noise_factor`."""
+    a, C, *_ = _detrended_weights(w, t_w, t_base, acov, dt)
     return float(a @ C @ a)
 
 
@@ -244,27 +256,9 @@ def detrended_noise_cross(w: np.ndarray, t_w: np.ndarray, t_base: np.ndarray,
     ``t_base`` subtracted), of autocovariance ``acov`` (lags 0.. in samples of ``dt``); the
     vector whose inner product with w is :func:`detrended_noise_variance` (and with another
     weight vector v, the covariance of <v, e'> and <w, e'>)."""
-    w = np.asarray(w, float)
-    t_w = np.asarray(t_w, float)
-    t_base = np.asarray(t_base, float) if np.size(t_base) >= 2 else np.empty(0)
-    acov = np.asarray(acov, float)
-    t0 = float(np.concatenate([t_w, t_base]).min())
-    iw = np.rint((t_w - t0) / dt).astype(int)
-    ib = np.rint((t_base - t0) / dt).astype(int)
-    n = int(max(iw.max(), ib.max(initial=0))) + 1
-    a = np.zeros(n)
-    np.add.at(a, iw, w)
-    proj = None
-    if t_base.size:
-        Xb, Xw = _line_design(t_base, t_w)
-        proj = Xw @ np.linalg.solve(Xb.T @ Xb, Xb.T)             # (n_w, n_b): the line
-        np.add.at(a, ib, -proj.T @ w)
-    C = toeplitz(np.concatenate([acov, np.zeros(max(n - acov.size, 0))])[:n])
+    a, C, iw, ib, line = _detrended_weights(w, t_w, t_base, acov, dt)
     Ca = C @ a
-    out = Ca[iw]
-    if proj is not None:
-        out = out - proj @ Ca[ib]
-    return out
+    return Ca[iw] if line is None else Ca[iw] - line @ Ca[ib]
 
 
 def sync_timing_sd(splines, shifts: np.ndarray, win: np.ndarray, noise_sd: float,
